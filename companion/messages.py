@@ -1,0 +1,76 @@
+"""Typed messages that flow through the pipeline: link -> bearing -> estimator ->
+guidance -> attitude/thrust -> vehicle.
+
+All positions and velocities are in the local NED frame, SI units.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class PursuerState:
+    """Own-vehicle state as the autopilot reports it.
+
+    time: s. position: m, shape (3,). velocity: m/s, shape (3,).
+    """
+
+    time: float
+    position: np.ndarray
+    velocity: np.ndarray
+
+
+@dataclass(frozen=True)
+class BearingMeasurement:
+    """A measured line-of-sight to the target, eq. (4).
+
+    time: s, when the bearing was taken. direction: shape (3,), NED; the noisy
+    bearing lambda~ = lambda + nu is not exactly unit and is used as given.
+    pursuer_position: m, shape (3,), own position when the bearing was taken
+    (the projection centre of the measurement).
+    """
+
+    time: float
+    direction: np.ndarray
+    pursuer_position: np.ndarray
+
+
+@dataclass(frozen=True)
+class TargetEstimate:
+    """Estimated target state.
+
+    time: s. position: m, shape (3,). velocity: m/s, shape (3,).
+    covariance: of [position, velocity], shape (6, 6).
+    """
+
+    time: float
+    position: np.ndarray
+    velocity: np.ndarray
+    covariance: np.ndarray
+
+    def extrapolated(self, time: float) -> "TargetEstimate":
+        """Constant-velocity extrapolation of the mean to `time` (covariance unchanged)."""
+        return TargetEstimate(time, self.position + self.velocity * (time - self.time), self.velocity, self.covariance)
+
+
+@dataclass(frozen=True)
+class AttitudeSetpoint:
+    """What the companion sends the autopilot (maps to MAVLink SET_ATTITUDE_TARGET).
+
+    quaternion: [w, x, y, z], rotation body FRD -> NED, shape (4,).
+    thrust_normalized: collective thrust in [0, 1], 1 = all rotors at maximum.
+    rotation: the same attitude as a matrix R_d, shape (3, 3).
+    thrust: the same thrust in newtons (needs the vehicle mass; informative).
+    acceleration: the acceleration command a_d it realises, m/s^2, shape (3,),
+    after the vehicle's limits were applied.
+    """
+
+    time: float
+    quaternion: np.ndarray
+    thrust_normalized: float
+    rotation: np.ndarray
+    thrust: float
+    acceleration: np.ndarray
