@@ -12,9 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
-from companion.geometry import E_Z, unit
+from companion.geometry import E_Z, cross, unit
 from companion.messages import AttitudeSetpoint
 
 
@@ -81,14 +80,14 @@ def desired_rotation(acceleration: np.ndarray, los: np.ndarray, gravity: float, 
     acceleration: a_d, m/s^2 (3,). los: lambda (3,). Returns shape (3, 3), body FRD -> NED.
     """
     thrust_axis = unit(gravity * E_Z - np.asarray(acceleration, dtype=float))
-    right = np.cross(thrust_axis, los)
+    right = cross(thrust_axis, los)
     if np.linalg.norm(right) < 1e-6 * max(float(np.linalg.norm(los)), 1e-12):
         forward_hint = np.array([1.0, 0.0, 0.0]) if heading_fallback is None else np.asarray(heading_fallback, float)
-        right = np.cross(thrust_axis, forward_hint)
+        right = cross(thrust_axis, forward_hint)
         if np.linalg.norm(right) < 1e-9:
-            right = np.cross(thrust_axis, np.array([1.0, 0.0, 0.0]))
+            right = cross(thrust_axis, np.array([1.0, 0.0, 0.0]))
     right = unit(right)
-    forward = np.cross(right, thrust_axis)
+    forward = cross(right, thrust_axis)
     return np.column_stack([forward, right, thrust_axis])
 
 
@@ -114,7 +113,4 @@ def attitude_setpoint(
     thrust = collective_thrust(flown, rotation, limits.mass, limits.gravity)
     specific_force = thrust / limits.mass
     thrust_normalized = float(np.clip(specific_force / limits.gravity * limits.hover_thrust_normalized, 0.0, 1.0))
-    quaternion = Rotation.from_matrix(rotation).as_quat(scalar_first=True)
-    if quaternion[0] < 0.0:
-        quaternion = -quaternion  # one canonical sign; both describe the same attitude
-    return AttitudeSetpoint(time, quaternion, thrust_normalized, rotation, thrust, flown)
+    return AttitudeSetpoint(time, rotation, thrust_normalized, thrust, flown)

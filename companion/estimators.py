@@ -160,6 +160,7 @@ class UPLKF:
         self._start_time = 0.0
         self._ticks = 0
         self._initial_guess: InitialGuess | None = None
+        self._snapshot: TargetEstimate | None = None
 
     @property
     def initialized(self) -> bool:
@@ -172,13 +173,17 @@ class UPLKF:
 
     @property
     def estimate(self) -> TargetEstimate:
-        state, covariance = self._require_state()
-        return TargetEstimate(self.time, state[:3].copy(), state[3:].copy(), covariance.copy())
+        """The current estimate (a snapshot: later updates do not change it)."""
+        if self._snapshot is None:
+            state, covariance = self._require_state()
+            self._snapshot = TargetEstimate(self.time, state[:3].copy(), state[3:].copy(), covariance.copy())
+        return self._snapshot
 
     def initialize(self, time: float, position: np.ndarray, velocity: np.ndarray, covariance: np.ndarray) -> None:
         """Start from an explicit target estimate; covariance of [p_T, v_T], shape (6, 6)."""
         self._start_time = float(time)
         self._ticks = 0
+        self._snapshot = None
         self._state = np.concatenate([np.asarray(position, float), np.asarray(velocity, float)])
         self._covariance = np.array(covariance, dtype=float).reshape(6, 6)
 
@@ -206,6 +211,7 @@ class UPLKF:
     def predict(self) -> None:
         """Time update over one period, section IV-C: x^- = A x, P^- = A P A^T + B Q B^T."""
         state, covariance = self._require_state()
+        self._snapshot = None
         self._state = self._a @ state
         self._covariance = self._a @ covariance @ self._a.T + self._q_discrete
         self._ticks += 1
@@ -236,6 +242,7 @@ class UPLKF:
         innovation_covariance = h_gain @ p_prior @ h_gain.T + measurement_covariance
         gain = p_prior @ h_gain.T @ np.linalg.pinv(innovation_covariance, hermitian=True)
         # x_k = x^-_k - K_k H_k x^-_k, with H_k x^-_k = P_lambda~ (p^-_T - p)
+        self._snapshot = None
         self._state = state - gain @ (measured_projection @ relative)
         covariance = (np.eye(6) - gain @ h_gain) @ p_prior
         self._covariance = 0.5 * (covariance + covariance.T)

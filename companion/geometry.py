@@ -5,8 +5,9 @@ All vectors are numpy arrays of shape (3,) in the local NED frame unless stated.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 E_X = np.array([1.0, 0.0, 0.0])
 E_Y = np.array([0.0, 1.0, 0.0])
@@ -15,8 +16,8 @@ E_Z = np.array([0.0, 0.0, 1.0])
 
 def unit(vector: np.ndarray) -> np.ndarray:
     """Return vector / |vector|; raises ValueError on a zero or non-finite vector."""
-    norm = float(np.linalg.norm(vector))
-    if not np.isfinite(norm) or norm == 0.0:
+    norm = math.sqrt(float(vector @ vector))
+    if not math.isfinite(norm) or norm == 0.0:
         raise ValueError(f"cannot normalise vector {vector!r}")
     return vector / norm
 
@@ -37,32 +38,43 @@ def skew(vector: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a x b for two 3-vectors (np.cross costs ~20x more on shape (3,) inputs)."""
+    a0, a1, a2 = a
+    b0, b1, b2 = b
+    return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
+
+
+def rodrigues(axis: np.ndarray, angle: float) -> np.ndarray:
+    """R = I + sin(theta) [eta]_x + (1 - cos(theta)) [eta]_x^2 (section VI-A), for a unit axis eta; (3, 3)."""
+    k = skew(axis)
+    return np.eye(3) + math.sin(angle) * k + (1.0 - math.cos(angle)) * (k @ k)
+
+
 def rotation_from_x_axis_to(direction: np.ndarray) -> np.ndarray:
     """R_eta(theta_eta) of section VI-A: the rotation that maps e_X onto `direction`.
 
-    eta = e_X x lambda and theta_eta = acos(lambda^T e_X); the Rodrigues formula of
-    the paper needs the *unit* axis eta/|eta| (|e_X x lambda| = sin(theta_eta)),
-    which scipy's rotation-vector form takes care of. For lambda = -e_X the axis is
-    undefined; any half turn about an axis perpendicular to e_X is valid and e_Z is
-    used. direction: shape (3,), need not be unit. Returns shape (3, 3).
+    eta = e_X x lambda and theta_eta = acos(lambda^T e_X). The paper's Rodrigues
+    formula needs the *unit* axis eta/|eta| (|e_X x lambda| = sin(theta_eta)). For
+    lambda = -e_X the axis is undefined; any half turn about an axis perpendicular to
+    e_X is valid and e_Z is used. direction: shape (3,), need not be unit. Returns (3, 3).
     """
     lam = unit(np.asarray(direction, dtype=float))
-    axis = np.cross(E_X, lam)
-    sin_theta = float(np.linalg.norm(axis))
-    cos_theta = float(np.clip(lam @ E_X, -1.0, 1.0))
-    theta = float(np.arctan2(sin_theta, cos_theta))
+    axis = cross(E_X, lam)
+    sin_theta = float(math.sqrt(axis @ axis))
+    cos_theta = float(min(1.0, max(-1.0, lam[0])))
     if sin_theta < 1e-12:
-        if cos_theta > 0.0:
-            return np.eye(3)
-        return Rotation.from_rotvec(np.pi * E_Z).as_matrix()
-    return Rotation.from_rotvec(axis / sin_theta * theta).as_matrix()
+        return np.eye(3) if cos_theta > 0.0 else rodrigues(E_Z, math.pi)
+    return rodrigues(axis / sin_theta, math.atan2(sin_theta, cos_theta))
 
 
 def rotation_about_z(angle: float) -> np.ndarray:
     """R_Z(alpha): rotation by `angle` rad about the z axis, shape (3, 3)."""
-    return Rotation.from_rotvec(angle * E_Z).as_matrix()
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def rotation_about_y(angle: float) -> np.ndarray:
     """R_Y(alpha): rotation by `angle` rad about the y axis, shape (3, 3)."""
-    return Rotation.from_rotvec(angle * E_Y).as_matrix()
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])

@@ -11,7 +11,7 @@ from typing import Protocol
 
 import numpy as np
 
-from companion.geometry import E_X, rotation_about_y, rotation_about_z, rotation_from_x_axis_to, unit
+from companion.geometry import E_X, cross, rotation_about_y, rotation_about_z, rotation_from_x_axis_to, unit
 
 
 class LateralGuidance(Protocol):
@@ -31,7 +31,7 @@ class PurePursuitGuidance:
 
     def acceleration(self, engaged_time: float, velocity: np.ndarray, los: np.ndarray, range_estimate: float) -> np.ndarray:
         """velocity: m/s, shape (3,); los: unit line of sight, shape (3,). Returns m/s^2, shape (3,)."""
-        return self.navigation_gain * np.cross(np.cross(velocity, los), los)
+        return self.navigation_gain * cross(cross(velocity, los), los)
 
 
 @dataclass(frozen=True)
@@ -69,7 +69,7 @@ class HelicalNavigationGuidance:
         """Lateral command a_HN, eq. (14). velocity m/s (3,), los unit (3,), range m. Returns m/s^2 (3,)."""
         los = unit(los)
         virtual = self.virtual_los(engaged_time, los, range_estimate)
-        return self.navigation_gain * np.cross(np.cross(velocity, virtual), los)
+        return self.navigation_gain * cross(cross(velocity, virtual), los)
 
 
 def saturation(x: float, limit: float = 3.0) -> float:

@@ -7,8 +7,10 @@ All positions and velocities are in the local NED frame, SI units.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 
 @dataclass(frozen=True)
@@ -60,17 +62,21 @@ class TargetEstimate:
 class AttitudeSetpoint:
     """What the companion sends the autopilot (maps to MAVLink SET_ATTITUDE_TARGET).
 
-    quaternion: [w, x, y, z], rotation body FRD -> NED, shape (4,).
+    rotation: desired attitude R_d, body FRD -> NED, shape (3, 3).
     thrust_normalized: collective thrust in [0, 1], 1 = all rotors at maximum.
-    rotation: the same attitude as a matrix R_d, shape (3, 3).
     thrust: the same thrust in newtons (needs the vehicle mass; informative).
     acceleration: the acceleration command a_d it realises, m/s^2, shape (3,),
     after the vehicle's limits were applied.
     """
 
     time: float
-    quaternion: np.ndarray
-    thrust_normalized: float
     rotation: np.ndarray
+    thrust_normalized: float
     thrust: float
     acceleration: np.ndarray
+
+    @cached_property
+    def quaternion(self) -> np.ndarray:
+        """R_d as a unit quaternion [w, x, y, z] with w >= 0 (MAVLink's order), shape (4,)."""
+        quaternion = Rotation.from_matrix(self.rotation).as_quat(scalar_first=True)
+        return -quaternion if quaternion[0] < 0.0 else quaternion

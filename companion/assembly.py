@@ -1,0 +1,66 @@
+"""Build the pipeline a scenario describes (used by both harnesses)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from companion.attitude import VehicleLimits
+from companion.config import Scenario, VehicleConfig
+from companion.estimators import GainProjection, InitialGuess, UPLKF
+from companion.guidance import HelicalNavigationGuidance, LateralGuidance, PurePursuitGuidance, RangeController
+from companion.pipeline import FollowingPipeline
+
+
+def build_estimator(scenario: Scenario) -> UPLKF:
+    """The u-PLKF of the scenario's [estimator] section."""
+    settings = scenario.estimator
+    return UPLKF(
+        period=1.0 / settings.rate_hz,
+        process_noise=settings.process_noise * np.eye(3),
+        measurement_noise=settings.measurement_noise * np.eye(3),
+        gain_projection=GainProjection(settings.gain_projection),
+        pursuer_position_std=settings.pursuer_position_std,
+        restart_when_behind=settings.restart_when_behind,
+    )
+
+
+def build_lateral_guidance(scenario: Scenario) -> LateralGuidance:
+    """HNG (eq. 14) or PPG (section VIII-C) from the [guidance] section."""
+    settings = scenario.guidance
+    if settings.law == "ppg":
+        return PurePursuitGuidance(settings.navigation_gain)
+    return HelicalNavigationGuidance(settings.navigation_gain, settings.c_z, settings.c_y, settings.weave_frequency, settings.scale_with_range)
+
+
+def initial_guess(scenario: Scenario) -> InitialGuess:
+    """Range guess along the first bearing: initial_range, else |initial_position - pursuer start|."""
+    settings = scenario.estimator
+    if settings.initial_range is not None:
+        guess_range = settings.initial_range
+    else:
+        assert settings.initial_position is not None
+        guess_range = float(np.linalg.norm(np.subtract(settings.initial_position, scenario.pursuer.initial_position)))
+    return InitialGuess(guess_range, settings.initial_range_std, np.array(settings.initial_velocity), settings.initial_velocity_std)
+
+
+def vehicle_limits(vehicle: VehicleConfig, hover_thrust_normalized: float) -> VehicleLimits:
+    """What the companion may ask of the airframe; hover thrust comes from the autopilot."""
+    return VehicleLimits(
+        hover_thrust_normalized=hover_thrust_normalized,
+        max_tilt=np.deg2rad(vehicle.max_tilt_deg),
+        gravity=vehicle.gravity,
+        mass=vehicle.mass,
+    )
+
+
+def build_pipeline(scenario: Scenario, vehicle: VehicleConfig, hover_thrust_normalized: float) -> FollowingPipeline:
+    """The one pipeline object both harnesses drive."""
+    return FollowingPipeline(
+        estimator=build_estimator(scenario),
+        lateral_guidance=build_lateral_guidance(scenario),
+        range_controller=RangeController(scenario.guidance.desired_range, scenario.guidance.range_gain),
+        limits=vehicle_limits(vehicle, hover_thrust_normalized),
+        initial_guess=initial_guess(scenario),
+        control_period=1.0 / scenario.guidance.rate_hz,
+        los_source=scenario.guidance.los_source,
+    )

@@ -1,0 +1,209 @@
+"""Scenario and vehicle files (TOML), validated strictly.
+
+A scenario names a vehicle file (path relative to the scenario file) and sets the
+pursuer, target, sensor, estimator, guidance and simulation. Unknown or mistyped
+keys, non-finite numbers and impossible values are rejected with a ConfigError that
+names the file and the key; nothing half-runs.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+
+class ConfigError(ValueError):
+    """A configuration file is missing, unreadable or invalid; the message names the key."""
+
+
+def _finite_vector(value: tuple[float, float, float]) -> tuple[float, float, float]:
+    if not all(math.isfinite(component) for component in value):
+        raise ValueError("all three components must be finite numbers")
+    return value
+
+
+Vector3 = Annotated[tuple[float, float, float], AfterValidator(_finite_vector)]
+Positive = Annotated[float, Field(gt=0.0)]
+NonNegative = Annotated[float, Field(ge=0.0)]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, strict=False)
+
+
+class VehicleConfig(_Strict):
+    """Airframe (paper Table I) and the autopilot-side limits; SI units."""
+
+    name: str = "quadrotor"
+    mass: Positive = 1.5
+    gravity: Positive = 9.81
+    inertia: Vector3 = (1.745e-2, 1.745e-2, 3.175e-2)
+    arm_length: Positive = 0.225
+    thrust_coefficient: Positive = 1.105e-5
+    moment_coefficient: Positive = 1.489e-7
+    motor_time_constant: Positive = 0.0136
+    drag_coefficient: NonNegative = 6.579e-2
+    max_thrust_to_weight: Annotated[float, Field(gt=1.0, le=5.0)] = 1.5
+    attitude_kp: Positive = 2.0
+    attitude_kd: Positive = 0.5
+    position_noise_std: NonNegative = 0.1
+    velocity_noise_std: NonNegative = 0.05
+    max_tilt_deg: Annotated[float, Field(gt=0.0, lt=80.0)] = 35.0
+
+    @model_validator(mode="after")
+    def _inertia_positive(self) -> "VehicleConfig":
+        if min(self.inertia) <= 0.0:
+            raise ValueError("inertia: all principal moments must be positive")
+        return self
+
+
+class PursuerConfig(_Strict):
+    initial_position: Vector3 = (0.0, 0.0, 0.0)
+    initial_velocity: Vector3 = (0.0, 0.0, 0.0)
+
+
+class ManeuverConfig(_Strict):
+    """A constant-speed horizontal turn: lateral acceleration (m/s^2, + = right turn in NED) from start to end (s)."""
+
+    start: NonNegative
+    end: NonNegative
+    lateral_acceleration: float
+
+    @model_validator(mode="after")
+    def _ordered(self) -> "ManeuverConfig":
+        if self.end <= self.start:
+            raise ValueError(f"end ({self.end}) must be after start ({self.start})")
+        return self
+
+
+class TargetConfig(_Strict):
+    initial_position: Vector3
+    initial_velocity: Vector3
+    maneuvers: tuple[ManeuverConfig, ...] = ()
+
+    @model_validator(mode="after")
+    def _no_overlap(self) -> "TargetConfig":
+        ordered = sorted(self.maneuvers, key=lambda m: m.start)
+        for earlier, later in zip(ordered, ordered[1:]):
+            if later.start < earlier.end:
+                raise ValueError(f"maneuvers overlap: [{earlier.start}, {earlier.end}] and [{later.start}, {later.end}]")
+        if self.maneuvers and math.hypot(*self.initial_velocity[:2]) < 1e-6:
+            raise ValueError("a turning target needs a nonzero horizontal initial_velocity")
+        return self
+
+
+class SensorConfig(_Strict):
+    """Bearing sensor: 'additive' is eq. (4) (nu ~ N(0, noise_std^2 I)); 'rotation' is eq. (25) (epsilon ~ N(0, noise_std^2))."""
+
+    model: Literal["additive", "rotation"] = "additive"
+    noise_std: NonNegative = 0.01
+    rate_hz: Positive = 5.0
+
+
+class EstimatorConfig(_Strict):
+    """u-PLKF settings. gain_projection 'measured' is the paper's exact form, 'predicted' the default (README)."""
+
+    gain_projection: Literal["predicted", "measured"] = "predicted"
+    rate_hz: Positive = 50.0
+    process_noise: Positive = 0.04
+    measurement_noise: Positive = 1e-4
+    pursuer_position_std: NonNegative = 0.1
+    restart_when_behind: bool = True
+    initial_position: Vector3 | None = None
+    initial_range: Positive | None = None
+    initial_range_std: Positive = 30.0
+    initial_velocity: Vector3 = (0.0, 0.0, 0.0)
+    initial_velocity_std: Positive = 5.0
+
+    @model_validator(mode="after")
+    def _has_range_guess(self) -> "EstimatorConfig":
+        if self.initial_position is None and self.initial_range is None:
+            raise ValueError("set initial_range or initial_position (the range guess along the first bearing)")
+        return self
+
+
+class GuidanceConfig(_Strict):
+    law: Literal["hng", "ppg"] = "hng"
+    navigation_gain: Positive = 3.0
+    c_z: NonNegative = 3.5
+    c_y: NonNegative = 3.5
+    weave_frequency: Positive = 1.0
+    scale_with_range: bool = True
+    desired_range: Positive = 8.0
+    range_gain: Positive = 3.0
+    rate_hz: Positive = 20.0
+    los_source: Literal["estimate", "measurement"] = "estimate"
+
+
+class SimulationConfig(_Strict):
+    duration: Positive = 60.0
+    seed: Annotated[int, Field(ge=0)] = 0
+    physics_rate_hz: Annotated[float, Field(ge=500.0)] = 500.0
+    summary_window: Positive = 20.0
+    converged_range_error: Positive = 1.0
+
+
+class Scenario(_Strict):
+    name: str
+    description: str = ""
+    vehicle: str = "../vehicles/paper_table1.toml"
+    pursuer: PursuerConfig = PursuerConfig()
+    target: TargetConfig
+    sensor: SensorConfig = SensorConfig()
+    estimator: EstimatorConfig
+    guidance: GuidanceConfig = GuidanceConfig()
+    simulation: SimulationConfig = SimulationConfig()
+
+    @model_validator(mode="after")
+    def _rates_fit_physics(self) -> "Scenario":
+        physics = self.simulation.physics_rate_hz
+        for key, rate in (("estimator.rate_hz", self.estimator.rate_hz), ("guidance.rate_hz", self.guidance.rate_hz), ("sensor.rate_hz", self.sensor.rate_hz)):
+            ratio = physics / rate
+            if rate > physics or abs(ratio - round(ratio)) > 1e-9:
+                raise ValueError(f"{key} = {rate} must divide simulation.physics_rate_hz = {physics} into whole steps")
+        if self.simulation.summary_window > self.simulation.duration:
+            raise ValueError("simulation.summary_window must not exceed simulation.duration")
+        return self
+
+
+def _read_toml(path: Path) -> dict:
+    try:
+        with path.open("rb") as handle:
+            return tomllib.load(handle)
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: file not found") from None
+    except tomllib.TOMLDecodeError as error:
+        raise ConfigError(f"{path}: not valid TOML: {error}") from None
+
+
+def _format(path: Path, error: ValidationError) -> str:
+    lines = [f"{path}: invalid configuration"]
+    for item in error.errors():
+        key = ".".join(str(part) for part in item["loc"]) or "(top level)"
+        message = "unknown key (check the spelling)" if item["type"] == "extra_forbidden" else item["msg"]
+        lines.append(f"  {key}: {message}")
+    return "\n".join(lines)
+
+
+def load_vehicle(path: str | Path) -> VehicleConfig:
+    """Read and validate a vehicle TOML file."""
+    path = Path(path)
+    try:
+        return VehicleConfig.model_validate(_read_toml(path))
+    except ValidationError as error:
+        raise ConfigError(_format(path, error)) from None
+
+
+def load_scenario(path: str | Path) -> tuple[Scenario, VehicleConfig]:
+    """Read and validate a scenario file and the vehicle file it names."""
+    path = Path(path)
+    try:
+        scenario = Scenario.model_validate(_read_toml(path))
+    except ValidationError as error:
+        raise ConfigError(_format(path, error)) from None
+    vehicle = load_vehicle((path.parent / scenario.vehicle).resolve())
+    return scenario, vehicle

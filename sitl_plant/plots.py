@@ -1,0 +1,70 @@
+"""Plots of one flight, in the style of the paper's Fig. 8: 3-D trajectories and error curves."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402  (backend must be chosen first)
+import numpy as np  # noqa: E402
+
+
+def _north_east_up(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    return positions[:, 0], positions[:, 1], -positions[:, 2]
+
+
+def plot_trajectories(series: dict[str, np.ndarray], path: Path, title: str) -> None:
+    """Fig. 8(a): target, estimated target and pursuer in 3-D (north, east, up), stars at the start."""
+    figure = plt.figure(figsize=(7.5, 6.0))
+    axes = figure.add_subplot(projection="3d")
+    for key, label, style in (
+        ("target_position", "target", "r-"),
+        ("estimate_position", "estimated target", "g--"),
+        ("pursuer_position", "pursuer", "b-"),
+    ):
+        north, east, up = _north_east_up(series[key])
+        finite = np.isfinite(north)
+        axes.plot(north[finite], east[finite], up[finite], style, label=label, linewidth=1.2)
+        if finite.any():
+            first = np.argmax(finite)
+            axes.scatter([north[first]], [east[first]], [up[first]], marker="*", s=80, color=style[0])
+    axes.set_xlabel("north [m]")
+    axes.set_ylabel("east [m]")
+    axes.set_zlabel("up [m]")
+    axes.set_title(title)
+    axes.legend(loc="upper left")
+    figure.tight_layout()
+    figure.savefig(path, dpi=120)
+    plt.close(figure)
+
+
+def plot_errors(series: dict[str, np.ndarray], desired_range: float, path: Path, title: str) -> None:
+    """Fig. 8(b): position, velocity and range estimation errors, and the range against r_d."""
+    time = series["time"]
+    position_error = np.linalg.norm(series["estimate_position"] - series["target_position"], axis=1)
+    velocity_error = np.linalg.norm(series["estimate_velocity"] - series["target_velocity"], axis=1)
+    range_estimation_error = series["range_estimate"] - series["range"]
+    figure, axes = plt.subplots(4, 1, figsize=(8.0, 9.0), sharex=True)
+    axes[0].plot(time, position_error, "k-", linewidth=1.0)
+    axes[0].set_ylabel("|p^_T - p_T| [m]")
+    axes[1].plot(time, velocity_error, "k-", linewidth=1.0)
+    axes[1].set_ylabel("|v^_T - v_T| [m/s]")
+    axes[2].plot(time, range_estimation_error, "k-", linewidth=1.0)
+    axes[2].axhline(0.0, color="grey", linewidth=0.6)
+    axes[2].set_ylabel("r^ - r [m]")
+    axes[3].plot(time, series["range"], "b-", linewidth=1.0, label="range r")
+    axes[3].plot(time, series["range_estimate"], "g--", linewidth=1.0, label="estimated range")
+    axes[3].axhline(desired_range, color="r", linestyle=":", label="desired r_d")
+    axes[3].set_ylabel("range [m]")
+    axes[3].set_xlabel("time [s]")
+    axes[3].legend(loc="upper right")
+    for ax in axes[:3]:
+        ax.set_yscale("symlog", linthresh=1.0)
+        ax.grid(True, alpha=0.3)
+    axes[3].grid(True, alpha=0.3)
+    axes[0].set_title(title)
+    figure.tight_layout()
+    figure.savefig(path, dpi=120)
+    plt.close(figure)
