@@ -95,6 +95,17 @@ def transition_matrices(period: float) -> tuple[np.ndarray, np.ndarray]:
     return a, b
 
 
+def _projector_pseudo_inverse(matrix: np.ndarray, null_direction: np.ndarray) -> np.ndarray:
+    """Moore-Penrose pseudo-inverse of a symmetric PSD 3x3 `matrix` whose kernel is span(g).
+
+    The innovation covariance of section IV-C is rank 2 with kernel span(g), g the unit
+    vector of its projector; for such a matrix S^+ = (S + g g^T)^-1 - g g^T exactly,
+    which costs one 3x3 inverse instead of an eigendecomposition. Shape (3, 3).
+    """
+    outer = np.outer(null_direction, null_direction)
+    return np.linalg.inv(matrix + outer) - outer
+
+
 def pseudo_linear_measurement_matrix(bearing: np.ndarray) -> np.ndarray:
     """H = [P_lambda, 0_3x3] of the pseudo-linear measurement, eq. (6); shape (3, 6)."""
     return np.hstack([orthogonal_projection(bearing), np.zeros((3, 3))])
@@ -233,18 +244,20 @@ class UPLKF:
 
         use_predicted = self.gain_projection is GainProjection.PREDICTED
         measured_projection = orthogonal_projection(direction)
-        gain_projection = orthogonal_projection(relative) if use_predicted else measured_projection
-        h_gain = np.hstack([gain_projection, np.zeros((3, 3))])
+        gain_direction = relative / predicted_range if use_predicted else direction
+        gain_projection = np.eye(3) - np.outer(gain_direction, gain_direction)
+        # H = [P, 0], so H P^- H^T = P P^-_pp P and P^- H^T = P^-[:, :3] P.
+        cross_covariance = p_prior[:, :3] @ gain_projection
         noise_transition = predicted_range * gain_projection  # V_k = r^- P_lambda
         measurement_covariance = noise_transition @ self.measurement_noise @ noise_transition.T
         if self.pursuer_position_std > 0.0:
             measurement_covariance = measurement_covariance + self.pursuer_position_std**2 * gain_projection
-        innovation_covariance = h_gain @ p_prior @ h_gain.T + measurement_covariance
-        gain = p_prior @ h_gain.T @ np.linalg.pinv(innovation_covariance, hermitian=True)
+        innovation_covariance = gain_projection @ cross_covariance[:3] + measurement_covariance
+        gain = cross_covariance @ _projector_pseudo_inverse(innovation_covariance, gain_direction)
         # x_k = x^-_k - K_k H_k x^-_k, with H_k x^-_k = P_lambda~ (p^-_T - p)
         self._snapshot = None
         self._state = state - gain @ (measured_projection @ relative)
-        covariance = (np.eye(6) - gain @ h_gain) @ p_prior
+        covariance = p_prior - gain @ (gain_projection @ p_prior[:3])  # (I - K H) P^-
         self._covariance = 0.5 * (covariance + covariance.T)
         return CorrectionReport(innovation_angle, use_predicted)
 
@@ -257,3 +270,20 @@ class UPLKF:
         if self._state is None or self._covariance is None:
             raise RuntimeError("estimator not initialised: it needs a first bearing")
         return self._state, self._covariance
+
+
+def _pseudo_inverse_with_kernel(matrix: np.ndarray, null_direction: np.ndarray) -> np.ndarray:
+    """Moore-Penrose inverse of a symmetric PSD 3x3 `matrix` whose kernel is span(null_direction).
+
+    The innovation covariance H P H^T + V Sigma V^T of section IV-C is P_g (.) P_g for the
+    unit g of the gain's projection: rank 2 with a known kernel. np.linalg.pinv picks the
+    rank from a relative cutoff (1e-15), and the rounding residue along g (eps times the
+    long along-bearing variance) exceeds it whenever the prior range is uncertain: it was
+    inverted into a ~1e15 gain component that made P+ larger than P- and could throw the
+    estimate far off the bearing. Filling the known kernel with a well-scaled term and
+    projecting it out again gives the exact rank-2 pseudo-inverse.
+    """
+    projector = orthogonal_projection(null_direction)
+    scale = float(np.trace(matrix)) or 1.0
+    completed = projector @ matrix @ projector + scale * np.outer(null_direction, null_direction)
+    return projector @ np.linalg.pinv(completed, hermitian=True) @ projector
