@@ -270,20 +270,3 @@ class UPLKF:
         if self._state is None or self._covariance is None:
             raise RuntimeError("estimator not initialised: it needs a first bearing")
         return self._state, self._covariance
-
-
-def _pseudo_inverse_with_kernel(matrix: np.ndarray, null_direction: np.ndarray) -> np.ndarray:
-    """Moore-Penrose inverse of a symmetric PSD 3x3 `matrix` whose kernel is span(null_direction).
-
-    The innovation covariance H P H^T + V Sigma V^T of section IV-C is P_g (.) P_g for the
-    unit g of the gain's projection: rank 2 with a known kernel. np.linalg.pinv picks the
-    rank from a relative cutoff (1e-15), and the rounding residue along g (eps times the
-    long along-bearing variance) exceeds it whenever the prior range is uncertain: it was
-    inverted into a ~1e15 gain component that made P+ larger than P- and could throw the
-    estimate far off the bearing. Filling the known kernel with a well-scaled term and
-    projecting it out again gives the exact rank-2 pseudo-inverse.
-    """
-    projector = orthogonal_projection(null_direction)
-    scale = float(np.trace(matrix)) or 1.0
-    completed = projector @ matrix @ projector + scale * np.outer(null_direction, null_direction)
-    return projector @ np.linalg.pinv(completed, hermitian=True) @ projector

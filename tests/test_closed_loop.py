@@ -76,19 +76,22 @@ def test_s_maneuver_keeps_following(scenario_path):
     assert summary["min_range"] > scenario.guidance.desired_range / 2
 
 
-def test_paper_filter_diverges_at_50hz_where_default_does_not(constant_velocity):
-    """The known weakness (issue #2): noisy bearing inside H biases the paper's u-PLKF.
+def test_paper_filter_fails_at_50hz_where_default_does_not(constant_velocity):
+    """The known weakness (issue #2): the noisy bearing inside H biases the paper's u-PLKF.
 
-    At 50 Hz bearings the paper's form runs away in closed loop; the default
-    (instrumental-gain) form stays converged. Same seed, same flight otherwise.
+    At 50 Hz bearings the paper's exact form loses the range in closed loop on some
+    seeds (which ones depends on the noise draw); the default instrumental-gain form
+    stays converged on every one. Same seeds, same flights otherwise.
     """
     scenario, vehicle = constant_velocity
     fast = _with(_with(scenario, "sensor", rate_hz=50.0), "simulation", duration=40.0)
-    paper = simulate(_with(fast, "estimator", gain_projection="measured", restart_when_behind=False), vehicle)
-    default = simulate(fast, vehicle)
-    assert default.summary["range_estimation_error_rms"] < 0.5
-    assert default.summary["range_error_rms"] < 0.5
-    assert paper.summary["range_estimation_error_rms"] > 10.0 * default.summary["range_estimation_error_rms"]
+    paper_form = _with(fast, "estimator", gain_projection="measured", restart_when_behind=False, pursuer_position_std=0.0)
+    seeds = (1, 2, 3, 4)
+    default = [simulate(fast, vehicle, seed=seed).summary for seed in seeds]
+    paper = [simulate(paper_form, vehicle, seed=seed).summary for seed in seeds]
+    assert max(s["range_estimation_error_rms"] for s in default) < 0.5
+    assert max(s["range_error_rms"] for s in default) < 0.5
+    assert max(s["range_estimation_error_rms"] for s in paper) > 2.0
 
 
 def test_ppg_is_hng_with_zero_weave(constant_velocity):
