@@ -147,6 +147,37 @@ class SimulationConfig(_Strict):
     converged_range_error: Positive = 1.0
 
 
+Port = Annotated[int, Field(ge=1, le=65535)]
+
+
+class SitlConfig(_Strict):
+    """The bundled SITL plant as a MAVLink vehicle (sitl-plant); PX4 SITL's ports and home by default.
+
+    The vehicle starts at rest on the ground below pursuer.initial_position (local NED
+    z = 0 is the ground at home), heading start_yaw_deg. parameters overrides PX4-style
+    parameters of the plant (e.g. COM_OF_LOSS_T = 0.5); names and ranges are checked
+    when the plant starts.
+    """
+
+    home: Vector3 = (47.397742, 8.545594, 488.0)
+    speed_factor: Annotated[float, Field(gt=0.0, le=100.0)] = 1.0
+    companion_host: str = "127.0.0.1"
+    companion_port: Port = 14540
+    gcs_host: str = "127.0.0.1"
+    gcs_port: Port = 14550
+    bind_host: str = "127.0.0.1"
+    tick_rate_hz: Positive = 250.0
+    start_yaw_deg: Annotated[float, Field(ge=-180.0, le=360.0)] = 0.0
+    parameters: dict[str, float] = {}
+
+    @model_validator(mode="after")
+    def _home_on_earth(self) -> "SitlConfig":
+        latitude, longitude, _ = self.home
+        if not (-90.0 <= latitude <= 90.0 and -180.0 <= longitude <= 180.0):
+            raise ValueError(f"home: latitude/longitude ({latitude}, {longitude}) outside [-90, 90] x [-180, 180]")
+        return self
+
+
 class Scenario(_Strict):
     name: str
     description: str = ""
@@ -157,11 +188,12 @@ class Scenario(_Strict):
     estimator: EstimatorConfig
     guidance: GuidanceConfig = GuidanceConfig()
     simulation: SimulationConfig = SimulationConfig()
+    sitl: SitlConfig = SitlConfig()
 
     @model_validator(mode="after")
     def _rates_fit_physics(self) -> "Scenario":
         physics = self.simulation.physics_rate_hz
-        for key, rate in (("estimator.rate_hz", self.estimator.rate_hz), ("guidance.rate_hz", self.guidance.rate_hz), ("sensor.rate_hz", self.sensor.rate_hz)):
+        for key, rate in (("estimator.rate_hz", self.estimator.rate_hz), ("guidance.rate_hz", self.guidance.rate_hz), ("sensor.rate_hz", self.sensor.rate_hz), ("sitl.tick_rate_hz", self.sitl.tick_rate_hz)):
             ratio = physics / rate
             if rate > physics or abs(ratio - round(ratio)) > 1e-9:
                 raise ValueError(f"{key} = {rate} must divide simulation.physics_rate_hz = {physics} into whole steps")

@@ -310,6 +310,19 @@ class AttitudeThrustVehicle:
         self._qd = rotation_to_quaternion(rd)
         self._thrust = thrust
 
+    def set_attitude_target_quaternion(self, quaternion: tuple[float, float, float, float], thrust_newton: float) -> None:
+        """As set_attitude_target, with R_d given as a quaternion (w, x, y, z), body FRD -> NED.
+
+        The quaternion must be finite with norm within 1e-3 of one; it is renormalised.
+        """
+        w, x, y, z = (float(c) for c in quaternion)
+        norm = math.sqrt(w * w + x * x + y * y + z * z)
+        thrust = float(thrust_newton)
+        if not (math.isfinite(norm) and abs(norm - 1.0) < 1e-3 and math.isfinite(thrust)):
+            raise ValueError(f"need a unit quaternion and finite thrust, got {quaternion!r}, {thrust_newton!r}")
+        self._qd = (w / norm, x / norm, y / norm, z / norm)
+        self._thrust = thrust
+
     def advance(self, duration: float) -> None:
         """Run controller + mixer + plant for `duration` seconds.
 
