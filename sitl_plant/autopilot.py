@@ -294,7 +294,16 @@ class Autopilot:
 
     def offboard_setpoint(self, setpoint: OffboardAttitude) -> None:
         """Store an already validated attitude/thrust setpoint; it refreshes the offboard signal
-        even outside offboard mode (PX4 needs the stream before it allows the switch)."""
+        even outside offboard mode (PX4 needs the stream before it allows the switch).
+
+        ValueError for a thrust outside [0, 1] or a quaternion that is not unit to 1e-3.
+        """
+        if setpoint.thrust is not None and not 0.0 <= setpoint.thrust <= 1.0:
+            raise ValueError(f"normalised thrust {setpoint.thrust!r} outside [0, 1]")
+        if setpoint.quaternion is not None:
+            norm = math.sqrt(sum(c * c for c in setpoint.quaternion))
+            if not abs(norm - 1.0) < 1e-3:
+                raise ValueError(f"setpoint quaternion {setpoint.quaternion!r} is not unit")
         if setpoint.quaternion is not None:
             self._offboard_quaternion = setpoint.quaternion
         if setpoint.thrust is not None:

@@ -572,7 +572,12 @@ class MavlinkVehicle:
                     continue
                 due = link.next_due[message_id]
                 if now + 1e-9 >= due:
-                    self._send(link, self._build(link, message_id))
+                    try:
+                        self._send(link, self._build(link, message_id))
+                    except (struct.error, ValueError, OverflowError) as error:
+                        # A value that does not fit its field must not stop the vehicle; count and go on.
+                        self.stats.ignored[f"encode_error:{message_id}"] += 1
+                        self._event("encode_error", f"{link.name}: message {message_id}: {error}")
                     # Keep the phase but never queue a burst after a pause.
                     link.next_due[message_id] = due + interval if due + interval > now else now + interval
 
@@ -705,7 +710,7 @@ class MavlinkVehicle:
         _, _, yaw = _euler(t.quaternion)
         speed = float(np.hypot(t.velocity[0], t.velocity[1]))
         _, _, alt = self.home.to_geodetic(*t.position)
-        return link.mav.vfr_hud_encode(speed, speed, int(math.degrees(yaw) % 360.0), int(self.autopilot.thrust_command * 100),
+        return link.mav.vfr_hud_encode(speed, speed, int(math.degrees(yaw) % 360.0), min(100, max(0, int(self.autopilot.thrust_command * 100))),
                                        alt, -t.velocity[2])
 
     def _autopilot_version(self, link: Link):

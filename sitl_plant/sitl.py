@@ -258,8 +258,7 @@ def main(argv: list[str] | None = None) -> int:
     def request_stop(signum, frame):  # noqa: ARG001
         runner.stop_requested = True
 
-    signal.signal(signal.SIGINT, request_stop)
-    signal.signal(signal.SIGTERM, request_stop)
+    previous = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
     links = ", ".join(f"{link.name} {link.address[0]}:{link.address[1]} -> {link.partner[0]}:{link.partner[1]}"
                       for link in vehicle.links)
     print(f"sitl-plant ready: {scenario.name}, speed x{speed:g}, links: {links}", flush=True)
@@ -270,6 +269,8 @@ def main(argv: list[str] | None = None) -> int:
         log.write_stats(stats)
         vehicle.close()
         log.close()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
     print(f"sitl-plant stopped at t={stats['sim_time']:.1f}s (x{stats['speed_factor_achieved']} achieved), "
           f"rejected: {stats['mavlink']['rejected'] or 'none'}", flush=True)
     return 0
