@@ -109,7 +109,7 @@ async def fly_companion(port: int, duration: float, speed: float) -> dict:
             # Deadline: the setpoint for this tick must be out before the next tick is due (vehicle time).
             elapsed_sim = (time.monotonic_ns() - received[-1][1]) * 1e-9 * speed
             lateness.append(elapsed_sim)
-            next_tick += CONTROL_PERIOD * math.floor((now - next_tick) / CONTROL_PERIOD + 1.0)
+            next_tick += CONTROL_PERIOD * max(1, math.floor((now - next_tick) / CONTROL_PERIOD + 1.0 + 1e-9))
         await vehicle.stop_offboard()
     return {"received": received, "lateness": lateness, "sent": sent}
 

@@ -44,12 +44,6 @@ from sitl_plant.px4_modes import (  # noqa: E402
 )
 from sitl_plant.quadrotor import quaternion_to_rotation  # noqa: E402
 
-#: Rotation-rate fields of SET_ATTITUDE_TARGET.type_mask.
-RATES_IGNORED = (
-    mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_ROLL_RATE_IGNORE
-    | mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_PITCH_RATE_IGNORE
-    | mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_YAW_RATE_IGNORE
-)
 THRUST_BODY_SET = 32  # ATTITUDE_TARGET_TYPEMASK_THRUST_BODY_SET (not in every pymavlink's enum)
 #: A setpoint quaternion whose norm is further than this from 1 is rejected, not renormalised.
 QUATERNION_NORM_TOLERANCE = 0.05
@@ -166,13 +160,20 @@ class Link:
         self.default_partner = (spec.partner_host, spec.partner_port)
         self.partner = self.default_partner
         self.partner_heard_wall = -math.inf
-        self.mav = mavlink.MAVLink(self, srcSystem=system_id, srcComponent=component_id)
-        self.mav.robust_parsing = True
+        self.mav = mavlink.MAVLink(self, srcSystem=system_id, srcComponent=component_id)  # encoder (own sequence)
+        self.parser = self.new_parser()
         self.intervals: dict[int, float] = {mid: (1.0 / hz if hz > 0 else 0.0) for mid, hz in spec.streams.items()}
         self.defaults = dict(self.intervals)
         self.next_due: dict[int, float] = {mid: 0.0 for mid in self.intervals}
         self.sent = 0
         self.send_errors = 0
+
+    @staticmethod
+    def new_parser() -> mavlink.MAVLink:
+        """A fresh receive-side parser; robust parsing turns bad frames into BAD_DATA messages."""
+        parser = mavlink.MAVLink(None)
+        parser.robust_parsing = True
+        return parser
 
     def write(self, data: bytes) -> None:
         """pymavlink's file interface: one packet per datagram to the partner."""
@@ -241,10 +242,10 @@ def validate_attitude_target(msg: mavlink.MAVLink_set_attitude_target_message) -
         values.extend(thrust_body)
     if not all(math.isfinite(v) for v in values):
         raise Rejected("setpoint_not_finite", f"NaN or inf in {values}")
-    if (mask & RATES_IGNORED) != RATES_IGNORED:
-        rates = (msg.body_roll_rate, msg.body_pitch_rate, msg.body_yaw_rate)
-        if any(r != 0.0 for r in rates):
-            raise Rejected("setpoint_rates_unsupported", f"type_mask {mask:#x} asks for body rates {rates}")
+    rates = (msg.body_roll_rate, msg.body_pitch_rate, msg.body_yaw_rate)
+    asked = [rate for bit, rate in zip((1, 2, 4), rates) if not mask & bit and rate != 0.0]
+    if asked:
+        raise Rejected("setpoint_rates_unsupported", f"type_mask {mask:#x} asks for body rates {rates}")
     if ignore_attitude and ignore_thrust:
         raise Rejected("setpoint_empty", f"type_mask {mask:#x} ignores both attitude and thrust")
     quaternion = None
@@ -360,12 +361,21 @@ class MavlinkVehicle:
         return handled
 
     def handle_datagram(self, link: Link, data: bytes, address: tuple[str, int] | None = None) -> None:
-        """Parse one datagram and act on every message in it; never raises for bad input."""
+        """Parse one datagram and act on every message in it; never raises for bad input.
+
+        On UDP a datagram carries whole frames. Bytes left over at its end (a cut-off
+        frame, or garbage with a start byte in it) are rejected as 'truncated_frame' and
+        dropped with the parser state, so they can never swallow the next datagram.
+        """
         try:
-            messages = link.mav.parse_buffer(data) or []
+            messages = link.parser.parse_buffer(data) or []
         except Exception as error:  # pymavlink raises for a few corrupt headers even when robust
             self._reject(link, "bad_data", f"parser error: {error}")
+            link.parser = link.new_parser()
             return
+        if link.parser.buf_len() > 0:
+            self._reject(link, "truncated_frame", f"{link.parser.buf_len()} bytes of an incomplete frame")
+            link.parser = link.new_parser()
         for msg in messages:
             try:
                 self.handle_message(link, msg, address)

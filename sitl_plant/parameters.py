@@ -93,6 +93,8 @@ class ParameterTable:
     def set(self, name: str, value: float) -> Parameter:
         """Validate and store; ParameterError (value unchanged) if refused."""
         parameter = self.get(name)
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ParameterError(f"{name}: value must be a number, got {value!r}")
         parameter.value = parameter.check(float(value))
         return parameter
 
