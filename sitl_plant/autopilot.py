@@ -77,6 +77,22 @@ class OffboardAttitude:
 
 
 @dataclass(frozen=True)
+class OffboardTrajectory:
+    """A validated offboard position/velocity setpoint (SET_POSITION_TARGET_LOCAL_NED), local NED.
+
+    position (m) and/or velocity (m/s), optional acceleration feed-forward (m/s^2) and yaw
+    (rad, from north towards east); None = not given. Flown by the position controller:
+    position -> P loop plus velocity feed-forward; velocity alone -> velocity loop;
+    acceleration alone -> open-loop acceleration.
+    """
+
+    position: tuple[float, float, float] | None = None
+    velocity: tuple[float, float, float] | None = None
+    acceleration: tuple[float, float, float] | None = None
+    yaw: float | None = None
+
+
+@dataclass(frozen=True)
 class Telemetry:
     """What the autopilot's estimator reports: position (m) and velocity (m/s) in local NED
     with the feedback noise of section VIII, true attitude quaternion (w, x, y, z) body FRD ->
@@ -145,6 +161,7 @@ class Autopilot:
         self._takeoff_start_z = 0.0
         self._offboard_quaternion: tuple[float, float, float, float] | None = None
         self._offboard_thrust: float | None = None
+        self._offboard_trajectory: OffboardTrajectory | None = None
         self._last_setpoint_time = -math.inf
         self.setpoints_received = 0
         self.failsafe_active = False
@@ -282,6 +299,7 @@ class Autopilot:
             if not self.offboard_signal_ok:
                 self._say(Severity.CRITICAL, "Switching to Offboard is currently not possible: no offboard signal")
                 return CommandResult.TEMPORARILY_REJECTED
+            self._capture_hold()  # heading kept by trajectory setpoints that give no yaw
             self._set_mode(OFFBOARD)
             return CommandResult.ACCEPTED
         if mode == TAKEOFF:
@@ -291,6 +309,20 @@ class Autopilot:
         self._capture_hold()
         self._set_mode(mode)
         return CommandResult.ACCEPTED
+
+    def offboard_trajectory(self, setpoint: OffboardTrajectory) -> None:
+        """Store an already validated position/velocity setpoint (refreshes the offboard signal).
+
+        ValueError when nothing is given or a value is not finite."""
+        parts = [setpoint.position, setpoint.velocity, setpoint.acceleration]
+        if all(part is None for part in parts):
+            raise ValueError("trajectory setpoint without position, velocity or acceleration")
+        values = [v for part in parts if part is not None for v in part] + ([setpoint.yaw] if setpoint.yaw is not None else [])
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError(f"non-finite trajectory setpoint {setpoint!r}")
+        self._offboard_trajectory = setpoint
+        self._last_setpoint_time = self.time
+        self.setpoints_received += 1
 
     def offboard_setpoint(self, setpoint: OffboardAttitude) -> None:
         """Store an already validated attitude/thrust setpoint; it refreshes the offboard signal
@@ -308,6 +340,7 @@ class Autopilot:
             self._offboard_quaternion = setpoint.quaternion
         if setpoint.thrust is not None:
             self._offboard_thrust = setpoint.thrust
+        self._offboard_trajectory = None  # the latest kind of setpoint is the one flown
         self._last_setpoint_time = self.time
         self.setpoints_received += 1
 
@@ -334,7 +367,8 @@ class Autopilot:
         """Advance one tick: mode logic, control output, physics, ground contact."""
         now = self.time
         self._mode_logic(now)
-        if self.mode == OFFBOARD or not self.armed or self._ticks % self._control_divider == 0:
+        attitude_offboard = self.mode == OFFBOARD and self._offboard_trajectory is None
+        if attitude_offboard or not self.armed or self._ticks % self._control_divider == 0:
             quaternion, thrust = self._control_output(now)
             self._thrust_command = thrust
             self.vehicle.set_attitude_target_quaternion(quaternion, thrust * self.params.max_total_thrust)
@@ -397,6 +431,8 @@ class Autopilot:
         level = _level_quaternion(self._yaw())
         if not self.armed:
             return level, 0.0
+        if self.mode == OFFBOARD and self._offboard_trajectory is not None:
+            return self._trajectory_output(now, self._offboard_trajectory)
         if self.mode == OFFBOARD:
             quaternion = self._offboard_quaternion if self._offboard_quaternion is not None else (s[6], s[7], s[8], s[9])
             thrust = self._offboard_thrust if self._offboard_thrust is not None else 0.0
@@ -420,6 +456,23 @@ class Autopilot:
         heading = np.array([math.cos(self._hold_yaw), math.sin(self._hold_yaw), 0.0])
         setpoint = attitude_setpoint(now, acceleration, heading, self._limits())
         return rotation_to_quaternion(setpoint.rotation), setpoint.thrust_normalized
+
+    def _trajectory_output(self, now: float, setpoint: OffboardTrajectory) -> tuple[tuple[float, float, float, float], float]:
+        s = self.vehicle.quadrotor._s
+        position = np.array(s[0:3])
+        velocity = np.array(s[3:6])
+        if setpoint.position is not None or setpoint.velocity is not None:
+            target = np.array(setpoint.position) if setpoint.position is not None else position
+            feedforward = np.array(setpoint.velocity) if setpoint.velocity is not None else np.zeros(3)
+            acceleration = self._position_control(position, velocity, target, feedforward, None)
+        else:
+            acceleration = np.zeros(3)
+        if setpoint.acceleration is not None:
+            acceleration = acceleration + np.array(setpoint.acceleration)
+        yaw = self._hold_yaw if setpoint.yaw is None else setpoint.yaw
+        heading = np.array([math.cos(yaw), math.sin(yaw), 0.0])
+        output = attitude_setpoint(now, acceleration, heading, self._limits())
+        return rotation_to_quaternion(output.rotation), output.thrust_normalized
 
     def _position_control(
         self,

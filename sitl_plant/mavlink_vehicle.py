@@ -29,7 +29,7 @@ from pymavlink.dialects.v20 import common as mavlink  # noqa: E402
 import numpy as np  # noqa: E402
 import pymap3d  # noqa: E402
 
-from sitl_plant.autopilot import Autopilot, OffboardAttitude  # noqa: E402
+from sitl_plant.autopilot import Autopilot, OffboardAttitude, OffboardTrajectory  # noqa: E402
 from sitl_plant.parameters import Parameter, ParameterError  # noqa: E402
 from sitl_plant.px4_modes import (  # noqa: E402
     HOLD,
@@ -72,6 +72,7 @@ CAPABILITIES = (
     | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
     | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
     | mavlink.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
+    | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
 )
 #: Reported as PX4 v1.14.0 (release), the version whose modes and parameters are modelled.
 FLIGHT_SW_VERSION = (1 << 24) | (14 << 16) | (0 << 8) | 255
@@ -272,6 +273,56 @@ def validate_attitude_target(msg: mavlink.MAVLink_set_attitude_target_message) -
     return OffboardAttitude(quaternion, thrust)
 
 
+# SET_POSITION_TARGET_LOCAL_NED.type_mask groups (POSITION_TARGET_TYPEMASK_*).
+_POSITION_BITS, _VELOCITY_BITS, _ACCELERATION_BITS = 0x7, 0x38, 0x1C0
+_FORCE_SET, _YAW_IGNORE, _YAW_RATE_IGNORE = 0x200, 0x400, 0x800
+
+
+def validate_position_target(msg, yaw_now: float) -> OffboardTrajectory:
+    """SET_POSITION_TARGET_LOCAL_NED -> OffboardTrajectory; Rejected if unusable.
+
+    Frames: LOCAL_NED, or BODY_NED for velocity/acceleration (rotated by the current yaw,
+    as MAVSDK's velocity_body uses it). Each of position, velocity and acceleration is
+    used all three axes or not at all; force setpoints and yaw rate are not supported.
+    """
+    mask = int(msg.type_mask)
+    groups = {}
+    for name, bits, values in (("position", _POSITION_BITS, (msg.x, msg.y, msg.z)),
+                               ("velocity", _VELOCITY_BITS, (msg.vx, msg.vy, msg.vz)),
+                               ("acceleration", _ACCELERATION_BITS, (msg.afx, msg.afy, msg.afz))):
+        ignored = mask & bits
+        if ignored not in (0, bits):
+            raise Rejected("setpoint_type_mask_unsupported", f"type_mask {mask:#x}: {name} given on some axes only")
+        if not ignored:
+            if not all(math.isfinite(v) for v in values):
+                raise Rejected("setpoint_not_finite", f"{name} {values}")
+            groups[name] = tuple(float(v) for v in values)
+    if mask & _FORCE_SET:
+        raise Rejected("setpoint_type_mask_unsupported", f"type_mask {mask:#x}: force setpoints")
+    if not mask & _YAW_RATE_IGNORE and msg.yaw_rate != 0.0:
+        raise Rejected("setpoint_type_mask_unsupported", f"type_mask {mask:#x}: yaw rate {msg.yaw_rate}")
+    yaw = None
+    if not mask & _YAW_IGNORE:
+        if not math.isfinite(msg.yaw):
+            raise Rejected("setpoint_not_finite", f"yaw {msg.yaw}")
+        yaw = float(msg.yaw)
+    if not groups:
+        raise Rejected("setpoint_empty", f"type_mask {mask:#x} ignores position, velocity and acceleration")
+    if msg.coordinate_frame == mavlink.MAV_FRAME_BODY_NED:
+        if "position" in groups:
+            raise Rejected("setpoint_frame_unsupported", "position in BODY_NED")
+        c, s = math.cos(yaw_now), math.sin(yaw_now)
+        for name in ("velocity", "acceleration"):
+            if name in groups:
+                x, y, z = groups[name]
+                groups[name] = (c * x - s * y, s * x + c * y, z)
+        if yaw is not None:
+            yaw += yaw_now
+    elif msg.coordinate_frame != mavlink.MAV_FRAME_LOCAL_NED:
+        raise Rejected("setpoint_frame_unsupported", f"coordinate frame {msg.coordinate_frame}")
+    return OffboardTrajectory(groups.get("position"), groups.get("velocity"), groups.get("acceleration"), yaw)
+
+
 def _param_wire_value(parameter: Parameter) -> tuple[float, int]:
     """PX4 encodes integer parameters bytewise: the int32's bytes inside the float field."""
     if parameter.kind == "int":
@@ -413,6 +464,10 @@ class MavlinkVehicle:
     # ------------------------------------------------------------- handlers
     def _on_set_attitude_target(self, link: Link, msg) -> None:
         self.autopilot.offboard_setpoint(validate_attitude_target(msg))
+
+    def _on_set_position_target_local_ned(self, link: Link, msg) -> None:
+        _, _, yaw = _euler(self.autopilot.telemetry().quaternion)
+        self.autopilot.offboard_trajectory(validate_position_target(msg, yaw))
 
     def _on_command_long(self, link: Link, msg) -> None:
         params = (msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7)

@@ -906,3 +906,60 @@ def test_an_ignored_body_rate_may_hold_any_value(harness) -> None:
     h.setpoint(LEVEL, 0.5, roll_rate_ignored, (0.7, 0.3, 0.0))  # pitch rate asked for and nonzero
     assert h.vehicle.stats.rejected["setpoint_rates_unsupported"] == 1
     assert h.autopilot.setpoints_received == 2
+
+
+# ---- SET_POSITION_TARGET_LOCAL_NED (MAVSDK's position/velocity offboard)
+IGNORE_VEL_ACC_YAWRATE = 0x38 | 0x1C0 | 0x800
+IGNORE_POS_ACC_YAWRATE = 0x7 | 0x1C0 | 0x800
+
+
+def _position_target(h: Harness, mask: int, pos=(0.0, 0.0, 0.0), vel=(0.0, 0.0, 0.0), acc=(0.0, 0.0, 0.0),
+                     yaw=0.0, yaw_rate=0.0, frame=mavlink.MAV_FRAME_LOCAL_NED) -> None:
+    h.send(h.mav.set_position_target_local_ned_encode(0, 1, 1, frame, mask, *pos, *vel, *acc, yaw, yaw_rate))
+
+
+def test_position_setpoint_in_offboard_flies_to_the_point_with_its_yaw(harness) -> None:
+    h = harness()
+    h.hover(3.0)
+    _position_target(h, IGNORE_VEL_ACC_YAWRATE, pos=(3.0, -2.0, -5.0), yaw=math.pi / 2)
+    assert h.autopilot.set_mode(OFFBOARD) == CommandResult.ACCEPTED
+    for _ in range(12 * 20):  # 12 s at 20 Hz
+        _position_target(h, IGNORE_VEL_ACC_YAWRATE, pos=(3.0, -2.0, -5.0), yaw=math.pi / 2)
+        h.fly_silently(0.05)
+    state = h.autopilot.state
+    assert np.linalg.norm(state.position - [3.0, -2.0, -5.0]) < 0.1
+    assert math.atan2(state.rotation[1, 0], state.rotation[0, 0]) == pytest.approx(math.pi / 2, abs=0.05)
+    assert h.autopilot.mode == OFFBOARD and sum(h.vehicle.stats.rejected.values()) == 0
+
+
+def test_body_ned_velocity_setpoint_is_rotated_by_the_heading(harness) -> None:
+    h = harness(yaw=math.pi / 2)  # facing east
+    h.hover(3.0)
+    _position_target(h, IGNORE_POS_ACC_YAWRATE | 0x400, vel=(1.0, 0.0, 0.0), frame=mavlink.MAV_FRAME_BODY_NED)
+    assert h.autopilot.set_mode(OFFBOARD) == CommandResult.ACCEPTED
+    for _ in range(4 * 20):
+        _position_target(h, IGNORE_POS_ACC_YAWRATE | 0x400, vel=(1.0, 0.0, 0.0), frame=mavlink.MAV_FRAME_BODY_NED)
+        h.fly_silently(0.05)
+    velocity = h.autopilot.state.velocity
+    assert velocity[1] == pytest.approx(1.0, abs=0.1)  # forward = east
+    assert abs(velocity[0]) < 0.1
+
+
+@pytest.mark.parametrize(
+    "mask, frame, kwargs, key",
+    [
+        (0x1 | 0x38 | 0x1C0 | 0x800, mavlink.MAV_FRAME_LOCAL_NED, {}, "setpoint_type_mask_unsupported"),  # y, z only
+        (IGNORE_VEL_ACC_YAWRATE | 0x200, mavlink.MAV_FRAME_LOCAL_NED, {}, "setpoint_type_mask_unsupported"),  # force
+        (0x38 | 0x1C0, mavlink.MAV_FRAME_LOCAL_NED, {"yaw_rate": 0.5}, "setpoint_type_mask_unsupported"),
+        (IGNORE_VEL_ACC_YAWRATE, mavlink.MAV_FRAME_GLOBAL_INT, {}, "setpoint_frame_unsupported"),
+        (IGNORE_VEL_ACC_YAWRATE, mavlink.MAV_FRAME_BODY_NED, {}, "setpoint_frame_unsupported"),  # position in body
+        (IGNORE_VEL_ACC_YAWRATE, mavlink.MAV_FRAME_LOCAL_NED, {"pos": (math.nan, 0.0, -3.0)}, "setpoint_not_finite"),
+        (0x7 | 0x38 | 0x1C0 | 0x800, mavlink.MAV_FRAME_LOCAL_NED, {}, "setpoint_empty"),
+    ],
+    ids=["partial-axes", "force", "yaw-rate", "global-frame", "body-position", "nan", "empty"],
+)
+def test_unusable_position_targets_are_rejected_by_reason(harness, mask, frame, kwargs, key) -> None:
+    h = harness()
+    _position_target(h, mask, frame=frame, **kwargs)
+    assert h.vehicle.stats.rejected[key] == 1
+    assert h.autopilot.setpoints_received == 0

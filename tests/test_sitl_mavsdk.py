@@ -22,6 +22,7 @@ from pymavlink import mavutil  # noqa: E402
 
 from companion.attitude import attitude_setpoint  # noqa: E402
 from companion.vehicle import MavsdkVehicle  # noqa: E402
+from mavsdk.plugins.offboard import PositionNedYaw  # noqa: E402
 from sitl_plant.processes import start_plant  # noqa: E402
 from sitl_plant.px4_modes import OFFBOARD, POSITION, decode_custom_mode  # noqa: E402
 
@@ -103,15 +104,20 @@ def test_mavsdk_flies_the_plant_and_a_ground_station_watches(plant):
                         samples.append(sample)
                     if sample.state.time > start + 3.0:
                         break
+                # Plain MAVSDK position offboard (what its examples use) works too: fly to a point.
+                await vehicle.offboard.set_position_ned(PositionNedYaw(2.0, 3.0, -4.0, 90.0))
+                arrived = await vehicle.wait_for(
+                    lambda s: np.linalg.norm(s.state.position - [2.0, 3.0, -4.0]) < 0.3 and np.linalg.norm(s.state.velocity) < 0.3,
+                    30, "position setpoint reached")
                 await vehicle.send_setpoint(level)
                 await vehicle.stop_offboard()
                 held = await vehicle.wait_for(lambda s: vehicle.flight_mode is not None and vehicle.flight_mode.name == "HOLD", 10, "hold")
-                return limits, first, hovering, entered, command, tilted, samples, held
+                return limits, first, hovering, entered, command, tilted, samples, held, arrived
         finally:
             stop.set()
             await watcher
 
-    limits, first, hovering, entered, command, tilted, samples, held = asyncio.run(fly())
+    limits, first, hovering, entered, command, tilted, samples, held, arrived = asyncio.run(fly())
     gcs.close()
 
     # Hover thrust and tilt limit came from the autopilot's parameters, not from our config.
@@ -128,6 +134,8 @@ def test_mavsdk_flies_the_plant_and_a_ground_station_watches(plant):
     expected_north = command[0] - DRAG_PER_MASS * mean_velocity[0]
     assert measured[0] == pytest.approx(expected_north, rel=0.12), (measured, expected_north)
     assert abs(measured[1]) < 0.15 and abs(measured[2]) < 0.3, measured
+    heading = math.degrees(math.atan2(arrived.rotation[1, 0], arrived.rotation[0, 0]))
+    assert heading == pytest.approx(90.0, abs=3.0)  # the yaw of the position setpoint
 
     # The ground station saw heartbeats with PX4's mode encoding, and telemetry, meanwhile.
     heartbeats = gcs.messages.get("HEARTBEAT", [])
