@@ -96,12 +96,43 @@ class TargetConfig(_Strict):
         return self
 
 
-class SensorConfig(_Strict):
-    """Bearing sensor: 'additive' is eq. (4) (nu ~ N(0, noise_std^2 I)); 'rotation' is eq. (25) (epsilon ~ N(0, noise_std^2))."""
+PositiveInt = Annotated[int, Field(gt=0)]
 
-    model: Literal["additive", "rotation"] = "additive"
+
+class CameraConfig(_Strict):
+    """Pin-hole camera of the paper's simulation (section VIII, Table I), used when sensor.model = 'camera'.
+
+    focal_length: m. pixel_size: (rho_w, rho_h), m. principal_point: (u0, v0), px,
+    inside the image. image_size: (width, height), px. pixel_noise_std: detector noise
+    on the image point, px per axis (before the pixel-grid quantisation).
+    mount_rpy_deg: camera relative to body (roll, pitch, yaw; ZYX, deg; pitch > 0 looks
+    up); zero = looking along body +x, no gimbal.
+    """
+
+    focal_length: Positive = 0.008
+    pixel_size: tuple[Positive, Positive] = (1e-5, 1e-5)
+    principal_point: tuple[float, float] = (512.0, 512.0)
+    image_size: tuple[PositiveInt, PositiveInt] = (1024, 1024)
+    pixel_noise_std: NonNegative = 1.0
+    mount_rpy_deg: Vector3 = (0.0, 0.0, 0.0)
+
+    @model_validator(mode="after")
+    def _principal_point_in_image(self) -> "CameraConfig":
+        (u0, v0), (width, height) = self.principal_point, self.image_size
+        if not (-0.5 <= u0 <= width - 0.5 and -0.5 <= v0 <= height - 0.5):
+            raise ValueError(f"principal_point ({u0}, {v0}) must lie inside the {width} x {height} image")
+        return self
+
+
+class SensorConfig(_Strict):
+    """Bearing sensor: 'additive' is eq. (4) (nu ~ N(0, noise_std^2 I)); 'rotation' is eq. (25)
+    (epsilon ~ N(0, noise_std^2)); 'camera' is the pin-hole camera of section VIII ([sensor.camera];
+    noise_std is then unused)."""
+
+    model: Literal["additive", "rotation", "camera"] = "additive"
     noise_std: NonNegative = 0.01
     rate_hz: Positive = 5.0
+    camera: CameraConfig = CameraConfig()
 
 
 class EstimatorConfig(_Strict):
@@ -178,6 +209,46 @@ class SitlConfig(_Strict):
         return self
 
 
+class LinkConfig(_Strict):
+    """The Zenoh link: target fixes in, companion state out, commands (abort) in.
+
+    mode: Zenoh session mode. listen/connect: Zenoh endpoints ("tcp/127.0.0.1:7447",
+    "tls/host:port", ...); the command line can override them. zenoh_overrides: raw Zenoh
+    configuration entries (dotted key -> JSON5 value), e.g. TLS certificates:
+    {"transport.link.tls.root_ca_certificate" = '"/path/ca.pem"'}. Multicast scouting is
+    off unless an override turns it on. The target publishes at sensor.rate_hz.
+    """
+
+    mode: Literal["peer", "client", "router"] = "peer"
+    listen: tuple[str, ...] = ()
+    connect: tuple[str, ...] = ()
+    zenoh_overrides: dict[str, str] = {}
+    target_sender: Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")] = "target-1"
+    companion_id: Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")] = "pursuer-1"
+    fix_frame: Literal["geodetic", "ned"] = "geodetic"
+    fix_noise_std: NonNegative = 0.0
+    state_rate_hz: Positive = 5.0
+
+
+class CompanionConfig(_Strict):
+    """The companion application's mission.
+
+    mavlink_url: MAVSDK URL of the autopilot. engage_altitude: take off to this height above
+    home (m), hover settle_time (s), then engage on the first bearing. follow_duration: follow
+    this long (s of vehicle time) before landing; default simulation.duration.
+    link_timeout / connect_timeout: wall-clock seconds to wait for the first target fix /
+    the autopilot. hold_after_abort: hover this long (s) after an abort before landing.
+    """
+
+    mavlink_url: str = "udpin://0.0.0.0:14540"
+    engage_altitude: Annotated[float, Field(gt=1.0, le=120.0)] = 20.0
+    settle_time: NonNegative = 1.5
+    follow_duration: Positive | None = None
+    link_timeout: Positive = 60.0
+    connect_timeout: Positive = 30.0
+    hold_after_abort: NonNegative = 3.0
+
+
 class Scenario(_Strict):
     name: str
     description: str = ""
@@ -189,6 +260,8 @@ class Scenario(_Strict):
     guidance: GuidanceConfig = GuidanceConfig()
     simulation: SimulationConfig = SimulationConfig()
     sitl: SitlConfig = SitlConfig()
+    link: LinkConfig = LinkConfig()
+    companion: CompanionConfig = CompanionConfig()
 
     @model_validator(mode="after")
     def _rates_fit_physics(self) -> "Scenario":

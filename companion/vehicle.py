@@ -25,6 +25,7 @@ from mavsdk.asyncio.plugins.action import ActionAsync
 from mavsdk.asyncio.plugins.offboard import OffboardAsync
 from mavsdk.asyncio.plugins.param import ParamAsync
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
+from mavsdk.enums import ForwardingOption
 from mavsdk.plugins.offboard import Attitude
 from mavsdk.plugins.telemetry import FlightMode, Odometry
 from scipy.spatial.transform import Rotation
@@ -80,10 +81,14 @@ class MavsdkVehicle:
     url: MAVSDK connection URL (udpin://0.0.0.0:14540 listens where PX4 SITL sends its
     offboard link). connect_timeout: seconds to wait for the autopilot's heartbeat.
     odometry_rate_hz: asked of the autopilot with SET_MESSAGE_INTERVAL (None: its default).
+    forward_url: a second MAVSDK connection the vehicle's traffic is forwarded to (e.g.
+    udpout://127.0.0.1:PORT for a .tlog recorder or a ground station), or None.
     """
 
-    def __init__(self, url: str = DEFAULT_URL, connect_timeout: float = 20.0, odometry_rate_hz: float | None = 50.0) -> None:
+    def __init__(self, url: str = DEFAULT_URL, connect_timeout: float = 20.0, odometry_rate_hz: float | None = 50.0,
+                 forward_url: str | None = None) -> None:
         self.url = url
+        self.forward_url = forward_url
         self.connect_timeout = connect_timeout
         self.odometry_rate_hz = odometry_rate_hz
         self._sdk: Mavsdk | None = None
@@ -115,7 +120,11 @@ class MavsdkVehicle:
         self._sdk = Mavsdk(config)
         await self._sdk.__aenter__()
         try:
-            await self._sdk.add_any_connection(self.url)
+            if self.forward_url is None:
+                await self._sdk.add_any_connection(self.url)
+            else:
+                await self._sdk.add_any_connection(self.url, ForwardingOption.ON)
+                await self._sdk.add_any_connection(self.forward_url, ForwardingOption.ON)
         except Exception as error:
             await self.close()
             raise VehicleError(f"cannot open MAVLink connection {self.url!r}: {error}") from error

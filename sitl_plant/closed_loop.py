@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from companion.assembly import build_pipeline
-from companion.bearing_sensor import measure_bearing
+from companion.bearing_sensor import BearingSensor
 from companion.config import Scenario, VehicleConfig
 from companion.messages import BearingMeasurement, PursuerState
 from sitl_plant.attitude_control import AttitudeThrustVehicle
@@ -120,6 +120,7 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
         tuple(Maneuver(m.start, m.end, m.lateral_acceleration) for m in scenario.target.maneuvers),
     )
     pipeline = build_pipeline(scenario, vehicle, params.hover_thrust_normalized)
+    sensor = BearingSensor.from_config(scenario.sensor)
 
     physics_hz = scenario.simulation.physics_rate_hz
     every = {
@@ -135,6 +136,7 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
     log = FlightLog(len(event_steps))
     termination = Termination.COMPLETED
     bearings_used = 0
+    bearings_out_of_view = 0
 
     for index, step in enumerate(event_steps):
         time = step * dt
@@ -144,9 +146,13 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
         bearing = None
         if step % every["sensor"] == 0:
             line_of_sight = target.position - truth.position
-            direction = measure_bearing(scenario.sensor.model, line_of_sight / np.linalg.norm(line_of_sight), scenario.sensor.noise_std, sensor_rng)
-            bearing = BearingMeasurement(time, direction, measured_position)
-            bearings_used += 1
+            # The camera sees through the vehicle's true attitude; outside its field of view no bearing comes.
+            direction = sensor.measure(line_of_sight / np.linalg.norm(line_of_sight), sensor_rng, truth.rotation)
+            if direction is None:
+                bearings_out_of_view += 1
+            else:
+                bearing = BearingMeasurement(time, direction, measured_position)
+                bearings_used += 1
         output = pipeline.step(time, pursuer, bearing)
         if output.new_setpoint and output.setpoint is not None:
             # The autopilot side: attitude in, normalised thrust scaled by its own maximum.
@@ -168,6 +174,7 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
     series = log.series()
     summary = summarize(series, scenario, termination)
     summary["bearings_used"] = bearings_used
+    summary["bearings_out_of_view"] = bearings_out_of_view
     summary["seed"] = seed
     return SimulationResult(scenario, series, summary, termination)
 

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from companion.config import ConfigError, Scenario, VehicleConfig, load_scenario
+from companion.link import CLOCK_KEY, ClockTick, LinkError, encode_clock, open_session, publisher, zenoh_config
 from sitl_plant.autopilot import Autopilot
 from sitl_plant.closed_loop import quadrotor_params
 from sitl_plant.mavlink_vehicle import COMPANION_STREAMS, GCS_STREAMS, Event, Home, LinkSpec, MavlinkVehicle
@@ -127,11 +128,34 @@ class RunLog:
                 handle.close()
 
 
+class ClockPublisher:
+    """The plant's simulated time on Zenoh (bof/sim/clock), for the target simulator and others."""
+
+    def __init__(self, listen, connect, rate_hz: float, sender: str = "sitl-plant") -> None:
+        if not (math.isfinite(rate_hz) and rate_hz > 0):
+            raise ValueError(f"--clock-rate must be positive, got {rate_hz!r}")
+        self.session = open_session(zenoh_config(listen=listen, connect=connect))
+        self.publisher = publisher(self.session, CLOCK_KEY)
+        self.period = 1.0 / rate_hz
+        self.sender = sender
+        self.seq = 0
+        self._next = 0.0
+
+    def tick(self, sim_time: float) -> None:
+        if sim_time + 1e-9 >= self._next:
+            self._next = sim_time + self.period
+            self.publisher.put(encode_clock(ClockTick(self.sender, self.seq, sim_time)))
+            self.seq += 1
+
+    def close(self) -> None:
+        self.session.close()
+
+
 class RealTimeRunner:
     """Paces an Autopilot + MavlinkVehicle against the wall clock at a speed factor."""
 
     def __init__(self, vehicle: MavlinkVehicle, speed_factor: float, log: RunLog, duration: float | None = None,
-                 progress: bool = False) -> None:
+                 progress: bool = False, on_tick=None) -> None:
         if not (math.isfinite(speed_factor) and speed_factor > 0):
             raise ValueError(f"speed factor must be positive, got {speed_factor!r}")
         self.vehicle = vehicle
@@ -140,6 +164,7 @@ class RealTimeRunner:
         self.log = log
         self.duration = duration
         self.progress = progress
+        self.on_tick = on_tick  # called with the simulated time after every tick
         self.stop_requested = False
         self.slips = 0
         self.slipped_time = 0.0
@@ -191,6 +216,8 @@ class RealTimeRunner:
                 ap.tick()
                 mv.after_tick()
                 self.log.sample(ap)
+                if self.on_tick is not None:
+                    self.on_tick(ap.time)
                 if self.ticks % 16 == 0:
                     self.tick_cpu.append(time.perf_counter() - started)
                 self.ticks += 1
@@ -229,6 +256,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--log-rate", type=float, default=50.0, help="vehicle.csv rows per simulated second")
     parser.add_argument("--latency-log", action="store_true", help="also log wall time of every ODOMETRY sent")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
+    parser.add_argument("--zenoh-listen", action="append", default=None, metavar="ENDPOINT",
+                        help="publish the simulated clock on Zenoh, listening here (e.g. tcp/127.0.0.1:7447); repeatable")
+    parser.add_argument("--zenoh-connect", action="append", default=None, metavar="ENDPOINT",
+                        help="publish the simulated clock on Zenoh, connecting here; repeatable")
+    parser.add_argument("--clock-rate", type=float, default=50.0, help="clock messages per simulated second")
     return parser.parse_args(argv)
 
 
@@ -252,8 +284,18 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if args.latency_log:
         vehicle.on_odometry_sent = log.odometry_sent
+    clock = None
+    if args.zenoh_listen or args.zenoh_connect:
+        try:
+            clock = ClockPublisher(args.zenoh_listen or (), args.zenoh_connect or (), args.clock_rate)
+        except (LinkError, ValueError) as error:
+            vehicle.close()
+            log.close()
+            print(f"sitl-plant: {error}", file=sys.stderr)
+            return 2
     speed = scenario.sitl.speed_factor if args.speed_factor is None else args.speed_factor
-    runner = RealTimeRunner(vehicle, speed, log, args.duration, progress=not args.quiet)
+    runner = RealTimeRunner(vehicle, speed, log, args.duration, progress=not args.quiet,
+                            on_tick=clock.tick if clock is not None else None)
 
     def request_stop(signum, frame):  # noqa: ARG001
         runner.stop_requested = True
@@ -267,6 +309,8 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         stats = runner.stats()
         log.write_stats(stats)
+        if clock is not None:
+            clock.close()
         vehicle.close()
         log.close()
         for sig, handler in previous.items():

@@ -64,3 +64,20 @@ class TargetModel:
             )
             self.velocity = np.array([self._speed * math.cos(new_heading), self._speed * math.sin(new_heading), self.velocity[2]])
         self.time += dt
+
+    def advance_to(self, time: float) -> None:
+        """Propagate exactly to `time` (s, >= self.time), splitting the step at maneuver starts and ends.
+
+        The position and velocity at `time` do not depend on how the interval is cut,
+        so any publish rate sees the same trajectory. ValueError if `time` is in the past.
+        """
+        if not math.isfinite(time):
+            raise ValueError(f"time must be finite, got {time!r}")
+        if time < self.time:
+            raise ValueError(f"cannot propagate backwards from t={self.time!r} to t={time!r}")
+        boundaries = sorted({edge for m in self.maneuvers for edge in (m.start, m.end) if self.time < edge < time})
+        for boundary in (*boundaries, time):
+            if boundary > self.time:
+                self.step(boundary - self.time)
+                # Land exactly on the boundary, so the next piece sees the maneuver that starts there.
+                self.time = boundary

@@ -1,0 +1,121 @@
+"""The companion's run log: every file is written line by line and flushed, so an
+interrupted run keeps everything up to the interruption.
+
+    series.csv      one row per own-state sample while engaged: own state, estimate,
+                    bearing used (if any), command, setpoint
+    zenoh_rx.jsonl  every Zenoh message received, with receipt time and verdict
+    events.jsonl    phase changes, status texts, errors
+    latency.csv     target message received -> setpoint sent (wall clock), per bearing
+    mavlink.tlog    the vehicle's MAVLink traffic as MAVSDK forwards it (standard .tlog:
+                    8-byte big-endian microsecond timestamp + raw packet)
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import socket
+import struct
+import threading
+import time
+from pathlib import Path
+
+SERIES_COLUMNS = (
+    "time", "phase",
+    "px", "py", "pz", "vx", "vy", "vz",
+    "est_x", "est_y", "est_z", "est_vx", "est_vy", "est_vz", "est_position_std", "range_estimate",
+    "bearing_x", "bearing_y", "bearing_z", "bearing_time",
+    "acc_x", "acc_y", "acc_z", "thrust_normalized", "new_setpoint",
+)
+
+
+def _json_default(value):
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+
+
+class RunRecorder:
+    """Opens the run folder's files; all writes are line-buffered."""
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = Path(folder)
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self._series = (self.folder / "series.csv").open("w", buffering=1)
+        self._series.write(",".join(SERIES_COLUMNS) + "\n")
+        self._zenoh = (self.folder / "zenoh_rx.jsonl").open("w", buffering=1)
+        self._events = (self.folder / "events.jsonl").open("w", buffering=1)
+        self._latency = (self.folder / "latency.csv").open("w", buffering=1)
+        self._latency.write("fix_seq,fix_stamp,received_ns,setpoint_sent_ns,latency_ms\n")
+        self._lock = threading.Lock()
+
+    def series(self, row: dict) -> None:
+        values = []
+        for column in SERIES_COLUMNS:
+            value = row.get(column, "")
+            if isinstance(value, float):
+                value = "" if math.isnan(value) else f"{value:.6g}"
+            values.append(str(value))
+        self._series.write(",".join(values) + "\n")
+
+    def zenoh(self, record: dict) -> None:
+        with self._lock:
+            self._zenoh.write(json.dumps(record, default=_json_default) + "\n")
+
+    def event(self, sim_time: float | None, kind: str, detail: str) -> None:
+        record = {"time": None if sim_time is None else round(sim_time, 4), "wall": round(time.time(), 3),
+                  "kind": kind, "detail": detail}
+        with self._lock:
+            self._events.write(json.dumps(record) + "\n")
+
+    def latency(self, fix_seq: int, fix_stamp: float, received_ns: int, sent_ns: int) -> None:
+        self._latency.write(f"{fix_seq},{fix_stamp:.4f},{received_ns},{sent_ns},{(sent_ns - received_ns) * 1e-6:.3f}\n")
+
+    def summary(self, summary: dict) -> None:
+        tmp = self.folder / "summary.json.tmp"
+        tmp.write_text(json.dumps(summary, indent=2, sort_keys=True, default=_json_default))
+        os.replace(tmp, self.folder / "summary.json")
+
+    def close(self) -> None:
+        for handle in (self._series, self._zenoh, self._events, self._latency):
+            handle.close()
+
+
+class TlogWriter:
+    """Receives the MAVLink packets MAVSDK forwards to a loopback UDP port and appends them to a .tlog.
+
+    Start it, give MAVSDK `udpout://127.0.0.1:<port>` with forwarding on, stop it at the end.
+    """
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self._sock.bind(("127.0.0.1", 0))
+        self._sock.settimeout(0.2)
+        self.port = self._sock.getsockname()[1]
+        self._file = self.path.open("wb", buffering=0)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="tlog", daemon=True)
+        self.packets = 0
+
+    def start(self) -> "TlogWriter":
+        self._thread.start()
+        return self
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                data, _ = self._sock.recvfrom(65535)
+            except socket.timeout:
+                continue
+            except OSError:
+                break
+            self._file.write(struct.pack(">Q", int(time.time() * 1e6)) + data)
+            self.packets += 1
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(2.0)
+        self._sock.close()
+        self._file.close()

@@ -1,0 +1,341 @@
+"""The Zenoh link: keys, payload schemas and their refusals, frames, session configuration, a real loopback session."""
+
+from __future__ import annotations
+
+import json
+import math
+import socket
+import threading
+import time
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from companion import link
+from companion.link import (
+    CLOCK_KEY,
+    REASONS,
+    ClockTick,
+    Command,
+    LinkError,
+    PayloadError,
+    TargetFix,
+    decode_clock,
+    decode_command,
+    decode_target_fix,
+    encode_clock,
+    encode_command,
+    encode_state,
+    encode_target_fix,
+    fix_to_ned,
+    ned_to_geodetic,
+    open_session,
+    publisher,
+    zenoh_config,
+)
+from sitl_plant.mavlink_vehicle import Home
+from sitl_plant.processes import free_port
+
+HOME = (47.397742, 8.545594, 488.0)
+FUZZ = settings(max_examples=300, derandomize=True, deadline=None, database=None,
+                suppress_health_check=[HealthCheck.too_slow])
+
+
+def _fix(**changes) -> dict:
+    document = {"schema": "bof.target_fix/1", "sender": "target-1", "seq": 3, "stamp": 1.2, "frame": "ned",
+                "position": [10.0, -5.0, -20.0], "velocity": [3.0, 4.0, 0.0]}
+    document.update(changes)
+    return document
+
+
+def _bytes(document) -> bytes:
+    return json.dumps(document).encode()
+
+
+def test_keys_and_key_segments():
+    assert CLOCK_KEY == "bof/sim/clock"
+    assert link.target_fix_key("target-1") == "bof/target/target-1/fix"
+    assert link.companion_state_key("pursuer_1") == "bof/companion/pursuer_1/state"
+    assert link.companion_command_key("pursuer_1") == "bof/companion/pursuer_1/command"
+    for bad in ("", "a/b", "*", "t**", "a b", "x" * 65, "$x"):
+        with pytest.raises(ValueError, match="key segment"):
+            link.target_fix_key(bad)
+
+
+@pytest.mark.parametrize("fix", [
+    TargetFix("target-1", 0, 0.0, "geodetic", (47.3982, 8.5451, 508.25), (3.0, 4.0, -0.5)),
+    TargetFix("t.2", 2**63 - 1, 1e9, "geodetic", (-90.0, 180.0, -1000.0)),
+    TargetFix("target_3", 17, 12.345678901234567, "ned", np.array([1e6, -1e6, 0.1]), np.array([0.0, -1e3, 1e3])),
+])
+def test_target_fix_round_trip(fix):
+    payload = encode_target_fix(fix)
+    assert json.loads(payload)["schema"] == "bof.target_fix/1"
+    decoded = decode_target_fix(payload)
+    assert decoded == fix
+    assert isinstance(decoded.position, tuple) and all(type(v) is float for v in decoded.position)
+
+
+def test_clock_and_command_round_trip():
+    tick = ClockTick("plant", 41, 0.004 * 41)
+    assert decode_clock(encode_clock(tick)) == tick
+    assert json.loads(encode_clock(tick)) == {"schema": "bof.clock/1", "sender": "plant", "seq": 41, "stamp": 0.004 * 41}
+    for command in (Command("gcs", 0, 3.5, "abort"), Command("gcs", 1, 4.0, "resume", "wind over limit, résumé")):
+        assert decode_command(encode_command(command)) == command
+    assert "detail" not in json.loads(encode_command(Command("gcs", 0, 3.5, "abort")))
+
+
+def test_decoders_take_zenoh_bytes_and_refuse_non_bytes():
+    import zenoh
+
+    tick = ClockTick("plant", 1, 2.0)
+    assert decode_clock(zenoh.ZBytes(encode_clock(tick))) == tick
+    assert decode_clock(bytearray(encode_clock(tick))) == tick
+    with pytest.raises(TypeError):
+        decode_clock("{}")
+
+
+def test_state_encoding_nulls_non_finite_and_converts_numpy():
+    state = {"sender": "pursuer-1", "seq": np.int64(5), "stamp": np.float64(2.5), "phase": "track",
+             "estimate": np.array([1.0, np.nan, np.inf]), "range": float("nan"), "nested": {"ok": [True, None, 3]}}
+    document = json.loads(encode_state(state))
+    assert document == {"schema": "bof.companion_state/1", "sender": "pursuer-1", "seq": 5, "stamp": 2.5,
+                        "phase": "track", "estimate": [1.0, None, None], "range": None, "nested": {"ok": [True, None, 3]}}
+    for bad, reason in (
+        ({"seq": 1, "stamp": 0.0}, "missing_field"),
+        ({"sender": "c", "seq": 1, "stamp": float("nan")}, "not_finite"),
+        ({"sender": "c", "seq": -1, "stamp": 0.0}, "out_of_range"),
+        ({"sender": "c", "seq": 1, "stamp": 0.0, "when": object()}, "wrong_type"),
+        ({"sender": "c", "seq": 1, "stamp": 0.0, "map": {1: 2}}, "wrong_type"),
+        ({"sender": "c", "seq": 1, "stamp": 0.0, "schema": "bof.other/1"}, "wrong_schema"),
+        ([("sender", "c")], "not_object"),
+    ):
+        with pytest.raises(PayloadError) as error:
+            encode_state(bad)
+        assert error.value.reason == reason
+
+
+REFUSALS = [
+    (decode_target_fix, b"x" * (link.MAX_PAYLOAD_BYTES + 1), "too_large"),
+    (decode_target_fix, b"\xff\xfe{}", "not_utf8"),
+    (decode_target_fix, b"{'schema': 1}", "not_json"),
+    (decode_target_fix, b"[" * 5000, "not_json"),
+    (decode_clock, b'{"stamp": 1' + b"0" * 5000 + b"}", "not_json"),
+    (decode_target_fix, b"[1, 2]", "not_object"),
+    (decode_target_fix, _bytes({k: v for k, v in _fix().items() if k != "schema"}), "missing_field"),
+    (decode_target_fix, _bytes({k: v for k, v in _fix().items() if k != "position"}), "missing_field"),
+    (decode_target_fix, _bytes(_fix(schema="bof.target_fix/2")), "wrong_schema"),
+    (decode_clock, _bytes(_fix()), "wrong_schema"),
+    (decode_target_fix, _bytes(_fix(colour="red")), "unknown_field"),
+    (decode_target_fix, _bytes(_fix(seq=True)), "wrong_type"),
+    (decode_target_fix, _bytes(_fix(seq=1.0)), "wrong_type"),
+    (decode_target_fix, _bytes(_fix(stamp="1.0")), "wrong_type"),
+    (decode_target_fix, _bytes(_fix(position=[1.0, 2.0])), "wrong_type"),
+    (decode_target_fix, _bytes(_fix(velocity={"n": 1})), "wrong_type"),
+    (decode_target_fix, _bytes(_fix(sender=7)), "wrong_type"),
+    (decode_target_fix, _bytes(_fix(frame=1)), "wrong_type"),
+    (decode_target_fix, _bytes(_fix(stamp=float("nan"))), "not_finite"),
+    (decode_target_fix, _bytes(_fix(position=[1.0, float("inf"), 0.0])), "not_finite"),
+    (decode_target_fix, b'{"schema": "bof.target_fix/1", "sender": "t", "seq": 0, "stamp": 1e999, "frame": "ned", '
+                        b'"position": [0, 0, 0]}', "not_finite"),
+    (decode_target_fix, _bytes(_fix(sender="")), "bad_sender"),
+    (decode_target_fix, _bytes(_fix(sender="bad/sender")), "bad_sender"),
+    (decode_target_fix, _bytes(_fix(frame="enu")), "bad_frame"),
+    (decode_command, _bytes({"schema": "bof.command/1", "sender": "gcs", "seq": 0, "stamp": 0, "command": "land"}),
+     "unknown_command"),
+    (decode_target_fix, _bytes(_fix(seq=-1)), "out_of_range"),
+    (decode_target_fix, _bytes(_fix(seq=2**63)), "out_of_range"),
+    (decode_target_fix, _bytes(_fix(stamp=-0.5)), "out_of_range"),
+    (decode_target_fix, _bytes(_fix(stamp=10**400)), "out_of_range"),
+    (decode_target_fix, _bytes(_fix(frame="geodetic", position=[90.5, 8.0, 400.0])), "out_of_range"),
+    (decode_target_fix, _bytes(_fix(frame="geodetic", position=[47.0, -180.1, 400.0])), "out_of_range"),
+    (decode_target_fix, _bytes(_fix(frame="geodetic", position=[47.0, 8.0, 2e5])), "out_of_range"),
+    (decode_target_fix, _bytes(_fix(position=[0.0, 1.000001e6, 0.0])), "out_of_range"),
+    (decode_target_fix, _bytes(_fix(velocity=[0.0, 0.0, -1001.0])), "out_of_range"),
+    (decode_command, _bytes({"schema": "bof.command/1", "sender": "gcs", "seq": 0, "stamp": 0, "command": "abort",
+                             "detail": "x" * 201}), "out_of_range"),
+]
+
+
+@pytest.mark.parametrize("decode, payload, reason", REFUSALS)
+def test_every_refusal_has_its_reason(decode, payload, reason):
+    with pytest.raises(PayloadError) as error:
+        decode(payload)
+    assert error.value.reason == reason
+    assert str(error.value).startswith(reason)
+
+
+def test_every_reason_code_is_exercised():
+    assert {reason for _, _, reason in REFUSALS} == REASONS
+
+
+def test_optional_fields_may_be_absent_or_null():
+    assert decode_target_fix(_bytes(_fix(velocity=None))).velocity is None
+    assert decode_target_fix(_bytes({k: v for k, v in _fix().items() if k != "velocity"})).velocity is None
+    assert decode_target_fix(_bytes(_fix(seq=0, stamp=0))).stamp == 0.0
+
+
+def test_encoders_refuse_what_decoders_would_refuse():
+    for fix, reason in (
+        (TargetFix("t", 0, 0.0, "geodetic", (91.0, 0.0, 0.0)), "out_of_range"),
+        (TargetFix("t", -1, 0.0, "ned", (0.0, 0.0, 0.0)), "out_of_range"),
+        (TargetFix("t", 0, math.nan, "ned", (0.0, 0.0, 0.0)), "not_finite"),
+        (TargetFix("t", 0, 0.0, "ned", (0.0, 0.0, math.inf)), "not_finite"),
+        (TargetFix("t", 0, 0.0, "ecef", (0.0, 0.0, 0.0)), "bad_frame"),
+        (TargetFix("a b", 0, 0.0, "ned", (0.0, 0.0, 0.0)), "bad_sender"),
+    ):
+        with pytest.raises(PayloadError) as error:
+            encode_target_fix(fix)
+        assert error.value.reason == reason
+    with pytest.raises(PayloadError) as error:
+        encode_command(Command("gcs", 0, 0.0, "self_destruct"))
+    assert error.value.reason == "unknown_command"
+
+
+# --- fuzzing: decoding raises PayloadError and nothing else ---------------------------
+
+DECODERS = (decode_target_fix, decode_clock, decode_command)
+json_values = st.recursive(
+    st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=20),
+    lambda children: st.lists(children, max_size=4) | st.dictionaries(st.text(max_size=8), children, max_size=4),
+    max_leaves=12,
+)
+
+
+def _decode_all(payload: bytes) -> None:
+    for decode in DECODERS:
+        try:
+            decode(payload)
+        except PayloadError as error:
+            assert error.reason in REASONS
+
+
+@FUZZ
+@given(st.binary(max_size=300))
+def test_fuzz_arbitrary_bytes(payload):
+    _decode_all(payload)
+
+
+@FUZZ
+@given(json_values)
+def test_fuzz_arbitrary_json(value):
+    _decode_all(json.dumps(value).encode())
+
+
+@FUZZ
+@given(st.sampled_from(["bof.target_fix/1", "bof.clock/1", "bof.command/1"]),
+       st.sampled_from(["schema", "sender", "seq", "stamp", "frame", "position", "velocity", "command", "detail", "x"]),
+       st.one_of(json_values, st.just(None)), st.booleans())
+def test_fuzz_nearly_valid_documents(schema, field, value, delete):
+    document = _fix(schema=schema, command="abort", detail="why")
+    if schema == "bof.target_fix/1":
+        document.pop("command"), document.pop("detail")
+    elif schema == "bof.clock/1":
+        for name in ("frame", "position", "velocity", "command", "detail"):
+            document.pop(name)
+    else:
+        for name in ("frame", "position", "velocity"):
+            document.pop(name)
+    if delete:
+        document.pop(field, None)
+    else:
+        document[field] = value
+    _decode_all(json.dumps(document).encode())
+
+
+# --- frames ------------------------------------------------------------------------
+
+def test_geodetic_ned_round_trip_under_a_millimetre_over_a_kilometre():
+    rng = np.random.default_rng(7)
+    points = np.vstack([rng.uniform([-1000, -1000, -300], [1000, 1000, 50], size=(200, 3)),
+                        [[1000.0, 1000.0, -300.0], [-1000.0, 0.0, 0.0], [0.0, 0.0, 0.0]]])
+    worst = 0.0
+    for seq, ned in enumerate(points):
+        geodetic = ned_to_geodetic(ned, HOME)
+        fix = decode_target_fix(encode_target_fix(TargetFix("t", seq, 0.0, "geodetic", geodetic)))
+        worst = max(worst, float(np.linalg.norm(fix_to_ned(fix, HOME) - ned)))
+    assert worst < 1e-3
+    # The same convention as the MAVLink plant's GLOBAL_POSITION_INT.
+    assert np.allclose(ned_to_geodetic((120.0, -40.0, -20.0), HOME), Home(*HOME).to_geodetic(120.0, -40.0, -20.0),
+                       rtol=0, atol=1e-12)
+    ned_fix = TargetFix("t", 0, 0.0, "ned", (1.0, 2.0, 3.0))
+    assert np.array_equal(fix_to_ned(ned_fix, HOME), [1.0, 2.0, 3.0])
+    with pytest.raises(ValueError):
+        fix_to_ned(TargetFix("t", 0, 0.0, "geodetic", (47.0, 8.0, 400.0)), (95.0, 0.0, 0.0))
+
+
+# --- session configuration ---------------------------------------------------------
+
+def test_config_listens_on_loopback_only():
+    peer = zenoh_config(connect=["tcp/127.0.0.1:7447"])
+    assert json.loads(peer.get_json("listen/endpoints")) == ["tcp/127.0.0.1:0"]
+    assert json.loads(peer.get_json("connect/endpoints")) == ["tcp/127.0.0.1:7447"]
+    assert json.loads(peer.get_json("scouting/multicast/enabled")) is False
+    assert json.loads(peer.get_json("mode")) == "peer"
+    plant = zenoh_config(listen=["tcp/127.0.0.1:7447", "tcp/[::1]:7448", "tcp/localhost:7449"])
+    assert len(json.loads(plant.get_json("listen/endpoints"))) == 3
+    client = zenoh_config("client", connect=["tcp/127.0.0.1:7447"])
+    assert json.loads(client.get_json("listen/endpoints")) == []
+    for endpoint in ("tcp/0.0.0.0:7447", "tcp/[::]:7447", "tcp/192.168.1.10:7447", "udp/example.org:7447"):
+        with pytest.raises(LinkError, match="not loopback"):
+            zenoh_config(listen=[endpoint])
+    remote = zenoh_config(listen=["tcp/0.0.0.0:7447"], allow_remote_listen=True)
+    assert json.loads(remote.get_json("listen/endpoints")) == ["tcp/0.0.0.0:7447"]
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"mode": "server"}, "mode"),
+    ({"mode": "client"}, "needs a connect"),
+    ({"mode": "client", "connect": ["tcp/127.0.0.1:1"], "listen": ["tcp/127.0.0.1:0"]}, "cannot listen"),
+    ({"connect": ["127.0.0.1:7447"]}, "expected <protocol>"),
+    ({"listen": ["tcp/127.0.0.1"]}, "expected <protocol>"),
+    ({"listen": ["tcp/127.0.0.1:70000"]}, "expected <protocol>"),
+])
+def test_config_errors_say_what_is_wrong(kwargs, match):
+    with pytest.raises(LinkError, match=match):
+        zenoh_config(**kwargs)
+
+
+def test_open_session_error_is_a_link_error():
+    with pytest.raises(LinkError, match="cannot open"):
+        open_session(zenoh_config("client", connect=[f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"]))
+
+
+def _wait(condition, timeout: float) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return True
+        time.sleep(0.01)
+    return condition()
+
+
+def test_fixes_cross_a_real_loopback_session_in_order():
+    endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+    listener = open_session(zenoh_config(listen=[endpoint]))
+    talker = None
+    try:
+        talker = open_session(zenoh_config(connect=[endpoint]))
+        received: list[TargetFix] = []
+        lock = threading.Lock()
+
+        def on_fix(sample):
+            fix = decode_target_fix(sample.payload)
+            with lock:
+                received.append(fix)
+
+        subscriber = listener.declare_subscriber(link.TARGET_FIX_ALL, on_fix)
+        fixes = publisher(talker, link.target_fix_key("target-9"))
+        assert _wait(lambda: fixes.matching_status.matching, 10.0), "the subscriber never became visible"
+        sent = [TargetFix("target-9", seq, seq * 0.2, "ned", (seq, -seq, -20.0), (5.0, -5.0, 0.0)) for seq in range(100)]
+        for fix in sent:
+            fixes.put(encode_target_fix(fix))
+        assert _wait(lambda: len(received) >= len(sent), 10.0), f"received {len(received)} of {len(sent)}"
+        with lock:
+            assert received == sent
+        subscriber.undeclare()
+    finally:
+        if talker is not None:
+            talker.close()
+        listener.close()
