@@ -165,8 +165,11 @@ class GroundStation:
         self.states = 0
         self.session.declare_subscriber(link.companion_state_key(scenario.link.companion_id), self._on_state)
         self._target_command = link.publisher(self.session, link.target_command_key(scenario.link.target_sender))
+        self._companion_command = link.publisher(self.session, link.companion_command_key(scenario.link.companion_id))
         self._seq = 0
         self.target_started = False
+        self.abort_sent = False
+        self.engaged_stamp: float | None = None
 
     def _on_state(self, sample) -> None:
         try:
@@ -174,6 +177,12 @@ class GroundStation:
             self.states += 1
         except ValueError:
             pass
+
+    def abort_companion(self, stamp: float) -> None:
+        self._seq += 1
+        self._companion_command.put(link.encode_command(link.Command(GROUND_STATION_ID, self._seq, stamp, "abort",
+                                                                     "ground station --abort-after")))
+        self.abort_sent = True
 
     def start_target(self, stamp: float) -> None:
         self._seq += 1
@@ -197,7 +206,10 @@ def _progress(state: dict | None) -> str:
 
 
 def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, timeout: float | None,
-        plots: bool = True, quiet: bool = False) -> tuple[int, Path, dict]:
+        plots: bool = True, quiet: bool = False, abort_after: float | None = None) -> tuple[int, Path, dict]:
+    """Fly `config` through the three processes; returns (exit code, run folder, summary).
+
+    abort_after: send the companion an abort this many simulated seconds after it engaged."""
     scenario, _ = load_scenario(config)
     speed = scenario.sitl.speed_factor if speed_factor is None else speed_factor
     seed = scenario.simulation.seed if seed is None else seed
@@ -233,7 +245,11 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
                 raise TimeoutError(f"the flight did not finish within {budget:.0f} s of wall time")
             state = station.latest
             if state and state.get("phase") == "following" and not station.target_started:
-                station.start_target(float(state.get("stamp", 0.0)))
+                station.engaged_stamp = float(state.get("stamp", 0.0))
+                station.start_target(station.engaged_stamp)
+            if (abort_after is not None and state and station.engaged_stamp is not None and not station.abort_sent
+                    and float(state.get("stamp", 0.0)) >= station.engaged_stamp + abort_after):
+                station.abort_companion(float(state["stamp"]))
             if not quiet and time.monotonic() >= next_print:
                 next_print = time.monotonic() + 2.0
                 print(f"bof-sitl: {_progress(state)}", flush=True)
@@ -246,9 +262,11 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
         companion_code = companion.stop()
         if station is not None:
             station.close()
-        target.stop()
-        plant.stop()
-    summary: dict = {"companion_exit_code": companion_code, "speed_factor": speed, "seed": seed, "run_folder": str(folder)}
+        target_code = target.stop()
+        plant_code = plant.stop()
+    summary: dict = {"companion_exit_code": companion_code, "target_exit_code": target_code, "plant_exit_code": plant_code,
+                     "speed_factor": speed, "seed": seed, "run_folder": str(folder),
+                     "abort_sent": station.abort_sent if station is not None else False}
     companion_summary = json.loads((folder / "companion" / "summary.json").read_text())
     summary["companion"] = companion_summary
     plant_stats = json.loads((folder / "plant" / "stats.json").read_text())
@@ -307,13 +325,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("runs"))
     parser.add_argument("--timeout", type=float, default=None, help="wall-clock limit for the whole flight, s")
     parser.add_argument("--no-plots", action="store_true")
+    parser.add_argument("--abort-after", type=float, default=None,
+                        help="as the ground station, send the companion 'abort' this many simulated seconds after it engages")
     parser.add_argument("--quiet", action="store_true")
     args = parser.parse_args(argv)
     if args.speed_factor is not None and not 0.5 <= args.speed_factor <= 20.0:
         print("bof-sitl: --speed-factor must be within [0.5, 20] (MAVSDK needs heartbeats; the plant tops out near 20x)", file=sys.stderr)
         return 2
     try:
-        code, folder, summary = run(args.config, args.out, args.speed_factor, args.seed, args.timeout, not args.no_plots, args.quiet)
+        code, folder, summary = run(args.config, args.out, args.speed_factor, args.seed, args.timeout, not args.no_plots,
+                                    args.quiet, args.abort_after)
     except ConfigError as error:
         print(f"bof-sitl: {error}", file=sys.stderr)
         return 2

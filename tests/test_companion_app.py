@@ -1,0 +1,74 @@
+"""The companion application's link handling, driven directly (no vehicle, no sockets)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from companion import link
+from companion.app import CompanionApp, Phase
+from companion.config import load_scenario
+
+
+@pytest.fixture
+def app(tmp_path, scenario_path):
+    scenario, vehicle = load_scenario(scenario_path("constant_velocity"))
+    application = CompanionApp(scenario, vehicle, tmp_path / "run")
+    yield application
+    application.recorder.close()
+
+
+def _fix(seq: int, stamp: float, position=(60.0, -20.0, -20.0), sender="target-1", frame="ned") -> bytes:
+    return link.encode_target_fix(link.TargetFix(sender, seq, stamp, frame, position))
+
+
+def test_fixes_are_validated_and_counted_by_reason(app):
+    app._on_fix(_fix(0, 1.0), 0)
+    app._on_fix(_fix(1, 1.2, sender="intruder"), 0)
+    app._on_fix(_fix(1, 1.2), 0)
+    app._on_fix(_fix(1, 1.4), 0)  # repeated seq
+    app._on_fix(_fix(2, 1.2), 0)  # stamp not after the last one
+    app._on_fix(b"\xff\xfe not json", 0)
+    app._on_fix(b'{"schema": "bof.target_fix/1"}', 0)
+    assert app.health.received == 7
+    assert app.health.accepted == 2
+    assert dict(app.health.rejected) == {"wrong_sender": 1, "stale_seq": 1, "stale_stamp": 1, "not_utf8": 1, "missing_field": 1}
+    records = [json.loads(line) for line in (app.recorder.folder / "zenoh_rx.jsonl").read_text().splitlines()]
+    assert [r["verdict"] for r in records] == ["accepted", "rejected", "accepted", "rejected", "rejected", "rejected", "rejected"]
+    # Before the companion is ready to follow, fixes only prove the link is up.
+    assert not app.pending
+
+
+def test_geodetic_fix_becomes_the_ned_position_about_home(app):
+    app.phase = Phase.READY
+    home = app.scenario.sitl.home
+    geodetic = link.ned_to_geodetic((60.0, -20.0, -20.0), home)
+    app._on_fix(_fix(0, 2.0, position=geodetic, frame="geodetic"), 123)
+    assert len(app.pending) == 1
+    np.testing.assert_allclose(app.pending[0].position, [60.0, -20.0, -20.0], atol=1e-3)
+    assert app.pending[0].received_ns == 123
+
+
+def test_a_bearing_is_built_at_the_fix_time_from_own_state_history(app):
+    app.phase = Phase.READY
+    for k in range(11):  # own state at 50 Hz, flying north at 5 m/s
+        t = 2.0 + 0.02 * k
+        app.history.append(t, np.array([5.0 * (t - 2.0), 0.0, -20.0]), np.array([5.0, 0.0, 0.0]), np.eye(3))
+    app._on_fix(_fix(0, 2.1, position=(60.0, 0.0, -20.0)), 0)
+    app._on_fix(_fix(1, 2.5, position=(60.0, 0.0, -20.0)), 0)  # ahead of the own state: waits
+    bearings = app._due_bearings(2.2)
+    assert len(bearings) == 1 and len(app.pending) == 1
+    assert bearings[0].time == pytest.approx(2.1)
+    np.testing.assert_allclose(bearings[0].pursuer_position, [0.5, 0.0, -20.0], atol=1e-9)
+    assert np.linalg.norm(bearings[0].direction - [1.0, 0.0, 0.0]) < 0.05  # eq. (4) noise, sigma 0.01
+
+
+def test_abort_command_is_honoured_and_garbage_commands_are_not(app):
+    app._on_command(b"abort")
+    assert not app.abort_requested
+    app._on_command(link.encode_command(link.Command("ground-station", 0, 3.0, "abort")))
+    assert app.abort_requested
+    events = [json.loads(line) for line in (app.recorder.folder / "events.jsonl").read_text().splitlines()]
+    assert [e["kind"] for e in events] == ["command_rejected", "command"]

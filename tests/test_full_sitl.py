@@ -1,0 +1,124 @@
+"""End to end: the constant-velocity scenario flown through real processes, real MAVLink and real Zenoh.
+
+bof-sitl's `run` starts the plant, the target simulator and the companion as child
+processes on free loopback ports and stops them all, whatever happens. The flights
+run at 5x real time (about 25 s of wall time each).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sitl_plant import full_sitl
+
+SPEED = 5.0
+
+
+@pytest.fixture(scope="module")
+def flown(tmp_path_factory, scenario_path):
+    out = tmp_path_factory.mktemp("sitl")
+    code, folder, summary = full_sitl.run(scenario_path("constant_velocity"), out, SPEED, seed=1, timeout=240.0,
+                                          plots=True, quiet=True)
+    return code, folder, summary
+
+
+@pytest.fixture(scope="module")
+def scenario_path():
+    return lambda name: Path(__file__).resolve().parent.parent / "config" / "scenarios" / f"{name}.toml"
+
+
+def test_every_process_ends_cleanly_and_the_companion_lands(flown):
+    code, folder, summary = flown
+    assert code == 0, (folder / "companion.out").read_text()[-3000:]
+    assert summary["companion_exit_code"] == 0
+    assert summary["target_exit_code"] == 0 and summary["plant_exit_code"] == 0
+    assert summary["companion"]["phase"] == "done"
+    events = [json.loads(line)["detail"] for line in (folder / "companion" / "events.jsonl").read_text().splitlines()]
+    phases = [e.split()[0] for e in events if e.split()[0] in ("arming", "taking_off", "ready", "following", "landing", "done")]
+    assert phases == ["arming", "taking_off", "ready", "following", "landing", "done"]
+    truth = full_sitl._read_csv(folder / "plant" / "vehicle.csv")
+    assert truth["armed"][-1] == 0 and abs(truth["z"][-1]) < 0.05  # landed and disarmed
+    assert summary["plant"]["mavlink_rejected"] == {}
+
+
+def test_follows_at_the_desired_range_with_a_small_range_estimation_error(flown):
+    _, folder, summary = flown
+    flight = summary["flight"]
+    assert flight["range_error_rms"] < 0.5, flight
+    assert flight["range_estimation_error_rms"] < 0.5, flight
+    assert math.isfinite(flight["convergence_time"]) and flight["convergence_time"] < 30.0, flight
+    assert flight["min_range"] > 0.5 * flight["desired_range"]
+    for name in ("trajectory.png", "errors.png", "link.png", "summary.json"):
+        assert (folder / name).stat().st_size > 0
+
+
+def test_the_estimator_only_ever_got_bearings(flown):
+    _, folder, summary = flown
+    check = summary["bearing_only"]
+    link = summary["companion"]["link"]
+    # One bearing per 5 Hz fix while engaged (60 s), each a direction: |lambda~| = 1 up to eq. (4) noise.
+    assert check["bearings_logged"] == link["bearings_used"]
+    assert 0.9 * 60 * 5 <= link["bearings_used"] <= 60 * 5 + 2
+    assert 0.95 < check["bearing_norm_min"] and check["bearing_norm_max"] < 1.05
+    assert check["range_inputs_logged"] == 0
+    assert link["rejected"] == {} and sum(link["bearings_dropped"].values()) == 0
+    # The bearings match the true line of sight at the fix time within the sensor noise (sigma 0.01 per axis).
+    series = full_sitl._read_csv(folder / "companion" / "series.csv")
+    used = np.isfinite(series["bearing_x"])
+    target = full_sitl._read_csv(folder / "target" / "target.csv")
+    plant = full_sitl._read_csv(folder / "plant" / "vehicle.csv")
+    stamps = series["bearing_time"][used]
+    bearing = np.column_stack([series[k][used] for k in ("bearing_x", "bearing_y", "bearing_z")])
+    target_position = np.column_stack([np.interp(stamps, target["stamp"], target[k]) for k in ("true_n", "true_e", "true_d")])
+    pursuer = np.column_stack([np.interp(stamps, plant["time"], plant[k]) for k in ("x", "y", "z")])
+    los = target_position - pursuer
+    los /= np.linalg.norm(los, axis=1, keepdims=True)
+    # Own position comes from noisy telemetry (0.1 m) at ranges >= 8 m, so allow a few hundredths.
+    error = np.linalg.norm(bearing - los, axis=1)
+    assert np.median(error) < 0.03, np.median(error)
+
+
+def test_telemetry_log_and_zenoh_log_are_complete(flown):
+    _, folder, summary = flown
+    tlog = (folder / "companion" / "mavlink.tlog").read_bytes()
+    assert len(tlog) > 10_000
+    import os
+
+    os.environ.setdefault("MAVLINK20", "1")
+    from pymavlink import mavutil
+
+    log = mavutil.mavlink_connection(str(folder / "companion" / "mavlink.tlog"))
+    kinds = set()
+    while (message := log.recv_match()) is not None:
+        kinds.add(message.get_type())
+    log.close()
+    assert {"HEARTBEAT", "ODOMETRY", "ATTITUDE_QUATERNION", "STATUSTEXT"} <= kinds
+    records = [json.loads(line) for line in (folder / "companion" / "zenoh_rx.jsonl").read_text().splitlines()]
+    assert len(records) == summary["companion"]["link"]["received"]
+    assert all(r["verdict"] == "accepted" for r in records)
+    seqs = [r["seq"] for r in records]
+    assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)
+
+
+def test_abort_command_holds_then_lands(tmp_path, scenario_path):
+    code, folder, summary = full_sitl.run(scenario_path("constant_velocity"), tmp_path, SPEED, seed=2, timeout=240.0,
+                                          plots=False, quiet=True, abort_after=8.0)
+    assert summary["abort_sent"]
+    assert code == 0 and summary["companion"]["phase"] == "done"
+    events = [json.loads(line) for line in (folder / "companion" / "events.jsonl").read_text().splitlines()]
+    kinds = [(e["kind"], e["detail"].split()[0]) for e in events]
+    assert ("command", "abort") in kinds
+    phases = [detail for kind, detail in kinds if kind == "phase"]
+    assert phases[-3:] == ["aborting", "landing", "done"]
+    aborted_at = next(e["time"] for e in events if e["kind"] == "phase" and e["detail"].startswith("aborting"))
+    engaged_at = next(e["time"] for e in events if e["kind"] == "phase" and e["detail"].startswith("following"))
+    assert 8.0 <= aborted_at - engaged_at < 8.0 + 2.0
+    truth = full_sitl._read_csv(folder / "plant" / "vehicle.csv")
+    holding = (truth["time"] > aborted_at + 1.0) & (truth["time"] < aborted_at + 3.0)
+    assert set(truth["mode"][holding]) == {"Hold"}
+    assert truth["armed"][-1] == 0 and abs(truth["z"][-1]) < 0.05
