@@ -210,6 +210,11 @@ class Autopilot:
         return True, ""
 
     @property
+    def last_setpoint_time(self) -> float:
+        """Simulated time of the last valid offboard setpoint (-inf before the first)."""
+        return self._last_setpoint_time
+
+    @property
     def offboard_signal_ok(self) -> bool:
         """Setpoints have arrived within COM_OF_LOSS_T."""
         return self.time - self._last_setpoint_time <= self.parameters.value("COM_OF_LOSS_T")

@@ -620,6 +620,9 @@ class MavlinkVehicle:
         now = ap.time
         if ap.mode != self._last_mode or ap.armed != self._last_armed:
             self._event("state", f"mode={ap.mode.name} armed={ap.armed}")
+            if ap.failsafe_active and self._last_mode == OFFBOARD:
+                self._event("failsafe", f"offboard lost: last setpoint at t={ap.last_setpoint_time:.4f} s, "
+                                        f"now {ap.mode.name}")
             self._last_mode, self._last_armed = ap.mode, ap.armed
         for severity, text in ap.take_status_texts():
             self._statustext(severity, text)
