@@ -35,6 +35,7 @@ from companion import link
 from companion.assembly import build_pipeline
 from companion.bearing_builder import BearingBuilder
 from companion.config import ConfigError, Scenario, VehicleConfig, load_scenario
+from companion.fix_validator import FixRejected, FixValidator
 from companion.messages import BearingMeasurement
 from companion.pipeline import FollowingPipeline, PipelineOutput
 from companion.recorder import RunRecorder, TlogWriter
@@ -48,14 +49,6 @@ HISTORY_SECONDS = 5.0
 MAX_EXTRAPOLATION = 0.1
 #: A fix still unusable this long after its stamp (no own state at that time) is dropped, s.
 FIX_MAX_WAIT = 1.0
-
-
-class FixRejected(ValueError):
-    """A well-formed fix the companion will not use; reason: wrong_sender, stale_seq, stale_stamp."""
-
-    def __init__(self, reason: str, detail: str) -> None:
-        super().__init__(f"{reason}: {detail}")
-        self.reason = reason
 
 
 class Phase(str, enum.Enum):
@@ -122,6 +115,7 @@ class CompanionApp:
         self.phase = Phase.WAITING
         self.health = LinkHealth()
         self.rng = np.random.default_rng(scenario.simulation.seed if seed is None else seed)
+        self.validator = FixValidator(self.link_settings.target_sender, self.home)
         self.history = StateHistory(HISTORY_SECONDS)
         self.builder = BearingBuilder(scenario.sensor, self.rng, self.history)
         self.pipeline: FollowingPipeline | None = None
@@ -254,6 +248,8 @@ class CompanionApp:
             elif output.new_setpoint and output.setpoint is not None:
                 await vehicle.send_setpoint(output.setpoint)
                 self._sent(sample, output)
+            if self._last_output is not None and output.mode != self._last_output.mode:
+                await self._track_mode_changed(output)
             self._last_output = output
             self._log_row(sample, output, bearings)
             if self.engaged_at is not None and sample.state.time >= self.engaged_at + duration:
@@ -262,6 +258,21 @@ class CompanionApp:
                 # The autopilot left offboard (failsafe or pilot): stop commanding, let it act.
                 if sample.state.time > self.engaged_at + 3.0:
                     raise VehicleError(f"autopilot left offboard (mode {vehicle.flight_mode.name})")
+
+    async def _track_mode_changed(self, output: PipelineOutput) -> None:
+        """Say so in the log, on Zenoh (next state) and to the autopilot/ground station (STATUSTEXT)."""
+        texts = {
+            "coasting": ("INFO", "target link silent: coasting on prediction"),
+            "degraded": ("WARNING", "target link lost: holding safe distance"),
+            "reacquiring": ("INFO", "target fixes back: re-acquiring"),
+            "tracking": ("INFO", "target tracked"),
+        }
+        severity, text = texts[output.mode.value]
+        self.recorder.event(output.time, "track_mode", f"{output.mode.value} (bearing age {output.bearing_age:.2f} s)")
+        try:
+            await self.vehicle.status_text(text, severity)
+        except VehicleError as error:
+            self.recorder.event(output.time, "status_text_failed", str(error))
 
     def _sent(self, sample: VehicleSample, output: PipelineOutput) -> None:
         now_ns = time.monotonic_ns()
@@ -322,15 +333,8 @@ class CompanionApp:
         sim_time = self.vehicle.latest.state.time if self.vehicle is not None and self.vehicle.latest else None
         record = {"received_ns": received_ns, "sim_time": sim_time, "bytes": len(payload)}
         try:
-            fix = link.decode_target_fix(payload)
-            if fix.sender != self.link_settings.target_sender:
-                raise FixRejected("wrong_sender", f"sender {fix.sender!r}, expected {self.link_settings.target_sender!r}")
-            if self.health.last_seq is not None and fix.seq <= self.health.last_seq:
-                raise FixRejected("stale_seq", f"seq {fix.seq} after {self.health.last_seq}")
-            if self.health.last_stamp is not None and fix.stamp <= self.health.last_stamp:
-                raise FixRejected("stale_stamp", f"stamp {fix.stamp} after {self.health.last_stamp}")
-            position = link.fix_to_ned(fix, self.home)
-        except (link.PayloadError, FixRejected) as error:
+            fix, position = self.validator.check(payload)
+        except FixRejected as error:
             self.health.rejected[error.reason] += 1
             record.update(verdict="rejected", reason=error.reason, detail=str(error))
             self.recorder.zenoh(record)
@@ -371,6 +375,8 @@ class CompanionApp:
             "link": self.health.as_dict(time.monotonic()),
             "setpoints_sent": self.setpoints_sent,
         }
+        if self._last_output is not None:
+            state["track"] = {"mode": self._last_output.mode.value, "bearing_age": self._last_output.bearing_age}
         estimate = self._last_output.estimate if self._last_output is not None else None
         if estimate is not None:
             covariance = estimate.covariance
@@ -389,7 +395,7 @@ class CompanionApp:
     # ----------------------------------------------------------------- logging
     def _log_row(self, sample: VehicleSample, output: PipelineOutput, bearings: list[BearingMeasurement]) -> None:
         s = sample.state
-        row = {"time": s.time, "phase": self.phase.value,
+        row = {"time": s.time, "phase": self.phase.value, "track_mode": output.mode.value, "bearing_age": output.bearing_age,
                "px": s.position[0], "py": s.position[1], "pz": s.position[2],
                "vx": s.velocity[0], "vy": s.velocity[1], "vz": s.velocity[2],
                "new_setpoint": int(output.new_setpoint)}

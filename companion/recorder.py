@@ -22,7 +22,7 @@ import time
 from pathlib import Path
 
 SERIES_COLUMNS = (
-    "time", "phase",
+    "time", "phase", "track_mode", "bearing_age",
     "px", "py", "pz", "vx", "vy", "vz",
     "est_x", "est_y", "est_z", "est_vx", "est_vy", "est_vz", "est_position_std", "range_estimate",
     "bearing_x", "bearing_y", "bearing_z", "bearing_time",

@@ -24,9 +24,11 @@ from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
 from mavsdk.asyncio.plugins.action import ActionAsync
 from mavsdk.asyncio.plugins.offboard import OffboardAsync
 from mavsdk.asyncio.plugins.param import ParamAsync
+from mavsdk.asyncio.plugins.server_utility import ServerUtilityAsync
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 from mavsdk.enums import ForwardingOption
 from mavsdk.plugins.offboard import Attitude
+from mavsdk.plugins.server_utility import StatusTextType
 from mavsdk.plugins.telemetry import FlightMode, Odometry
 from scipy.spatial.transform import Rotation
 
@@ -97,6 +99,7 @@ class MavsdkVehicle:
         self.action: ActionAsync | None = None
         self.offboard: OffboardAsync | None = None
         self.param: ParamAsync | None = None
+        self._status = None
         self._latest: VehicleSample | None = None
         self._new_sample = asyncio.Event()
         self._flight_mode: FlightMode | None = None
@@ -280,6 +283,13 @@ class MavsdkVehicle:
     async def send_setpoint(self, setpoint: AttitudeSetpoint) -> None:
         """SET_ATTITUDE_TARGET with the pipeline's attitude and normalised thrust (MAVSDK re-sends it at 20 Hz)."""
         await self._act("offboard setpoint", self.offboard.set_attitude(offboard_attitude(setpoint)))
+
+    async def status_text(self, text: str, severity: str = "WARNING") -> None:
+        """STATUSTEXT from the companion (PX4 forwards it to the ground station); severity: a
+        mavsdk.plugins.server_utility.StatusTextType name (DEBUG, INFO, NOTICE, WARNING, ERROR, CRITICAL...)."""
+        if self._status is None:
+            self._status = ServerUtilityAsync(self._system)
+        await self._act("status text", self._status.send_status_text(getattr(StatusTextType, severity), text[:50]))
 
     async def stop_offboard(self) -> None:
         """Leave offboard; the autopilot holds position."""

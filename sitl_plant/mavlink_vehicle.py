@@ -118,7 +118,7 @@ _PARAMS_USED: dict[int, tuple[int, ...]] = {
 
 # Known messages we receive and deliberately do nothing with (not errors).
 _QUIET = frozenset({
-    "HEARTBEAT", "COMMAND_ACK", "SYSTEM_TIME", "PARAM_VALUE", "STATUSTEXT", "TIMESYNC", "MISSION_ACK",
+    "HEARTBEAT", "COMMAND_ACK", "SYSTEM_TIME", "PARAM_VALUE", "TIMESYNC", "MISSION_ACK",
     "REQUEST_DATA_STREAM", "MANUAL_CONTROL", "RC_CHANNELS_OVERRIDE",
 })
 
@@ -590,6 +590,14 @@ class MavlinkVehicle:
     def _on_timesync(self, link: Link, msg) -> None:
         if msg.tc1 == 0:
             self._send(link, link.mav.timesync_encode(int(self.autopilot.time * 1e9), msg.ts1))
+
+    def _on_statustext(self, link: Link, msg) -> None:
+        """A peer's STATUSTEXT (the companion's): logged and passed on to the other links, as PX4 does."""
+        text = msg.text if isinstance(msg.text, str) else bytes(msg.text).decode("utf-8", "replace")
+        self._event("peer_statustext", f"{link.name} [{msg.severity}] {text}")
+        for other in self.links:
+            if other is not link:
+                self._send(other, other.mav.statustext_encode(msg.severity, text.encode("utf-8")[:50]))
 
     def _on_ping(self, link: Link, msg) -> None:
         if msg.target_system == 0 and msg.target_component == 0:  # a request, not an answer to ours
