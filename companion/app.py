@@ -57,6 +57,7 @@ class Phase(str, enum.Enum):
     TAKING_OFF = "taking_off"
     READY = "ready"
     FOLLOWING = "following"
+    VEHICLE_LOST = "vehicle_link_lost"
     ABORTING = "aborting"
     LANDING = "landing"
     DONE = "done"
@@ -125,6 +126,7 @@ class CompanionApp:
         self.stop_requested = False
         self.engaged_at: float | None = None
         self.setpoints_sent = 0
+        self.vehicle_link_losses = 0
         self.deadline_misses = 0
         self.latencies_ms: list[float] = []  # fix received -> first setpoint sent after its bearing
         self.bearing_latencies_ms: list[float] = []  # fix received -> its bearing given to the estimator
@@ -195,8 +197,11 @@ class CompanionApp:
             await vehicle.stop_offboard()
             start = vehicle.latest.state.time
             await vehicle.wait_for(lambda s: s.state.time > start + self.settings.hold_after_abort, 60.0, "abort hold")
-        elif self.phase == Phase.FOLLOWING:
-            await vehicle.stop_offboard()
+        elif self.phase in (Phase.FOLLOWING, Phase.VEHICLE_LOST):
+            try:
+                await vehicle.stop_offboard()
+            except VehicleError as error:
+                self.recorder.event(vehicle.latest.state.time, "vehicle_link", f"offboard stop: {error}")
         if self.stop_requested and not self.abort_requested:
             return
         self._set_phase(Phase.LANDING)
@@ -234,7 +239,12 @@ class CompanionApp:
         vehicle, pipeline = self.vehicle, self.pipeline
         duration = self.settings.follow_duration or self.scenario.simulation.duration
         while not (self.abort_requested or self.stop_requested):
-            sample = await vehicle.next_sample(5.0)
+            try:
+                sample = await vehicle.next_sample(self.settings.vehicle_link_timeout)
+            except VehicleError:
+                if self.engaged_at is None or not await self._vehicle_link_lost():
+                    return
+                continue
             self._record_state(sample)
             bearings = self._due_bearings(sample.state.time)
             output = None
@@ -258,6 +268,34 @@ class CompanionApp:
                 # The autopilot left offboard (failsafe or pilot): stop commanding, let it act.
                 if sample.state.time > self.engaged_at + 3.0:
                     raise VehicleError(f"autopilot left offboard (mode {vehicle.flight_mode.name})")
+
+    async def _vehicle_link_lost(self) -> bool:
+        """No odometry for vehicle_link_timeout: stop commanding (MAVSDK's re-sending included) and let
+        the autopilot's offboard-loss failsafe act. When telemetry returns, re-engage if
+        [companion] on_vehicle_link_return = "resume"; otherwise land. Returns True to go on following."""
+        vehicle = self.vehicle
+        lost_at = vehicle.latest.state.time
+        self.vehicle_link_losses += 1
+        self._set_phase(Phase.VEHICLE_LOST, f"no telemetry for {self.settings.vehicle_link_timeout:g} s")
+        try:
+            await vehicle.stop_offboard()  # stops the setpoint stream first; the mode command may not get through
+        except VehicleError as error:
+            self.recorder.event(lost_at, "vehicle_link", f"offboard stop not acknowledged: {error}")
+        try:
+            sample = await vehicle.next_sample(self.settings.vehicle_link_wait)
+        except VehicleError:
+            raise VehicleError(f"vehicle link lost at t={lost_at:.2f} s and not back within "
+                               f"{self.settings.vehicle_link_wait:g} s") from None
+        self.recorder.event(sample.state.time, "vehicle_link", f"telemetry back after {sample.state.time - lost_at:.2f} s "
+                                                                f"(autopilot mode {vehicle.flight_mode.name if vehicle.flight_mode else '?'})")
+        if self.settings.on_vehicle_link_return != "resume":
+            self.recorder.event(sample.state.time, "vehicle_link", "not resuming (on_vehicle_link_return = land)")
+            return False
+        self._record_state(sample)
+        output = self.pipeline.step(sample.state.time, sample.state, None)
+        await vehicle.start_offboard(output.setpoint)
+        self._set_phase(Phase.FOLLOWING, f"resumed at t={sample.state.time:.2f} s")
+        return True
 
     async def _track_mode_changed(self, output: PipelineOutput) -> None:
         """Say so in the log, on Zenoh (next state) and to the autopilot/ground station (STATUSTEXT)."""
@@ -425,6 +463,7 @@ class CompanionApp:
             "error": self.error,
             "engaged_at": self.engaged_at,
             "setpoints_sent": self.setpoints_sent,
+            "vehicle_link_losses": self.vehicle_link_losses,
             "deadline_misses": self.deadline_misses,
             "latency_fix_to_setpoint_ms": {
                 "p50": float(np.percentile(latencies, 50)), "p99": float(np.percentile(latencies, 99)),

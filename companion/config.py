@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 import tomllib
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Literal, get_args
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
 
@@ -238,6 +238,11 @@ class CompanionConfig(_Strict):
     this long (s of vehicle time) before landing; default simulation.duration.
     link_timeout / connect_timeout: wall-clock seconds to wait for the first target fix /
     the autopilot. hold_after_abort: hover this long (s) after an abort before landing.
+    vehicle_link_timeout: wall-clock seconds without odometry after which the vehicle link
+    counts as lost: the companion stops commanding and lets the autopilot's offboard-loss
+    failsafe act. vehicle_link_wait: how long (wall s) to wait for it to come back before
+    giving up. on_vehicle_link_return: "resume" re-engages offboard and goes on following;
+    "land" (the default, the operator's call) lands instead.
     """
 
     mavlink_url: str = "udpin://0.0.0.0:14540"
@@ -247,6 +252,124 @@ class CompanionConfig(_Strict):
     link_timeout: Positive = 60.0
     connect_timeout: Positive = 30.0
     hold_after_abort: NonNegative = 3.0
+    vehicle_link_timeout: Positive = 1.0
+    vehicle_link_wait: Positive = 60.0
+    on_vehicle_link_return: Literal["resume", "land"] = "land"
+
+
+Probability = Annotated[float, Field(ge=0.0, le=1.0)]
+SenderName = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")]
+#: How a corrupted fix is broken (sitl_plant.faults documents each and the decoder's reason it earns).
+CorruptKind = Literal["invalid_utf8", "truncated_json", "missing_field", "non_finite", "string_number",
+                      "absurd_position"]
+CORRUPT_KINDS: tuple[str, ...] = get_args(CorruptKind)
+
+
+class BlackoutWindow(_Strict):
+    """A link outage from start for duration, s (scenario time for the target link, plant time for MAVLink)."""
+
+    start: NonNegative
+    duration: NonNegative
+
+    @property
+    def end(self) -> float:
+        return self.start + self.duration
+
+
+def _check_windows(windows: tuple[BlackoutWindow, ...], key: str) -> None:
+    ordered = sorted(windows, key=lambda w: w.start)
+    for earlier, later in zip(ordered, ordered[1:]):
+        if later.start < earlier.end:
+            raise ValueError(f"{key}: windows [{earlier.start:g}, {earlier.end:g}) and "
+                             f"[{later.start:g}, {later.end:g}) overlap")
+
+
+class BurstLossConfig(_Strict):
+    """Gilbert-Elliott bursty loss: a good/bad Markov chain stepped once per target fix.
+
+    Give either the per-message transition probabilities (p_good_to_bad, p_bad_to_good)
+    or the mean durations in seconds (mean_burst_s in the bad state, mean_gap_s in the
+    good state; converted with the interval between consecutive fixes: p = interval /
+    mean). loss_in_good / loss_in_bad: probability that a fix is lost in that state.
+    """
+
+    p_good_to_bad: Probability | None = None
+    p_bad_to_good: Probability | None = None
+    mean_burst_s: Positive | None = None
+    mean_gap_s: Positive | None = None
+    loss_in_good: Probability = 0.0
+    loss_in_bad: Probability = 1.0
+
+    @model_validator(mode="after")
+    def _one_form(self) -> "BurstLossConfig":
+        given = [name for name in ("p_good_to_bad", "p_bad_to_good", "mean_burst_s", "mean_gap_s")
+                 if getattr(self, name) is not None]
+        if given not in (["p_good_to_bad", "p_bad_to_good"], ["mean_burst_s", "mean_gap_s"]):
+            raise ValueError("burst: give p_good_to_bad and p_bad_to_good, or mean_burst_s and mean_gap_s "
+                             f"(got {', '.join(given) or 'neither'})")
+        return self
+
+
+class MavlinkFaultsConfig(_Strict):
+    """Faults of the companion <-> vehicle MAVLink link (applied by the plant).
+
+    blackouts: windows, s of simulated time since the plant started, during which
+    the link is silent both ways.
+    """
+
+    blackouts: tuple[BlackoutWindow, ...] = ()
+
+    @model_validator(mode="after")
+    def _no_overlap(self) -> "MavlinkFaultsConfig":
+        _check_windows(self.blackouts, "mavlink.blackouts")
+        return self
+
+
+class FaultsConfig(_Strict):
+    """Fault injection on the target -> companion link (sitl_plant.faults); defaults inject nothing.
+
+    Times of blackouts are scenario time (s since the target started its scenario).
+    loss_probability: independent loss per fix. burst: Gilbert-Elliott bursty loss
+    ([faults.burst]). latency_s + U(0, jitter_s): delivery delay, s. reorder_probability:
+    a fix is held back reorder_delay_s more (choose it above the fix period + jitter so
+    the next fix overtakes it). duplicate_probability: a second copy duplicate_delay_s
+    later. stale_probability: an extra copy of an older fix, stale_min_age_s to
+    stale_max_age_s old. corrupt_probability: the fix is replaced by a broken one, kind
+    drawn uniformly from corrupt_kinds. impostor_rate_hz: a second publisher on the same
+    key as impostor_sender, impostor_offset m (NED) away from the target (0 = off).
+    seed: the faults' own seed (None: derived from simulation.seed). mavlink: faults of
+    the MAVLink link ([faults.mavlink]).
+    """
+
+    seed: Annotated[int, Field(ge=0)] | None = None
+    loss_probability: Probability = 0.0
+    burst: BurstLossConfig | None = None
+    blackouts: tuple[BlackoutWindow, ...] = ()
+    latency_s: NonNegative = 0.0
+    jitter_s: NonNegative = 0.0
+    reorder_probability: Probability = 0.0
+    reorder_delay_s: Positive = 0.3
+    duplicate_probability: Probability = 0.0
+    duplicate_delay_s: NonNegative = 0.01
+    stale_probability: Probability = 0.0
+    stale_min_age_s: NonNegative = 1.0
+    stale_max_age_s: Positive = 5.0
+    corrupt_probability: Probability = 0.0
+    corrupt_kinds: Annotated[tuple[CorruptKind, ...], Field(min_length=1)] = CORRUPT_KINDS
+    impostor_rate_hz: NonNegative = 0.0
+    impostor_sender: SenderName = "impostor-1"
+    impostor_offset: Vector3 = (30.0, 0.0, 0.0)
+    mavlink: MavlinkFaultsConfig = MavlinkFaultsConfig()
+
+    @model_validator(mode="after")
+    def _consistent(self) -> "FaultsConfig":
+        _check_windows(self.blackouts, "blackouts")
+        if self.stale_min_age_s > self.stale_max_age_s:
+            raise ValueError(f"stale_min_age_s ({self.stale_min_age_s}) must not exceed stale_max_age_s "
+                             f"({self.stale_max_age_s})")
+        if len(set(self.corrupt_kinds)) != len(self.corrupt_kinds):
+            raise ValueError("corrupt_kinds: each kind at most once")
+        return self
 
 
 class Scenario(_Strict):
@@ -262,6 +385,7 @@ class Scenario(_Strict):
     sitl: SitlConfig = SitlConfig()
     link: LinkConfig = LinkConfig()
     companion: CompanionConfig = CompanionConfig()
+    faults: FaultsConfig = FaultsConfig()
 
     @model_validator(mode="after")
     def _rates_fit_physics(self) -> "Scenario":

@@ -164,6 +164,7 @@ class FollowingPipeline:
         self._blend_until = -np.inf
         self._last_command: np.ndarray | None = None
         self.mode_changes: list[tuple[float, TrackMode]] = []
+        self.reinitializations = 0
 
     @property
     def engaged_at(self) -> float | None:
@@ -213,6 +214,7 @@ class FollowingPipeline:
         guess = InitialGuess(predicted_range, self.dropout.restart_range_std, estimate.velocity,
                              self.initial_guess.velocity_std)
         self.estimator.initialize_on_bearing(bearing, guess)
+        self.reinitializations += 1
         self._estimator_ticks = int(np.floor((bearing.time - self._engaged_at) / self.estimator.period + _TIME_EPS))
         self._rejected_in_row = 0
         self._last_bearing = unit(bearing.direction)

@@ -206,10 +206,12 @@ def _progress(state: dict | None) -> str:
 
 
 def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, timeout: float | None,
-        plots: bool = True, quiet: bool = False, abort_after: float | None = None) -> tuple[int, Path, dict]:
+        plots: bool = True, quiet: bool = False, abort_after: float | None = None,
+        target_faults: list[str] | None = None) -> tuple[int, Path, dict]:
     """Fly `config` through the three processes; returns (exit code, run folder, summary).
 
-    abort_after: send the companion an abort this many simulated seconds after it engaged."""
+    abort_after: send the companion an abort this many simulated seconds after it engaged.
+    target_faults: KEY=VALUE overrides of [faults] for sitl-target (its --fault option)."""
     scenario, _ = load_scenario(config)
     speed = scenario.sitl.speed_factor if speed_factor is None else speed_factor
     seed = scenario.simulation.seed if seed is None else seed
@@ -223,7 +225,8 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
                           "--log-dir", str(folder / "plant"), "--zenoh-listen", endpoint, "--quiet"],
                          folder / "plant.out", ready="sitl-plant ready")
     target = ChildProcess([python, "-m", "sitl_plant.target_sim", "--config", str(config), "--zenoh-connect", endpoint,
-                           "--seed", str(seed), "--log-dir", str(folder / "target"), "--wait-for-start"],
+                           "--seed", str(seed), "--log-dir", str(folder / "target"), "--wait-for-start",
+                           *[arg for fault in (target_faults or []) for arg in ("--fault", fault)]],
                           folder / "target.out", ready="sitl-target ready")
     companion = ChildProcess([python, "-m", "companion", "--config", str(config), "--mavlink",
                               f"udpin://127.0.0.1:{companion_port}", "--zenoh-connect", endpoint, "--seed", str(seed),

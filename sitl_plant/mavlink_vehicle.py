@@ -168,6 +168,8 @@ class Link:
         self.next_due: dict[int, float] = {mid: 0.0 for mid in self.intervals}
         self.sent = 0
         self.send_errors = 0
+        self.silenced = False  # fault injection: the link is down both ways
+        self.dropped_silenced = 0
 
     @staticmethod
     def new_parser() -> mavlink.MAVLink:
@@ -178,6 +180,9 @@ class Link:
 
     def write(self, data: bytes) -> None:
         """pymavlink's file interface: one packet per datagram to the partner."""
+        if self.silenced:
+            self.dropped_silenced += 1
+            return
         try:
             self.sock.sendto(data, self.partner)
             self.sent += 1
@@ -371,6 +376,8 @@ class MavlinkVehicle:
         self._last_armed = autopilot.armed
         self.on_odometry_sent: Callable[[int], None] | None = None
         self._builder_table = self._builders()
+        #: Fault injection: (start, end) windows of simulated time when the companion link is down both ways.
+        self.companion_blackouts: list[tuple[float, float]] = []
 
     # --------------------------------------------------------------- helpers
     @property
@@ -411,6 +418,16 @@ class MavlinkVehicle:
                 handled += 1
         return handled
 
+    def _update_blackouts(self) -> None:
+        now = self.autopilot.time
+        for link in self.links:
+            if link.name != "companion":
+                continue
+            silenced = any(start <= now < end for start, end in self.companion_blackouts)
+            if silenced != link.silenced:
+                link.silenced = silenced
+                self._event("fault", f"mavlink blackout {'start' if silenced else 'end'} on the {link.name} link")
+
     def handle_datagram(self, link: Link, data: bytes, address: tuple[str, int] | None = None) -> None:
         """Parse one datagram and act on every message in it; never raises for bad input.
 
@@ -418,6 +435,9 @@ class MavlinkVehicle:
         frame, or garbage with a start byte in it) are rejected as 'truncated_frame' and
         dropped with the parser state, so they can never swallow the next datagram.
         """
+        if link.silenced:
+            link.dropped_silenced += 1
+            return
         try:
             messages = link.parser.parse_buffer(data) or []
         except Exception as error:  # pymavlink raises for a few corrupt headers even when robust
@@ -626,6 +646,8 @@ class MavlinkVehicle:
         """Send what is due at the current simulated time: status texts, heartbeat, streams."""
         ap = self.autopilot
         now = ap.time
+        if self.companion_blackouts:
+            self._update_blackouts()
         if ap.mode != self._last_mode or ap.armed != self._last_armed:
             self._event("state", f"mode={ap.mode.name} armed={ap.armed}")
             if ap.failsafe_active and self._last_mode == OFFBOARD:

@@ -194,7 +194,8 @@ class RealTimeRunner:
             "armed": self.autopilot.armed,
             "setpoints_received": self.autopilot.setpoints_received,
             "links": {link.name: {"bound": list(link.address), "partner": list(link.partner), "sent": link.sent,
-                                  "send_errors": link.send_errors} for link in self.vehicle.links},
+                                  "send_errors": link.send_errors, "dropped_silenced": link.dropped_silenced}
+                      for link in self.vehicle.links},
             "mavlink": self.vehicle.stats.as_dict(),
         }
 
