@@ -47,6 +47,9 @@ DEFAULT_SCENARIO = Path(__file__).resolve().parent.parent / "config" / "scenario
 HISTORY_SECONDS = 5.0
 #: A fix whose stamp is further than this ahead of the newest own state waits for it, s.
 MAX_EXTRAPOLATION = 0.1
+#: The autopilot must show a mode other than offboard this long (vehicle s) before the companion
+#: concludes it took over (heartbeats come at 1 Hz).
+LEFT_OFFBOARD_GRACE = 2.0
 #: A fix still unusable this long after its stamp (no own state at that time) is dropped, s.
 FIX_MAX_WAIT = 1.0
 
@@ -127,6 +130,8 @@ class CompanionApp:
         self.engaged_at: float | None = None
         self.setpoints_sent = 0
         self.vehicle_link_losses = 0
+        self.resumes = 0
+        self._left_offboard_since: float | None = None
         self.deadline_misses = 0
         self.latencies_ms: list[float] = []  # fix received -> first setpoint sent after its bearing
         self.bearing_latencies_ms: list[float] = []  # fix received -> its bearing given to the estimator
@@ -264,10 +269,15 @@ class CompanionApp:
             self._log_row(sample, output, bearings)
             if self.engaged_at is not None and sample.state.time >= self.engaged_at + duration:
                 break
-            if self.engaged_at is not None and vehicle.flight_mode is not None and vehicle.flight_mode.name not in ("OFFBOARD",):
-                # The autopilot left offboard (failsafe or pilot): stop commanding, let it act.
-                if sample.state.time > self.engaged_at + 3.0:
-                    raise VehicleError(f"autopilot left offboard (mode {vehicle.flight_mode.name})")
+            if self.engaged_at is not None and vehicle.flight_mode is not None and vehicle.flight_mode.name != "OFFBOARD":
+                # The autopilot left offboard (its failsafe, or a pilot): it is in charge now.
+                if self._left_offboard_since is None:
+                    self._left_offboard_since = sample.state.time
+                elif sample.state.time - self._left_offboard_since > LEFT_OFFBOARD_GRACE:
+                    if not await self._after_autopilot_took_over(sample, f"autopilot left offboard (mode {vehicle.flight_mode.name})"):
+                        return
+            else:
+                self._left_offboard_since = None
 
     async def _vehicle_link_lost(self) -> bool:
         """No odometry for vehicle_link_timeout: stop commanding (MAVSDK's re-sending included) and let
@@ -288,12 +298,19 @@ class CompanionApp:
                                f"{self.settings.vehicle_link_wait:g} s") from None
         self.recorder.event(sample.state.time, "vehicle_link", f"telemetry back after {sample.state.time - lost_at:.2f} s "
                                                                 f"(autopilot mode {vehicle.flight_mode.name if vehicle.flight_mode else '?'})")
+        return await self._after_autopilot_took_over(sample, "vehicle link back")
+
+    async def _after_autopilot_took_over(self, sample: VehicleSample, reason: str) -> bool:
+        """Re-engage offboard if [companion] on_vehicle_link_return allows it, else leave it to landing."""
+        self.recorder.event(sample.state.time, "vehicle_link", reason)
+        self._left_offboard_since = None
         if self.settings.on_vehicle_link_return != "resume":
             self.recorder.event(sample.state.time, "vehicle_link", "not resuming (on_vehicle_link_return = land)")
             return False
         self._record_state(sample)
         output = self.pipeline.step(sample.state.time, sample.state, None)
-        await vehicle.start_offboard(output.setpoint)
+        await self.vehicle.start_offboard(output.setpoint)
+        self.resumes += 1
         self._set_phase(Phase.FOLLOWING, f"resumed at t={sample.state.time:.2f} s")
         return True
 
@@ -341,6 +358,7 @@ class CompanionApp:
                 self.health.bearings_dropped[result.reason] += 1
                 continue
             bearings.append(result.bearing)
+            self.recorder.bearing(result.bearing, fix.seq)
             self.health.bearings_used += 1
             self._awaiting_setpoint.append(fix)
             self.bearing_latencies_ms.append((time.monotonic_ns() - fix.received_ns) * 1e-6)
@@ -464,6 +482,7 @@ class CompanionApp:
             "engaged_at": self.engaged_at,
             "setpoints_sent": self.setpoints_sent,
             "vehicle_link_losses": self.vehicle_link_losses,
+            "resumes": self.resumes,
             "deadline_misses": self.deadline_misses,
             "latency_fix_to_setpoint_ms": {
                 "p50": float(np.percentile(latencies, 50)), "p99": float(np.percentile(latencies, 99)),

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 
 from companion.attitude import VehicleLimits
-from companion.config import Scenario, VehicleConfig
+from companion.config import ConfigError, Scenario, VehicleConfig
 from companion.estimators import GainProjection, InitialGuess, UPLKF
 from companion.guidance import HelicalNavigationGuidance, LateralGuidance, PurePursuitGuidance, RangeController
-from companion.pipeline import FollowingPipeline
+from companion.pipeline import DropoutPolicy, FollowingPipeline
 
 
 def build_estimator(scenario: Scenario) -> UPLKF:
@@ -63,4 +63,21 @@ def build_pipeline(scenario: Scenario, vehicle: VehicleConfig, hover_thrust_norm
         initial_guess=initial_guess(scenario),
         control_period=1.0 / scenario.guidance.rate_hz,
         los_source=scenario.guidance.los_source,
+        dropout=dropout_policy(scenario),
     )
+
+
+def dropout_policy(scenario: Scenario) -> DropoutPolicy:
+    """The [dropout] section; safe/min range default to 1.5 / 0.5 x the desired range."""
+    settings = scenario.dropout
+    desired = scenario.guidance.desired_range
+    try:
+        return DropoutPolicy(
+            coast_after=settings.coast_after, coast_limit=settings.coast_limit, max_position_std=settings.max_position_std,
+            safe_range=settings.safe_range if settings.safe_range is not None else 1.5 * desired,
+            min_range=settings.min_range if settings.min_range is not None else 0.5 * desired,
+            gate_sigma=settings.gate_sigma, bearing_noise_std=max(scenario.sensor.noise_std, 1e-3),
+            reacquire_bearings=settings.reacquire_bearings, restart_range_std=settings.restart_range_std,
+            max_jerk=settings.max_jerk, blend_time=settings.blend_time)
+    except ValueError as error:
+        raise ConfigError(f"dropout: {error}") from None

@@ -372,6 +372,36 @@ class FaultsConfig(_Strict):
         return self
 
 
+class DropoutConfig(_Strict):
+    """What the companion does when bearings stop and come back (companion.pipeline.DropoutPolicy).
+
+    coast_after / coast_limit: s without a bearing before coasting / before the safe
+    behaviour (hold safe_range on the predicted line of sight, no weave, never closing while
+    the predicted range minus 2 sigma is under min_range). max_position_std: m, while
+    coasting the safe behaviour also starts when the prediction gets this uncertain.
+    gate_sigma, reacquire_bearings, restart_range_std: re-acquisition gate and restart.
+    max_jerk (m/s^3) and blend_time (s): how fast the command may change after a mode change.
+    safe_range / min_range default to 1.5 and 0.5 times guidance.desired_range.
+    """
+
+    coast_after: Positive = 0.6
+    coast_limit: Positive = 3.0
+    max_position_std: Positive = 6.0
+    safe_range: Positive | None = None
+    min_range: Positive | None = None
+    gate_sigma: Positive = 4.0
+    reacquire_bearings: Annotated[int, Field(ge=1)] = 2
+    restart_range_std: Positive = 10.0
+    max_jerk: Positive = 15.0
+    blend_time: NonNegative = 2.0
+
+    @model_validator(mode="after")
+    def _ordered(self) -> "DropoutConfig":
+        if self.coast_after > self.coast_limit:
+            raise ValueError("coast_after must not exceed coast_limit")
+        return self
+
+
 class Scenario(_Strict):
     name: str
     description: str = ""
@@ -386,6 +416,7 @@ class Scenario(_Strict):
     link: LinkConfig = LinkConfig()
     companion: CompanionConfig = CompanionConfig()
     faults: FaultsConfig = FaultsConfig()
+    dropout: DropoutConfig = DropoutConfig()
 
     @model_validator(mode="after")
     def _rates_fit_physics(self) -> "Scenario":

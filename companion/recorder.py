@@ -3,6 +3,7 @@ interrupted run keeps everything up to the interruption.
 
     series.csv      one row per own-state sample while engaged: own state, estimate,
                     bearing used (if any), command, setpoint
+    bearings.csv    every bearing given to the estimator (its only measurement input)
     zenoh_rx.jsonl  every Zenoh message received, with receipt time and verdict
     events.jsonl    phase changes, status texts, errors
     latency.csv     target message received -> setpoint sent (wall clock), per bearing
@@ -46,6 +47,8 @@ class RunRecorder:
         self._series.write(",".join(SERIES_COLUMNS) + "\n")
         self._zenoh = (self.folder / "zenoh_rx.jsonl").open("w", buffering=1)
         self._events = (self.folder / "events.jsonl").open("w", buffering=1)
+        self._bearings = (self.folder / "bearings.csv").open("w", buffering=1)
+        self._bearings.write("time,direction_x,direction_y,direction_z,pursuer_x,pursuer_y,pursuer_z,fix_seq\n")
         self._latency = (self.folder / "latency.csv").open("w", buffering=1)
         self._latency.write("fix_seq,fix_stamp,received_ns,setpoint_sent_ns,latency_ms\n")
         self._lock = threading.Lock()
@@ -69,6 +72,11 @@ class RunRecorder:
         with self._lock:
             self._events.write(json.dumps(record) + "\n")
 
+    def bearing(self, bearing, fix_seq: int) -> None:
+        """One estimator input: the bearing (its time, direction, projection centre) and the fix it came from."""
+        values = (bearing.time, *bearing.direction, *bearing.pursuer_position)
+        self._bearings.write(",".join(f"{float(v):.9g}" for v in values) + f",{fix_seq}\n")
+
     def latency(self, fix_seq: int, fix_stamp: float, received_ns: int, sent_ns: int) -> None:
         self._latency.write(f"{fix_seq},{fix_stamp:.4f},{received_ns},{sent_ns},{(sent_ns - received_ns) * 1e-6:.3f}\n")
 
@@ -78,7 +86,7 @@ class RunRecorder:
         os.replace(tmp, self.folder / "summary.json")
 
     def close(self) -> None:
-        for handle in (self._series, self._zenoh, self._events, self._latency):
+        for handle in (self._series, self._zenoh, self._events, self._latency, self._bearings):
             handle.close()
 
 

@@ -18,10 +18,14 @@ import numpy as np
 from companion.assembly import build_pipeline
 from companion.bearing_sensor import BearingSensor
 from companion.config import Scenario, VehicleConfig
+from companion.fix_validator import FixRejected, FixValidator
+from companion.link import TargetFix, encode_target_fix
 from companion.messages import BearingMeasurement, PursuerState
+from companion.pipeline import TrackMode
 from sitl_plant.attitude_control import AttitudeThrustVehicle
 from sitl_plant.params import QuadrotorParams
 from sitl_plant.quadrotor import RigidBodyState
+from sitl_plant.faults import LinkFaults, fault_rng
 from sitl_plant.target import Maneuver, TargetModel
 
 
@@ -32,6 +36,9 @@ class Termination(enum.Enum):
     ESTIMATE_NOT_FINITE = "estimator state became NaN or infinite"
     OUT_OF_CONTROL = "out of control: tilted past 90 degrees or faster than 60 m/s"
 
+
+#: track_mode column of the flight log: the pipeline's TrackMode as a number.
+TRACK_MODE_CODES = {TrackMode.TRACKING: 0, TrackMode.COASTING: 1, TrackMode.DEGRADED: 2, TrackMode.REACQUIRING: 3}
 
 MAX_SPEED = 60.0  # m/s, far above anything the Table I vehicle can reach with 1.5 g of thrust
 
@@ -65,7 +72,7 @@ class FlightLog:
     _WIDTHS = {
         "time": 1, "pursuer_position": 3, "pursuer_velocity": 3, "pursuer_forward": 3, "pursuer_down_z": 1,
         "target_position": 3, "target_velocity": 3, "estimate_position": 3, "estimate_velocity": 3,
-        "estimate_position_std": 1, "command_acceleration": 3, "thrust_normalized": 1,
+        "estimate_position_std": 1, "command_acceleration": 3, "thrust_normalized": 1, "track_mode": 1, "bearing_age": 1,
     }
 
     def __init__(self, rows: int) -> None:
@@ -112,6 +119,7 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
     """Fly one scenario in process. seed overrides scenario.simulation.seed."""
     seed = scenario.simulation.seed if seed is None else seed
     plant_rng, sensor_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
+    link = InProcessLink(scenario, seed)
     params = quadrotor_params(vehicle)
     autopilot = AttitudeThrustVehicle(params, _initial_state(scenario, params), scenario.simulation.physics_rate_hz, plant_rng)
     target = TargetModel(
@@ -143,17 +151,31 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
         truth = autopilot.state
         measured_position, measured_velocity = autopilot.measured_state()
         pursuer = PursuerState(time, measured_position, measured_velocity)
-        bearing = None
-        if step % every["sensor"] == 0:
+        bearings = []
+        if link.enabled:
+            # Fixes go through the fault model and the validator, as over the real link; the
+            # bearing is then taken at each delivered fix's time from the pursuer's state then.
+            if step % every["sensor"] == 0:
+                link.offer(time, target.position, target.velocity, truth, measured_position)
+            for stamp, fix_position, sample in link.deliver(time):
+                line_of_sight = fix_position - sample.true_position
+                direction = sensor.measure(line_of_sight / np.linalg.norm(line_of_sight), sensor_rng, sample.rotation)
+                if direction is None:
+                    bearings_out_of_view += 1
+                else:
+                    bearings.append(BearingMeasurement(stamp, direction, sample.measured_position))
+        elif step % every["sensor"] == 0:
             line_of_sight = target.position - truth.position
             # The camera sees through the vehicle's true attitude; outside its field of view no bearing comes.
             direction = sensor.measure(line_of_sight / np.linalg.norm(line_of_sight), sensor_rng, truth.rotation)
             if direction is None:
                 bearings_out_of_view += 1
             else:
-                bearing = BearingMeasurement(time, direction, measured_position)
-                bearings_used += 1
-        output = pipeline.step(time, pursuer, bearing)
+                bearings.append(BearingMeasurement(time, direction, measured_position))
+        bearings_used += len(bearings)
+        output = None
+        for bearing in bearings or [None]:
+            output = pipeline.step(time, pursuer, bearing)
         if output.new_setpoint and output.setpoint is not None:
             # The autopilot side: attitude in, normalised thrust scaled by its own maximum.
             # (The networked harness sends the same attitude as a quaternion.)
@@ -175,8 +197,64 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
     summary = summarize(series, scenario, termination)
     summary["bearings_used"] = bearings_used
     summary["bearings_out_of_view"] = bearings_out_of_view
+    summary["track_mode_changes"] = [(round(t, 3), mode.value) for t, mode in pipeline.mode_changes]
+    summary["reinitializations"] = pipeline.reinitializations
+    if link.enabled:
+        summary["link"] = link.summary()
+        summary["fault_events"] = [(round(e.time, 3), e.kind, e.detail) for e in link.faults.events]
     summary["seed"] = seed
     return SimulationResult(scenario, series, summary, termination)
+
+
+@dataclass(frozen=True)
+class _Sample:
+    true_position: np.ndarray
+    rotation: np.ndarray
+    measured_position: np.ndarray
+
+
+class InProcessLink:
+    """The target link of the in-process simulator when [faults] injects something: fixes are
+    encoded as on the real link (local NED frame), pass LinkFaults, and are checked by the same
+    FixValidator as the companion's. The pursuer's state at each fix time is kept so a late
+    fix gives the bearing of its own time."""
+
+    def __init__(self, scenario: Scenario, seed: int) -> None:
+        self.faults = LinkFaults(scenario.faults, fault_rng(scenario.faults, seed))
+        self.enabled = self.faults.enabled
+        self.sender = scenario.link.target_sender
+        self.validator = FixValidator(self.sender, scenario.sitl.home)
+        self._seq = 0
+        self._samples: dict[int, _Sample] = {}
+        self._rate = scenario.sensor.rate_hz
+        self.offered = 0
+        self.delivered = 0
+
+    def offer(self, time: float, position: np.ndarray, velocity: np.ndarray, truth: RigidBodyState,
+              measured_position: np.ndarray) -> None:
+        payload = encode_target_fix(TargetFix(self.sender, self._seq, time, "ned", position, velocity))
+        self._seq += 1
+        key = round(time * self._rate)
+        self._samples[key] = _Sample(truth.position, truth.rotation, measured_position)
+        self._samples.pop(key - round(30.0 * self._rate), None)  # keep 30 s for stale fixes
+        self.faults.offer(time, payload, time)
+        self.offered += 1
+
+    def deliver(self, time: float):
+        """(stamp, NED position, pursuer sample at the stamp) of each valid fix due now."""
+        for payload in self.faults.due(time):
+            self.delivered += 1
+            try:
+                fix, position = self.validator.check(payload)
+            except FixRejected:
+                continue
+            sample = self._samples.get(round(fix.stamp * self._rate))
+            if sample is not None:
+                yield fix.stamp, position, sample
+
+    def summary(self) -> dict:
+        return {"offered": self.offered, "delivered": self.delivered, "accepted": self.validator.accepted,
+                "rejected": dict(self.validator.rejected), "faults": dict(self.faults.counters)}
 
 
 def _log_tick(log: FlightLog, time: float, truth: RigidBodyState, target: TargetModel, output) -> None:
@@ -198,6 +276,8 @@ def _log_tick(log: FlightLog, time: float, truth: RigidBodyState, target: Target
         )
     if setpoint is not None:
         row.update(command_acceleration=setpoint.acceleration, thrust_normalized=setpoint.thrust_normalized)
+    if estimate is not None:
+        row.update(track_mode=TRACK_MODE_CODES[output.mode], bearing_age=output.bearing_age)
     log.append(**row)
 
 

@@ -108,14 +108,14 @@ def flight_series(run: Path) -> tuple[dict[str, np.ndarray], float]:
 
 
 def bearing_only_check(run: Path) -> dict:
-    """What the estimator was given: every bearing in the companion's log is a direction (norm ~1,
-    the noise of eq. (4) aside) and the log has no range input column at all."""
+    """What the estimator was given: every bearing in the companion's estimator-input log is a
+    direction (norm ~1, the noise of eq. (4) aside), and its logs have no range input column."""
     companion = _read_csv(run / "companion" / "series.csv")
-    bearings = np.column_stack([companion[k] for k in ("bearing_x", "bearing_y", "bearing_z")])
-    used = np.isfinite(bearings).all(axis=1)
-    norms = np.linalg.norm(bearings[used], axis=1)
+    inputs = _read_csv(run / "companion" / "bearings.csv")
+    bearings = np.column_stack([inputs[k] for k in ("direction_x", "direction_y", "direction_z")])
+    norms = np.linalg.norm(bearings, axis=1)
     return {
-        "bearings_logged": int(used.sum()),
+        "bearings_logged": int(len(norms)),
         "bearing_norm_min": float(norms.min()) if norms.size else math.nan,
         "bearing_norm_max": float(norms.max()) if norms.size else math.nan,
         "range_inputs_logged": sum(1 for key in companion if "range" in key and key != "range_estimate"),

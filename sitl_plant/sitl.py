@@ -262,6 +262,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--zenoh-connect", action="append", default=None, metavar="ENDPOINT",
                         help="publish the simulated clock on Zenoh, connecting here; repeatable")
     parser.add_argument("--clock-rate", type=float, default=50.0, help="clock messages per simulated second")
+    parser.add_argument("--mavlink-blackout", type=float, nargs=2, action="append", default=None,
+                        metavar=("START", "DURATION"),
+                        help="fault injection: the companion link goes silent both ways from START for DURATION "
+                             "simulated seconds (adds to [faults.mavlink] blackouts); repeatable")
+    parser.add_argument("--no-faults", action="store_true", help="ignore the scenario's [faults.mavlink] blackouts")
     return parser.parse_args(argv)
 
 
@@ -285,6 +290,15 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if args.latency_log:
         vehicle.on_odometry_sent = log.odometry_sent
+    windows = [] if args.no_faults else [(b.start, b.start + b.duration) for b in scenario.faults.mavlink.blackouts]
+    for start, duration in args.mavlink_blackout or []:
+        if not (math.isfinite(start) and math.isfinite(duration) and start >= 0 and duration > 0):
+            print(f"sitl-plant: --mavlink-blackout {start} {duration}: need START >= 0 and DURATION > 0", file=sys.stderr)
+            vehicle.close()
+            log.close()
+            return 2
+        windows.append((start, start + duration))
+    vehicle.companion_blackouts = sorted(windows)
     clock = None
     if args.zenoh_listen or args.zenoh_connect:
         try:

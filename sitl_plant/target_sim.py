@@ -17,15 +17,25 @@ clock sender are ignored; a clock that goes back (a restarted plant) restarts th
 target from its initial state; a forward jump of more than MAX_CLOCK_JUMP re-anchors
 the fix schedule instead of publishing the whole gap.
 
-Log (--log-dir): target.csv, one row per fix published (seq, stamp, scenario time, true
-NED position and velocity, published position in the published frame), flushed line
-by line. SIGINT/SIGTERM, or reaching --duration simulated seconds, closes the session,
+Link faults (sitl_plant.faults): the scenario's [faults] sit between the encoder and the
+publisher. Every fix is offered to the fault model and every clock tick publishes what
+it says is due (its delays are resolved to the clock's tick); the impostor's fixes go
+out on the same key. --faults off disables them; --fault KEY=VALUE (repeatable, VALUE a
+TOML value, e.g. --fault loss_probability=0.3 --fault 'blackouts=[{start=20,duration=5}]')
+overrides one setting. The faults' seed is [faults] seed, else derived from the seed.
+
+Log (--log-dir): target.csv, one row per fix produced, before the link faults (seq,
+stamp, scenario time, true NED position and velocity, published position in the
+published frame), and faults.jsonl, one line per injected fault ({"time": simulated s,
+"kind", "detail"}), both flushed line by line. A one-line count of the faults is
+printed at exit. SIGINT/SIGTERM, or reaching --duration simulated seconds, closes the session,
 finishes the log and exits 0; bad arguments exit 2.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import queue
 import signal
@@ -37,7 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
-from companion.config import ConfigError, TargetConfig, load_scenario
+from companion.config import ConfigError, FaultsConfig, TargetConfig, load_scenario
 from companion.link import (
     CLOCK_KEY,
     LinkError,
@@ -53,6 +63,7 @@ from companion.link import (
     target_fix_key,
     zenoh_config,
 )
+from sitl_plant.faults import FaultEvent, LinkFaults, describe, fault_rng, override_faults
 from sitl_plant.target import Maneuver, TargetModel
 
 DEFAULT_SCENARIO = Path(__file__).resolve().parent.parent / "config" / "scenarios" / "constant_velocity.toml"
@@ -143,12 +154,37 @@ class TargetLog:
             self._handle = None
 
 
+class FaultLog:
+    """faults.jsonl: one JSON line per injected link fault, flushed as written (no file without a folder)."""
+
+    def __init__(self, folder: Path | None) -> None:
+        self._handle = None
+        if folder is not None:
+            folder.mkdir(parents=True, exist_ok=True)
+            self._handle = (folder / "faults.jsonl").open("w", buffering=1)
+
+    def write(self, events: list[FaultEvent]) -> None:
+        if self._handle is not None:
+            for event in events:
+                self._handle.write(json.dumps({"time": event.time, "kind": event.kind, "detail": event.detail}) + "\n")
+
+    def close(self) -> None:
+        if self._handle is not None:
+            self._handle.close()
+            self._handle = None
+
+
 class TargetPublisher:
-    """Clock ticks in, fixes out: everything sitl-target does between two clock ticks."""
+    """Clock ticks in, fixes out: everything sitl-target does between two clock ticks.
+
+    faults: the link's fault model (None: every fix is sent as it is made); its events
+    go to fault_log.
+    """
 
     def __init__(self, truth: TargetTruth, schedule: FixSchedule, send, log: TargetLog, sender: str, frame: str,
                  home: tuple[float, float, float], noise_std: float, rng: np.random.Generator,
-                 duration: float | None = None) -> None:
+                 duration: float | None = None, faults: LinkFaults | None = None,
+                 fault_log: FaultLog | None = None) -> None:
         self.truth = truth
         self.schedule = schedule
         self.send = send  # callable(bytes)
@@ -167,6 +203,9 @@ class TargetPublisher:
         self.ignored: Counter[str] = Counter()  # valid ticks not used: other_sender
         self.events: Counter[str] = Counter()  # clock_backwards, clock_jump, unpublishable
         self.finished = False
+        self.faults = faults
+        self.fault_log = fault_log
+        self._fault_events_logged = 0
 
     def on_clock_payload(self, payload: bytes) -> None:
         """Handle one raw clock payload: decode, check, publish every fix it makes due."""
@@ -186,6 +225,8 @@ class TargetPublisher:
             print(f"sitl-target: clock went back from {self.clock_time:.3f} to {tick.stamp:.3f} s; "
                   "restarting the target from its initial state", flush=True)
             self.schedule.restart()
+            if self.faults is not None:
+                self.faults.restart(tick.stamp)
         elif self.clock_time is not None and tick.stamp - self.clock_time > MAX_CLOCK_JUMP:
             self.events["clock_jump"] += 1
             print(f"sitl-target: clock jumped from {self.clock_time:.3f} to {tick.stamp:.3f} s; "
@@ -196,8 +237,19 @@ class TargetPublisher:
             if self.duration is not None and stamp > self.duration + CLOCK_TOLERANCE:
                 break
             self.publish(stamp)
+        self.deliver(tick.stamp)
         if self.duration is not None and tick.stamp >= self.duration - CLOCK_TOLERANCE:
             self.finished = True
+
+    def deliver(self, now: float) -> None:
+        """Send what the link faults have due at simulated time `now` (s) and log their new events."""
+        if self.faults is None:
+            return
+        for payload in self.faults.due(now):
+            self.send(payload)
+        if self.fault_log is not None:
+            self.fault_log.write(self.faults.events[self._fault_events_logged:])
+        self._fault_events_logged = len(self.faults.events)
 
     def on_command_payload(self, payload: bytes) -> None:
         """The action command: "start" begins the scenario at the current simulated time (once)."""
@@ -229,7 +281,10 @@ class TargetPublisher:
                 print(f"sitl-target: cannot publish the fix at t={stamp:.3f} s: {error}", flush=True)
             self.events["unpublishable"] += 1
             return
-        self.send(payload)
+        if self.faults is None:
+            self.send(payload)
+        else:  # scenario time is negative (-inf while waiting for the start command) before the scenario
+            self.faults.offer(stamp, payload, stamp - self.truth.start_time)
         self.log.fix(fix, scenario_time, position, velocity)
         self.seq += 1
 
@@ -254,7 +309,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                              "action command); the scenario then starts at that simulated time")
     parser.add_argument("--duration", type=float, default=None, help="stop at this simulated time (s)")
     parser.add_argument("--seed", type=int, default=None, help="noise seed (default: [simulation] seed)")
-    parser.add_argument("--log-dir", type=Path, default=None, help="write target.csv here")
+    parser.add_argument("--log-dir", type=Path, default=None, help="write target.csv and faults.jsonl here")
+    parser.add_argument("--faults", choices=("on", "off"), default="on",
+                        help="inject the scenario's [faults] on the link (default: on); off ignores --fault too")
+    parser.add_argument("--fault", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a [faults] setting, VALUE in TOML, e.g. loss_probability=0.3 or "
+                             "'blackouts=[{start=20,duration=5}]' or burst.mean_burst_s=2; repeatable")
     parser.add_argument("--home", type=float, nargs=3, default=None, metavar=("LAT", "LON", "ALT"),
                         help="geodetic origin of the NED frame, deg deg m AMSL (default: the scenario's [sitl] home)")
     return parser.parse_args(argv)
@@ -290,14 +350,18 @@ def main(argv: list[str] | None = None) -> int:
         args.noise_std = scenario.link.fix_noise_std if args.noise_std is None else args.noise_std
         args.sender = scenario.link.target_sender if args.sender is None else args.sender
         _check_args(args)
+        faults_config = override_faults(scenario.faults, args.fault) if args.faults == "on" else FaultsConfig()
         config = zenoh_config(listen=args.zenoh_listen, connect=args.zenoh_connect)
     except (ConfigError, LinkError) as error:
         print(f"sitl-target: {error}", file=sys.stderr)
         return 2
     home = tuple(args.home) if args.home is not None else tuple(scenario.sitl.home)
     seed = scenario.simulation.seed if args.seed is None else args.seed
+    faults = LinkFaults(faults_config, fault_rng(faults_config, seed))
+    faults = faults if faults.enabled else None
     try:
         log = TargetLog(args.log_dir, args.frame)
+        fault_log = FaultLog(args.log_dir)
     except OSError as error:
         print(f"sitl-target: cannot write the log: {error}", file=sys.stderr)
         return 2
@@ -305,6 +369,7 @@ def main(argv: list[str] | None = None) -> int:
         session = open_session(config)
     except LinkError as error:
         log.close()
+        fault_log.close()
         print(f"sitl-target: {error}", file=sys.stderr)
         return 2
 
@@ -334,12 +399,13 @@ def main(argv: list[str] | None = None) -> int:
         start_time = math.inf if args.wait_for_start else args.start_time
         target = TargetPublisher(TargetTruth(scenario.target, start_time), FixSchedule(args.rate), fixes.put, log,
                                  args.sender, args.frame, home, args.noise_std, np.random.default_rng(seed),
-                                 args.duration)
+                                 args.duration, faults, fault_log)
         clock = session.declare_subscriber(CLOCK_KEY, on_clock)
         commands = session.declare_subscriber(target_command_key(args.sender), on_command)
         listen = args.zenoh_listen or ["tcp/127.0.0.1:0"]
         print(f"sitl-target ready: {scenario.name}, publishing {key} at {args.rate:g} Hz ({args.frame}), "
-              f"clock {CLOCK_KEY}, zenoh peer listen {listen} connect {args.zenoh_connect}", flush=True)
+              f"clock {CLOCK_KEY}, zenoh peer listen {listen} connect {args.zenoh_connect}, "
+              f"faults: {describe(faults_config) if args.faults == 'on' else 'off'}", flush=True)
         started = time.monotonic()
         said_waiting = False
         while not stop.is_set() and not target.finished:
@@ -361,12 +427,18 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         session.close()
         log.close()
+        fault_log.close()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     clock_time = "no clock" if target.clock_time is None else f"t={target.clock_time:.3f}s"
     print(f"sitl-target stopped at {clock_time}: {target.seq} fixes, {target.ticks} clock ticks, "
           f"rejected clock payloads: {dict(target.rejected) or 'none'}, ignored: {dict(target.ignored + dropped) or 'none'}, "
           f"events: {dict(target.events) or 'none'}", flush=True)
+    if faults is None:
+        print(f"sitl-target faults: {'off' if args.faults == 'off' else 'none configured'}", flush=True)
+    else:
+        print(f"sitl-target faults: {dict(sorted(faults.counters.items())) or 'none injected'}, "
+              f"{faults.pending} still in flight at exit", flush=True)
     return 0
 
 

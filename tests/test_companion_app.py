@@ -72,3 +72,47 @@ def test_abort_command_is_honoured_and_garbage_commands_are_not(app):
     assert app.abort_requested
     events = [json.loads(line) for line in (app.recorder.folder / "events.jsonl").read_text().splitlines()]
     assert [e["kind"] for e in events] == ["command_rejected", "command"]
+
+
+def test_every_malformed_kind_is_counted_under_its_reason_and_never_reaches_the_bearings(app):
+    from sitl_plant.faults import CORRUPTION_REASONS, corrupt_payload
+
+    app.phase = Phase.READY
+    app._on_fix(_fix(0, 1.0), 0)
+    expected = {}
+    for seq, (kind, reason) in enumerate(sorted(CORRUPTION_REASONS.items()), start=1):
+        broken, _ = corrupt_payload(_fix(seq, 1.0 + 0.2 * seq), kind, np.array([0.3, 0.6]))
+        app._on_fix(broken, 0)
+        expected[reason] = expected.get(reason, 0) + 1
+    app._on_fix(_fix(50, 9.0, sender="impostor-1"), 0)
+    app._on_fix(_fix(0, 1.0), 0)  # a duplicate / stale message
+    app._on_fix(_fix(51, 9.2, position=(5000.0, 0.0, -20.0)), 0)  # a wild jump
+    expected.update(wrong_sender=1, stale_seq=1, implausible_jump=1)
+    assert dict(app.health.rejected) == expected
+    assert app.health.accepted == 1 and len(app.pending) == 1  # only the valid fix is queued
+
+
+@pytest.fixture
+def bare_app(tmp_path_factory, scenario_path):
+    scenario, vehicle = load_scenario(scenario_path("constant_velocity"))
+    application = CompanionApp(scenario, vehicle, tmp_path_factory.mktemp("fuzz"))
+    yield application
+    application.recorder.close()
+
+
+def test_fuzzed_payloads_never_crash_the_companion_and_are_all_accounted_for(bare_app):
+    from hypothesis import HealthCheck, given, settings, strategies as st
+
+    json_like = st.recursive(st.none() | st.booleans() | st.floats(allow_nan=True) | st.integers() | st.text(max_size=8),
+                             lambda children: st.lists(children, max_size=4) | st.dictionaries(st.text(max_size=8), children, max_size=4),
+                             max_leaves=12)
+
+    @settings(max_examples=300, derandomize=True, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+    @given(st.one_of(st.binary(max_size=300), json_like.map(lambda value: json.dumps(value).encode())))
+    def run(payload):
+        before = bare_app.health.received
+        bare_app._on_fix(payload, 0)
+        assert bare_app.health.received == before + 1
+        assert bare_app.health.accepted + sum(bare_app.health.rejected.values()) == bare_app.health.received
+
+    run()

@@ -1,0 +1,52 @@
+"""The dropout campaign: per-flight figures and the campaign command."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from companion.config import load_scenario
+from sitl_plant import campaign
+from sitl_plant.closed_loop import Termination
+
+
+def _series(error: np.ndarray, distance: np.ndarray) -> dict:
+    n = error.size
+    t = np.arange(n) * 0.1
+    estimate = np.zeros((n, 3))
+    return {"time": t, "estimate_position": estimate, "range_estimate": distance + error, "range": distance}
+
+
+def test_flight_metrics_reconverge_worst_error_and_kept(scenario_path):
+    scenario, _ = load_scenario(scenario_path("constant_velocity"))
+    t = np.arange(600) * 0.1
+    error = np.where((t >= 30.0) & (t < 38.0), 3.0, 0.2)  # bad from 30 s until 38 s
+    metrics = campaign.flight_metrics(_series(error, np.full(600, 8.0)), scenario, Termination.COMPLETED,
+                                      [(30.0, 35.0)], continuous=False)
+    assert metrics["kept"] and metrics["worst_error"] == pytest.approx(3.0)
+    assert metrics["reconverge"] == pytest.approx(3.0, abs=0.11)  # link back at 35 s, under 1 m from 38 s
+    lost = campaign.flight_metrics(_series(np.where(t >= 30.0, 3.0, 0.2), np.full(600, 8.0)), scenario,
+                                   Termination.COMPLETED, [(30.0, 35.0)], continuous=False)
+    assert not lost["kept"] and math.isinf(lost["reconverge"])
+    too_far = campaign.flight_metrics(_series(np.full(600, 0.2), np.full(600, 20.0)), scenario, Termination.COMPLETED,
+                                      [], continuous=True)
+    assert not too_far["kept"] and math.isnan(too_far["reconverge"])
+
+
+def test_the_campaign_command_writes_its_tables(tmp_path, scenario_path):
+    code = campaign.main([str(scenario_path("constant_velocity")), "--seeds", "2", "--patterns", "blackout_5s", "corrupt",
+                          "--workers", "2", "--out", str(tmp_path)])
+    folder = next(tmp_path.glob("campaign-*"))
+    rows = (folder / "results.csv").read_text().splitlines()
+    assert len(rows) == 1 + 4
+    summary = json.loads((folder / "summary.json").read_text())
+    patterns = {entry["pattern"]: entry for entry in summary["patterns"]}
+    assert patterns["blackout_5s"]["kept_share"] == 1.0 and patterns["blackout_5s"]["meets_targets"] is True
+    assert "meets_targets" not in patterns["corrupt"]
+    assert code == 0
+    corrupt = [row for row in rows[1:] if row.startswith("corrupt")]
+    assert all("not_" in row or "missing_field" in row or "out_of_range" in row for row in corrupt)
+    assert "| blackout_5s" in (folder / "summary.md").read_text()
