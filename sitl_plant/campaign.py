@@ -154,6 +154,15 @@ def pattern_table(rows: list[dict], desired_range: float) -> list[dict]:
     return table
 
 
+def _f(value: float, digits: int) -> str:
+    """A number for the tables; '-' where a figure does not apply (no fault, no blackout), 'never' for inf."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "-"
+    if math.isinf(value):
+        return "never"
+    return f"{value:.{digits}f}"
+
+
 def markdown(table: list[dict], sitl_rows: list[dict], scenario: Scenario, seeds: int) -> str:
     lines = [f"# Link-dropout campaign: {scenario.name}, {seeds} seeds per pattern, r_d = {scenario.guidance.desired_range:g} m",
              "",
@@ -163,14 +172,14 @@ def markdown(table: list[dict], sitl_rows: list[dict], scenario: Scenario, seeds
     for e in table:
         verdict = {True: "met", False: "**missed**"}.get(e.get("meets_targets"), "-")
         lines.append(f"| {e['pattern']} ({e['description']}) | {e['flights']} | {100 * e['kept_share']:.0f} % | "
-                     f"{e['min_range']:.2f} | {e['worst_error_median']:.2f} / {e['worst_error_max']:.2f} | "
-                     f"{e['reconverge_median']:.1f} / {e['reconverge_max']:.1f} | {verdict} |")
+                     f"{_f(e['min_range'], 2)} | {_f(e['worst_error_median'], 2)} / {_f(e['worst_error_max'], 2)} | "
+                     f"{_f(e['reconverge_median'], 1)} / {_f(e['reconverge_max'], 1)} | {verdict} |")
     if sitl_rows:
         lines += ["", "Full SITL (real processes, MAVLink, Zenoh; faults injected by sitl-target):", "",
                   "| pattern | kept | min range (m) | worst error (m) | re-converge (s) | fixes rejected |", "|---|---|---|---|---|---|"]
         for r in sitl_rows:
-            lines.append(f"| {r['pattern']} | {r['kept']} | {r['min_range']:.2f} | {r['worst_error']:.2f} | "
-                         f"{r['reconverge']:.1f} | {r['fixes_rejected']} |")
+            lines.append(f"| {r['pattern']} | {r['kept']} | {_f(r['min_range'], 2)} | {_f(r['worst_error'], 2)} | "
+                         f"{_f(r['reconverge'], 1)} | {r['fixes_rejected']} |")
     return "\n".join(lines) + "\n"
 
 

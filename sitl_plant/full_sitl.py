@@ -328,6 +328,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("runs"))
     parser.add_argument("--timeout", type=float, default=None, help="wall-clock limit for the whole flight, s")
     parser.add_argument("--no-plots", action="store_true")
+    parser.add_argument("--fault", action="append", default=None, metavar="KEY=VALUE",
+                        help="override a [faults] setting of the target link (sitl-target --fault), e.g. loss_probability=0.3")
     parser.add_argument("--abort-after", type=float, default=None,
                         help="as the ground station, send the companion 'abort' this many simulated seconds after it engages")
     parser.add_argument("--quiet", action="store_true")
@@ -337,7 +339,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         code, folder, summary = run(args.config, args.out, args.speed_factor, args.seed, args.timeout, not args.no_plots,
-                                    args.quiet, args.abort_after)
+                                    args.quiet, args.abort_after, args.fault)
     except ConfigError as error:
         print(f"bof-sitl: {error}", file=sys.stderr)
         return 2
