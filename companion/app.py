@@ -433,6 +433,8 @@ class CompanionApp:
         }
         if self._last_output is not None:
             state["track"] = {"mode": self._last_output.mode.value, "bearing_age": self._last_output.bearing_age}
+            if self._last_output.observability is not None:
+                state["observability"] = dict(self._last_output.observability)
         estimate = self._last_output.estimate if self._last_output is not None else None
         if estimate is not None:
             covariance = estimate.covariance
@@ -465,6 +467,9 @@ class CompanionApp:
             b = bearings[-1]
             row.update(bearing_x=float(b.direction[0]), bearing_y=float(b.direction[1]), bearing_z=float(b.direction[2]),
                        bearing_time=b.time)
+        if output.observability is not None:
+            row.update(observability_log_det=float(output.observability["log_det"]),
+                       observability_min_eigenvalue=float(output.observability["min_eigenvalue"]))
         if output.setpoint is not None:
             a = output.setpoint.acceleration
             row.update(acc_x=float(a[0]), acc_y=float(a[1]), acc_z=float(a[2]), thrust_normalized=output.setpoint.thrust_normalized)

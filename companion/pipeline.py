@@ -17,6 +17,7 @@ from companion.estimators import CorrectionReport, InitialGuess, TargetEstimator
 from companion.geometry import unit
 from companion.guidance import LateralGuidance, RangeController
 from companion.messages import AttitudeSetpoint, BearingMeasurement, PursuerState, TargetEstimate
+from companion.observability import WindowedObservability
 
 _TIME_EPS = 1e-9
 
@@ -99,7 +100,9 @@ class PipelineOutput:
     None before the first bearing. new_setpoint: whether this step computed it.
     estimate: the estimator's state at its latest tick (None before the first bearing).
     guidance: the terms of the latest setpoint. correction: what the bearing of
-    this step did to the filter, if a bearing was given.
+    this step did to the filter, if a bearing was given. mode / bearing_age / gated_out /
+    reinitialized: the dropout handling (TrackMode). observability: the windowed FIM measure
+    of the bearings used (companion.observability.WindowedObservability.measure), or None.
     """
 
     time: float
@@ -112,6 +115,7 @@ class PipelineOutput:
     bearing_age: float = 0.0
     gated_out: bool = False
     reinitialized: bool = False
+    observability: dict | None = None
 
 
 class FollowingPipeline:
@@ -137,6 +141,7 @@ class FollowingPipeline:
         control_period: float,
         los_source: str = "estimate",
         dropout: DropoutPolicy | None = None,
+        observability_window: float = 5.0,
     ) -> None:
         if control_period <= 0.0:
             raise ValueError("control period must be positive")
@@ -165,6 +170,8 @@ class FollowingPipeline:
         self._last_command: np.ndarray | None = None
         self.mode_changes: list[tuple[float, TrackMode]] = []
         self.reinitializations = 0
+        self.observability = WindowedObservability(observability_window, self.dropout.bearing_noise_std)
+        self._observability_measure: dict | None = None
 
     @property
     def engaged_at(self) -> float | None:
@@ -181,6 +188,7 @@ class FollowingPipeline:
             self._engaged_at = bearing.time
             self._last_bearing = unit(bearing.direction)
             self._last_bearing_time = bearing.time
+            self._observe(bearing)
         else:
             self._advance_estimator(time)
             if bearing is not None:
@@ -194,7 +202,7 @@ class FollowingPipeline:
             new_setpoint = True
         age = time - self._last_bearing_time if self._last_bearing_time is not None else 0.0
         return PipelineOutput(time, self._setpoint, new_setpoint, self.estimator.estimate, self._guidance, correction,
-                              self.mode, age, gated_out, reinitialized)
+                              self.mode, age, gated_out, reinitialized, self._observability_measure)
 
     def _use_bearing(self, bearing: BearingMeasurement) -> tuple[CorrectionReport | None, bool, bool]:
         """Correct with a bearing; after a gap, only if it agrees with the prediction (the gate)."""
@@ -203,6 +211,7 @@ class FollowingPipeline:
             correction = self.estimator.correct(bearing)
             self._last_bearing = unit(bearing.direction)
             self._last_bearing_time = bearing.time
+            self._observe(bearing)
             return correction, False, False
         self._rejected_in_row += 1
         if self._rejected_in_row < self.dropout.reacquire_bearings:
@@ -219,7 +228,16 @@ class FollowingPipeline:
         self._rejected_in_row = 0
         self._last_bearing = unit(bearing.direction)
         self._last_bearing_time = bearing.time
+        self._observe(bearing)
         return None, False, True
+
+    def _observe(self, bearing: BearingMeasurement) -> None:
+        """Feed the windowed FIM (section V, eq. (7)) with a bearing used, at the estimated range."""
+        estimate = self.estimator.estimate.extrapolated(bearing.time)
+        distance = float(np.linalg.norm(estimate.position - bearing.pursuer_position))
+        if distance > 1e-6:
+            self.observability.add(bearing.time, unit(bearing.direction), distance)
+            self._observability_measure = self.observability.measure()
 
     def _agrees_with_prediction(self, bearing: BearingMeasurement) -> bool:
         estimate = self.estimator.estimate.extrapolated(bearing.time)

@@ -73,6 +73,7 @@ class FlightLog:
         "time": 1, "pursuer_position": 3, "pursuer_velocity": 3, "pursuer_forward": 3, "pursuer_down_z": 1,
         "target_position": 3, "target_velocity": 3, "estimate_position": 3, "estimate_velocity": 3,
         "estimate_position_std": 1, "command_acceleration": 3, "thrust_normalized": 1, "track_mode": 1, "bearing_age": 1,
+        "observability_log_det": 1, "observability_min_eigenvalue": 1,
     }
 
     def __init__(self, rows: int) -> None:
@@ -278,6 +279,9 @@ def _log_tick(log: FlightLog, time: float, truth: RigidBodyState, target: Target
         row.update(command_acceleration=setpoint.acceleration, thrust_normalized=setpoint.thrust_normalized)
     if estimate is not None:
         row.update(track_mode=TRACK_MODE_CODES[output.mode], bearing_age=output.bearing_age)
+    if output.observability is not None:
+        row.update(observability_log_det=output.observability["log_det"],
+                   observability_min_eigenvalue=output.observability["min_eigenvalue"])
     log.append(**row)
 
 
@@ -324,4 +328,14 @@ def summarize(series: dict[str, np.ndarray], scenario: Scenario, termination: Te
         "max_tilt_deg": float(np.max(series["pursuer_tilt"])),
         "max_speed": float(np.max(np.linalg.norm(series["pursuer_velocity"], axis=1))),
         "heading_error_rms_deg": _rms(series["heading_error"][window][np.isfinite(series["heading_error"][window])]),
+        "observability_log_det_median": _median_finite(series.get("observability_log_det"), window),
     }
+
+
+def _median_finite(values: np.ndarray | None, window: np.ndarray) -> float:
+    """Median of the finite values in the window (the windowed FIM's log10 det; -inf when singular)."""
+    if values is None:
+        return math.nan
+    chosen = values[window]
+    chosen = chosen[np.isfinite(chosen)]
+    return float(np.median(chosen)) if chosen.size else math.nan

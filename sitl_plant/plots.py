@@ -68,3 +68,24 @@ def plot_errors(series: dict[str, np.ndarray], desired_range: float, path: Path,
     figure.tight_layout()
     figure.savefig(path, dpi=120)
     plt.close(figure)
+
+
+def plot_observability_comparison(flights: dict[str, dict[str, np.ndarray]], path: Path, title: str) -> None:
+    """The windowed FIM measure (section V, eq. (7)) over time for several flights, e.g. HNG against PPG:
+    log10 det and the smallest eigenvalue of the FIM of the bearings used in the last window."""
+    figure, axes = plt.subplots(2, 1, figsize=(8.0, 6.0), sharex=True)
+    for label, series in flights.items():
+        time = series["time"]
+        axes[0].plot(time, series["observability_log_det"], linewidth=1.0, label=label)
+        axes[1].plot(time, series["observability_min_eigenvalue"], linewidth=1.0, label=label)
+    axes[0].set_ylabel("log10 det(FIM)")
+    axes[1].set_ylabel("smallest eigenvalue of FIM")
+    axes[1].set_yscale("log")
+    axes[1].set_xlabel("time [s]")
+    for ax in axes:
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="lower right")
+    axes[0].set_title(title)
+    figure.tight_layout()
+    figure.savefig(path, dpi=120)
+    plt.close(figure)
