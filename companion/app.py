@@ -27,7 +27,7 @@ import math
 import signal
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -75,18 +75,23 @@ class PendingFix:
     received_ns: int
 
 
-@dataclass
 class LinkHealth:
-    """What the target link has done so far."""
+    """What the target link has done so far; the validation counts are the FixValidator's own."""
 
-    received: int = 0
-    accepted: int = 0
-    rejected: collections.Counter = field(default_factory=collections.Counter)
-    bearings_used: int = 0
-    bearings_dropped: collections.Counter = field(default_factory=collections.Counter)
-    last_seq: int | None = None
-    last_stamp: float | None = None
-    last_received_wall: float | None = None
+    def __init__(self, validator: FixValidator) -> None:
+        self.validator = validator
+        self.received = 0
+        self.bearings_used = 0
+        self.bearings_dropped: collections.Counter[str] = collections.Counter()
+        self.last_received_wall: float | None = None
+
+    @property
+    def accepted(self) -> int:
+        return self.validator.accepted
+
+    @property
+    def rejected(self) -> collections.Counter[str]:
+        return self.validator.rejected
 
     def as_dict(self, now_wall: float) -> dict:
         return {
@@ -95,8 +100,8 @@ class LinkHealth:
             "rejected": dict(self.rejected),
             "bearings_used": self.bearings_used,
             "bearings_dropped": dict(self.bearings_dropped),
-            "last_seq": self.last_seq,
-            "last_stamp": self.last_stamp,
+            "last_seq": self.validator.last_seq,
+            "last_stamp": self.validator.last_stamp,
             "last_fix_age_wall": None if self.last_received_wall is None else round(now_wall - self.last_received_wall, 3),
         }
 
@@ -117,9 +122,9 @@ class CompanionApp:
         self.home = tuple(scenario.sitl.home)
         self.recorder = RunRecorder(log_dir)
         self.phase = Phase.WAITING
-        self.health = LinkHealth()
         self.rng = np.random.default_rng(scenario.simulation.seed if seed is None else seed)
         self.validator = FixValidator(self.link_settings.target_sender, self.home)
+        self.health = LinkHealth(self.validator)
         self.history = StateHistory(HISTORY_SECONDS)
         self.builder = BearingBuilder(scenario.sensor, self.rng, self.history)
         self.pipeline: FollowingPipeline | None = None
@@ -391,12 +396,9 @@ class CompanionApp:
         try:
             fix, position = self.validator.check(payload)
         except FixRejected as error:
-            self.health.rejected[error.reason] += 1
             record.update(verdict="rejected", reason=error.reason, detail=str(error))
             self.recorder.zenoh(record)
             return
-        self.health.accepted += 1
-        self.health.last_seq, self.health.last_stamp = fix.seq, fix.stamp
         self.health.last_received_wall = time.monotonic()
         record.update(verdict="accepted", seq=fix.seq, stamp=fix.stamp, frame=fix.frame, position=list(fix.position))
         self.recorder.zenoh(record)

@@ -13,7 +13,6 @@ import math
 import os
 import time
 
-import pytest
 
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402

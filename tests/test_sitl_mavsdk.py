@@ -12,7 +12,6 @@ import json
 import math
 import os
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -117,8 +116,10 @@ def test_mavsdk_flies_the_plant_and_a_ground_station_watches(plant):
             stop.set()
             await watcher
 
-    limits, first, hovering, entered, command, tilted, samples, held, arrived = asyncio.run(fly())
-    gcs.close()
+    try:
+        limits, first, hovering, entered, command, tilted, samples, held, arrived = asyncio.run(fly())
+    finally:
+        gcs.close()
 
     # Hover thrust and tilt limit came from the autopilot's parameters, not from our config.
     assert limits.hover_thrust_normalized == pytest.approx(1.0 / 1.5, rel=1e-6)
@@ -172,9 +173,11 @@ def test_offboard_loss_failsafe_holds_and_reports(plant):
             return last
         # Leaving the context destroys MAVSDK: the setpoint stream stops, as if the companion crashed.
 
-    last = asyncio.run(fly_then_vanish())
-    gcs.pump(6.0 / SPEED)  # 6 simulated seconds
-    gcs.close()
+    try:
+        last = asyncio.run(fly_then_vanish())
+        gcs.pump(6.0 / SPEED)  # 6 simulated seconds
+    finally:
+        gcs.close()
 
     texts = [m.text for m in gcs.messages.get("STATUSTEXT", [])]
     assert any("offboard signal lost" in text for text in texts), texts
