@@ -529,6 +529,11 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as error:
         print(f"companion: {error}", file=sys.stderr)
         return 2
+    if scenario.estimator.gain_projection == "noise_free":
+        print("companion: estimator.gain_projection = 'noise_free' is the simulation-only optimal u-PLKF of "
+              "section VIII-B (it needs the true line of sight); it cannot fly. Use 'predicted' or 'measured'.",
+              file=sys.stderr)
+        return 2
     log_dir = args.log_dir or Path("runs") / f"companion-{time.strftime('%Y%m%d-%H%M%S')}"
     app = CompanionApp(scenario, vehicle_config, log_dir, args.mavlink, args.zenoh_connect, args.zenoh_listen, args.seed)
 

@@ -6,18 +6,35 @@ import numpy as np
 
 from companion.attitude import VehicleLimits
 from companion.config import ConfigError, Scenario, VehicleConfig
-from companion.estimators import GainProjection, InitialGuess, UPLKF
+from companion.baseline_estimators import AzElEKF, MSCEKF, RangeAzElEKF
+from companion.baseline_guidance import (PDFollowingController, ProportionalNavigationGuidance,
+                                         RetroProportionalNavigationGuidance, ZEMObservabilityGuidance)
+from companion.estimators import GainProjection, InitialGuess, TargetEstimator, UPLKF
 from companion.guidance import HelicalNavigationGuidance, LateralGuidance, PurePursuitGuidance, RangeController
 from companion.pipeline import DropoutPolicy, FollowingPipeline
 
 
-def build_estimator(scenario: Scenario) -> UPLKF:
-    """The u-PLKF of the scenario's [estimator] section."""
+def build_estimator(scenario: Scenario) -> TargetEstimator:
+    """The estimator of the scenario's [estimator] section: the u-PLKF or a baseline of section VIII-B."""
     settings = scenario.estimator
+    period = 1.0 / settings.rate_hz
+    process_noise = settings.process_noise * np.eye(3)
+    measurement_noise = settings.measurement_noise * np.eye(3)
+    if settings.kind == "ekf":
+        return AzElEKF(period, process_noise, measurement_noise, pursuer_position_std=settings.pursuer_position_std,
+                       restart_when_behind=settings.restart_when_behind)
+    if settings.kind == "msc_ekf":
+        return MSCEKF(period, process_noise, measurement_noise, pursuer_position_std=settings.pursuer_position_std,
+                      restart_when_behind=settings.restart_when_behind)
+    if settings.kind == "ekf_rae":
+        assert scenario.sensor.range_noise_std is not None  # the Scenario validator guarantees it
+        return RangeAzElEKF(period, measurement_noise=measurement_noise,
+                            range_noise_std=max(scenario.sensor.range_noise_std, 1e-3),
+                            pursuer_position_std=settings.pursuer_position_std)
     return UPLKF(
-        period=1.0 / settings.rate_hz,
-        process_noise=settings.process_noise * np.eye(3),
-        measurement_noise=settings.measurement_noise * np.eye(3),
+        period=period,
+        process_noise=process_noise,
+        measurement_noise=measurement_noise,
         gain_projection=GainProjection(settings.gain_projection),
         pursuer_position_std=settings.pursuer_position_std,
         restart_when_behind=settings.restart_when_behind,
@@ -25,10 +42,18 @@ def build_estimator(scenario: Scenario) -> UPLKF:
 
 
 def build_lateral_guidance(scenario: Scenario) -> LateralGuidance:
-    """HNG (eq. 14) or PPG (section VIII-C) from the [guidance] section."""
+    """The [guidance] law: HNG (eq. 14) or a baseline of section VIII-C."""
     settings = scenario.guidance
     if settings.law == "ppg":
         return PurePursuitGuidance(settings.navigation_gain)
+    if settings.law == "png":
+        return ProportionalNavigationGuidance(settings.navigation_gain)
+    if settings.law == "pd":
+        return PDFollowingController(settings.pd_kp, settings.pd_kd, settings.desired_range)
+    if settings.law == "retro_png":
+        return RetroProportionalNavigationGuidance(settings.retro_gain)
+    if settings.law == "zem":
+        return ZEMObservabilityGuidance(settings.zem_k_w, settings.zem_max_gain, settings.desired_range)
     return HelicalNavigationGuidance(settings.navigation_gain, settings.c_z, settings.c_y, settings.weave_frequency, settings.scale_with_range)
 
 
@@ -40,7 +65,9 @@ def initial_guess(scenario: Scenario) -> InitialGuess:
     else:
         assert settings.initial_position is not None
         guess_range = float(np.linalg.norm(np.subtract(settings.initial_position, scenario.pursuer.initial_position)))
-    return InitialGuess(guess_range, settings.initial_range_std, np.array(settings.initial_velocity), settings.initial_velocity_std)
+    start = np.array(settings.initial_position, dtype=float) if settings.initialize == "position" else None
+    return InitialGuess(guess_range, settings.initial_range_std, np.array(settings.initial_velocity), settings.initial_velocity_std,
+                        position=start)
 
 
 def vehicle_limits(vehicle: VehicleConfig, hover_thrust_normalized: float) -> VehicleLimits:

@@ -63,6 +63,7 @@ class BearingBuilder:
             raise ValueError(f"min_range must be a finite number of metres >= 0, got {min_range!r}")
         self._sensor = BearingSensor.from_config(sensor)
         self._rng = rng
+        self._range_rng = rng.spawn(1)[0]  # range noise (a range sensor) on its own stream
         self._history = history
         self._min_range = float(min_range)
 
@@ -86,4 +87,5 @@ class BearingBuilder:
         direction = self._sensor.measure(line_of_sight, self._rng, own.rotation)
         if direction is None:
             return BuildResult(None, BuildFailure.OUT_OF_VIEW, line_of_sight)
-        return BuildResult(BearingMeasurement(float(stamp), direction, own.position), None, line_of_sight)
+        measured_range = self._sensor.measure_range(distance, self._range_rng)
+        return BuildResult(BearingMeasurement(float(stamp), direction, own.position, measured_range), None, line_of_sight)

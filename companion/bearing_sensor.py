@@ -235,6 +235,7 @@ class BearingSensor:
     model: str = "additive"
     noise_std: float = 0.01
     camera: CameraModel | None = None
+    range_noise_std: float | None = None
 
     def __post_init__(self) -> None:
         if self.model not in MODELS:
@@ -246,7 +247,7 @@ class BearingSensor:
     def from_config(cls, config: "SensorConfig") -> "BearingSensor":
         """The sensor a scenario's [sensor] section describes."""
         if config.model != "camera":
-            return cls(config.model, config.noise_std)
+            return cls(config.model, config.noise_std, range_noise_std=config.range_noise_std)
         settings = config.camera
         roll, pitch, yaw = np.radians(settings.mount_rpy_deg)
         camera = CameraModel.with_mount_angles(
@@ -258,7 +259,7 @@ class BearingSensor:
             image_size=tuple(settings.image_size),
             pixel_noise_std=settings.pixel_noise_std,
         )
-        return cls("camera", config.noise_std, camera)
+        return cls("camera", config.noise_std, camera, config.range_noise_std)
 
     @property
     def needs_attitude(self) -> bool:
@@ -268,3 +269,11 @@ class BearingSensor:
     def measure(self, true_bearing: np.ndarray, rng: np.random.Generator, rotation: np.ndarray | Rotation | None = None) -> np.ndarray | None:
         """The measured bearing for a true unit line of sight (NED, shape (3,)); None if not seen."""
         return measure_bearing(self.model, true_bearing, self.noise_std, rng, rotation, self.camera)
+
+    def measure_range(self, true_range: float, rng: np.random.Generator) -> float | None:
+        """Range measured beside the bearing (seed 003 eq. (2)): r + N(0, range_noise_std^2), m,
+        floored at 0.1 m; None without a range sensor. Draws from its own generator `rng`, so
+        adding a range sensor leaves the bearing noise unchanged."""
+        if self.range_noise_std is None:
+            return None
+        return max(float(true_range) + float(rng.normal(0.0, self.range_noise_std)), 0.1)

@@ -133,12 +133,23 @@ class SensorConfig(_Strict):
     noise_std: NonNegative = 0.01
     rate_hz: Positive = 5.0
     camera: CameraConfig = CameraConfig()
+    range_noise_std: NonNegative | None = None
+    """m. A range sensor beside the bearing (seed 003's measurement set): every bearing then
+    also carries |p_T - p| + N(0, range_noise_std^2). None (default): bearings only."""
 
 
 class EstimatorConfig(_Strict):
-    """u-PLKF settings. gain_projection 'measured' is the paper's exact form, 'predicted' the default (README)."""
+    """Target estimator. kind 'uplkf' is the paper's u-PLKF (section IV); gain_projection 'measured'
+    is its exact form, 'predicted' the default (README), 'noise_free' the simulation-only
+    "optimal u-PLKF" of section VIII-B. The baselines: 'ekf' (azimuth/elevation, Cartesian state,
+    the paper's classic EKF), 'msc_ekf' (modified spherical coordinates), 'ekf_rae' (seed 003:
+    range/azimuth/elevation; needs [sensor] range_noise_std). initialize: 'bearing' starts on the
+    first bearing at the range guess (remark 3); 'position' starts at initial_position itself with
+    an isotropic initial_range_std (the initialisation study of section VIII-B)."""
 
-    gain_projection: Literal["predicted", "measured"] = "predicted"
+    kind: Literal["uplkf", "ekf", "msc_ekf", "ekf_rae"] = "uplkf"
+    gain_projection: Literal["predicted", "measured", "noise_free"] = "predicted"
+    initialize: Literal["bearing", "position"] = "bearing"
     rate_hz: Positive = 50.0
     process_noise: Positive = 0.04
     measurement_noise: Positive = 1e-4
@@ -154,11 +165,22 @@ class EstimatorConfig(_Strict):
     def _has_range_guess(self) -> "EstimatorConfig":
         if self.initial_position is None and self.initial_range is None:
             raise ValueError("set initial_range or initial_position (the range guess along the first bearing)")
+        if self.initialize == "position" and self.initial_position is None:
+            raise ValueError("initialize = 'position' needs initial_position")
         return self
 
 
+GUIDANCE_LAWS = ("hng", "ppg", "png", "pd", "retro_png", "zem")
+
+
 class GuidanceConfig(_Strict):
-    law: Literal["hng", "ppg"] = "hng"
+    """Guidance law (section VI; baselines of section VIII-C). 'hng' helical navigation (eq. 14;
+    c_y = 0 is planar weaving), 'ppg' pure pursuit, 'png' 3-D proportional navigation, 'pd' the
+    PD controller (k_p, k_d; replaces the range controller), 'retro_png' retro-PNG of refs
+    [14]/[16] per horizontal/vertical plane (retro_gain), 'zem' the ZEM-based law of ref. [43]
+    (zem_k_w, zem_max_gain). All but 'pd' add the range controller of eq. (18)."""
+
+    law: Literal["hng", "ppg", "png", "pd", "retro_png", "zem"] = "hng"
     navigation_gain: Positive = 3.0
     c_z: NonNegative = 3.5
     c_y: NonNegative = 3.5
@@ -168,6 +190,11 @@ class GuidanceConfig(_Strict):
     range_gain: Positive = 3.0
     rate_hz: Positive = 20.0
     los_source: Literal["estimate", "measurement"] = "estimate"
+    pd_kp: Positive = 0.5
+    pd_kd: Positive = 0.2
+    retro_gain: Positive = 2.0
+    zem_k_w: Positive = 0.007
+    zem_max_gain: Positive = 10.0
 
 
 class SimulationConfig(_Strict):
@@ -427,6 +454,10 @@ class Scenario(_Strict):
                 raise ValueError(f"{key} = {rate} must divide simulation.physics_rate_hz = {physics} into whole steps")
         if self.simulation.summary_window > self.simulation.duration:
             raise ValueError("simulation.summary_window must not exceed simulation.duration")
+        if self.estimator.kind == "ekf_rae" and self.sensor.range_noise_std is None:
+            raise ValueError("estimator.kind = 'ekf_rae' measures range: set sensor.range_noise_std")
+        if self.estimator.kind != "uplkf" and self.estimator.gain_projection != "predicted":
+            raise ValueError(f"estimator.gain_projection applies to the u-PLKF only, not to kind = {self.estimator.kind!r}")
         return self
 
 

@@ -50,12 +50,16 @@ class InitialGuess:
     range_std: m, 1-sigma uncertainty of that guess along the bearing.
     velocity: m/s, shape (3,), guessed target velocity.
     velocity_std: m/s, 1-sigma per axis.
+    position: m, shape (3,), NED. When given, the filter starts at this target position
+    instead of on the first bearing, with an isotropic range_std (the initialisation
+    study of section VIII-B draws it at random); None (default) is remark 3.
     """
 
     range: float
     range_std: float
     velocity: np.ndarray
     velocity_std: float
+    position: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -82,6 +86,11 @@ class GainProjection(enum.Enum):
     PREDICTED = "predicted"
     """Instrumental-variable form: gain from the predicted line of sight (uncorrelated with the current noise)."""
 
+    NOISE_FREE = "noise_free"
+    """The "optimal u-PLKF" of section VIII-B: H_k = [P_lambda, 0] from the true line of sight
+    (BearingMeasurement.true_direction), in the gain and the residual. A simulation-only
+    benchmark: it shows what a perfect bearing would give, and cannot fly."""
+
 
 
 def transition_matrices(period: float) -> tuple[np.ndarray, np.ndarray]:
@@ -104,6 +113,17 @@ def _projector_pseudo_inverse(matrix: np.ndarray, null_direction: np.ndarray) ->
     """
     outer = np.outer(null_direction, null_direction)
     return np.linalg.inv(matrix + outer) - outer
+
+
+def explicit_start(initial_guess: InitialGuess) -> tuple[np.ndarray, np.ndarray] | None:
+    """(position, covariance of [p_T, v_T]) when the guess fixes the start position, else None.
+
+    Isotropic: range_std on every position axis, velocity_std on every velocity axis.
+    """
+    if initial_guess.position is None:
+        return None
+    covariance = np.diag([initial_guess.range_std**2] * 3 + [initial_guess.velocity_std**2] * 3)
+    return np.asarray(initial_guess.position, dtype=float).reshape(3).copy(), covariance
 
 
 def pseudo_linear_measurement_matrix(bearing: np.ndarray) -> np.ndarray:
@@ -202,9 +222,14 @@ class UPLKF:
         """p_T(0) = p(0) + r_hat(0) lambda~(0), remark 3 of section VI-B.
 
         The position covariance is long along the bearing (range_std) and thin across
-        it (r_hat(0) times the bearing noise), the velocity covariance isotropic.
+        it (r_hat(0) times the bearing noise), the velocity covariance isotropic. With
+        initial_guess.position set, the filter starts there instead (section VIII-B).
         """
         self._initial_guess = initial_guess
+        start = explicit_start(initial_guess)
+        if start is not None:
+            self.initialize(bearing.time, start[0], initial_guess.velocity, start[1])
+            return
         direction = unit(bearing.direction)
         along = np.outer(direction, direction)
         bearing_std = float(np.sqrt(np.trace(self.measurement_noise) / 3.0))
@@ -243,6 +268,10 @@ class UPLKF:
             return CorrectionReport(innovation_angle, False, reinitialized=True)
 
         use_predicted = self.gain_projection is GainProjection.PREDICTED
+        if self.gain_projection is GainProjection.NOISE_FREE:
+            if bearing.true_direction is None:
+                raise ValueError("the noise-free (optimal) u-PLKF needs BearingMeasurement.true_direction: simulation only")
+            direction = unit(bearing.true_direction)
         measured_projection = orthogonal_projection(direction)
         gain_direction = relative / predicted_range if use_predicted else direction
         gain_projection = np.eye(3) - np.outer(gain_direction, gain_direction)

@@ -15,9 +15,17 @@ from companion.geometry import E_X, cross, rotation_about_y, rotation_about_z, r
 
 
 class LateralGuidance(Protocol):
-    """A lateral (observability-enhancing) acceleration law, perpendicular to the line of sight."""
+    """A lateral (observability-enhancing) acceleration law, perpendicular to the line of sight.
 
-    def acceleration(self, engaged_time: float, velocity: np.ndarray, los: np.ndarray, range_estimate: float) -> np.ndarray: ...
+    acceleration(engaged_time s, velocity m/s (3,), los unit (3,), range_estimate m,
+    relative_velocity m/s (3,) = v^_T - v) -> m/s^2 (3,). Laws that do not need the
+    estimated relative velocity ignore it. A law whose class sets
+    `includes_range_control = True` is a complete command (the PD controller of
+    section VIII-C1): the pipeline then adds no range-controller term.
+    """
+
+    def acceleration(self, engaged_time: float, velocity: np.ndarray, los: np.ndarray, range_estimate: float,
+                     relative_velocity: np.ndarray | None = None) -> np.ndarray: ...
 
 
 @dataclass(frozen=True)
@@ -29,7 +37,8 @@ class PurePursuitGuidance:
 
     navigation_gain: float
 
-    def acceleration(self, engaged_time: float, velocity: np.ndarray, los: np.ndarray, range_estimate: float) -> np.ndarray:
+    def acceleration(self, engaged_time: float, velocity: np.ndarray, los: np.ndarray, range_estimate: float,
+                     relative_velocity: np.ndarray | None = None) -> np.ndarray:
         """velocity: m/s, shape (3,); los: unit line of sight, shape (3,). Returns m/s^2, shape (3,)."""
         return self.navigation_gain * cross(cross(velocity, los), los)
 
@@ -65,7 +74,8 @@ class HelicalNavigationGuidance:
         rotation_y = rotation_about_y(self.c_y * np.cos(phase) * scale)
         return rotation_from_x_axis_to(los) @ rotation_z @ rotation_y @ E_X
 
-    def acceleration(self, engaged_time: float, velocity: np.ndarray, los: np.ndarray, range_estimate: float) -> np.ndarray:
+    def acceleration(self, engaged_time: float, velocity: np.ndarray, los: np.ndarray, range_estimate: float,
+                     relative_velocity: np.ndarray | None = None) -> np.ndarray:
         """Lateral command a_HN, eq. (14). velocity m/s (3,), los unit (3,), range m. Returns m/s^2 (3,)."""
         los = unit(los)
         virtual = self.virtual_los(engaged_time, los, range_estimate)

@@ -33,11 +33,18 @@ class BearingMeasurement:
     bearing lambda~ = lambda + nu is not exactly unit and is used as given.
     pursuer_position: m, shape (3,), own position when the bearing was taken
     (the projection centre of the measurement).
+    range: m, a measured range to the target taken with the bearing, only when a range
+    sensor exists ([sensor] range_noise_std); bearing-only estimators ignore it.
+    true_direction: the noise-free unit line of sight, shape (3,). Simulation only: the
+    in-process simulator fills it for the "optimal u-PLKF" benchmark of section VIII-B;
+    the networked companion never does.
     """
 
     time: float
     direction: np.ndarray
     pursuer_position: np.ndarray
+    range: float | None = None
+    true_direction: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

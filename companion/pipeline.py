@@ -299,8 +299,12 @@ class FollowingPipeline:
             lateral = np.zeros(3)
             longitudinal = self._safe_controller.acceleration(relative_position, relative_velocity, los, lateral)
         else:
-            lateral = self.lateral_guidance.acceleration(time - self._engaged_at, pursuer.velocity, los, range_estimate)
-            longitudinal = self.range_controller.acceleration(relative_position, relative_velocity, los, lateral)
+            lateral = self.lateral_guidance.acceleration(time - self._engaged_at, pursuer.velocity, los, range_estimate,
+                                                         relative_velocity)
+            if getattr(self.lateral_guidance, "includes_range_control", False):
+                longitudinal = np.zeros(3)  # a complete law (PD controller): no range-controller term
+            else:
+                longitudinal = self.range_controller.acceleration(relative_position, relative_velocity, los, lateral)
         command = lateral + longitudinal
         if self.mode != TrackMode.TRACKING:
             range_std = float(np.sqrt(max(los @ estimate.covariance[:3, :3] @ los, 0.0)))

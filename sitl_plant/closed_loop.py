@@ -119,7 +119,8 @@ def _initial_state(scenario: Scenario, params: QuadrotorParams) -> RigidBodyStat
 def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None) -> SimulationResult:
     """Fly one scenario in process. seed overrides scenario.simulation.seed."""
     seed = scenario.simulation.seed if seed is None else seed
-    plant_rng, sensor_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
+    # The third stream (range noise) leaves the first two exactly as they were without it.
+    plant_rng, sensor_rng, range_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(3))
     link = InProcessLink(scenario, seed)
     params = quadrotor_params(vehicle)
     autopilot = AttitudeThrustVehicle(params, _initial_state(scenario, params), scenario.simulation.physics_rate_hz, plant_rng)
@@ -159,20 +160,20 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
             if step % every["sensor"] == 0:
                 link.offer(time, target.position, target.velocity, truth, measured_position)
             for stamp, fix_position, sample in link.deliver(time):
-                line_of_sight = fix_position - sample.true_position
-                direction = sensor.measure(line_of_sight / np.linalg.norm(line_of_sight), sensor_rng, sample.rotation)
-                if direction is None:
+                bearing = _measure(sensor, stamp, fix_position - sample.true_position, sample.rotation,
+                                   sample.measured_position, sensor_rng, range_rng)
+                if bearing is None:
                     bearings_out_of_view += 1
                 else:
-                    bearings.append(BearingMeasurement(stamp, direction, sample.measured_position))
+                    bearings.append(bearing)
         elif step % every["sensor"] == 0:
-            line_of_sight = target.position - truth.position
             # The camera sees through the vehicle's true attitude; outside its field of view no bearing comes.
-            direction = sensor.measure(line_of_sight / np.linalg.norm(line_of_sight), sensor_rng, truth.rotation)
-            if direction is None:
+            bearing = _measure(sensor, time, target.position - truth.position, truth.rotation, measured_position,
+                               sensor_rng, range_rng)
+            if bearing is None:
                 bearings_out_of_view += 1
             else:
-                bearings.append(BearingMeasurement(time, direction, measured_position))
+                bearings.append(bearing)
         bearings_used += len(bearings)
         output = None
         for bearing in bearings or [None]:
@@ -205,6 +206,22 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
         summary["fault_events"] = [(round(e.time, 3), e.kind, e.detail) for e in link.faults.events]
     summary["seed"] = seed
     return SimulationResult(scenario, series, summary, termination)
+
+
+def _measure(sensor: BearingSensor, time: float, line_of_sight: np.ndarray, rotation: np.ndarray,
+             measured_position: np.ndarray, sensor_rng: np.random.Generator,
+             range_rng: np.random.Generator) -> BearingMeasurement | None:
+    """The bearing (and range, with a range sensor) of the true line of sight; None when not seen.
+
+    The noise-free direction rides along as true_direction for the simulation-only
+    "optimal u-PLKF" benchmark (section VIII-B); every other estimator ignores it.
+    """
+    distance = float(np.linalg.norm(line_of_sight))
+    true_direction = line_of_sight / distance
+    direction = sensor.measure(true_direction, sensor_rng, rotation)
+    if direction is None:
+        return None
+    return BearingMeasurement(time, direction, measured_position, sensor.measure_range(distance, range_rng), true_direction)
 
 
 @dataclass(frozen=True)

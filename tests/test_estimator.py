@@ -23,6 +23,9 @@ from companion.messages import BearingMeasurement
 SIGMA = 0.01  # bearing noise of eq. (4), Sigma = sigma^2 I (section IX)
 Q_TARGET = 0.1  # target acceleration covariance, (m/s^2)^2 per axis
 
+#: The forms that can fly (NOISE_FREE needs the true line of sight; tested on its own below).
+FLYABLE = (GainProjection.MEASURED, GainProjection.PREDICTED)
+
 
 def make_filter(
     form: GainProjection,
@@ -169,7 +172,7 @@ def test_predict_is_constant_velocity_extrapolation(ticks: int) -> None:
 # --------------------------------------------------------------------------- one correction
 
 
-@pytest.mark.parametrize("form", list(GainProjection))
+@pytest.mark.parametrize("form", FLYABLE)
 def test_noise_free_bearing_with_correct_prior_leaves_the_estimate_unchanged(form: GainProjection) -> None:
     estimator = make_filter(form, sigma=0.0)
     target, velocity = np.array([12.0, 4.0, -8.0]), np.array([1.0, -0.5, 0.2])
@@ -217,7 +220,7 @@ def test_noise_free_correction_with_predicted_projection_moves_towards_the_beari
     assert after < 0.05 * before
 
 
-@pytest.mark.parametrize("form", list(GainProjection))
+@pytest.mark.parametrize("form", FLYABLE)
 def test_correction_shrinks_covariance_across_the_bearing_only(form: GainProjection) -> None:
     estimator = make_filter(form)
     pursuer = np.zeros(3)
@@ -245,7 +248,7 @@ def exact_rank2_pseudo_inverse(matrix: np.ndarray, null_direction: np.ndarray) -
     return basis @ np.linalg.inv(basis.T @ matrix @ basis) @ basis.T
 
 
-@pytest.mark.parametrize("form", list(GainProjection))
+@pytest.mark.parametrize("form", FLYABLE)
 @pytest.mark.parametrize("range_std", [10.0, 30.0, 100.0, 1000.0])
 def test_correction_is_the_kalman_update_with_the_rank2_pseudo_inverse(form: GainProjection, range_std: float) -> None:
     """K = P H^T (H P H^T + V Sigma V^T)^+ with the Moore-Penrose inverse of the rank-2
@@ -330,7 +333,7 @@ def test_without_the_guard_a_prior_behind_the_sensor_is_pulled_onto_the_mirrored
 # --------------------------------------------------------------------------- bearing between ticks
 
 
-@pytest.mark.parametrize("form", list(GainProjection))
+@pytest.mark.parametrize("form", FLYABLE)
 def test_bearing_between_ticks_is_compared_with_the_extrapolated_mean(form: GainProjection) -> None:
     period, lead = 0.02, 0.013  # bearing 13 ms after the estimator tick
     position, velocity = np.array([20.0, 5.0, -12.0]), np.array([3.0, -2.0, 1.0])
@@ -472,7 +475,7 @@ BIAS_SEEDS = range(4)
 def bias_runs() -> dict[GainProjection, np.ndarray]:
     """Final range error over the last 2 s, per seed, bearings at 50 Hz for 20 s, true range 8 m."""
     results = {}
-    for form in GainProjection:
+    for form in FLYABLE:
         errors = []
         for seed in BIAS_SEEDS:
             run = circling_run(form, seed=100 + seed, bearing_every=1, initial_range=12.0, vertical_weave=0.0)
@@ -499,3 +502,29 @@ def test_predicted_gain_form_removes_the_range_bias(bias_runs: dict[GainProjecti
     assert np.all(np.abs(predicted) < 0.3), predicted
     assert abs(predicted.mean()) < 0.15, predicted
     assert abs(predicted.mean()) < 0.05 * abs(measured.mean())
+
+
+def test_optimal_uplkf_is_the_paper_filter_fed_the_true_bearing() -> None:
+    """Section VIII-B's "optimal u-PLKF": H from the noise-free line of sight. It must equal the
+    paper's form given the true direction, whatever noise the measured direction carries, and it
+    refuses a bearing without the truth (it cannot fly)."""
+    rng = np.random.default_rng(3)
+    optimal, reference = make_filter(GainProjection.NOISE_FREE), make_filter(GainProjection.MEASURED)
+    target, velocity, pursuer = np.array([30.0, -10.0, -5.0]), np.array([2.0, 1.0, 0.0]), np.zeros(3)
+    for estimator in (optimal, reference):
+        estimator.initialize(0.0, target + np.array([8.0, 3.0, -2.0]), np.zeros(3), np.diag([100.0] * 3 + [4.0] * 3))
+    for tick in range(1, 200):
+        for estimator in (optimal, reference):
+            estimator.predict()
+        time = optimal.time
+        pursuer = np.array([2.0 * time, 5.0 * np.sin(time), 3.0 * np.cos(time)])
+        truth = unit(target + velocity * time - pursuer)
+        noisy = truth + rng.normal(0.0, 0.05, 3)
+        if tick % 10 == 0:
+            optimal.correct(BearingMeasurement(time, noisy, pursuer, true_direction=truth))
+            reference.correct(BearingMeasurement(time, truth, pursuer))
+    np.testing.assert_allclose(optimal.estimate.position, reference.estimate.position, atol=1e-9)
+    np.testing.assert_allclose(optimal.estimate.covariance, reference.estimate.covariance, atol=1e-9)
+    assert np.linalg.norm(optimal.estimate.position - (target + velocity * optimal.time)) < 1.0
+    with pytest.raises(ValueError, match="true_direction"):
+        optimal.correct(BearingMeasurement(optimal.time, truth, pursuer))
