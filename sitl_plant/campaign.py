@@ -27,7 +27,6 @@ r_d / 2, range-estimation error back under 1 m within 10 s of the link returning
 from __future__ import annotations
 
 import argparse
-import concurrent.futures
 import csv
 import json
 import math
@@ -40,6 +39,7 @@ import numpy as np
 
 from companion.config import ConfigError, FaultsConfig, Scenario, VehicleConfig, load_scenario
 from sitl_plant.closed_loop import Termination, simulate
+from sitl_plant.executors import make_executor
 
 DEFAULT_SCENARIO = Path(__file__).resolve().parent.parent / "config" / "scenarios" / "constant_velocity.toml"
 CONVERGED = 1.0  # m, range-estimation error
@@ -219,6 +219,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sitl", nargs="*", default=[], choices=list(PATTERNS), help="patterns also flown in full SITL")
     parser.add_argument("--sitl-speed", type=float, default=5.0)
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    parser.add_argument("--executor", default="local", help="local (default), serial, dask-local, or tcp://scheduler:port")
     parser.add_argument("--out", type=Path, default=Path("runs"))
     args = parser.parse_args(argv)
     if args.seeds < 1 or args.workers < 1:
@@ -233,18 +234,26 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     folder = args.out / f"campaign-{scenario.name}-{time.strftime('%Y%m%d-%H%M%S')}"
     folder.mkdir(parents=True, exist_ok=True)
-    rows: list[dict] = []
-    with concurrent.futures.ProcessPoolExecutor(max_workers=args.workers) as pool, \
-            (folder / "results.csv").open("w", newline="", buffering=1) as handle:
-        writer = None
-        for done, row in enumerate(pool.map(_fly, tasks), start=1):
-            rows.append(row)
-            if writer is None:
-                writer = csv.DictWriter(handle, fieldnames=list(row))
-                writer.writeheader()
-            writer.writerow(row)
-            print(f"\rbof-campaign: {done}/{len(tasks)} flights", end="", flush=True)
+    slots: list[dict | None] = [None] * len(tasks)
+    try:
+        executor = make_executor(args.executor, args.workers)
+    except (RuntimeError, ValueError) as error:
+        print(f"bof-campaign: {error}", file=sys.stderr)
+        return 2
+    try:
+        with (folder / "results.csv").open("w", newline="", buffering=1) as handle:
+            writer = None
+            for done, (index, row) in enumerate(executor.map(_fly, tasks), start=1):
+                slots[index] = row
+                if writer is None:
+                    writer = csv.DictWriter(handle, fieldnames=list(row))
+                    writer.writeheader()
+                writer.writerow(row)  # completion order; every row carries its pattern and seed
+                print(f"\rbof-campaign: {done}/{len(tasks)} flights", end="", flush=True)
+    finally:
+        executor.close()
     print()
+    rows = [row for row in slots if row is not None]
     table = pattern_table(rows, scenario.guidance.desired_range)
     sitl_rows = [_sitl_case(args.config, name, folder / "sitl", args.sitl_speed) for name in args.sitl]
     report = markdown(table, sitl_rows, scenario, args.seeds)

@@ -1,0 +1,119 @@
+"""Where Monte Carlo flights run: one interface, three back ends.
+
+    executor = make_executor("local", workers=2)      # processes on this machine (default)
+    executor = make_executor("serial")                # in this process (debugging, profiling)
+    executor = make_executor("dask-local", workers=2) # a Dask LocalCluster on loopback
+    executor = make_executor("tcp://10.0.0.5:8786")   # an existing Dask scheduler
+    for index, result in executor.map(function, tasks):
+        ...
+    executor.close()
+
+`map` yields (task index, result) in completion order; callers that need a fixed
+order sort by index. A flight's result depends only on its task (scenario, seed), never
+on which worker ran it or when, so every back end gives the same rows for the same
+tasks (checked by tests/test_montecarlo.py). Functions and tasks must be picklable
+(module-level functions, plain data); Dask workers must have this package installed.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import os
+from collections.abc import Callable, Iterable, Iterator
+from typing import Any, Protocol
+
+
+class Executor(Protocol):
+    """Runs function(task) for every task; yields (index, result) as each one finishes."""
+
+    name: str
+
+    def map(self, function: Callable[[Any], Any], tasks: Iterable[Any]) -> Iterator[tuple[int, Any]]: ...
+
+    def close(self) -> None: ...
+
+
+class SerialExecutor:
+    """Everything in the calling process, in order."""
+
+    name = "serial"
+
+    def map(self, function: Callable[[Any], Any], tasks: Iterable[Any]) -> Iterator[tuple[int, Any]]:
+        for index, task in enumerate(tasks):
+            yield index, function(task)
+
+    def close(self) -> None:
+        pass
+
+
+class ProcessExecutor:
+    """A pool of worker processes on this machine (concurrent.futures)."""
+
+    def __init__(self, workers: int | None = None) -> None:
+        self.workers = max(1, workers or os.cpu_count() or 1)
+        self.name = f"local processes ({self.workers})"
+        self._pool = concurrent.futures.ProcessPoolExecutor(max_workers=self.workers)
+
+    def map(self, function: Callable[[Any], Any], tasks: Iterable[Any]) -> Iterator[tuple[int, Any]]:
+        futures = {self._pool.submit(function, task): index for index, task in enumerate(tasks)}
+        try:
+            for future in concurrent.futures.as_completed(futures):
+                yield futures[future], future.result()
+        finally:
+            for future in futures:
+                future.cancel()
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=True, cancel_futures=True)
+
+
+class DaskExecutor:
+    """Dask distributed: a scheduler at `address` ("tcp://host:port"), or, with address None,
+    a LocalCluster of `workers` single-threaded worker processes bound to loopback (for
+    trying a campaign, and for the tests). Needs the optional dependency dask[distributed]."""
+
+    def __init__(self, address: str | None = None, workers: int | None = None) -> None:
+        try:
+            from distributed import Client, LocalCluster
+        except ImportError:
+            raise RuntimeError("the Dask executor needs dask[distributed]: pip install 'bearing-follow[dask]'") from None
+        self._cluster = None
+        if address is None:
+            count = max(1, workers or os.cpu_count() or 1)
+            self._cluster = LocalCluster(n_workers=count, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                         scheduler_port=0, dashboard_address=None)
+            self._client = Client(self._cluster)
+            self.name = f"dask local cluster ({count} workers, {self._cluster.scheduler_address})"
+        else:
+            self._client = Client(address, timeout=30)
+            self.name = f"dask scheduler {address}"
+
+    def map(self, function: Callable[[Any], Any], tasks: Iterable[Any]) -> Iterator[tuple[int, Any]]:
+        from distributed import as_completed
+
+        tasks = list(tasks)
+        futures = self._client.map(function, tasks, pure=False)
+        indices = {future.key: index for index, future in enumerate(futures)}
+        try:
+            for future in as_completed(futures):
+                yield indices[future.key], future.result()
+        finally:
+            self._client.cancel(futures)
+
+    def close(self) -> None:
+        self._client.close()
+        if self._cluster is not None:
+            self._cluster.close()
+
+
+def make_executor(spec: str = "local", workers: int | None = None) -> Executor:
+    """'local' (processes, default), 'serial', 'dask-local', or a Dask scheduler address (tcp://...)."""
+    if spec == "local":
+        return ProcessExecutor(workers)
+    if spec == "serial":
+        return SerialExecutor()
+    if spec == "dask-local":
+        return DaskExecutor(None, workers)
+    if "://" in spec:
+        return DaskExecutor(spec, workers)
+    raise ValueError(f"unknown executor {spec!r}: use 'local', 'serial', 'dask-local' or a scheduler address tcp://host:port")

@@ -1,0 +1,195 @@
+"""bof-montecarlo: grid building, divergence accounting, executors that agree, outputs on disk."""
+
+from __future__ import annotations
+
+import csv
+import math
+
+import numpy as np
+import pytest
+
+from companion.assembly import build_estimator, build_lateral_guidance
+from companion.config import ConfigError, load_scenario
+from sitl_plant import montecarlo
+from sitl_plant.closed_loop import simulate
+from sitl_plant.executors import make_executor
+
+SCENARIO = montecarlo.DEFAULT_SCENARIO
+
+
+@pytest.fixture(scope="module")
+def loaded():
+    return load_scenario(SCENARIO)
+
+
+def test_overrides_are_validated(loaded):
+    scenario, _ = loaded
+    changed = montecarlo.with_overrides(scenario, {"guidance.c_y": 0.0, "sensor.rate_hz": 50.0})
+    assert changed.guidance.c_y == 0.0 and changed.sensor.rate_hz == 50.0
+    assert scenario.guidance.c_y == 3.5  # the original is untouched
+    with pytest.raises(ConfigError, match="unknown key"):
+        montecarlo.with_overrides(scenario, {"guidance.c_q": 1.0})
+    with pytest.raises(ConfigError, match="range_noise_std"):
+        montecarlo.with_overrides(scenario, {"estimator.kind": "ekf_rae"})
+    with pytest.raises(ConfigError):
+        montecarlo.with_overrides(scenario, {"guidance.law": "magic"})
+
+
+def test_case_parsing():
+    name, overrides = montecarlo.parse_case("planar:guidance.c_y=0,guidance.law='hng',sensor.rate_hz=50")
+    assert name == "planar"
+    assert overrides == {"guidance.c_y": 0, "guidance.law": "hng", "sensor.rate_hz": 50}
+    for bad in ("planar", "planar:", "x:guidance.c_y", "x:guidance.law=hng"):
+        with pytest.raises(ValueError):
+            montecarlo.parse_case(bad)
+
+
+def test_every_preset_study_resolves_to_valid_flights():
+    for study in montecarlo.STUDIES.values():
+        scenarios = [load_scenario(montecarlo.SCENARIOS / f"{name}.toml") for name in study.scenarios]
+        tasks = montecarlo.build_tasks(scenarios, list(study.estimators), list(study.guidance), list(study.cases), 2,
+                                       study.initial_box, 2.0)
+        assert len(tasks) == 2 * len(scenarios) * len(study.estimators) * len(study.guidance) * len(study.cases)
+        for task in tasks:  # each one builds its estimator and law
+            build_estimator(task.scenario)
+            build_lateral_guidance(task.scenario)
+
+
+def test_estimator_study_draws_one_start_per_seed_inside_the_box():
+    study = montecarlo.STUDIES["estimators"]
+    scenarios = [load_scenario(SCENARIO)]
+    tasks = montecarlo.build_tasks(scenarios, ["uplkf", "ekf"], ["hng"], [("5Hz", {})], 3, study.initial_box, 2.0)
+    starts = {}
+    for task in tasks:
+        assert task.scenario.estimator.initialize == "position"
+        start = task.scenario.estimator.initial_position
+        assert 20 <= start[0] <= 120 and -50 <= start[1] <= 50 and -50 <= start[2] <= 50
+        starts.setdefault(task.seed, set()).add(start)
+    assert all(len(points) == 1 for points in starts.values())  # same start for every estimator of a seed
+    assert len({next(iter(points)) for points in starts.values()}) == 3  # different across seeds
+
+
+def test_explicit_initial_estimate_is_where_the_filter_starts(loaded):
+    scenario, vehicle = loaded
+    start = montecarlo.drawn_initial_position(4, montecarlo.PAPER_INITIAL_BOX)
+    flown = montecarlo.with_overrides(scenario, {"estimator.initialize": "position", "estimator.initial_position": start,
+                                                 "simulation.duration": 1.0, "simulation.summary_window": 1.0})
+    series = simulate(flown, vehicle, 1).series
+    first = np.nonzero(np.isfinite(series["estimate_position"][:, 0]))[0][0]
+    np.testing.assert_allclose(series["estimate_position"][first], start, atol=1e-12)
+
+
+def test_image_plane_projection():
+    forward = np.tile([1.0, 0.0, 0.0], (4, 1))
+    relative = np.array([[10.0, 0.0, 0.0], [10.0, 5.0, 0.0], [10.0, 0.0, 2.0], [-10.0, 0.0, 0.0]])
+    points = montecarlo.image_plane(relative, forward)
+    np.testing.assert_allclose(points[:3], [[0.0, 0.0], [0.5, 0.0], [0.0, 0.2]])
+    assert np.all(np.isnan(points[3]))  # behind the camera
+    # yaw 90 deg (facing east): a target to the east is straight ahead, one to the south is on the right
+    east = np.tile([0.0, 1.0, 0.0], (2, 1))
+    np.testing.assert_allclose(montecarlo.image_plane(np.array([[0.0, 8.0, 0.0], [-4.0, 8.0, 0.0]]), east),
+                               [[0.0, 0.0], [0.5, 0.0]], atol=1e-12)
+
+
+def test_divergence_is_counted_not_averaged(loaded):
+    scenario, vehicle = loaded
+    base = montecarlo.with_overrides(scenario, {"simulation.duration": 8.0, "simulation.summary_window": 8.0})
+    labels = {"scenario": "s", "estimator": "uplkf", "guidance": "hng", "case": "c"}
+    strict = montecarlo.fly(montecarlo.FlightTask(labels, base, vehicle, 1, 1e-6))
+    lenient = montecarlo.fly(montecarlo.FlightTask(labels, base, vehicle, 1, 1e6))
+    assert strict["row"]["final_error"] == lenient["row"]["final_error"] > 1e-6
+    assert strict["row"]["diverged"] and not lenient["row"]["diverged"]
+    rows = [dict(strict["row"], seed=1), dict(lenient["row"], seed=2), dict(lenient["row"], seed=3, final_error=math.inf,
+                                                                              diverged=True)]
+    (entry,) = montecarlo.group_table(rows)
+    assert entry["runs"] == 3 and entry["diverged"] == 2
+    assert math.isfinite(entry["final_error_median"])  # the infinite run is counted, not averaged in
+
+
+def _same_row(a: dict, b: dict) -> bool:
+    """Equal, bit for bit, with NaN equal to NaN."""
+    def same(x, y):
+        return x == y or (isinstance(x, float) and isinstance(y, float) and math.isnan(x) and math.isnan(y))
+    return a.keys() == b.keys() and all(same(a[key], b[key]) for key in a)
+
+
+def _grid_tasks(loaded):
+    scenario, vehicle = loaded
+    return montecarlo.build_tasks([(scenario, vehicle)], ["uplkf", "ekf"], ["hng", "pd"], [("short", {})], 2, None,
+                                  2.0, duration=6.0)
+
+
+def _run(executor_spec, tasks):
+    executor = make_executor(executor_spec, 2)
+    try:
+        results = sorted(executor.map(montecarlo.fly, tasks), key=lambda item: item[0])
+    finally:
+        executor.close()
+    return [index for index, _ in results], [result for _, result in results]
+
+
+def test_local_processes_and_dask_give_the_serial_results(loaded):
+    tasks = _grid_tasks(loaded)
+    indices, serial = _run("serial", tasks)
+    assert indices == list(range(len(tasks)))
+    for spec in ("local", "dask-local"):
+        other_indices, other = _run(spec, tasks)
+        assert other_indices == indices
+        for mine, theirs in zip(serial, other):
+            assert _same_row(mine["row"], theirs["row"]), spec
+            for key in mine["series"]:
+                np.testing.assert_array_equal(mine["series"][key], theirs["series"][key])
+
+
+def test_unknown_executor_is_a_clear_error():
+    with pytest.raises(ValueError, match="unknown executor"):
+        make_executor("threads")
+
+
+def test_command_writes_table_csv_series_and_figures(tmp_path):
+    code = montecarlo.main([str(SCENARIO), "--runs", "2", "--duration", "6", "--estimators", "uplkf", "msc_ekf",
+                            "--case", "planar:guidance.c_y=0", "--case", "helical:guidance.c_y=3.5",
+                            "--executor", "serial", "--out", str(tmp_path)])
+    assert code == 0
+    (folder,) = tmp_path.iterdir()
+    with (folder / "results.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert len(rows) == 2 * 2 * 2
+    assert [int(row["seed"]) for row in rows] == [1, 2] * 4  # task order, whatever the completion order
+    assert {row["case"] for row in rows} == {"planar", "helical"}
+    assert not (folder / "results.partial.csv").exists()
+    summary = (folder / "summary.md").read_text()
+    assert summary.count("| constant_velocity |") == 4
+    with np.load(folder / "series.npz") as series:
+        assert series["range_estimation_error"].shape == (8, 31)
+        assert series["image_plane"].shape == (8, 31, 2)
+    for name in ("errors_over_time.png", "trajectories.png", "image_plane.png"):
+        assert (folder / name).stat().st_size > 10_000
+
+
+def test_error_windows_average_the_requested_span(loaded):
+    scenario, vehicle = loaded
+    base = montecarlo.with_overrides(scenario, {"simulation.duration": 8.0, "simulation.summary_window": 8.0})
+    labels = {"scenario": "s", "estimator": "uplkf", "guidance": "hng", "case": "c"}
+    result = montecarlo.fly(montecarlo.FlightTask(labels, base, vehicle, 1, 2.0, ((1.0, 4.0), (4.0, 8.0), (20.0, 30.0))))
+    row, samples = result["row"], result["series"]
+    early, late = row["error_1-4s"], row["error_4-8s"]
+    grid_error = np.abs(samples["range_estimation_error"])
+    inside = (samples["time"] >= 1.0) & (samples["time"] < 4.0)
+    assert early == pytest.approx(np.mean(grid_error[inside]), rel=0.1)  # the 0.2 s grid against every tick
+    assert late < early  # the estimate converges
+    assert math.isnan(row["error_20-30s"])  # a window after the flight has no figure
+    (entry,) = montecarlo.group_table([row])
+    assert entry["error_4-8s_median"] == late
+    assert montecarlo.parse_window("10:30") == (10.0, 30.0)
+    for bad in ("10", "30:10", "a:b", "-1:2"):
+        with pytest.raises(ValueError):
+            montecarlo.parse_window(bad)
+
+
+def test_command_rejects_bad_arguments(tmp_path, capsys):
+    assert montecarlo.main(["--runs", "0", "--out", str(tmp_path)]) == 2
+    assert montecarlo.main(["--case", "broken", "--out", str(tmp_path)]) == 2
+    assert montecarlo.main(["--initial-box", "1,0,0,1,0,1", "--out", str(tmp_path)]) == 2
+    assert montecarlo.main(["--error-window", "5", "--out", str(tmp_path)]) == 2
+    assert "bof-montecarlo:" in capsys.readouterr().err
