@@ -133,10 +133,13 @@ def test_same_seed_same_bearings():
 
 
 def test_only_the_bearing_leaves_the_builder():
-    """No range goes towards the estimator: the outputs carry directions and the own position only."""
+    """No range goes towards the estimator unless a range sensor is configured, and the truth never does:
+    the outputs carry directions and the own position only."""
     assert {field.name for field in dataclasses.fields(BuildResult)} == {"bearing", "reason", "true_line_of_sight"}
-    assert {field.name for field in dataclasses.fields(BearingMeasurement)} == {"time", "direction", "pursuer_position"}
+    assert {field.name for field in dataclasses.fields(BearingMeasurement)} == {
+        "time", "direction", "pursuer_position", "range", "true_direction"}
     result = _builder(model="additive", noise_std=0.0).build(_position(STAMP) + np.array([30.0, 40.0, 0.0]), STAMP)
+    assert result.bearing.range is None and result.bearing.true_direction is None
     assert np.linalg.norm(result.bearing.direction) == pytest.approx(1.0)  # a direction, not the 50 m offset
     assert np.linalg.norm(result.true_line_of_sight) == pytest.approx(1.0)
 
@@ -150,3 +153,16 @@ def test_malformed_fixes_raise(target, stamp):
 def test_negative_min_range_is_rejected():
     with pytest.raises(ValueError, match="min_range"):
         BearingBuilder(SensorConfig(), np.random.default_rng(0), _history(), min_range=-1.0)
+
+
+def test_a_configured_range_sensor_adds_a_noisy_range_and_keeps_the_bearing_noise():
+    """Seed 003's measurement set in the companion: range = |p_T - p| + N(0, range_noise_std^2)."""
+    target = _position(STAMP) + np.array([30.0, 40.0, 0.0])
+    plain = _builder(seed=9, model="additive", noise_std=0.01)
+    ranged = _builder(seed=9, model="additive", noise_std=0.01, range_noise_std=0.5)
+    ranges = []
+    for _ in range(400):
+        a, b = plain.build(target, STAMP).bearing, ranged.build(target, STAMP).bearing
+        np.testing.assert_array_equal(a.direction, b.direction)  # the range noise has its own stream
+        ranges.append(b.range)
+    assert abs(np.mean(ranges) - 50.0) < 0.1 and 0.4 < np.std(ranges) < 0.6

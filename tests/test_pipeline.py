@@ -62,7 +62,9 @@ class RecordingGuidance:
     def __init__(self) -> None:
         self.calls: list[tuple[float, np.ndarray, np.ndarray, float]] = []
 
-    def acceleration(self, engaged_time: float, velocity: np.ndarray, los: np.ndarray, range_estimate: float) -> np.ndarray:
+    def acceleration(self, engaged_time: float, velocity: np.ndarray, los: np.ndarray, range_estimate: float,
+                     relative_velocity: np.ndarray | None = None) -> np.ndarray:
+        assert relative_velocity is not None and relative_velocity.shape == (3,)  # the pipeline always passes it
         self.calls.append((engaged_time, velocity.copy(), los.copy(), range_estimate))
         return np.zeros(3)
 
