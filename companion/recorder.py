@@ -3,7 +3,8 @@ interrupted run keeps everything up to the interruption.
 
     series.csv      one row per own-state sample while engaged: own state, estimate,
                     bearing used (if any), command, setpoint
-    bearings.csv    every bearing given to the estimator (its only measurement input)
+    bearings.csv    every bearing given to the estimator (its only measurement input; a range
+                    column is filled only when a range sensor is configured)
     zenoh_rx.jsonl  every Zenoh message received, with receipt time and verdict
     events.jsonl    phase changes, status texts, errors
     latency.csv     target message received -> setpoint sent (wall clock), per bearing
@@ -49,7 +50,7 @@ class RunRecorder:
         self._zenoh = (self.folder / "zenoh_rx.jsonl").open("w", buffering=1)
         self._events = (self.folder / "events.jsonl").open("w", buffering=1)
         self._bearings = (self.folder / "bearings.csv").open("w", buffering=1)
-        self._bearings.write("time,direction_x,direction_y,direction_z,pursuer_x,pursuer_y,pursuer_z,fix_seq\n")
+        self._bearings.write("time,direction_x,direction_y,direction_z,pursuer_x,pursuer_y,pursuer_z,fix_seq,range\n")
         self._latency = (self.folder / "latency.csv").open("w", buffering=1)
         self._latency.write("fix_seq,fix_stamp,received_ns,setpoint_sent_ns,latency_ms\n")
         self._lock = threading.Lock()
@@ -74,9 +75,11 @@ class RunRecorder:
             self._events.write(json.dumps(record) + "\n")
 
     def bearing(self, bearing, fix_seq: int) -> None:
-        """One estimator input: the bearing (its time, direction, projection centre) and the fix it came from."""
+        """One estimator input: the bearing (its time, direction, projection centre), the fix it came from,
+        and the measured range when a range sensor is configured (empty otherwise)."""
         values = (bearing.time, *bearing.direction, *bearing.pursuer_position)
-        self._bearings.write(",".join(f"{float(v):.9g}" for v in values) + f",{fix_seq}\n")
+        measured_range = "" if bearing.range is None else f"{float(bearing.range):.6g}"
+        self._bearings.write(",".join(f"{float(v):.9g}" for v in values) + f",{fix_seq},{measured_range}\n")
 
     def latency(self, fix_seq: int, fix_stamp: float, received_ns: int, sent_ns: int) -> None:
         self._latency.write(f"{fix_seq},{fix_stamp:.4f},{received_ns},{sent_ns},{(sent_ns - received_ns) * 1e-6:.3f}\n")

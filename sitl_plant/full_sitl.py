@@ -109,7 +109,9 @@ def flight_series(run: Path) -> tuple[dict[str, np.ndarray], float]:
 
 def bearing_only_check(run: Path) -> dict:
     """What the estimator was given: every bearing in the companion's estimator-input log is a
-    direction (norm ~1, the noise of eq. (4) aside), and its logs have no range input column."""
+    direction (norm ~1, the noise of eq. (4) aside). range_inputs_logged counts the bearings that
+    carried a measured range (only with a [sensor] range_noise_std) plus any range input column
+    in the series log; a bearing-only flight has 0."""
     companion = _read_csv(run / "companion" / "series.csv")
     inputs = _read_csv(run / "companion" / "bearings.csv")
     bearings = np.column_stack([inputs[k] for k in ("direction_x", "direction_y", "direction_z")])
@@ -118,7 +120,8 @@ def bearing_only_check(run: Path) -> dict:
         "bearings_logged": int(len(norms)),
         "bearing_norm_min": float(norms.min()) if norms.size else math.nan,
         "bearing_norm_max": float(norms.max()) if norms.size else math.nan,
-        "range_inputs_logged": sum(1 for key in companion if "range" in key and key != "range_estimate"),
+        "range_inputs_logged": (int(np.count_nonzero(np.isfinite(inputs["range"]))) if "range" in inputs else 0)
+        + sum(1 for key in companion if "range" in key and key != "range_estimate"),
     }
 
 
