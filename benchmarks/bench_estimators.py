@@ -9,10 +9,9 @@ along [0.8, -0.4, -0.3], bearing noise sigma = 0.01, bearings with a true direct
 
 from __future__ import annotations
 
-import statistics
-import time
 
 import numpy as np
+from timing import median_us
 
 from companion.baseline_estimators import MSCEKF, AzElEKF, RangeAzElEKF
 from companion.estimators import GainProjection, InitialGuess, UPLKF
@@ -23,16 +22,6 @@ PROCESS_NOISE = 0.04 * np.eye(3)
 MEASUREMENT_NOISE = 1e-4 * np.eye(3)
 LINE_OF_SIGHT = np.array([0.8, -0.4, -0.3]) / np.linalg.norm([0.8, -0.4, -0.3])
 RANGE = 47.0
-
-
-def _median_us(function, count: int, repeats: int = 7) -> float:
-    samples = []
-    for _ in range(repeats):
-        started = time.perf_counter()
-        for _ in range(count):
-            function()
-        samples.append((time.perf_counter() - started) / count * 1e6)
-    return statistics.median(samples)
 
 
 def _estimators() -> list[tuple[str, object]]:
@@ -55,12 +44,12 @@ def bench(count: int = 2000) -> list[tuple[str, float, float]]:
     for name, estimator in _estimators():
         first = BearingMeasurement(0.0, LINE_OF_SIGHT, np.zeros(3), range=RANGE, true_direction=LINE_OF_SIGHT)
         estimator.initialize_on_bearing(first, InitialGuess(RANGE, 30.0, np.zeros(3), 5.0))
-        predict = _median_us(estimator.predict, count)
+        predict = median_us(estimator.predict, count)
 
         def correct(estimator=estimator) -> None:
             estimator.correct(BearingMeasurement(estimator.time, noisy, np.zeros(3), range=RANGE, true_direction=LINE_OF_SIGHT))
 
-        results.append((name, predict, _median_us(correct, count)))
+        results.append((name, predict, median_us(correct, count)))
     return results
 
 

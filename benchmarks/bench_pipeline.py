@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from timing import median_us
 
 from companion.assembly import build_pipeline
 from companion.config import load_scenario
@@ -21,25 +22,15 @@ from sitl_plant.closed_loop import simulate
 SCENARIO = Path(__file__).resolve().parent.parent / "config" / "scenarios" / "constant_velocity.toml"
 
 
-def _median_us(function, count: int, repeats: int = 7) -> float:
-    samples = []
-    for _ in range(repeats):
-        started = time.perf_counter()
-        for _ in range(count):
-            function()
-        samples.append((time.perf_counter() - started) / count * 1e6)
-    return statistics.median(samples)
-
-
 def bench_estimator() -> None:
     rng = np.random.default_rng(0)
-    for projection in GainProjection:
+    for projection in (GainProjection.MEASURED, GainProjection.PREDICTED):  # noise_free: bench_estimators.py
         estimator = UPLKF(0.02, 0.04 * np.eye(3), 1e-4 * np.eye(3), projection, pursuer_position_std=0.1)
         first = BearingMeasurement(0.0, np.array([0.8, -0.4, -0.3]), np.zeros(3))
         estimator.initialize_on_bearing(first, InitialGuess(47.0, 30.0, np.zeros(3), 5.0))
         bearing = BearingMeasurement(0.0, np.array([0.8, -0.4, -0.3]) + rng.normal(0, 0.01, 3), np.zeros(3))
-        predict = _median_us(estimator.predict, 2000)
-        correct = _median_us(lambda: estimator.correct(BearingMeasurement(estimator.time, bearing.direction, bearing.pursuer_position)), 2000)
+        predict = median_us(estimator.predict, 2000)
+        correct = median_us(lambda: estimator.correct(BearingMeasurement(estimator.time, bearing.direction, bearing.pursuer_position)), 2000)
         print(f"u-PLKF ({projection.value:9s}) predict {predict:6.1f} us   correct {correct:6.1f} us")
 
 
@@ -55,7 +46,7 @@ def bench_pipeline_step() -> None:
         t = clock["t"]
         pipeline.step(t, PursuerState(t, np.zeros(3), np.array([2.0, 0.0, 0.0])), BearingMeasurement(t, direction, np.zeros(3)))
 
-    print(f"pipeline step with predicts + correction + setpoint: {_median_us(control_tick, 500):6.1f} us")
+    print(f"pipeline step with predicts + correction + setpoint: {median_us(control_tick, 500):6.1f} us")
 
 
 def bench_closed_loop() -> None:

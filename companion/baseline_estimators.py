@@ -38,7 +38,8 @@ import math
 
 import numpy as np
 
-from companion.estimators import CorrectionReport, InitialGuess, explicit_start, transition_matrices
+from companion.estimators import (CorrectionReport, InitialGuess, explicit_start, on_bearing_covariance, restart_guess,
+                                  transition_matrices)
 from companion.geometry import unit
 from companion.messages import BearingMeasurement, TargetEstimate
 
@@ -164,19 +165,6 @@ def _kalman_update(
     return state + gain @ residual, _symmetrize(updated)
 
 
-def _on_bearing_covariance(direction: np.ndarray, along_std: float, cross_std: float, velocity_std: float) -> np.ndarray:
-    """Remark 3 start covariance of [p_T, v_T] (as `UPLKF.initialize_on_bearing`); shape (6, 6).
-
-    Long along the unit bearing (along_std, m), thin across it (cross_std, m),
-    isotropic velocity (velocity_std, m/s).
-    """
-    along = np.outer(direction, direction)
-    covariance = np.zeros((6, 6))
-    covariance[:3, :3] = along_std**2 * along + cross_std**2 * (np.eye(3) - along)
-    covariance[3:, 3:] = velocity_std**2 * np.eye(3)
-    return covariance
-
-
 class _TickedFilter:
     """Clock and snapshot bookkeeping shared by the baselines (same rules as UPLKF)."""
 
@@ -215,9 +203,7 @@ class _TickedFilter:
 
     def _restart_on(self, bearing: BearingMeasurement, predicted_range: float, velocity: np.ndarray) -> None:
         """Remark 3 restart at the predicted range (as `UPLKF._restart_on`)."""
-        guess = self._initial_guess or InitialGuess(predicted_range, predicted_range, velocity, 5.0)
-        restart = InitialGuess(max(predicted_range, 1.0), max(guess.range_std, predicted_range), velocity, guess.velocity_std)
-        self.initialize_on_bearing(bearing, restart)  # type: ignore[attr-defined]
+        self.initialize_on_bearing(bearing, restart_guess(self._initial_guess, predicted_range, velocity))  # type: ignore[attr-defined]
 
     def _bearing_start(self, bearing: BearingMeasurement, initial_guess: InitialGuess) -> tuple[np.ndarray, np.ndarray]:
         """(position, covariance of [p_T, v_T]) of remark 3 or of the explicit start."""
@@ -226,14 +212,27 @@ class _TickedFilter:
             return start
         direction = _measured_direction(bearing)
         cross_std = max(initial_guess.range * math.sqrt(self.bearing_variance), 1e-3)
-        covariance = _on_bearing_covariance(direction, initial_guess.range_std, cross_std, initial_guess.velocity_std)
+        covariance = on_bearing_covariance(direction, initial_guess.range_std, cross_std, initial_guess.velocity_std)
         return np.asarray(bearing.pursuer_position, float) + initial_guess.range * direction, covariance
+
+
+class _ConstantVelocityFilter(_TickedFilter):
+    """The constant-velocity target model of eq. (1) shared by the az/el EKF and the MSC-EKF:
+    Q (target acceleration covariance, (m/s^2)^2, (3, 3)), A, B and B Q B^T, and the restart guard."""
+
+    def __init__(self, period: float, process_noise: np.ndarray, measurement_noise: np.ndarray,
+                 pursuer_position_std: float, restart_when_behind: bool) -> None:
+        super().__init__(period, measurement_noise, pursuer_position_std)
+        self.process_noise = np.asarray(process_noise, dtype=float).reshape(3, 3)
+        self.restart_when_behind = bool(restart_when_behind)
+        self._a, self._b = transition_matrices(self.period)
+        self._q_discrete = self._b @ self.process_noise @ self._b.T
 
 
 # --------------------------------------------------------------------------- classic EKF
 
 
-class AzElEKF(_TickedFilter):
+class AzElEKF(_ConstantVelocityFilter):
     """The "classic EKF" of section VIII-B: Cartesian [p_T, v_T], measurement [azimuth, elevation].
 
     Prediction as the u-PLKF (eq. (1)): x^- = A x, P^- = A P A^T + B Q B^T. Correction
@@ -256,11 +255,7 @@ class AzElEKF(_TickedFilter):
         pursuer_position_std: float = 0.0,
         restart_when_behind: bool = True,
     ) -> None:
-        super().__init__(period, measurement_noise, pursuer_position_std)
-        self.process_noise = np.asarray(process_noise, dtype=float).reshape(3, 3)
-        self.restart_when_behind = bool(restart_when_behind)
-        self._a, self._b = transition_matrices(self.period)
-        self._q_discrete = self._b @ self.process_noise @ self._b.T
+        super().__init__(period, process_noise, measurement_noise, pursuer_position_std, restart_when_behind)
         self._state: np.ndarray | None = None
         self._covariance: np.ndarray | None = None
 
@@ -446,7 +441,7 @@ def msc_from_cartesian_jacobian(relative_state: np.ndarray) -> np.ndarray:
     return jacobian
 
 
-class MSCEKF(_TickedFilter):
+class MSCEKF(_ConstantVelocityFilter):
     """Modified spherical coordinates EKF (section II-A; Stallard 1991 [23]).
 
     State y = [beta, eps, 1/r, beta_dot, eps_dot, r_dot/r] of d = p_T - p_ref, p_ref a
@@ -481,11 +476,7 @@ class MSCEKF(_TickedFilter):
         pursuer_position_std: float = 0.0,
         restart_when_behind: bool = True,
     ) -> None:
-        super().__init__(period, measurement_noise, pursuer_position_std)
-        self.process_noise = np.asarray(process_noise, dtype=float).reshape(3, 3)
-        self.restart_when_behind = bool(restart_when_behind)
-        self._a, self._b = transition_matrices(self.period)
-        self._q_discrete = self._b @ self.process_noise @ self._b.T
+        super().__init__(period, process_noise, measurement_noise, pursuer_position_std, restart_when_behind)
         self._state: np.ndarray | None = None  # MSC y, or absolute Cartesian while _reference is None
         self._covariance: np.ndarray | None = None
         self._reference: np.ndarray | None = None
@@ -767,7 +758,7 @@ class RangeAzElEKF(_TickedFilter):
         else:
             start_range, along_std = initial_guess.range, initial_guess.range_std
         cross_std = max(start_range * math.sqrt(self.bearing_variance), 1e-3)
-        covariance = _on_bearing_covariance(direction, along_std, cross_std, initial_guess.velocity_std)
+        covariance = on_bearing_covariance(direction, along_std, cross_std, initial_guess.velocity_std)
         position = np.asarray(bearing.pursuer_position, float) + start_range * direction
         self.initialize(bearing.time, position, initial_guess.velocity, covariance)
 

@@ -126,6 +126,24 @@ def explicit_start(initial_guess: InitialGuess) -> tuple[np.ndarray, np.ndarray]
     return np.asarray(initial_guess.position, dtype=float).reshape(3).copy(), covariance
 
 
+def on_bearing_covariance(direction: np.ndarray, along_std: float, cross_std: float, velocity_std: float) -> np.ndarray:
+    """Remark 3 start covariance of [p_T, v_T], shape (6, 6): long along the unit bearing
+    `direction` (along_std, m), thin across it (cross_std, m), isotropic velocity (velocity_std, m/s)."""
+    along = np.outer(direction, direction)
+    covariance = np.zeros((6, 6))
+    covariance[:3, :3] = along_std**2 * along + cross_std**2 * (np.eye(3) - along)
+    covariance[3:, 3:] = velocity_std**2 * np.eye(3)
+    return covariance
+
+
+def restart_guess(previous: InitialGuess | None, predicted_range: float, velocity: np.ndarray) -> InitialGuess:
+    """The guess a filter restarts on when its prediction lies behind the sensor (remark 3):
+    the predicted range (at least 1 m), an along-bearing std of at least that range, the
+    current velocity estimate. Always on the bearing, never at an explicit position."""
+    guess = previous or InitialGuess(predicted_range, predicted_range, velocity, 5.0)
+    return InitialGuess(max(predicted_range, 1.0), max(guess.range_std, predicted_range), velocity, guess.velocity_std)
+
+
 def pseudo_linear_measurement_matrix(bearing: np.ndarray) -> np.ndarray:
     """H = [P_lambda, 0_3x3] of the pseudo-linear measurement, eq. (6); shape (3, 6)."""
     return np.hstack([orthogonal_projection(bearing), np.zeros((3, 3))])
@@ -231,12 +249,9 @@ class UPLKF:
             self.initialize(bearing.time, start[0], initial_guess.velocity, start[1])
             return
         direction = unit(bearing.direction)
-        along = np.outer(direction, direction)
         bearing_std = float(np.sqrt(np.trace(self.measurement_noise) / 3.0))
         cross_std = max(initial_guess.range * bearing_std, 1e-3)
-        covariance = np.zeros((6, 6))
-        covariance[:3, :3] = initial_guess.range_std**2 * along + cross_std**2 * (np.eye(3) - along)
-        covariance[3:, 3:] = initial_guess.velocity_std**2 * np.eye(3)
+        covariance = on_bearing_covariance(direction, initial_guess.range_std, cross_std, initial_guess.velocity_std)
         self.initialize(
             bearing.time,
             bearing.pursuer_position + initial_guess.range * direction,
@@ -291,9 +306,7 @@ class UPLKF:
         return CorrectionReport(innovation_angle, use_predicted)
 
     def _restart_on(self, bearing: BearingMeasurement, predicted_range: float, velocity: np.ndarray) -> None:
-        guess = self._initial_guess or InitialGuess(predicted_range, predicted_range, velocity, 5.0)
-        restart = InitialGuess(max(predicted_range, 1.0), max(guess.range_std, predicted_range), velocity, guess.velocity_std)
-        self.initialize_on_bearing(bearing, restart)
+        self.initialize_on_bearing(bearing, restart_guess(self._initial_guess, predicted_range, velocity))
 
     def _require_state(self) -> tuple[np.ndarray, np.ndarray]:
         if self._state is None or self._covariance is None:
