@@ -179,6 +179,8 @@ class _TickedFilter:
         self._ticks = 0
         self._snapshot: TargetEstimate | None = None
         self._initial_guess: InitialGuess | None = None
+        self._state: np.ndarray | None = None  # the filter's own state vector, shape (6,)
+        self._covariance: np.ndarray | None = None
 
     @property
     def time(self) -> float:
@@ -187,7 +189,12 @@ class _TickedFilter:
 
     @property
     def initialized(self) -> bool:
-        raise NotImplementedError
+        return self._state is not None
+
+    def _require_state(self) -> tuple[np.ndarray, np.ndarray]:
+        if self._state is None or self._covariance is None:
+            raise RuntimeError("estimator not initialised: it needs a first bearing")
+        return self._state, self._covariance
 
     @property
     def estimate(self) -> TargetEstimate:
@@ -256,12 +263,6 @@ class AzElEKF(_ConstantVelocityFilter):
         restart_when_behind: bool = True,
     ) -> None:
         super().__init__(period, process_noise, measurement_noise, pursuer_position_std, restart_when_behind)
-        self._state: np.ndarray | None = None
-        self._covariance: np.ndarray | None = None
-
-    @property
-    def initialized(self) -> bool:
-        return self._state is not None
 
     def initialize(self, time: float, position: np.ndarray, velocity: np.ndarray, covariance: np.ndarray) -> None:
         """Start from an explicit target estimate; covariance of [p_T, v_T], shape (6, 6)."""
@@ -313,11 +314,6 @@ class AzElEKF(_ConstantVelocityFilter):
 
     def _cartesian(self) -> tuple[np.ndarray, np.ndarray]:
         return self._require_state()
-
-    def _require_state(self) -> tuple[np.ndarray, np.ndarray]:
-        if self._state is None or self._covariance is None:
-            raise RuntimeError("estimator not initialised: it needs a first bearing")
-        return self._state, self._covariance
 
 
 # --------------------------------------------------------------------------- modified spherical coordinates
@@ -477,13 +473,7 @@ class MSCEKF(_ConstantVelocityFilter):
         restart_when_behind: bool = True,
     ) -> None:
         super().__init__(period, process_noise, measurement_noise, pursuer_position_std, restart_when_behind)
-        self._state: np.ndarray | None = None  # MSC y, or absolute Cartesian while _reference is None
-        self._covariance: np.ndarray | None = None
-        self._reference: np.ndarray | None = None
-
-    @property
-    def initialized(self) -> bool:
-        return self._state is not None
+        self._reference: np.ndarray | None = None  # while None, _state is absolute Cartesian, else MSC y
 
     @property
     def reference(self) -> np.ndarray | None:
@@ -606,11 +596,6 @@ class MSCEKF(_ConstantVelocityFilter):
         relative_state[:3] += self._reference
         return relative_state, _symmetrize(j_c @ covariance @ j_c.T)
 
-    def _require_state(self) -> tuple[np.ndarray, np.ndarray]:
-        if self._state is None or self._covariance is None:
-            raise RuntimeError("estimator not initialised: it needs a first bearing")
-        return self._state, self._covariance
-
 
 # --------------------------------------------------------------------------- seed 003 EKF
 
@@ -700,12 +685,6 @@ class RangeAzElEKF(_TickedFilter):
         self.process_noise = np.asarray(q, dtype=float).reshape(3, 3)
         self._q_discrete = np.zeros((6, 6))
         self._q_discrete[3:, 3:] = self.process_noise * self.period  # G Q G^T dt
-        self._state: np.ndarray | None = None
-        self._covariance: np.ndarray | None = None
-
-    @property
-    def initialized(self) -> bool:
-        return self._state is not None
 
     @property
     def flight_path_state(self) -> np.ndarray | None:
@@ -820,8 +799,3 @@ class RangeAzElEKF(_TickedFilter):
         transform[3:, 3:] = flight_path_velocity_jacobian(state[3], state[4], state[5])
         cartesian = np.concatenate([state[:3], flight_path_velocity(state[3], state[4], state[5])])
         return cartesian, _symmetrize(transform @ covariance @ transform.T)
-
-    def _require_state(self) -> tuple[np.ndarray, np.ndarray]:
-        if self._state is None or self._covariance is None:
-            raise RuntimeError("estimator not initialised: it needs a first bearing")
-        return self._state, self._covariance
