@@ -18,7 +18,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from sitl_plant import full_sitl  # noqa: E402
+from studies import full_sitl  # noqa: E402
 
 DEFAULT = Path(__file__).resolve().parent.parent / "config" / "scenarios" / "constant_velocity.toml"
 

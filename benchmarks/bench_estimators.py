@@ -13,9 +13,9 @@ from __future__ import annotations
 import numpy as np
 from timing import median_us
 
-from companion.baseline_estimators import MSCEKF, AzElEKF, RangeAzElEKF
-from companion.estimators import GainProjection, InitialGuess, UPLKF
-from companion.messages import BearingMeasurement
+from companion.core.baseline_estimators import MSCEKF, AzElEKF, RangeAzElEKF
+from companion.core.estimators import GainProjection, InitialGuess, UPLKF
+from companion.core.messages import BearingMeasurement
 
 PERIOD = 0.02
 PROCESS_NOISE = 0.04 * np.eye(3)

@@ -14,10 +14,10 @@ import numpy as np
 from timing import median_us
 
 from companion.assembly import build_pipeline
-from companion.config import load_scenario
-from companion.estimators import GainProjection, InitialGuess, UPLKF
-from companion.messages import BearingMeasurement, PursuerState
-from sitl_plant.closed_loop import simulate
+from interfaces.scenario import load_scenario
+from companion.core.estimators import GainProjection, InitialGuess, UPLKF
+from companion.core.messages import BearingMeasurement, PursuerState
+from studies.closed_loop import simulate
 
 SCENARIO = Path(__file__).resolve().parent.parent / "config" / "scenarios" / "constant_velocity.toml"
 

@@ -17,8 +17,8 @@ import time
 
 import numpy as np
 
-from sitl_plant.attitude_control import AttitudeThrustVehicle
-from sitl_plant.params import QuadrotorParams
+from sitl_plant.vehicle.attitude_control import AttitudeThrustVehicle
+from sitl_plant.vehicle.params import QuadrotorParams
 
 SETPOINT_RATE_HZ = 50.0
 

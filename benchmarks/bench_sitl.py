@@ -6,7 +6,7 @@ attached, telemetry latency. Not a test: figures vary with the machine; quote me
 1. In-process cost of one plant tick (4 ms of simulated time): autopilot alone (Hold,
    Offboard) and with MAVLink encoding of the default streams on both links.
 2. For each speed factor: sitl-plant as a child process on loopback, a MAVSDK companion in
-   this process (companion.vehicle) that takes off, enters offboard and sends one attitude
+   this process (companion.adapters.mavsdk_vehicle) that takes off, enters offboard and sends one attitude
    setpoint per 20 Hz control tick computed with the pipeline's attitude mapping from a
    position-hold PD law on its odometry. Reported: speed factor achieved by the plant, its
    late ticks and slips, telemetry latency (ODOMETRY sent by the plant -> received by the
@@ -30,13 +30,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from companion.attitude import attitude_setpoint  # noqa: E402
-from companion.vehicle import MavsdkVehicle  # noqa: E402
-from sitl_plant.autopilot import Autopilot, OffboardAttitude  # noqa: E402
-from sitl_plant.mavlink_vehicle import COMPANION_STREAMS, GCS_STREAMS, Home, LinkSpec, MavlinkVehicle  # noqa: E402
-from sitl_plant.params import QuadrotorParams  # noqa: E402
-from sitl_plant.processes import free_port, start_plant  # noqa: E402
-from sitl_plant.px4_modes import OFFBOARD  # noqa: E402
+from companion.core.attitude import attitude_setpoint  # noqa: E402
+from companion.adapters.mavsdk_vehicle import MavsdkVehicle  # noqa: E402
+from sitl_plant.vehicle.autopilot import Autopilot, OffboardAttitude  # noqa: E402
+from sitl_plant.vehicle.mavlink_vehicle import COMPANION_STREAMS, GCS_STREAMS, Home, LinkSpec, MavlinkVehicle  # noqa: E402
+from sitl_plant.vehicle.params import QuadrotorParams  # noqa: E402
+from studies.processes import free_port, start_plant  # noqa: E402
+from sitl_plant.vehicle.px4_modes import OFFBOARD  # noqa: E402
 
 CONTROL_PERIOD = 0.05  # s of simulated time (20 Hz, the paper's control rate)
 

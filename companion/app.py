@@ -31,18 +31,20 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from companion import link
-from companion.assembly import build_pipeline
-from companion.bearing_builder import BearingBuilder
-from companion.config import ConfigError, Scenario, VehicleConfig, load_scenario
-from companion.fix_validator import FixRejected, FixValidator
-from companion.messages import BearingMeasurement
-from companion.pipeline import FollowingPipeline, PipelineOutput
-from companion.recorder import RunRecorder, TlogWriter
-from companion.state_history import StateHistory
-from companion.vehicle import MavsdkVehicle, VehicleError, VehicleSample
+from interfaces import link_schema as link
+from interfaces import zenoh_transport
+from companion.assembly import build_sensor, build_pipeline
+from companion.core.bearing_builder import BearingBuilder
+from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, VehicleConfig, load_scenario
+from companion.core.fix_validator import FixRejected, FixValidator
+from companion.fix_intake import FixIntake
+from companion.core.messages import BearingMeasurement
+from companion.core.pipeline import FollowingPipeline, PipelineOutput
+from companion.adapters.recorder import RunRecorder, TlogWriter
+from companion.core.state_history import StateHistory
+from companion.adapters.mavsdk_vehicle import MavsdkVehicle, VehicleError, VehicleSample
 
-DEFAULT_SCENARIO = Path(__file__).resolve().parent.parent / "config" / "scenarios" / "constant_velocity.toml"
+DEFAULT_SCENARIO = DEFAULT_SCENARIO
 #: Own-state samples kept for rebuilding bearings at past fix times, s.
 HISTORY_SECONDS = 5.0
 #: A fix whose stamp is further than this ahead of the newest own state waits for it, s.
@@ -123,10 +125,11 @@ class CompanionApp:
         self.recorder = RunRecorder(log_dir)
         self.phase = Phase.WAITING
         self.rng = np.random.default_rng(scenario.simulation.seed if seed is None else seed)
-        self.validator = FixValidator(self.link_settings.target_sender, self.home)
+        self.validator = FixValidator(self.link_settings.target_sender)
+        self.intake = FixIntake(self.validator, self.home)
         self.health = LinkHealth(self.validator)
         self.history = StateHistory(HISTORY_SECONDS)
-        self.builder = BearingBuilder(scenario.sensor, self.rng, self.history)
+        self.builder = BearingBuilder(build_sensor(scenario.sensor), self.rng, self.history)
         self.pipeline: FollowingPipeline | None = None
         self.vehicle: MavsdkVehicle | None = None
         self.pending: collections.deque[PendingFix] = collections.deque()
@@ -372,12 +375,12 @@ class CompanionApp:
     # ------------------------------------------------------------------ zenoh
     def _open_zenoh(self) -> None:
         settings = self.link_settings
-        config = link.zenoh_config(settings.mode, listen=self.zenoh_listen, connect=self.zenoh_connect,
+        config = zenoh_transport.zenoh_config(settings.mode, listen=self.zenoh_listen, connect=self.zenoh_connect,
                                    overrides=settings.zenoh_overrides)
-        self._session = link.open_session(config)
+        self._session = zenoh_transport.open_session(config)
         self._session.declare_subscriber(link.target_fix_key(settings.target_sender), self._on_fix_sample)
         self._session.declare_subscriber(link.companion_command_key(settings.companion_id), self._on_command_sample)
-        self._state_publisher = link.publisher(self._session, link.companion_state_key(settings.companion_id))
+        self._state_publisher = zenoh_transport.publisher(self._session, link.companion_state_key(settings.companion_id))
 
     def _on_fix_sample(self, sample) -> None:
         """Zenoh thread: hand the payload to the event loop with its receipt time."""
@@ -394,7 +397,7 @@ class CompanionApp:
         sim_time = self.vehicle.latest.state.time if self.vehicle is not None and self.vehicle.latest else None
         record = {"received_ns": received_ns, "sim_time": sim_time, "bytes": len(payload)}
         try:
-            fix, position = self.validator.check(payload)
+            fix, position = self.intake.check(payload)
         except FixRejected as error:
             record.update(verdict="rejected", reason=error.reason, detail=str(error))
             self.recorder.zenoh(record)

@@ -4,14 +4,33 @@ from __future__ import annotations
 
 import numpy as np
 
-from companion.attitude import VehicleLimits
-from companion.config import ConfigError, Scenario, VehicleConfig
-from companion.baseline_estimators import AzElEKF, MSCEKF, RangeAzElEKF
-from companion.baseline_guidance import (PDFollowingController, ProportionalNavigationGuidance,
+from companion.core.attitude import VehicleLimits
+from interfaces.scenario import ConfigError, Scenario, SensorConfig, VehicleConfig
+from companion.core.bearing_sensor import BearingSensor, CameraModel
+from companion.core.baseline_estimators import AzElEKF, MSCEKF, RangeAzElEKF
+from companion.core.baseline_guidance import (PDFollowingController, ProportionalNavigationGuidance,
                                          RetroProportionalNavigationGuidance, ZEMObservabilityGuidance)
-from companion.estimators import GainProjection, InitialGuess, TargetEstimator, UPLKF
-from companion.guidance import HelicalNavigationGuidance, LateralGuidance, PurePursuitGuidance, RangeController
-from companion.pipeline import DropoutPolicy, FollowingPipeline
+from companion.core.estimators import GainProjection, InitialGuess, TargetEstimator, UPLKF
+from companion.core.guidance import HelicalNavigationGuidance, LateralGuidance, PurePursuitGuidance, RangeController
+from companion.core.pipeline import DropoutPolicy, FollowingPipeline
+
+
+def build_sensor(config: SensorConfig) -> BearingSensor:
+    """The bearing sensor a scenario's [sensor] section describes (eq. (4), eq. (25) or the camera)."""
+    if config.model != "camera":
+        return BearingSensor(config.model, config.noise_std, range_noise_std=config.range_noise_std)
+    settings = config.camera
+    roll, pitch, yaw = np.radians(settings.mount_rpy_deg)
+    camera = CameraModel.with_mount_angles(
+        float(roll), float(pitch), float(yaw),
+        focal_length=settings.focal_length,
+        pixel_width=settings.pixel_size[0],
+        pixel_height=settings.pixel_size[1],
+        principal_point=tuple(settings.principal_point),
+        image_size=tuple(settings.image_size),
+        pixel_noise_std=settings.pixel_noise_std,
+    )
+    return BearingSensor("camera", config.noise_std, camera, config.range_noise_std)
 
 
 def build_estimator(scenario: Scenario) -> TargetEstimator:

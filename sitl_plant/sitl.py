@@ -28,14 +28,15 @@ from pathlib import Path
 
 import numpy as np
 
-from companion.config import ConfigError, Scenario, VehicleConfig, load_scenario
-from companion.link import CLOCK_KEY, ClockTick, LinkError, encode_clock, open_session, publisher, zenoh_config
-from sitl_plant.autopilot import Autopilot
-from sitl_plant.closed_loop import quadrotor_params
-from sitl_plant.mavlink_vehicle import COMPANION_STREAMS, GCS_STREAMS, Event, Home, LinkSpec, MavlinkVehicle
-from sitl_plant.parameters import ParameterError
+from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, VehicleConfig, load_scenario
+from interfaces.link_schema import CLOCK_KEY, ClockTick, encode_clock
+from interfaces.zenoh_transport import LinkError, open_session, publisher, zenoh_config
+from sitl_plant.vehicle.autopilot import Autopilot
+from sitl_plant.vehicle.params import quadrotor_params
+from sitl_plant.vehicle.mavlink_vehicle import COMPANION_STREAMS, GCS_STREAMS, Event, Home, LinkSpec, MavlinkVehicle
+from sitl_plant.vehicle.parameters import ParameterError
 
-DEFAULT_SCENARIO = Path(__file__).resolve().parent.parent / "config" / "scenarios" / "constant_velocity.toml"
+DEFAULT_SCENARIO = DEFAULT_SCENARIO
 #: When the plant falls this far (simulated seconds) behind the wall clock it stops trying to
 #: catch up and re-anchors; the slip is counted and reported.
 MAX_LAG = 0.25

@@ -7,14 +7,14 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from companion.attitude import (
+from companion.core.attitude import (
     VehicleLimits,
     attitude_setpoint,
     collective_thrust,
     desired_rotation,
     limit_specific_force,
 )
-from companion.geometry import E_X, E_Y, E_Z, orthogonal_projection, unit
+from companion.core.geometry import E_X, E_Y, E_Z, orthogonal_projection, unit
 
 G = 9.81
 LIMITS = VehicleLimits(hover_thrust_normalized=2.0 / 3.0)  # paper's vehicle: full thrust = 1.5 g

@@ -1,4 +1,4 @@
-"""The plant's flight stack (sitl_plant.autopilot), driven tick by tick without sockets.
+"""The plant's flight stack (sitl_plant.vehicle.autopilot), driven tick by tick without sockets.
 
 Arming and auto-disarm, takeoff/hold/land, ground contact, offboard attitude flight
 and the offboard-loss failsafe for every supported COM_OBL_RC_ACT, the parameter
@@ -12,15 +12,15 @@ import math
 import numpy as np
 import pytest
 
-from sitl_plant.autopilot import (
+from sitl_plant.vehicle.autopilot import (
     ARMING_READY_AFTER,
     LAND_DETECT_TIME,
     Autopilot,
     OffboardAttitude,
 )
-from sitl_plant.parameters import ParameterError
-from sitl_plant.params import QuadrotorParams
-from sitl_plant.px4_modes import (
+from sitl_plant.vehicle.parameters import ParameterError
+from sitl_plant.vehicle.params import QuadrotorParams
+from sitl_plant.vehicle.px4_modes import (
     HOLD,
     LAND,
     OFFBOARD,

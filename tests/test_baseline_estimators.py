@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from companion.baseline_estimators import (
+from companion.core.baseline_estimators import (
     MAX_ELEVATION,
     MSCEKF,
     SEED003_PROCESS_NOISE,
@@ -31,8 +31,8 @@ from companion.baseline_estimators import (
     range_azimuth_elevation_jacobian,
     wrap_angle,
 )
-from companion.estimators import CorrectionReport, InitialGuess
-from companion.messages import BearingMeasurement, TargetEstimate
+from companion.core.estimators import CorrectionReport, InitialGuess
+from companion.core.messages import BearingMeasurement, TargetEstimate
 
 SIGMA = 0.01  # bearing noise of eq. (4), Sigma = sigma^2 I
 PERIOD = 0.02  # 50 Hz ticks

@@ -9,15 +9,15 @@ import math
 import numpy as np
 import pytest
 
-from companion.baseline_guidance import (
+from companion.core.baseline_guidance import (
     PDFollowingController,
     ProportionalNavigationGuidance,
     RetroProportionalNavigationGuidance,
     ZEMObservabilityGuidance,
     plane_los_rates,
 )
-from companion.geometry import E_X, orthogonal_projection, rotation_from_x_axis_to, unit
-from companion.guidance import HelicalNavigationGuidance, PurePursuitGuidance
+from companion.core.geometry import E_X, orthogonal_projection, rotation_from_x_axis_to, unit
+from companion.core.guidance import HelicalNavigationGuidance, PurePursuitGuidance
 
 
 def random_cases(count: int, seed: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:

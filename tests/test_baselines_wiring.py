@@ -7,17 +7,17 @@ import numpy as np
 import pytest
 
 from companion import app
-from companion.assembly import build_estimator, build_lateral_guidance, build_pipeline
-from companion.baseline_estimators import AzElEKF, MSCEKF, RangeAzElEKF
-from companion.baseline_guidance import (PDFollowingController, ProportionalNavigationGuidance,
+from companion.assembly import build_sensor, build_estimator, build_lateral_guidance, build_pipeline
+from companion.core.baseline_estimators import AzElEKF, MSCEKF, RangeAzElEKF
+from companion.core.baseline_guidance import (PDFollowingController, ProportionalNavigationGuidance,
                                          RetroProportionalNavigationGuidance, ZEMObservabilityGuidance)
-from companion.bearing_sensor import BearingSensor
-from companion.config import ConfigError, SensorConfig, load_scenario
-from companion.estimators import GainProjection, UPLKF
-from companion.guidance import HelicalNavigationGuidance, PurePursuitGuidance
-from companion.messages import BearingMeasurement, PursuerState
-from sitl_plant.closed_loop import simulate
-from sitl_plant.montecarlo import DEFAULT_SCENARIO, with_overrides
+from companion.core.bearing_sensor import BearingSensor
+from interfaces.scenario import ConfigError, SensorConfig, load_scenario
+from companion.core.estimators import GainProjection, UPLKF
+from companion.core.guidance import HelicalNavigationGuidance, PurePursuitGuidance
+from companion.core.messages import BearingMeasurement, PursuerState
+from studies.closed_loop import simulate
+from studies.montecarlo import DEFAULT_SCENARIO, with_overrides
 
 
 @pytest.fixture(scope="module")
@@ -84,8 +84,8 @@ def test_pd_controller_replaces_the_range_controller(loaded):
 
 def test_range_sensor_adds_range_without_changing_the_bearing_noise():
     rng_a, rng_b = np.random.default_rng(5), np.random.default_rng(5)
-    plain = BearingSensor.from_config(SensorConfig())
-    ranged = BearingSensor.from_config(SensorConfig(range_noise_std=1.0))
+    plain = build_sensor(SensorConfig())
+    ranged = build_sensor(SensorConfig(range_noise_std=1.0))
     los = np.array([0.6, 0.8, 0.0])
     np.testing.assert_array_equal(plain.measure(los, rng_a), ranged.measure(los, rng_b))
     assert plain.measure_range(20.0, np.random.default_rng(1)) is None

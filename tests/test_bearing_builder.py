@@ -7,11 +7,12 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from companion.bearing_builder import BearingBuilder, BuildFailure, BuildResult
-from companion.bearing_sensor import CameraModel
-from companion.config import SensorConfig
-from companion.messages import BearingMeasurement
-from companion.state_history import StateHistory
+from companion.assembly import build_sensor
+from companion.core.bearing_builder import BearingBuilder, BuildFailure, BuildResult
+from companion.core.bearing_sensor import CameraModel
+from interfaces.scenario import SensorConfig
+from companion.core.messages import BearingMeasurement
+from companion.core.state_history import StateHistory
 
 SPEED = 15.0  # m/s, a fast pursuer heading east
 YAW_RATE = 2.0  # rad/s, turning right
@@ -39,7 +40,7 @@ def _history() -> StateHistory:
 
 
 def _builder(seed: int = 0, history: StateHistory | None = None, **sensor) -> BearingBuilder:
-    return BearingBuilder(SensorConfig(**sensor), np.random.default_rng(seed), _history() if history is None else history)
+    return BearingBuilder(build_sensor(SensorConfig(**sensor)), np.random.default_rng(seed), _history() if history is None else history)
 
 
 def _angle(a: np.ndarray, b: np.ndarray) -> float:
@@ -98,7 +99,7 @@ def test_no_own_state_reasons():
 
 
 def test_too_close_reason():
-    builder = BearingBuilder(SensorConfig(), np.random.default_rng(0), _history(), min_range=0.5)
+    builder = BearingBuilder(build_sensor(SensorConfig()), np.random.default_rng(0), _history(), min_range=0.5)
     result = builder.build(_position(STAMP) + np.array([0.3, 0.0, 0.2]), STAMP)
     assert result.bearing is None and result.reason == BuildFailure.TOO_CLOSE and result.true_line_of_sight is None
     assert builder.build(_position(STAMP) + np.array([0.6, 0.0, 0.0]), STAMP).reason is None
@@ -152,7 +153,7 @@ def test_malformed_fixes_raise(target, stamp):
 
 def test_negative_min_range_is_rejected():
     with pytest.raises(ValueError, match="min_range"):
-        BearingBuilder(SensorConfig(), np.random.default_rng(0), _history(), min_range=-1.0)
+        BearingBuilder(build_sensor(SensorConfig()), np.random.default_rng(0), _history(), min_range=-1.0)
 
 
 def test_a_configured_range_sensor_adds_a_noisy_range_and_keeps_the_bearing_noise():

@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from companion.bearing_sensor import BearingSensor, CameraModel, measure_bearing
-from companion.config import ConfigError, SensorConfig, load_scenario
-from sitl_plant.closed_loop import Termination, simulate
+from companion.assembly import build_sensor
+from companion.core.bearing_sensor import BearingSensor, CameraModel, measure_bearing
+from interfaces.scenario import ConfigError, SensorConfig, load_scenario
+from studies.closed_loop import Termination, simulate
 from tests.conftest import SCENARIOS
 
 CAMERA = CameraModel()
@@ -221,16 +222,16 @@ def test_non_rotation_attitude_is_rejected():
 def test_camera_scenario_configures_the_table_one_camera(scenario_path):
     scenario, _ = load_scenario(scenario_path("constant_velocity_camera"))
     assert scenario.sensor.model == "camera"
-    sensor = BearingSensor.from_config(scenario.sensor)
+    sensor = build_sensor(scenario.sensor)
     assert sensor.needs_attitude
     assert sensor.camera == CameraModel(pixel_noise_std=scenario.sensor.camera.pixel_noise_std)
 
 
 def test_sensor_config_defaults_and_mount():
-    sensor = BearingSensor.from_config(SensorConfig(model="camera", camera={"mount_rpy_deg": (0.0, 20.0, 0.0), "pixel_noise_std": 0.0}))
+    sensor = build_sensor(SensorConfig(model="camera", camera={"mount_rpy_deg": (0.0, 20.0, 0.0), "pixel_noise_std": 0.0}))
     nose_down = Rotation.from_euler("ZYX", [0.0, -20.0, 0.0], degrees=True).as_matrix()
     assert sensor.camera.project(np.array([1.0, 0.0, 0.0]), nose_down) == (512, 512)
-    assert BearingSensor.from_config(SensorConfig()).camera is None
+    assert build_sensor(SensorConfig()).camera is None
 
 
 CAMERA_SCENARIO = (SCENARIOS / "constant_velocity_camera.toml").read_text()

@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from companion.config import load_scenario
-from sitl_plant import campaign
-from sitl_plant.closed_loop import Termination
+from interfaces.scenario import load_scenario
+from studies import campaign
+from studies.closed_loop import Termination
 
 
 def _series(error: np.ndarray, distance: np.ndarray) -> dict:

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from companion.config import Scenario, load_scenario
-from sitl_plant.closed_loop import Termination, simulate
-from sitl_plant.run_scenario import main as bof_sim
+from interfaces.scenario import Scenario, load_scenario
+from studies.closed_loop import Termination, simulate
+from studies.run_scenario import main as bof_sim
 
 
 def _with(scenario: Scenario, section: str, **changes) -> Scenario:

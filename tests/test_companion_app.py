@@ -7,9 +7,10 @@ import json
 import numpy as np
 import pytest
 
-from companion import link
+from interfaces import link_schema as link
+from interfaces import geodesy
 from companion.app import CompanionApp, Phase
-from companion.config import load_scenario
+from interfaces.scenario import load_scenario
 
 
 @pytest.fixture
@@ -44,7 +45,7 @@ def test_fixes_are_validated_and_counted_by_reason(app):
 def test_geodetic_fix_becomes_the_ned_position_about_home(app):
     app.phase = Phase.READY
     home = app.scenario.sitl.home
-    geodetic = link.ned_to_geodetic((60.0, -20.0, -20.0), home)
+    geodetic = geodesy.ned_to_geodetic((60.0, -20.0, -20.0), home)
     app._on_fix(_fix(0, 2.0, position=geodetic, frame="geodetic"), 123)
     assert len(app.pending) == 1
     np.testing.assert_allclose(app.pending[0].position, [60.0, -20.0, -20.0], atol=1e-3)
@@ -75,7 +76,7 @@ def test_abort_command_is_honoured_and_garbage_commands_are_not(app):
 
 
 def test_every_malformed_kind_is_counted_under_its_reason_and_never_reaches_the_bearings(app):
-    from sitl_plant.faults import CORRUPTION_REASONS, corrupt_payload
+    from sitl_plant.target.link_faults import CORRUPTION_REASONS, corrupt_payload
 
     app.phase = Phase.READY
     app._on_fix(_fix(0, 1.0), 0)

@@ -4,7 +4,7 @@ from pathlib import Path
 
 import pytest
 
-from companion.config import ConfigError, load_scenario
+from interfaces.scenario import ConfigError, load_scenario
 from tests.conftest import SCENARIOS
 
 VALID = (SCENARIOS / "constant_velocity.toml").read_text()

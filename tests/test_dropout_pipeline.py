@@ -10,11 +10,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from companion.attitude import VehicleLimits
-from companion.estimators import GainProjection, InitialGuess, UPLKF
-from companion.guidance import HelicalNavigationGuidance, RangeController
-from companion.messages import BearingMeasurement, PursuerState
-from companion.pipeline import DropoutPolicy, FollowingPipeline, TrackMode
+from companion.core.attitude import VehicleLimits
+from companion.core.estimators import GainProjection, InitialGuess, UPLKF
+from companion.core.guidance import HelicalNavigationGuidance, RangeController
+from companion.core.messages import BearingMeasurement, PursuerState
+from companion.core.pipeline import DropoutPolicy, FollowingPipeline, TrackMode
 
 DESIRED = 8.0
 

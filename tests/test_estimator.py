@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from companion.estimators import (
+from companion.core.estimators import (
     UPLKF,
     CorrectionReport,
     GainProjection,
@@ -17,8 +17,8 @@ from companion.estimators import (
     pseudo_linear_measurement_matrix,
     transition_matrices,
 )
-from companion.geometry import orthogonal_projection, unit
-from companion.messages import BearingMeasurement
+from companion.core.geometry import orthogonal_projection, unit
+from companion.core.messages import BearingMeasurement
 
 SIGMA = 0.01  # bearing noise of eq. (4), Sigma = sigma^2 I (section IX)
 Q_TARGET = 0.1  # target acceleration covariance, (m/s^2)^2 per axis

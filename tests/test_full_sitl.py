@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sitl_plant import full_sitl
+from studies import full_sitl
 
 SPEED = 5.0
 

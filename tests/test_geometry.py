@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from companion.geometry import (
+from companion.core.geometry import (
     E_X,
     E_Y,
     E_Z,

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from companion.geometry import orthogonal_projection, rotation_from_x_axis_to, unit
-from companion.guidance import (
+from companion.core.geometry import orthogonal_projection, rotation_from_x_axis_to, unit
+from companion.core.guidance import (
     HelicalNavigationGuidance,
     PurePursuitGuidance,
     RangeController,

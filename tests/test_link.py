@@ -13,30 +13,12 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from companion import link
-from companion.link import (
-    CLOCK_KEY,
-    REASONS,
-    ClockTick,
-    Command,
-    LinkError,
-    PayloadError,
-    TargetFix,
-    decode_clock,
-    decode_command,
-    decode_target_fix,
-    encode_clock,
-    encode_command,
-    encode_state,
-    encode_target_fix,
-    fix_to_ned,
-    ned_to_geodetic,
-    open_session,
-    publisher,
-    zenoh_config,
-)
-from sitl_plant.mavlink_vehicle import Home
-from sitl_plant.processes import free_port
+from interfaces import link_schema as link
+from interfaces.link_schema import CLOCK_KEY, REASONS, ClockTick, Command, PayloadError, TargetFix, decode_clock, decode_command, decode_target_fix, encode_clock, encode_command, encode_state, encode_target_fix, fix_to_ned
+from interfaces.zenoh_transport import LinkError, open_session, publisher, zenoh_config
+from interfaces.geodesy import ned_to_geodetic
+from sitl_plant.vehicle.mavlink_vehicle import Home
+from studies.processes import free_port
 
 HOME = (47.397742, 8.545594, 488.0)
 FUZZ = settings(max_examples=300, derandomize=True, deadline=None, database=None,

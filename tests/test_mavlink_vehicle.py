@@ -1,4 +1,4 @@
-"""The plant's MAVLink layer (sitl_plant.mavlink_vehicle) against plain UDP client sockets.
+"""The plant's MAVLink layer (sitl_plant.vehicle.mavlink_vehicle) against plain UDP client sockets.
 
 Client messages are encoded with pymavlink as system 245 / component 190 and handed
 to MavlinkVehicle.handle_datagram directly; the plant's answers travel over real
@@ -20,16 +20,16 @@ import pytest
 os.environ["MAVLINK20"] = "1"
 from pymavlink.dialects.v20 import common as mavlink  # noqa: E402
 
-from sitl_plant.autopilot import ARMING_READY_AFTER, Autopilot  # noqa: E402
-from sitl_plant.mavlink_vehicle import (  # noqa: E402
+from sitl_plant.vehicle.autopilot import ARMING_READY_AFTER, Autopilot  # noqa: E402
+from sitl_plant.vehicle.mavlink_vehicle import (  # noqa: E402
     COMPANION_STREAMS,
     GCS_STREAMS,
     Home,
     LinkSpec,
     MavlinkVehicle,
 )
-from sitl_plant.params import QuadrotorParams  # noqa: E402
-from sitl_plant.px4_modes import (  # noqa: E402
+from sitl_plant.vehicle.params import QuadrotorParams  # noqa: E402
+from sitl_plant.vehicle.px4_modes import (  # noqa: E402
     HOLD,
     OFFBOARD,
     POSITION,
@@ -39,7 +39,7 @@ from sitl_plant.px4_modes import (  # noqa: E402
     Severity,
     decode_custom_mode,
 )
-from sitl_plant.quadrotor import quaternion_to_rotation  # noqa: E402
+from sitl_plant.vehicle.quadrotor import quaternion_to_rotation  # noqa: E402
 
 HOME = Home(47.397742, 8.545594, 488.0)
 CLIENT_SYSTEM, CLIENT_COMPONENT = 245, 190

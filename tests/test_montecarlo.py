@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from companion.assembly import build_estimator, build_lateral_guidance
-from companion.config import ConfigError, load_scenario
-from sitl_plant import montecarlo
-from sitl_plant.closed_loop import simulate
-from sitl_plant.executors import make_executor
+from interfaces.scenario import ConfigError, load_scenario
+from studies import montecarlo
+from studies.closed_loop import simulate
+from studies.executors import make_executor
 
 SCENARIO = montecarlo.DEFAULT_SCENARIO
 

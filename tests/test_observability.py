@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from companion.observability import (
+from companion.core.observability import (
     Plane,
     WindowedObservability,
     eigenvalue_spread,
@@ -18,7 +18,7 @@ from companion.observability import (
     random_placement,
     spread_from_g,
 )
-from sitl_plant import observability_figures
+from studies import observability_figures
 
 BACK_PLANE = Plane(point=[-1.0, 0.0, 0.0], normal=[1.0, 0.0, 0.0], gain=1.0)
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from companion.config import load_scenario
-from sitl_plant.closed_loop import simulate
+from interfaces.scenario import load_scenario
+from studies.closed_loop import simulate
 
 
 def _fly(scenario_path, law: str):

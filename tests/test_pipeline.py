@@ -8,12 +8,12 @@ import math
 import numpy as np
 import pytest
 
-from companion.attitude import VehicleLimits, limit_specific_force
-from companion.estimators import UPLKF, GainProjection, InitialGuess
-from companion.geometry import unit
-from companion.guidance import HelicalNavigationGuidance, RangeController
-from companion.messages import BearingMeasurement, PursuerState
-from companion.pipeline import FollowingPipeline
+from companion.core.attitude import VehicleLimits, limit_specific_force
+from companion.core.estimators import UPLKF, GainProjection, InitialGuess
+from companion.core.geometry import unit
+from companion.core.guidance import HelicalNavigationGuidance, RangeController
+from companion.core.messages import BearingMeasurement, PursuerState
+from companion.core.pipeline import FollowingPipeline
 
 ESTIMATOR_PERIOD = 0.02  # 50 Hz
 CONTROL_PERIOD = 0.05  # 20 Hz

@@ -11,9 +11,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from sitl_plant.attitude_control import AttitudeThrustVehicle, GeometricAttitudeController, Mixer
-from sitl_plant.params import QuadrotorParams
-from sitl_plant.quadrotor import ROTOR_LAYOUT, Quadrotor, RigidBodyState, hover_rotor_speed, rotor_wrench
+from sitl_plant.vehicle.attitude_control import AttitudeThrustVehicle, GeometricAttitudeController, Mixer
+from sitl_plant.vehicle.params import QuadrotorParams
+from sitl_plant.vehicle.quadrotor import ROTOR_LAYOUT, Quadrotor, RigidBodyState, hover_rotor_speed, rotor_wrench
 
 PARAMS = QuadrotorParams()
 M, G = PARAMS.mass, PARAMS.gravity

@@ -4,7 +4,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from companion.estimators import _projector_pseudo_inverse
+from companion.core.estimators import _projector_pseudo_inverse
 
 
 @settings(max_examples=200, deadline=None)

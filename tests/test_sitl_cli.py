@@ -7,9 +7,9 @@ import math
 
 import pytest
 
-from companion.config import ConfigError, load_scenario
+from interfaces.scenario import ConfigError, load_scenario
 from sitl_plant import sitl
-from sitl_plant.processes import free_port
+from studies.processes import free_port
 
 
 def _scenario_with(tmp_path, scenario_path, extra: str):

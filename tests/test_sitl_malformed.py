@@ -17,8 +17,8 @@ import time
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 
-from sitl_plant.processes import start_plant  # noqa: E402
-from sitl_plant.px4_modes import OFFBOARD, decode_custom_mode  # noqa: E402
+from studies.processes import start_plant  # noqa: E402
+from sitl_plant.vehicle.px4_modes import OFFBOARD, decode_custom_mode  # noqa: E402
 
 mavlink = mavutil.mavlink
 SPEED = 2.0

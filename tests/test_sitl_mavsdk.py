@@ -1,4 +1,4 @@
-"""The SITL plant as a MAVLink vehicle, flown by unmodified MAVSDK through companion.vehicle.
+"""The SITL plant as a MAVLink vehicle, flown by unmodified MAVSDK through companion.adapters.mavsdk_vehicle.
 
 Each test starts `sitl-plant` as a child process on free loopback ports, talks to it
 over real UDP, and always stops it. A pymavlink client on the ground-station port
@@ -19,11 +19,11 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 
-from companion.attitude import attitude_setpoint  # noqa: E402
-from companion.vehicle import MavsdkVehicle  # noqa: E402
+from companion.core.attitude import attitude_setpoint  # noqa: E402
+from companion.adapters.mavsdk_vehicle import MavsdkVehicle  # noqa: E402
 from mavsdk.plugins.offboard import PositionNedYaw  # noqa: E402
-from sitl_plant.processes import start_plant  # noqa: E402
-from sitl_plant.px4_modes import OFFBOARD, POSITION, decode_custom_mode  # noqa: E402
+from studies.processes import start_plant  # noqa: E402
+from sitl_plant.vehicle.px4_modes import OFFBOARD, POSITION, decode_custom_mode  # noqa: E402
 
 SPEED = 2.0  # simulated seconds per wall second in these tests
 DRAG_PER_MASS = 6.579e-2 / 1.5  # 1/s, Table I C_d / m (horizontal body drag at small tilt)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from companion.state_history import StateHistory
+from companion.core.state_history import StateHistory
 
 START_ATTITUDE = Rotation.from_euler("ZYX", [0.4, -0.1, 0.05])
 BODY_RATE = np.array([0.3, -0.5, 1.2])  # rad/s, constant, body frame

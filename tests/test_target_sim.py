@@ -15,22 +15,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.config import TargetConfig, load_scenario
-from companion.link import (
-    CLOCK_KEY,
-    ClockTick,
-    TargetFix,
-    decode_target_fix,
-    encode_clock,
-    fix_to_ned,
-    open_session,
-    publisher,
-    target_fix_key,
-    zenoh_config,
-)
-from sitl_plant.processes import ChildProcess, free_port
-from sitl_plant.target import Maneuver, TargetModel
-from sitl_plant.target_sim import FixSchedule, TargetLog, TargetPublisher, TargetTruth
+from interfaces.scenario import TargetConfig, load_scenario
+from interfaces.link_schema import CLOCK_KEY, ClockTick, TargetFix, decode_target_fix, encode_clock, fix_to_ned, target_fix_key
+from interfaces.zenoh_transport import open_session, publisher, zenoh_config
+from studies.processes import ChildProcess, free_port
+from sitl_plant.target.models import Maneuver, TargetModel
+from sitl_plant.target.publisher import FixSchedule, TargetLog, TargetPublisher, TargetTruth
 
 MANEUVERS = (Maneuver(2.0, 5.0, 0.5), Maneuver(5.0, 7.0, -0.8), Maneuver(9.0, 9.5, 1.0))
 START = np.array([10.0, -5.0, -20.0])
@@ -268,7 +258,7 @@ def test_target_process_follows_the_clock_end_to_end(tmp_path, scenario_path):
     link = ClockAndFixes("target-1")
     child = None
     try:
-        command = [sys.executable, "-m", "sitl_plant.target_sim", "--config", str(scenario), "--zenoh-connect",
+        command = [sys.executable, "-m", "sitl_plant.target.publisher", "--config", str(scenario), "--zenoh-connect",
                    link.endpoint, "--rate", str(rate), "--start-time", str(start_time), "--log-dir", str(tmp_path / "logs"),
                    "--seed", "1"]
         child = ChildProcess(command, tmp_path / "target.out", ready="sitl-target ready").start(timeout=20.0)
@@ -324,7 +314,7 @@ def test_target_process_stops_at_its_duration_with_noisy_ned_fixes(tmp_path, sce
     link = ClockAndFixes("target-2")
     child = None
     try:
-        command = [sys.executable, "-m", "sitl_plant.target_sim", "--config", str(scenario), "--zenoh-connect",
+        command = [sys.executable, "-m", "sitl_plant.target.publisher", "--config", str(scenario), "--zenoh-connect",
                    link.endpoint, "--rate", str(rate), "--frame", "ned", "--noise-std", str(noise), "--sender", "target-2",
                    "--duration", "6.0", "--seed", "4", "--log-dir", str(tmp_path / "logs")]
         child = ChildProcess(command, tmp_path / "target.out", ready="sitl-target ready").start(timeout=20.0)
@@ -362,7 +352,7 @@ def test_target_process_stops_at_its_duration_with_noisy_ned_fixes(tmp_path, sce
     (["--zenoh-connect", "127.0.0.1:7447"], "expected <protocol>"),
 ])
 def test_bad_arguments_exit_2_saying_why(arguments, message, capsys):
-    from sitl_plant import target_sim
+    from sitl_plant.target import publisher as target_sim
 
     assert target_sim.main(arguments) == 2
     error = capsys.readouterr().err

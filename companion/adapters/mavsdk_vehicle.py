@@ -1,0 +1,296 @@
+"""The companion's side of the MAVLink link: a thin async adapter over MAVSDK 4.x.
+
+Everything the companion asks of the autopilot goes through here: connect, read
+the hover thrust (MPC_THR_HOVER) and tilt limit (MPC_TILTMAX_AIR) from its
+parameters, follow its odometry, arm, take off, start/stop offboard, stream the
+pipeline's attitude/thrust setpoints, hold and land. The same code flies the
+bundled SITL plant, a PX4 SITL or a real PX4: only the connection URL changes.
+
+Own state comes from ODOMETRY: position in local NED, velocity in body FRD (PX4's
+child frame) rotated to NED with the reported attitude, time stamped with the
+autopilot's time_usec, so the pipeline runs on the vehicle's clock (simulated
+time in SITL, at any speed factor).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
+from mavsdk.asyncio.plugins.action import ActionAsync
+from mavsdk.asyncio.plugins.offboard import OffboardAsync
+from mavsdk.asyncio.plugins.param import ParamAsync
+from mavsdk.asyncio.plugins.server_utility import ServerUtilityAsync
+from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
+from mavsdk.enums import ForwardingOption
+from mavsdk.plugins.offboard import Attitude
+from mavsdk.plugins.server_utility import StatusTextType
+from mavsdk.plugins.telemetry import FlightMode, Odometry
+from scipy.spatial.transform import Rotation
+
+from companion.core.attitude import VehicleLimits
+from companion.core.messages import AttitudeSetpoint, PursuerState
+
+DEFAULT_URL = "udpin://0.0.0.0:14540"
+
+
+class VehicleError(RuntimeError):
+    """The autopilot refused, timed out or sent something unusable; the message says which."""
+
+
+@dataclass(frozen=True)
+class VehicleSample:
+    """One odometry sample: the pursuer state (vehicle clock) and its attitude (body FRD -> NED)."""
+
+    state: PursuerState
+    rotation: np.ndarray
+
+
+def pursuer_state_from_odometry(odometry: Odometry) -> VehicleSample:
+    """ODOMETRY -> PursuerState: NED position, body velocity rotated to NED, time_usec in seconds.
+
+    Raises VehicleError for a non-finite or zero quaternion or non-finite numbers.
+    """
+    q = odometry.q
+    p = odometry.position_body
+    v = odometry.velocity_body
+    values = (q.w, q.x, q.y, q.z, p.x_m, p.y_m, p.z_m, v.x_m_s, v.y_m_s, v.z_m_s)
+    if not all(math.isfinite(x) for x in values):
+        raise VehicleError(f"odometry with non-finite values at time_usec={odometry.time_usec}")
+    if math.sqrt(q.w * q.w + q.x * q.x + q.y * q.y + q.z * q.z) < 0.5:
+        raise VehicleError(f"odometry quaternion {values[:4]} is not a rotation")
+    rotation = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
+    velocity = rotation @ np.array([v.x_m_s, v.y_m_s, v.z_m_s])
+    state = PursuerState(odometry.time_usec * 1e-6, np.array([p.x_m, p.y_m, p.z_m]), velocity)
+    return VehicleSample(state, rotation)
+
+
+def offboard_attitude(setpoint: AttitudeSetpoint) -> Attitude:
+    """AttitudeSetpoint -> MAVSDK offboard Attitude (roll, pitch, yaw in degrees, ZYX as MAVSDK builds its
+    quaternion; normalised thrust). The conversion is exact away from +-90 deg pitch, which the
+    tilt limit excludes."""
+    yaw, pitch, roll = Rotation.from_matrix(setpoint.rotation).as_euler("ZYX", degrees=True)
+    return Attitude(float(roll), float(pitch), float(yaw), float(setpoint.thrust_normalized))
+
+
+class MavsdkVehicle:
+    """One autopilot reached through MAVSDK. Use as `async with MavsdkVehicle(url) as vehicle:`.
+
+    url: MAVSDK connection URL (udpin://0.0.0.0:14540 listens where PX4 SITL sends its
+    offboard link). connect_timeout: seconds to wait for the autopilot's heartbeat.
+    odometry_rate_hz: asked of the autopilot with SET_MESSAGE_INTERVAL (None: its default).
+    forward_url: a second MAVSDK connection the vehicle's traffic is forwarded to (e.g.
+    udpout://127.0.0.1:PORT for a .tlog recorder or a ground station), or None.
+    """
+
+    def __init__(self, url: str = DEFAULT_URL, connect_timeout: float = 20.0, odometry_rate_hz: float | None = 50.0,
+                 forward_url: str | None = None) -> None:
+        self.url = url
+        self.forward_url = forward_url
+        self.connect_timeout = connect_timeout
+        self.odometry_rate_hz = odometry_rate_hz
+        self._sdk: Mavsdk | None = None
+        self._system = None
+        self.telemetry: TelemetryAsync | None = None
+        self.action: ActionAsync | None = None
+        self.offboard: OffboardAsync | None = None
+        self.param: ParamAsync | None = None
+        self._status = None
+        self._latest: VehicleSample | None = None
+        self._new_sample = asyncio.Event()
+        self._flight_mode: FlightMode | None = None
+        self._in_air: bool | None = None
+        self._armed: bool | None = None
+        self.status_texts: list[str] = []
+        self.bad_odometry = 0
+        self._tasks: list[asyncio.Task] = []
+
+    async def __aenter__(self) -> "MavsdkVehicle":
+        await self.connect()
+        return self
+
+    async def __aexit__(self, *exc_info) -> None:
+        await self.close()
+
+    # ------------------------------------------------------------ connection
+    async def connect(self) -> None:
+        """Open MAVSDK, wait for the autopilot, start following its telemetry."""
+        config = Configuration.create_with_component_type(ComponentType.COMPANION_COMPUTER)
+        self._sdk = Mavsdk(config)
+        await self._sdk.__aenter__()
+        try:
+            if self.forward_url is None:
+                await self._sdk.add_any_connection(self.url)
+            else:
+                await self._sdk.add_any_connection(self.url, ForwardingOption.ON)
+                await self._sdk.add_any_connection(self.forward_url, ForwardingOption.ON)
+        except Exception as error:
+            await self.close()
+            raise VehicleError(f"cannot open MAVLink connection {self.url!r}: {error}") from error
+        system = await self._sdk.first_autopilot(timeout_s=self.connect_timeout)
+        if system is None:
+            await self.close()
+            raise VehicleError(f"no autopilot heard on {self.url} within {self.connect_timeout:g} s")
+        self._system = system
+        self.telemetry = TelemetryAsync(system)
+        self.action = ActionAsync(system)
+        self.offboard = OffboardAsync(system)
+        self.param = ParamAsync(system)
+        self._tasks = [
+            asyncio.create_task(self._follow_odometry()),
+            asyncio.create_task(self._follow(self.telemetry.subscribe_flight_mode(), "_flight_mode")),
+            asyncio.create_task(self._follow(self.telemetry.subscribe_in_air(), "_in_air")),
+            asyncio.create_task(self._follow(self.telemetry.subscribe_armed(), "_armed")),
+            asyncio.create_task(self._follow_status_text()),
+        ]
+        if self.odometry_rate_hz is not None:
+            try:
+                await self.telemetry.set_rate_odometry(self.odometry_rate_hz)
+            except Exception as error:  # an autopilot may refuse; its default rate is used then
+                self.status_texts.append(f"(companion) odometry rate request refused: {error}")
+
+    async def close(self) -> None:
+        """Stop following telemetry and release MAVSDK (no command is sent)."""
+        for task in self._tasks:
+            task.cancel()
+        for task in self._tasks:
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await task
+        self._tasks = []
+        if self._sdk is not None:
+            sdk, self._sdk = self._sdk, None
+            await sdk.__aexit__(None, None, None)
+
+    async def _follow_odometry(self) -> None:
+        async for odometry in self.telemetry.subscribe_odometry():
+            try:
+                sample = pursuer_state_from_odometry(odometry)
+            except VehicleError:
+                self.bad_odometry += 1
+                continue
+            if self._latest is not None and sample.state.time <= self._latest.state.time:
+                continue  # stale or duplicated: the pipeline's clock never runs backwards
+            self._latest = sample
+            self._new_sample.set()
+
+    async def _follow(self, stream, attribute: str) -> None:
+        async for value in stream:
+            setattr(self, attribute, value)
+
+    async def _follow_status_text(self) -> None:
+        async for status in self.telemetry.subscribe_status_text():
+            self.status_texts.append(status.text)
+
+    # ----------------------------------------------------------------- state
+    @property
+    def latest(self) -> VehicleSample | None:
+        """The newest odometry sample, or None before the first."""
+        return self._latest
+
+    @property
+    def flight_mode(self) -> FlightMode | None:
+        return self._flight_mode
+
+    @property
+    def in_air(self) -> bool | None:
+        return self._in_air
+
+    @property
+    def armed(self) -> bool | None:
+        return self._armed
+
+    async def next_sample(self, timeout: float = 5.0) -> VehicleSample:
+        """Wait for an odometry sample newer than the last one returned."""
+        self._new_sample.clear()
+        try:
+            await asyncio.wait_for(self._new_sample.wait(), timeout)
+        except asyncio.TimeoutError:
+            raise VehicleError(f"no odometry for {timeout:g} s") from None
+        return self._latest
+
+    async def wait_for(self, predicate, timeout: float, what: str) -> VehicleSample:
+        """Wait until predicate(sample) is true for a new odometry sample; VehicleError on timeout."""
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + timeout
+        while True:
+            remaining = deadline - loop.time()
+            if remaining <= 0:
+                raise VehicleError(f"timed out after {timeout:g} s waiting for {what}")
+            sample = await self.next_sample(min(remaining, 5.0))
+            if predicate(sample):
+                return sample
+
+    # ------------------------------------------------------------ parameters
+    async def hover_thrust(self) -> float:
+        """MPC_THR_HOVER: normalised thrust that hovers, in (0, 1)."""
+        value = await self._param_float("MPC_THR_HOVER")
+        if not 0.0 < value < 1.0:
+            raise VehicleError(f"MPC_THR_HOVER = {value} is not a normalised hover thrust")
+        return value
+
+    async def vehicle_limits(self, mass: float = 1.5, gravity: float = 9.81) -> VehicleLimits:
+        """What the attitude mapping needs, read from the autopilot: hover thrust and tilt limit."""
+        hover = await self.hover_thrust()
+        tilt = await self._param_float("MPC_TILTMAX_AIR")
+        if not 0.0 < tilt < 90.0:
+            raise VehicleError(f"MPC_TILTMAX_AIR = {tilt} deg is not a tilt limit")
+        return VehicleLimits(hover_thrust_normalized=hover, max_tilt=math.radians(tilt), gravity=gravity, mass=mass)
+
+    async def _param_float(self, name: str) -> float:
+        try:
+            value = float(await self.param.get_param_float(name))
+        except Exception as error:
+            raise VehicleError(f"cannot read parameter {name}: {error}") from error
+        if not math.isfinite(value):
+            raise VehicleError(f"parameter {name} is {value}")
+        return value
+
+    # --------------------------------------------------------------- actions
+    async def _act(self, what: str, call) -> None:
+        try:
+            await call
+        except Exception as error:
+            raise VehicleError(f"{what} refused: {error}") from error
+
+    async def arm(self) -> None:
+        await self._act("arm", self.action.arm())
+
+    async def disarm(self) -> None:
+        await self._act("disarm", self.action.disarm())
+
+    async def takeoff(self, altitude: float, timeout: float = 60.0, tolerance: float = 0.3) -> VehicleSample:
+        """Set MIS_TAKEOFF_ALT, take off, and wait until within tolerance of altitude above home (m)."""
+        await self._act("set takeoff altitude", self.action.set_takeoff_altitude(float(altitude)))
+        await self._act("takeoff", self.action.takeoff())
+        return await self.wait_for(lambda s: s.state.position[2] <= -(altitude - tolerance), timeout,
+                                   f"takeoff to {altitude:g} m")
+
+    async def hold(self) -> None:
+        await self._act("hold", self.action.hold())
+
+    async def land(self) -> None:
+        await self._act("land", self.action.land())
+
+    async def start_offboard(self, setpoint: AttitudeSetpoint) -> None:
+        """Stream `setpoint` first (PX4 refuses offboard without a stream), then switch to offboard."""
+        await self.send_setpoint(setpoint)
+        await self._act("offboard start", self.offboard.start())
+
+    async def send_setpoint(self, setpoint: AttitudeSetpoint) -> None:
+        """SET_ATTITUDE_TARGET with the pipeline's attitude and normalised thrust (MAVSDK re-sends it at 20 Hz)."""
+        await self._act("offboard setpoint", self.offboard.set_attitude(offboard_attitude(setpoint)))
+
+    async def status_text(self, text: str, severity: str = "WARNING") -> None:
+        """STATUSTEXT from the companion (PX4 forwards it to the ground station); severity: a
+        mavsdk.plugins.server_utility.StatusTextType name (DEBUG, INFO, NOTICE, WARNING, ERROR, CRITICAL...)."""
+        if self._status is None:
+            self._status = ServerUtilityAsync(self._system)
+        await self._act("status text", self._status.send_status_text(getattr(StatusTextType, severity), text[:50]))
+
+    async def stop_offboard(self) -> None:
+        """Leave offboard; the autopilot holds position."""
+        await self._act("offboard stop", self.offboard.stop())

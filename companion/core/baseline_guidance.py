@@ -1,0 +1,278 @@
+"""Baseline guidance laws that section VIII-C compares with HNG.
+
+Every law here satisfies the `LateralGuidance` protocol of `companion.core.guidance`:
+acceleration(engaged_time s, velocity m/s (3,), los unit (3,), range_estimate m,
+relative_velocity m/s (3,) = v^_T - v) -> m/s^2, shape (3,). Frames: local NED
+(z down), SI units.
+
+* `ProportionalNavigationGuidance` - 3-D PNG, section VIII-C1 (Fig. 11(a)).
+* `PDFollowingController` - the PD controller of section VIII-C1 (Fig. 11(c)); a
+  complete command (`includes_range_control = True`).
+* `RetroProportionalNavigationGuidance` - retro-PNG of refs. [14], [16],
+  section VIII-C2 (Fig. 12(a)), applied per plane.
+* `ZEMObservabilityGuidance` - the linear observability-enhancement law of
+  ref. [43], section VIII-C2 (Fig. 12(b)), applied per plane.
+
+PPG is `companion.core.guidance.PurePursuitGuidance`; planar weaving guidance is
+`HelicalNavigationGuidance` with c_Y = 0 (section VI-A, property 3), so neither is
+repeated here.
+
+The per-plane laws (refs. [14], [16], [43] are 2-D) use `plane_los_rates`: the
+horizontal plane carries the azimuth beta of the relative position, the vertical
+plane through the line of sight carries its elevation eps. With
+lambda = (cos eps cos beta, cos eps sin beta, -sin eps) the three unit vectors
+lambda, e_beta = d lambda/d beta / cos eps, e_eps = d lambda/d eps are orthonormal
+and lambda_dot = P_lambda dv / r = cos(eps) beta_dot e_beta + eps_dot e_eps, so the
+per-plane commands are always perpendicular to the line of sight.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import ClassVar, NamedTuple
+
+import numpy as np
+
+from companion.core.geometry import cross, orthogonal_projection, unit
+
+# Range floor (m) below which a range estimate is not trusted as a divisor (as in HNG).
+_MIN_RANGE = 1e-3
+
+
+def _require_relative_velocity(relative_velocity: np.ndarray | None, law: str) -> np.ndarray:
+    if relative_velocity is None:
+        raise ValueError(f"{law} needs the estimated relative velocity v^_T - v")
+    return np.asarray(relative_velocity, dtype=float)
+
+
+class PlaneLosRates(NamedTuple):
+    """Per-plane line-of-sight angles and rates of `plane_los_rates`.
+
+    beta: azimuth of the relative position in the horizontal plane, rad, atan2(d_y, d_x).
+    beta_dot: rad/s. eps: elevation, positive up, rad, atan2(-d_z, rho) with
+    rho = hypot(d_x, d_y). eps_dot: rad/s. e_beta: [-sin beta, cos beta, 0], unit,
+    horizontal, perpendicular to the line of sight. e_eps: unit vector perpendicular to
+    the line of sight in its vertical plane, pointing towards increasing elevation.
+    """
+
+    beta: float
+    beta_dot: float
+    eps: float
+    eps_dot: float
+    e_beta: np.ndarray
+    e_eps: np.ndarray
+
+
+def plane_los_rates(relative_position: np.ndarray, relative_velocity: np.ndarray,
+                    vertical_tolerance: float = 1e-9) -> PlaneLosRates:
+    """Azimuth/elevation of the line of sight and their rates (horizontal and vertical planes).
+
+    relative_position: dp = p_T - p, m, shape (3,), NED, nonzero. relative_velocity:
+    dv = v_T - v, m/s, shape (3,). With r = |dp| and rho = hypot(d_x, d_y):
+    beta_dot = e_beta . dv / rho (the 2-D LOS rate in the horizontal plane) and
+    eps_dot = e_eps . dv / r (the 2-D LOS rate in the vertical plane containing the
+    line of sight); these are the time derivatives of atan2(d_y, d_x) and
+    atan2(-d_z, rho) along dp' = dv.
+
+    Straight above/below the pursuer (rho <= vertical_tolerance * r) the azimuth is
+    undefined: beta = atan2(d_y, d_x) (0 for d_x = d_y = 0) only fixes the frame and
+    beta_dot is set to 0, so the horizontal-plane term vanishes. Note that beta_dot
+    grows like 1/rho as the line of sight approaches the vertical, a property of the
+    per-plane decomposition itself.
+    """
+    dp = np.asarray(relative_position, dtype=float)
+    dv = np.asarray(relative_velocity, dtype=float)
+    distance = float(np.linalg.norm(dp))
+    if not math.isfinite(distance) or distance == 0.0:
+        raise ValueError(f"relative position {dp!r} has no direction")
+    rho = math.hypot(float(dp[0]), float(dp[1]))
+    beta = math.atan2(float(dp[1]), float(dp[0]))
+    eps = math.atan2(-float(dp[2]), rho)
+    sin_b, cos_b = math.sin(beta), math.cos(beta)
+    sin_e = -float(dp[2]) / distance
+    cos_e = rho / distance
+    e_beta = np.array([-sin_b, cos_b, 0.0])
+    e_eps = np.array([-sin_e * cos_b, -sin_e * sin_b, -cos_e])
+    beta_dot = float(e_beta @ dv) / rho if rho > vertical_tolerance * distance else 0.0
+    eps_dot = float(e_eps @ dv) / distance
+    return PlaneLosRates(beta, beta_dot, eps, eps_dot, e_beta, e_eps)
+
+
+def _relative_position(los: np.ndarray, range_estimate: float) -> np.ndarray:
+    """dp^ = r^ lambda (m, (3,)), with r^ floored at _MIN_RANGE."""
+    return max(float(range_estimate), _MIN_RANGE) * unit(np.asarray(los, dtype=float))
+
+
+@dataclass(frozen=True)
+class ProportionalNavigationGuidance:
+    """3-D pure PNG of section VIII-C1 (Fig. 11(a)), after ref. [34].
+
+    a = N Omega x v with the LOS rate vector Omega = lambda x lambda_dot (rad/s, (3,))
+    and lambda_dot = P_lambda dv / r^ (dv = v^_T - v). a is perpendicular to the
+    pursuer velocity v; it has a component along lambda in general, which the range
+    controller of eq. (18) accounts for (its -dp^T a term), so the law is combined
+    with the range controller like PPG and HNG.
+
+    navigation_gain: N, dimensionless.
+    """
+
+    includes_range_control: ClassVar[bool] = False
+
+    navigation_gain: float = 3.0
+
+    def los_rate(self, los: np.ndarray, range_estimate: float, relative_velocity: np.ndarray) -> np.ndarray:
+        """Omega = lambda x P_lambda dv / r^, rad/s, shape (3,)."""
+        lam = unit(np.asarray(los, dtype=float))
+        lam_dot = orthogonal_projection(lam) @ np.asarray(relative_velocity, dtype=float) / max(float(range_estimate), _MIN_RANGE)
+        return cross(lam, lam_dot)
+
+    def acceleration(self, engaged_time: float, velocity: np.ndarray, los: np.ndarray, range_estimate: float,
+                     relative_velocity: np.ndarray | None = None) -> np.ndarray:
+        """a = N Omega x v. velocity m/s (3,), los (3,), range m, relative_velocity m/s (3,) (required).
+
+        Returns m/s^2, shape (3,). Raises ValueError without relative_velocity.
+        """
+        dv = _require_relative_velocity(relative_velocity, "PNG")
+        return self.navigation_gain * cross(self.los_rate(los, range_estimate, dv), np.asarray(velocity, dtype=float))
+
+
+@dataclass(frozen=True)
+class PDFollowingController:
+    """PD controller of section VIII-C1 (Fig. 11(c)): a complete acceleration command.
+
+    a = k_P (p_d - p) + k_D (v^_T - v) with p_d = p^_T - r_d lambda; since
+    p^_T - p = r^ lambda, p_d - p = (r^ - r_d) lambda. The pipeline adds no
+    range-controller term (`includes_range_control = True`).
+
+    kp: k_P, 1/s^2. kd: k_D, 1/s. desired_range: r_d, m (section VIII-A: 8 m).
+    """
+
+    includes_range_control: ClassVar[bool] = True
+
+    kp: float = 0.5
+    kd: float = 0.2
+    desired_range: float = 8.0
+
+    def acceleration(self, engaged_time: float, velocity: np.ndarray, los: np.ndarray, range_estimate: float,
+                     relative_velocity: np.ndarray | None = None) -> np.ndarray:
+        """los (3,), range m, relative_velocity m/s (3,) (required). Returns m/s^2, shape (3,)."""
+        dv = _require_relative_velocity(relative_velocity, "the PD controller")
+        lam = unit(np.asarray(los, dtype=float))
+        return self.kp * (float(range_estimate) - self.desired_range) * lam + self.kd * dv
+
+
+@dataclass(frozen=True)
+class RetroProportionalNavigationGuidance:
+    """Retro-PNG of refs. [14], [16] as adapted in section VIII-C2 (Fig. 12(a)).
+
+    The 2-D optimal law a = -2 |v| theta_dot is applied in the horizontal plane
+    (theta = azimuth beta, along e_beta) and in the vertical plane containing the line
+    of sight (theta = elevation eps, along e_eps), and the two are added:
+    a = -gain |v| (beta_dot e_beta + eps_dot e_eps), see `plane_los_rates`.
+    |v| is the pursuer's current 3-D speed (the paper drops the constant-speed
+    assumption). The command is perpendicular to the line of sight and pushes *with*
+    the LOS rate (opposite to PNG), so it is combined with the range controller.
+
+    gain: the 2 of [14], [16], dimensionless. Units: |v| m/s x rad/s -> m/s^2.
+    """
+
+    includes_range_control: ClassVar[bool] = False
+
+    gain: float = 2.0
+
+    def acceleration(self, engaged_time: float, velocity: np.ndarray, los: np.ndarray, range_estimate: float,
+                     relative_velocity: np.ndarray | None = None) -> np.ndarray:
+        """velocity m/s (3,), los (3,), range m, relative_velocity m/s (3,) (required). Returns m/s^2, (3,)."""
+        dv = _require_relative_velocity(relative_velocity, "retro-PNG")
+        rates = plane_los_rates(_relative_position(los, range_estimate), dv)
+        speed = float(np.linalg.norm(np.asarray(velocity, dtype=float)))
+        return -self.gain * speed * (rates.beta_dot * rates.e_beta + rates.eps_dot * rates.e_eps)
+
+
+@dataclass(frozen=True)
+class ZEMObservabilityGuidance:
+    """Linear observability-enhancement optimal guidance of ref. [43], section VIII-C2 (Fig. 12(b)).
+
+    [43]: a = k_w t_go z cot(k_w t_go^3 / 3) with the zero-effort miss z; rewritten as
+    a = N v_c theta_dot with N = k_w t_go^3 cot(k_w t_go^3 / 3) (see `navigation_gain`).
+    Applied per plane like retro-PNG: a = N v_c (beta_dot e_beta + eps_dot e_eps),
+    perpendicular to the line of sight, combined with the range controller.
+    v_c = -lambda . dv is the closing speed, m/s.
+
+    With x = k_w t_go^3: N -> 3 (classic PNG) as t_go -> 0, N < 0 (retro-PNG) for
+    pi/2 < x/3 < pi, and N has poles at x/3 = k pi. [43] picks k_w so that the
+    initial time-to-go lies in the retro-PNG interval.
+
+    Time-to-go rule (a following task has no intercept, so the paper says t_go
+    "cannot be accurately defined"; this is the choice made here):
+
+    * closing, v_c > min_closing_speed: t_go = max(r^ - r_d, 0) / v_c, the time to
+      reach the desired range at the current closing speed; inside r_d it is 0, so
+      the law is PNG with N = 3. N = clip(x cot(x/3), -max_gain, max_gain): the
+      cotangent oscillation with poles that the paper blames for the Fig. 12(b)
+      failure stays in the command (t_go swings as r^ and v_c vary), only bounded.
+    * not closing, v_c <= min_closing_speed: t_go is undefined (`time_to_go` returns
+      None). The law then stays at the far, retro-PNG end of the design interval of
+      [43] (N -> -inf as x/3 -> pi from below, clipped): N = -max_gain, and the
+      undefined closing speed is replaced by min_closing_speed, i.e.
+      a = -max_gain min_closing_speed (beta_dot e_beta + eps_dot e_eps). It keeps a
+      weak retro-PNG push that builds LOS rate (observability), keeps the sign of the
+      command independent of how fast the range opens (a negative v_c would turn
+      retro-PNG into PNG), and bounds it by max_gain min_closing_speed |theta_dot|.
+
+    k_w: 1/s^3. max_gain: bound on |N|, dimensionless, > 0. desired_range: r_d, m.
+    min_closing_speed: m/s, >= 0.
+    """
+
+    includes_range_control: ClassVar[bool] = False
+
+    k_w: float = 0.007
+    max_gain: float = 10.0
+    desired_range: float = 8.0
+    min_closing_speed: float = 0.1
+
+    def __post_init__(self) -> None:
+        if not self.k_w > 0.0:
+            raise ValueError(f"k_w must be positive, got {self.k_w}")
+        if not self.max_gain > 0.0:
+            raise ValueError(f"max_gain must be positive, got {self.max_gain}")
+        if not self.min_closing_speed >= 0.0:
+            raise ValueError(f"min_closing_speed must be non-negative, got {self.min_closing_speed}")
+
+    def time_to_go(self, range_estimate: float, closing_speed: float) -> float | None:
+        """t_go = max(r^ - r_d, 0) / v_c in s, or None (undefined) when v_c <= min_closing_speed."""
+        if not closing_speed > self.min_closing_speed:
+            return None
+        return max(float(range_estimate) - self.desired_range, 0.0) / float(closing_speed)
+
+    def navigation_gain(self, t_go: float | None) -> float:
+        """N = k_w t_go^3 cot(k_w t_go^3 / 3), clipped to [-max_gain, max_gain].
+
+        t_go: s, >= 0; None or +inf means undefined and gives -max_gain (see the class
+        docstring). N(0) = 3 (limit of x cot(x/3)); at the poles x/3 = k pi it returns
+        +-max_gain. Raises ValueError for a negative or NaN t_go.
+        """
+        if t_go is None or t_go == math.inf:
+            return -self.max_gain
+        if not t_go >= 0.0:
+            raise ValueError(f"time-to-go must be non-negative, got {t_go}")
+        x = self.k_w * float(t_go) ** 3
+        if x < 1e-4:
+            gain = 3.0 - x * x / 27.0  # series of x cot(x/3)
+        else:
+            sine, cosine = math.sin(x / 3.0), math.cos(x / 3.0)
+            gain = x * cosine / sine if sine != 0.0 else math.copysign(math.inf, cosine)
+        return float(min(self.max_gain, max(-self.max_gain, gain)))
+
+    def acceleration(self, engaged_time: float, velocity: np.ndarray, los: np.ndarray, range_estimate: float,
+                     relative_velocity: np.ndarray | None = None) -> np.ndarray:
+        """los (3,), range m, relative_velocity m/s (3,) (required). Returns m/s^2, shape (3,)."""
+        dv = _require_relative_velocity(relative_velocity, "the ZEM guidance law")
+        dp = _relative_position(los, range_estimate)
+        closing_speed = -float(unit(dp) @ dv)
+        t_go = self.time_to_go(range_estimate, closing_speed)
+        gain = self.navigation_gain(t_go)
+        speed = closing_speed if t_go is not None else self.min_closing_speed
+        rates = plane_los_rates(dp, dv)
+        return gain * speed * (rates.beta_dot * rates.e_beta + rates.eps_dot * rates.e_eps)

@@ -1,0 +1,314 @@
+"""Bearing-only target estimators (section IV).
+
+Every estimator here has the same narrow interface (`TargetEstimator`) so the
+pipeline, the simulators and the comparison tools can swap them by config.
+
+State convention. The paper writes the filter on the relative state
+x = x_T - x_P, eq. (2), whose prediction is x^-_k = A(x_{k-1} + x_{P,k-1}) - x_{P,k}.
+That is the same as propagating the absolute target state x_T = x + x_P with A,
+so the filter stores x_T = [p_T, v_T] (what guidance needs) and forms the
+relative vector p_T - p only inside the correction, exactly where eq. (6) uses it.
+Pursuer position errors then enter only through the measurement, as they do in
+the real system.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from companion.core.geometry import orthogonal_projection, unit
+from companion.core.messages import BearingMeasurement, TargetEstimate
+
+
+class TargetEstimator(Protocol):
+    """What the pipeline needs from a bearing-only target estimator."""
+
+    period: float
+
+    def initialize_on_bearing(self, bearing: BearingMeasurement, initial_guess: "InitialGuess") -> None: ...
+
+    def predict(self) -> None: ...
+
+    def correct(self, bearing: BearingMeasurement) -> "CorrectionReport": ...
+
+    @property
+    def initialized(self) -> bool: ...
+
+    @property
+    def estimate(self) -> TargetEstimate: ...
+
+
+@dataclass(frozen=True)
+class InitialGuess:
+    """Prior knowledge used to start the filter on the first bearing (remark 3, section VI-B).
+
+    range: r_hat(0), m, the guessed distance along the first bearing.
+    range_std: m, 1-sigma uncertainty of that guess along the bearing.
+    velocity: m/s, shape (3,), guessed target velocity.
+    velocity_std: m/s, 1-sigma per axis.
+    position: m, shape (3,), NED. When given, the filter starts at this target position
+    instead of on the first bearing, with an isotropic range_std (the initialisation
+    study of section VIII-B draws it at random); None (default) is remark 3.
+    """
+
+    range: float
+    range_std: float
+    velocity: np.ndarray
+    velocity_std: float
+    position: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class CorrectionReport:
+    """What one correction did, for logs and diagnostics.
+
+    innovation_angle: rad, angle between the measured bearing and the predicted line of sight.
+    used_predicted_projection: whether the gain used the predicted (instrumental) projection.
+    reinitialized: the prediction lay behind the sensor (angle > 90 deg), so the filter
+    restarted on this bearing instead of correcting.
+    """
+
+    innovation_angle: float
+    used_predicted_projection: bool
+    reinitialized: bool = False
+
+
+class GainProjection(enum.Enum):
+    """Which bearing builds the projection in the Kalman gain of the u-PLKF."""
+
+    MEASURED = "measured"
+    """The paper's form: H_k = [P_lambda~, 0] from the noisy bearing, section IV-C."""
+
+    PREDICTED = "predicted"
+    """Instrumental-variable form: gain from the predicted line of sight (uncorrelated with the current noise)."""
+
+    NOISE_FREE = "noise_free"
+    """The "optimal u-PLKF" of section VIII-B: H_k = [P_lambda, 0] from the true line of sight
+    (BearingMeasurement.true_direction), in the gain and the residual. A simulation-only
+    benchmark: it shows what a perfect bearing would give, and cannot fly."""
+
+
+
+def transition_matrices(period: float) -> tuple[np.ndarray, np.ndarray]:
+    """A and B of the discrete double integrator, eq. (1).
+
+    period: Delta t, s. Returns A shape (6, 6) and B shape (6, 3).
+    """
+    eye = np.eye(3)
+    a = np.block([[eye, period * eye], [np.zeros((3, 3)), eye]])
+    b = np.vstack([0.5 * period**2 * eye, period * eye])
+    return a, b
+
+
+def _projector_pseudo_inverse(matrix: np.ndarray, null_direction: np.ndarray) -> np.ndarray:
+    """Moore-Penrose pseudo-inverse of a symmetric PSD 3x3 `matrix` whose kernel is span(g).
+
+    The innovation covariance of section IV-C is rank 2 with kernel span(g), g the unit
+    vector of its projector; for such a matrix S^+ = (S + g g^T)^-1 - g g^T exactly,
+    which costs one 3x3 inverse instead of an eigendecomposition. Shape (3, 3).
+    """
+    outer = np.outer(null_direction, null_direction)
+    return np.linalg.inv(matrix + outer) - outer
+
+
+def explicit_start(initial_guess: InitialGuess) -> tuple[np.ndarray, np.ndarray] | None:
+    """(position, covariance of [p_T, v_T]) when the guess fixes the start position, else None.
+
+    Isotropic: range_std on every position axis, velocity_std on every velocity axis.
+    """
+    if initial_guess.position is None:
+        return None
+    covariance = np.diag([initial_guess.range_std**2] * 3 + [initial_guess.velocity_std**2] * 3)
+    return np.asarray(initial_guess.position, dtype=float).reshape(3).copy(), covariance
+
+
+def on_bearing_covariance(direction: np.ndarray, along_std: float, cross_std: float, velocity_std: float) -> np.ndarray:
+    """Remark 3 start covariance of [p_T, v_T], shape (6, 6): long along the unit bearing
+    `direction` (along_std, m), thin across it (cross_std, m), isotropic velocity (velocity_std, m/s)."""
+    along = np.outer(direction, direction)
+    covariance = np.zeros((6, 6))
+    covariance[:3, :3] = along_std**2 * along + cross_std**2 * (np.eye(3) - along)
+    covariance[3:, 3:] = velocity_std**2 * np.eye(3)
+    return covariance
+
+
+def restart_guess(previous: InitialGuess | None, predicted_range: float, velocity: np.ndarray) -> InitialGuess:
+    """The guess a filter restarts on when its prediction lies behind the sensor (remark 3):
+    the predicted range (at least 1 m), an along-bearing std of at least that range, the
+    current velocity estimate. Always on the bearing, never at an explicit position."""
+    guess = previous or InitialGuess(predicted_range, predicted_range, velocity, 5.0)
+    return InitialGuess(max(predicted_range, 1.0), max(guess.range_std, predicted_range), velocity, guess.velocity_std)
+
+
+def pseudo_linear_measurement_matrix(bearing: np.ndarray) -> np.ndarray:
+    """H = [P_lambda, 0_3x3] of the pseudo-linear measurement, eq. (6); shape (3, 6)."""
+    return np.hstack([orthogonal_projection(bearing), np.zeros((3, 3))])
+
+
+class UPLKF:
+    """3-D bearing-only pseudo-linear Kalman filter, u-PLKF (section IV-C).
+
+    Prediction at a fixed period (the estimator rate), correction whenever a bearing
+    arrives. With gain_projection=MEASURED this is exactly the paper's filter:
+
+        K_k = P^-_k H_k^T (H_k P^-_k H_k^T + V_k Sigma V_k^T)^+,   H_k = [P_lambda~_k, 0]
+        x_k = x^-_k - K_k H_k x^-_k,   P_k = (I - K_k H_k) P^-_k,   V_k = r^-_k P_lambda~_k
+
+    The paper's form puts the noisy bearing inside H_k, so the gain is correlated
+    with the noise it corrects; the bias this leaves accumulates with every update
+    and in closed loop at 20-50 Hz bearing rates the range estimate runs away (see
+    the README's estimator section for the measurements). PREDICTED (the default of
+    the scenarios) builds the projection of the gain and covariance from the
+    predicted line of sight lambda^- = (p^-_T - p)/|p^-_T - p|, an instrumental
+    variable that does not depend on the current noise, while the innovation stays
+    the paper's pseudo-linear residual -P_lambda~ (p^-_T - p).
+
+    Both forms share one guard: eq. (6) only says the target lies on the *line*
+    through p along lambda~, so a prediction that has drifted behind the sensor
+    (lambda~^T (p^-_T - p) <= 0) would be pulled onto the mirrored half-line, and the
+    range controller would then chase a phantom. Such a prediction is not credible:
+    the filter restarts on the bearing (remark 3) at the predicted range.
+
+    Own-position noise. Eq. (6) takes the pursuer position p as exact, but p comes
+    from the autopilot's estimate (sigma_p = 0.1 m in section VIII). At the 8 m
+    following range that is an angular error larger than the bearing noise itself, so
+    pursuer_position_std adds its projection to the measurement covariance:
+    R_k = V_k Sigma V_k^T + sigma_p^2 P P^T. Zero gives the paper's R_k.
+
+    period: Delta t, s. process_noise: Q, target acceleration covariance, (m/s^2)^2,
+    shape (3, 3). measurement_noise: Sigma, covariance of nu in eq. (4), shape (3, 3).
+    pursuer_position_std: sigma_p, m. restart_when_behind: the guard above (False is
+    the paper's filter exactly).
+    """
+
+    def __init__(
+        self,
+        period: float,
+        process_noise: np.ndarray,
+        measurement_noise: np.ndarray,
+        gain_projection: GainProjection = GainProjection.MEASURED,
+        pursuer_position_std: float = 0.0,
+        restart_when_behind: bool = True,
+    ) -> None:
+        if period <= 0.0:
+            raise ValueError("estimator period must be positive")
+        self.period = float(period)
+        self.process_noise = np.asarray(process_noise, dtype=float).reshape(3, 3)
+        self.measurement_noise = np.asarray(measurement_noise, dtype=float).reshape(3, 3)
+        self.gain_projection = GainProjection(gain_projection)
+        self.pursuer_position_std = float(pursuer_position_std)
+        self.restart_when_behind = bool(restart_when_behind)
+        self._a, self._b = transition_matrices(self.period)
+        self._q_discrete = self._b @ self.process_noise @ self._b.T
+        self._state: np.ndarray | None = None
+        self._covariance: np.ndarray | None = None
+        self._start_time = 0.0
+        self._ticks = 0
+        self._initial_guess: InitialGuess | None = None
+        self._snapshot: TargetEstimate | None = None
+
+    @property
+    def initialized(self) -> bool:
+        return self._state is not None
+
+    @property
+    def time(self) -> float:
+        """Time of the current estimate, s (start + ticks * period, so it never drifts)."""
+        return self._start_time + self._ticks * self.period
+
+    @property
+    def estimate(self) -> TargetEstimate:
+        """The current estimate (a snapshot: later updates do not change it)."""
+        if self._snapshot is None:
+            state, covariance = self._require_state()
+            self._snapshot = TargetEstimate(self.time, state[:3].copy(), state[3:].copy(), covariance.copy())
+        return self._snapshot
+
+    def initialize(self, time: float, position: np.ndarray, velocity: np.ndarray, covariance: np.ndarray) -> None:
+        """Start from an explicit target estimate; covariance of [p_T, v_T], shape (6, 6)."""
+        self._start_time = float(time)
+        self._ticks = 0
+        self._snapshot = None
+        self._state = np.concatenate([np.asarray(position, float), np.asarray(velocity, float)])
+        self._covariance = np.array(covariance, dtype=float).reshape(6, 6)
+
+    def initialize_on_bearing(self, bearing: BearingMeasurement, initial_guess: InitialGuess) -> None:
+        """p_T(0) = p(0) + r_hat(0) lambda~(0), remark 3 of section VI-B.
+
+        The position covariance is long along the bearing (range_std) and thin across
+        it (r_hat(0) times the bearing noise), the velocity covariance isotropic. With
+        initial_guess.position set, the filter starts there instead (section VIII-B).
+        """
+        self._initial_guess = initial_guess
+        start = explicit_start(initial_guess)
+        if start is not None:
+            self.initialize(bearing.time, start[0], initial_guess.velocity, start[1])
+            return
+        direction = unit(bearing.direction)
+        bearing_std = float(np.sqrt(np.trace(self.measurement_noise) / 3.0))
+        cross_std = max(initial_guess.range * bearing_std, 1e-3)
+        covariance = on_bearing_covariance(direction, initial_guess.range_std, cross_std, initial_guess.velocity_std)
+        self.initialize(
+            bearing.time,
+            bearing.pursuer_position + initial_guess.range * direction,
+            initial_guess.velocity,
+            covariance,
+        )
+
+    def predict(self) -> None:
+        """Time update over one period, section IV-C: x^- = A x, P^- = A P A^T + B Q B^T."""
+        state, covariance = self._require_state()
+        self._snapshot = None
+        self._state = self._a @ state
+        self._covariance = self._a @ covariance @ self._a.T + self._q_discrete
+        self._ticks += 1
+
+    def correct(self, bearing: BearingMeasurement) -> CorrectionReport:
+        """Measurement update with one bearing, eq. (6) and section IV-C."""
+        state, p_prior = self._require_state()
+        # The bearing may fall between estimator ticks (the networked app receives them
+        # at arbitrary times): compare it with the prior mean carried to its time stamp.
+        lead = bearing.time - self.time
+        relative = state[:3] + lead * state[3:] - bearing.pursuer_position  # p^-_T - p
+        predicted_range = float(np.linalg.norm(relative))
+        direction = unit(bearing.direction)
+        cos_angle = float(np.clip(direction @ relative / max(predicted_range, 1e-12), -1.0, 1.0))
+        innovation_angle = float(np.arccos(cos_angle))
+        if self.restart_when_behind and (cos_angle <= 0.0 or predicted_range < 1e-6):
+            self._restart_on(bearing, predicted_range, state[3:])
+            return CorrectionReport(innovation_angle, False, reinitialized=True)
+
+        use_predicted = self.gain_projection is GainProjection.PREDICTED
+        if self.gain_projection is GainProjection.NOISE_FREE:
+            if bearing.true_direction is None:
+                raise ValueError("the noise-free (optimal) u-PLKF needs BearingMeasurement.true_direction: simulation only")
+            direction = unit(bearing.true_direction)
+        measured_projection = orthogonal_projection(direction)
+        gain_direction = relative / predicted_range if use_predicted else direction
+        gain_projection = np.eye(3) - np.outer(gain_direction, gain_direction)
+        # H = [P, 0], so H P^- H^T = P P^-_pp P and P^- H^T = P^-[:, :3] P.
+        cross_covariance = p_prior[:, :3] @ gain_projection
+        noise_transition = predicted_range * gain_projection  # V_k = r^- P_lambda
+        measurement_covariance = noise_transition @ self.measurement_noise @ noise_transition.T
+        if self.pursuer_position_std > 0.0:
+            measurement_covariance = measurement_covariance + self.pursuer_position_std**2 * gain_projection
+        innovation_covariance = gain_projection @ cross_covariance[:3] + measurement_covariance
+        gain = cross_covariance @ _projector_pseudo_inverse(innovation_covariance, gain_direction)
+        # x_k = x^-_k - K_k H_k x^-_k, with H_k x^-_k = P_lambda~ (p^-_T - p)
+        self._snapshot = None
+        self._state = state - gain @ (measured_projection @ relative)
+        covariance = p_prior - gain @ (gain_projection @ p_prior[:3])  # (I - K H) P^-
+        self._covariance = 0.5 * (covariance + covariance.T)
+        return CorrectionReport(innovation_angle, use_predicted)
+
+    def _restart_on(self, bearing: BearingMeasurement, predicted_range: float, velocity: np.ndarray) -> None:
+        self.initialize_on_bearing(bearing, restart_guess(self._initial_guess, predicted_range, velocity))
+
+    def _require_state(self) -> tuple[np.ndarray, np.ndarray]:
+        if self._state is None or self._covariance is None:
+            raise RuntimeError("estimator not initialised: it needs a first bearing")
+        return self._state, self._covariance

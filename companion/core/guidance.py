@@ -1,0 +1,162 @@
+"""Guidance: helical navigation (eq. 13-14) and the range controller (eq. 15-19).
+
+The lateral law is swappable (`LateralGuidance` protocol); the range controller
+adds the longitudinal term along the line of sight, eq. (18).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from companion.core.geometry import E_X, cross, rotation_about_y, rotation_about_z, rotation_from_x_axis_to, unit
+
+
+class LateralGuidance(Protocol):
+    """A lateral (observability-enhancing) acceleration law, perpendicular to the line of sight.
+
+    acceleration(engaged_time s, velocity m/s (3,), los unit (3,), range_estimate m,
+    relative_velocity m/s (3,) = v^_T - v) -> m/s^2 (3,). Laws that do not need the
+    estimated relative velocity ignore it. A law whose class sets
+    `includes_range_control = True` is a complete command (the PD controller of
+    section VIII-C1): the pipeline then adds no range-controller term.
+    """
+
+    def acceleration(self, engaged_time: float, velocity: np.ndarray, los: np.ndarray, range_estimate: float,
+                     relative_velocity: np.ndarray | None = None) -> np.ndarray: ...
+
+
+@dataclass(frozen=True)
+class PurePursuitGuidance:
+    """PPG of section VIII-C1: a = N (v x lambda) x lambda = -N P_lambda v.
+
+    navigation_gain: N, 1/s.
+    """
+
+    navigation_gain: float
+
+    def acceleration(self, engaged_time: float, velocity: np.ndarray, los: np.ndarray, range_estimate: float,
+                     relative_velocity: np.ndarray | None = None) -> np.ndarray:
+        """velocity: m/s, shape (3,); los: unit line of sight, shape (3,). Returns m/s^2, shape (3,)."""
+        return self.navigation_gain * cross(cross(velocity, los), los)
+
+
+@dataclass(frozen=True)
+class HelicalNavigationGuidance:
+    """Helical navigation guidance HNG, eq. (14).
+
+    a_HN = N (v x R_eta R_Z R_Y e_X) x lambda, with R_eta mapping e_X onto lambda,
+    R_Z = R_Z(c_Z sin(w t) / r_hat) and R_Y = R_Y(c_Y cos(w t) / r_hat).
+
+    The rotated vector R_eta R_Z R_Y e_X is a virtual line of sight that circles the
+    real one with an angular radius that grows as the range shrinks; pursuing it
+    makes the pursuer weave on a helix. With c_Z = c_Y = 0 it is exactly PPG.
+
+    navigation_gain: N, 1/s. c_z, c_y: weave gains, m (divided by range -> rad).
+    weave_frequency: w, rad/s (the paper's sin(t) means w = 1 rad/s).
+    scale_with_range: divide the weave angles by r_hat (the paper); False uses r_hat = 1
+    (property 2 of section VI-A).
+    """
+
+    navigation_gain: float
+    c_z: float
+    c_y: float
+    weave_frequency: float = 1.0
+    scale_with_range: bool = True
+
+    def virtual_los(self, engaged_time: float, los: np.ndarray, range_estimate: float) -> np.ndarray:
+        """R_eta R_Z R_Y e_X of eq. (14); unit vector, shape (3,)."""
+        scale = 1.0 / max(range_estimate, 1e-3) if self.scale_with_range else 1.0
+        phase = self.weave_frequency * engaged_time
+        rotation_z = rotation_about_z(self.c_z * np.sin(phase) * scale)
+        rotation_y = rotation_about_y(self.c_y * np.cos(phase) * scale)
+        return rotation_from_x_axis_to(los) @ rotation_z @ rotation_y @ E_X
+
+    def acceleration(self, engaged_time: float, velocity: np.ndarray, los: np.ndarray, range_estimate: float,
+                     relative_velocity: np.ndarray | None = None) -> np.ndarray:
+        """Lateral command a_HN, eq. (14). velocity m/s (3,), los unit (3,), range m. Returns m/s^2 (3,)."""
+        los = unit(los)
+        virtual = self.virtual_los(engaged_time, los, range_estimate)
+        return self.navigation_gain * cross(cross(velocity, virtual), los)
+
+
+def saturation(x: float, limit: float = 3.0) -> float:
+    """sigma(x) = 3 atan(x/3), section VI-B; |sigma| < 3 pi / 2."""
+    return limit * float(np.arctan(x / limit))
+
+
+def saturation_slope(x: float, limit: float = 3.0) -> float:
+    """sigma'(x) = 1 / (1 + (x/3)^2)."""
+    return 1.0 / (1.0 + (x / limit) ** 2)
+
+
+@dataclass(frozen=True)
+class RangeErrorState:
+    """xi_1 = |dp| - r_d (eq. 15), m, and xi_2 = dp^T dv / |dp| (eq. 16), m/s."""
+
+    range_error: float
+    range_rate: float
+
+
+@dataclass(frozen=True)
+class RangeController:
+    """Longitudinal range controller, eq. (15)-(19).
+
+    Closed loop (target acceleration zero): xi1' = xi2, xi2' = v*, and with eq. (17)
+    V' = -sigma(xi1)^2 - k (sigma(xi1) + xi2)^2 < 0.
+
+    Choice of k (the paper gives none). Near xi = 0 (sigma ~ xi, sigma' ~ 1) the loop is
+    xi1'' + (k+1) xi1' + (k+1) xi1 = 0: natural frequency sqrt(k+1), damping
+    sqrt(k+1)/2. k = 3 makes it critically damped at 2 rad/s, five times slower
+    than the attitude loop, so the quadrotor can fly it. Far away the closing
+    speed settles where v* = 0 with sigma saturated: |xi2| -> (3 pi/2)(1 + 1/k),
+    6.3 m/s for k = 3. Larger k closes more slowly and feeds more estimate noise
+    into the command; smaller k is underdamped.
+
+    desired_range: r_d, m. gain: k, 1/s. saturation_limit: the 3 of sigma, m.
+    """
+
+    desired_range: float
+    gain: float = 3.0
+    saturation_limit: float = 3.0
+
+    def error_state(self, relative_position: np.ndarray, relative_velocity: np.ndarray) -> RangeErrorState:
+        """eq. (15)-(16) from dp = p^_T - p (m, (3,)) and dv = v^_T - v (m/s, (3,))."""
+        distance = float(np.linalg.norm(relative_position))
+        return RangeErrorState(distance - self.desired_range, float(relative_position @ relative_velocity) / max(distance, 1e-6))
+
+    def virtual_control(self, error: RangeErrorState) -> float:
+        """v* = -k[sigma(xi1) + xi2] - sigma(xi1) - sigma'(xi1) xi2, eq. (17); m/s^2."""
+        sigma = saturation(error.range_error, self.saturation_limit)
+        slope = saturation_slope(error.range_error, self.saturation_limit)
+        return -self.gain * (sigma + error.range_rate) - sigma - slope * error.range_rate
+
+    def acceleration(
+        self,
+        relative_position: np.ndarray,
+        relative_velocity: np.ndarray,
+        los: np.ndarray,
+        lateral_acceleration: np.ndarray,
+    ) -> np.ndarray:
+        """a_RC = u* / (lambda^T dp) lambda, eq. (18), with u* of eq. (19).
+
+        relative_position: dp = p^_T - p, m, (3,). relative_velocity: dv = v^_T - v, m/s, (3,).
+        los: unit line of sight lambda, (3,). lateral_acceleration: a_HN, m/s^2, (3,).
+        Returns m/s^2, shape (3,).
+        """
+        error = self.error_state(relative_position, relative_velocity)
+        distance = float(np.linalg.norm(relative_position))
+        u_star = (
+            -distance * self.virtual_control(error)
+            + float(relative_velocity @ relative_velocity)
+            - error.range_rate**2
+            - float(relative_position @ lateral_acceleration)
+        )
+        projection = float(los @ relative_position)
+        if projection <= 1e-6 * max(distance, 1.0):
+            # Remark 3: lambda^T dp = 0 means the estimate disagrees with the line of
+            # sight by 90 degrees or more; no longitudinal command is meaningful.
+            return np.zeros(3)
+        return u_star / projection * los

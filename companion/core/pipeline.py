@@ -1,0 +1,323 @@
+"""The one following pipeline: bearing -> estimator -> guidance -> attitude/thrust.
+
+Both harnesses (the in-process simulator and the networked companion app) drive
+this same object. It owns no clock: every call says what time it is.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+from dataclasses import dataclass
+
+import numpy as np
+
+from companion.core.attitude import VehicleLimits, attitude_setpoint
+from companion.core.estimators import CorrectionReport, InitialGuess, TargetEstimator
+from companion.core.geometry import unit
+from companion.core.guidance import LateralGuidance, RangeController
+from companion.core.messages import AttitudeSetpoint, BearingMeasurement, PursuerState, TargetEstimate
+from companion.core.observability import WindowedObservability
+
+_TIME_EPS = 1e-9
+
+
+class TrackMode(str, enum.Enum):
+    """How well the pipeline currently knows where the target is.
+
+    tracking: bearings arrive. coasting: none for a while; the estimator predicts and the
+    guidance flies on the prediction. degraded: the gap passed the coast limit or the
+    prediction got too uncertain; the safe behaviour holds a safe distance on the
+    predicted line of sight. reacquiring: bearings are back but disagree with the
+    prediction; after `reacquire_bearings` of them in a row the filter is restarted on
+    the newest one.
+    """
+
+    TRACKING = "tracking"
+    COASTING = "coasting"
+    DEGRADED = "degraded"
+    REACQUIRING = "reacquiring"
+
+
+@dataclass(frozen=True)
+class DropoutPolicy:
+    """What the pipeline does when bearings stop and come back (issue: link dropouts).
+
+    coast_after: s without a bearing before the track counts as coasting (a few bearing
+    periods). coast_limit: s without a bearing before the safe behaviour takes over.
+    max_position_std: m, while coasting the safe behaviour also takes over when the predicted
+    target position's standard deviation (sqrt(trace P_pp / 3)) exceeds this.
+    safe_range: m, range held in the safe behaviour (no weave, only the range controller
+    on the predicted line of sight). min_range: m, never command closing on the target
+    while the predicted range minus two standard deviations is below this.
+    gate_sigma: a bearing after a gap is accepted when its angle to the predicted line of
+    sight is below gate_sigma x the predicted angular standard deviation (prediction and
+    bearing noise together). reacquire_bearings: rejected bearings in a row that restart
+    the filter on the newest one, at the predicted range with restart_range_std.
+    max_jerk: m/s^3, for blend_time s after any change of mode the acceleration command
+    moves towards the new law at most this fast, so the vehicle is never handed a step.
+    """
+
+    coast_after: float = 0.6
+    coast_limit: float = 3.0
+    max_position_std: float = 6.0
+    safe_range: float = 12.0
+    min_range: float = 4.0
+    gate_sigma: float = 4.0
+    bearing_noise_std: float = 0.01
+    reacquire_bearings: int = 2
+    restart_range_std: float = 10.0
+    max_jerk: float = 15.0
+    blend_time: float = 2.0
+
+    def __post_init__(self) -> None:
+        if not (0.0 < self.coast_after <= self.coast_limit):
+            raise ValueError("need 0 < coast_after <= coast_limit")
+        if not (0.0 < self.min_range < self.safe_range):
+            raise ValueError("need 0 < min_range < safe_range")
+        if self.reacquire_bearings < 1 or self.gate_sigma <= 0.0 or self.max_jerk <= 0.0:
+            raise ValueError("reacquire_bearings >= 1, gate_sigma > 0 and max_jerk > 0 are required")
+
+
+@dataclass(frozen=True)
+class GuidanceTerms:
+    """The parts of the acceleration command, eq. (13): a_d = a_HN + a_RC (m/s^2, shape (3,)).
+
+    los: the unit line of sight guidance used. range_estimate: |p^_T - p|, m.
+    """
+
+    lateral: np.ndarray
+    longitudinal: np.ndarray
+    los: np.ndarray
+    range_estimate: float
+
+
+@dataclass(frozen=True)
+class PipelineOutput:
+    """Result of one pipeline step.
+
+    setpoint: the latest attitude/thrust setpoint (held between control ticks), or
+    None before the first bearing. new_setpoint: whether this step computed it.
+    estimate: the estimator's state at its latest tick (None before the first bearing).
+    guidance: the terms of the latest setpoint. correction: what the bearing of
+    this step did to the filter, if a bearing was given. mode / bearing_age / gated_out /
+    reinitialized: the dropout handling (TrackMode). observability: the windowed FIM measure
+    of the bearings used (companion.core.observability.WindowedObservability.measure), or None.
+    """
+
+    time: float
+    setpoint: AttitudeSetpoint | None
+    new_setpoint: bool
+    estimate: TargetEstimate | None
+    guidance: GuidanceTerms | None
+    correction: CorrectionReport | None
+    mode: TrackMode = TrackMode.TRACKING
+    bearing_age: float = 0.0
+    gated_out: bool = False
+    reinitialized: bool = False
+    observability: dict | None = None
+
+
+class FollowingPipeline:
+    """u-PLKF + lateral guidance + range controller + attitude mapping, stepped by the caller.
+
+    step(time, pursuer, bearing) runs the estimator's time updates up to `time` at its
+    own fixed period, corrects with the bearing if one is given, and recomputes the
+    setpoint when a control period has elapsed. Callers step it at least at every
+    estimator tick, control tick and bearing arrival.
+
+    los_source: "estimate" steers on (p^_T - p)/|p^_T - p| extrapolated to the control
+    time (fresh at every control tick, and lambda^T dp > 0 always, remark 3);
+    "measurement" steers on the latest measured bearing, as written in the paper.
+    """
+
+    def __init__(
+        self,
+        estimator: TargetEstimator,
+        lateral_guidance: LateralGuidance,
+        range_controller: RangeController,
+        limits: VehicleLimits,
+        initial_guess: InitialGuess,
+        control_period: float,
+        los_source: str = "estimate",
+        dropout: DropoutPolicy | None = None,
+        observability_window: float = 5.0,
+    ) -> None:
+        if control_period <= 0.0:
+            raise ValueError("control period must be positive")
+        if los_source not in ("estimate", "measurement"):
+            raise ValueError(f"los_source must be 'estimate' or 'measurement', not {los_source!r}")
+        self.estimator = estimator
+        self.lateral_guidance = lateral_guidance
+        self.range_controller = range_controller
+        self.limits = limits
+        self.initial_guess = initial_guess
+        self.control_period = float(control_period)
+        self.los_source = los_source
+        self._engaged_at: float | None = None
+        self._estimator_ticks = 0
+        self._control_ticks = 0
+        self._last_bearing: np.ndarray | None = None
+        self._setpoint: AttitudeSetpoint | None = None
+        self._guidance: GuidanceTerms | None = None
+        self.dropout = dropout if dropout is not None else DropoutPolicy(
+            safe_range=1.5 * range_controller.desired_range, min_range=0.5 * range_controller.desired_range)
+        self._safe_controller = dataclasses.replace(range_controller, desired_range=self.dropout.safe_range)
+        self.mode = TrackMode.TRACKING
+        self._last_bearing_time: float | None = None
+        self._rejected_in_row = 0
+        self._blend_until = -np.inf
+        self._last_command: np.ndarray | None = None
+        self.mode_changes: list[tuple[float, TrackMode]] = []
+        self.reinitializations = 0
+        self.observability = WindowedObservability(observability_window, self.dropout.bearing_noise_std)
+        self._observability_measure: dict | None = None
+
+    @property
+    def engaged_at(self) -> float | None:
+        """Time of the first bearing (estimator start, HNG t = 0), s."""
+        return self._engaged_at
+
+    def step(self, time: float, pursuer: PursuerState, bearing: BearingMeasurement | None = None) -> PipelineOutput:
+        correction = None
+        gated_out = reinitialized = False
+        if self._engaged_at is None:
+            if bearing is None:
+                return PipelineOutput(time, None, False, None, None, None)
+            self.estimator.initialize_on_bearing(bearing, self.initial_guess)
+            self._engaged_at = bearing.time
+            self._last_bearing = unit(bearing.direction)
+            self._last_bearing_time = bearing.time
+            self._observe(bearing)
+        else:
+            self._advance_estimator(time)
+            if bearing is not None:
+                correction, gated_out, reinitialized = self._use_bearing(bearing)
+        self._update_mode(time)
+
+        new_setpoint = False
+        if time >= self._engaged_at + self._control_ticks * self.control_period - _TIME_EPS:
+            self._compute_setpoint(time, pursuer)
+            self._control_ticks = int(np.floor((time - self._engaged_at) / self.control_period + _TIME_EPS)) + 1
+            new_setpoint = True
+        age = time - self._last_bearing_time if self._last_bearing_time is not None else 0.0
+        return PipelineOutput(time, self._setpoint, new_setpoint, self.estimator.estimate, self._guidance, correction,
+                              self.mode, age, gated_out, reinitialized, self._observability_measure)
+
+    def _use_bearing(self, bearing: BearingMeasurement) -> tuple[CorrectionReport | None, bool, bool]:
+        """Correct with a bearing; after a gap, only if it agrees with the prediction (the gate)."""
+        if self.mode == TrackMode.TRACKING or self._agrees_with_prediction(bearing):
+            self._rejected_in_row = 0
+            correction = self.estimator.correct(bearing)
+            self._last_bearing = unit(bearing.direction)
+            self._last_bearing_time = bearing.time
+            self._observe(bearing)
+            return correction, False, False
+        self._rejected_in_row += 1
+        if self._rejected_in_row < self.dropout.reacquire_bearings:
+            self._set_mode(bearing.time, TrackMode.REACQUIRING)
+            return None, True, False
+        # The prediction is no longer credible: restart along the new bearing at the predicted range.
+        estimate = self.estimator.estimate.extrapolated(bearing.time)
+        predicted_range = float(np.linalg.norm(estimate.position - bearing.pursuer_position))
+        guess = InitialGuess(predicted_range, self.dropout.restart_range_std, estimate.velocity,
+                             self.initial_guess.velocity_std)
+        self.estimator.initialize_on_bearing(bearing, guess)
+        self.reinitializations += 1
+        self._estimator_ticks = int(np.floor((bearing.time - self._engaged_at) / self.estimator.period + _TIME_EPS))
+        self._rejected_in_row = 0
+        self._last_bearing = unit(bearing.direction)
+        self._last_bearing_time = bearing.time
+        self._observe(bearing)
+        return None, False, True
+
+    def _observe(self, bearing: BearingMeasurement) -> None:
+        """Feed the windowed FIM (section V, eq. (7)) with a bearing used, at the estimated range."""
+        estimate = self.estimator.estimate.extrapolated(bearing.time)
+        distance = float(np.linalg.norm(estimate.position - bearing.pursuer_position))
+        if distance > 1e-6:
+            self.observability.add(bearing.time, unit(bearing.direction), distance)
+            self._observability_measure = self.observability.measure()
+
+    def _agrees_with_prediction(self, bearing: BearingMeasurement) -> bool:
+        estimate = self.estimator.estimate.extrapolated(bearing.time)
+        relative = estimate.position - bearing.pursuer_position
+        distance = float(np.linalg.norm(relative))
+        if distance < 1e-6:
+            return False
+        predicted = relative / distance
+        measured = unit(bearing.direction)
+        angle = float(np.arccos(np.clip(predicted @ measured, -1.0, 1.0)))
+        across = np.eye(3) - np.outer(predicted, predicted)
+        lateral_variance = float(np.trace(across @ estimate.covariance[:3, :3] @ across)) / 2.0
+        angular_std = float(np.sqrt(lateral_variance / distance**2 + self.dropout.bearing_noise_std**2))
+        return angle <= self.dropout.gate_sigma * angular_std
+
+    def _update_mode(self, time: float) -> None:
+        if self._last_bearing_time is None:
+            return
+        gap = time - self._last_bearing_time
+        estimate = self.estimator.estimate
+        position_std = float(np.sqrt(max(np.trace(estimate.covariance[:3, :3]), 0.0) / 3.0))
+        policy = self.dropout
+        if gap >= policy.coast_limit or (gap >= policy.coast_after and position_std > policy.max_position_std):
+            mode = TrackMode.DEGRADED
+        elif gap >= policy.coast_after:
+            mode = TrackMode.COASTING if self.mode != TrackMode.DEGRADED else TrackMode.DEGRADED
+        elif self.mode == TrackMode.REACQUIRING and self._rejected_in_row > 0:
+            mode = TrackMode.REACQUIRING
+        else:
+            mode = TrackMode.TRACKING
+        self._set_mode(time, mode)
+
+    def _set_mode(self, time: float, mode: TrackMode) -> None:
+        if mode != self.mode:
+            self.mode = mode
+            self.mode_changes.append((time, mode))
+            self._blend_until = time + self.dropout.blend_time
+
+    def _advance_estimator(self, time: float) -> None:
+        assert self._engaged_at is not None
+        period = self.estimator.period
+        target_ticks = int(np.floor((time - self._engaged_at) / period + _TIME_EPS))
+        while self._estimator_ticks < target_ticks:
+            self.estimator.predict()
+            self._estimator_ticks += 1
+
+    def _compute_setpoint(self, time: float, pursuer: PursuerState) -> None:
+        assert self._engaged_at is not None
+        estimate = self.estimator.estimate.extrapolated(time)
+        relative_position = estimate.position - pursuer.position
+        relative_velocity = estimate.velocity - pursuer.velocity
+        range_estimate = float(np.linalg.norm(relative_position))
+        if self.los_source == "measurement" and self._last_bearing is not None:
+            los = self._last_bearing
+        else:
+            los = relative_position / max(range_estimate, 1e-9)
+        if self.mode == TrackMode.DEGRADED:
+            # Safe behaviour: no weave; hold safe_range on the predicted line of sight.
+            lateral = np.zeros(3)
+            longitudinal = self._safe_controller.acceleration(relative_position, relative_velocity, los, lateral)
+        else:
+            lateral = self.lateral_guidance.acceleration(time - self._engaged_at, pursuer.velocity, los, range_estimate,
+                                                         relative_velocity)
+            if getattr(self.lateral_guidance, "includes_range_control", False):
+                longitudinal = np.zeros(3)  # a complete law (PD controller): no range-controller term
+            else:
+                longitudinal = self.range_controller.acceleration(relative_position, relative_velocity, los, lateral)
+        command = lateral + longitudinal
+        if self.mode != TrackMode.TRACKING:
+            range_std = float(np.sqrt(max(los @ estimate.covariance[:3, :3] @ los, 0.0)))
+            closing = float(command @ los)
+            if range_estimate - 2.0 * range_std < self.dropout.min_range and closing > 0.0:
+                command = command - closing * los  # never close on an uncertain target below min_range
+        if self._last_command is not None and time < self._blend_until:
+            step_limit = self.dropout.max_jerk * self.control_period
+            change = command - self._last_command
+            size = float(np.linalg.norm(change))
+            if size > step_limit:
+                command = self._last_command + change * (step_limit / size)
+        self._last_command = command
+        heading_fallback = None if self._setpoint is None else self._setpoint.rotation[:, 0]
+        self._setpoint = attitude_setpoint(time, command, los, self.limits, heading_fallback)
+        self._guidance = GuidanceTerms(lateral, longitudinal, los, range_estimate)

@@ -1,0 +1,508 @@
+"""Scenario and vehicle files (TOML), validated strictly.
+
+A scenario names a vehicle file (path relative to the scenario file) and sets the
+pursuer, target, sensor, estimator, guidance and simulation. Unknown or mistyped
+keys, non-finite numbers and impossible values are rejected with a ConfigError that
+names the file and the key; nothing half-runs.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from pathlib import Path
+from typing import Annotated, Literal, get_args
+
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+
+class ConfigError(ValueError):
+    """A configuration file is missing, unreadable or invalid; the message names the key."""
+
+
+def _finite_vector(value: tuple[float, float, float]) -> tuple[float, float, float]:
+    if not all(math.isfinite(component) for component in value):
+        raise ValueError("all three components must be finite numbers")
+    return value
+
+
+Vector3 = Annotated[tuple[float, float, float], AfterValidator(_finite_vector)]
+Positive = Annotated[float, Field(gt=0.0)]
+NonNegative = Annotated[float, Field(ge=0.0)]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, strict=False)
+
+
+class VehicleConfig(_Strict):
+    """Airframe (paper Table I) and the autopilot-side limits; SI units."""
+
+    name: str = "quadrotor"
+    mass: Positive = 1.5
+    gravity: Positive = 9.81
+    inertia: Vector3 = (1.745e-2, 1.745e-2, 3.175e-2)
+    arm_length: Positive = 0.225
+    thrust_coefficient: Positive = 1.105e-5
+    moment_coefficient: Positive = 1.489e-7
+    motor_time_constant: Positive = 0.0136
+    drag_coefficient: NonNegative = 6.579e-2
+    max_thrust_to_weight: Annotated[float, Field(gt=1.0, le=5.0)] = 1.5
+    attitude_kp: Positive = 2.0
+    attitude_kd: Positive = 0.5
+    position_noise_std: NonNegative = 0.1
+    velocity_noise_std: NonNegative = 0.05
+    max_tilt_deg: Annotated[float, Field(gt=0.0, lt=80.0)] = 35.0
+
+    @model_validator(mode="after")
+    def _inertia_positive(self) -> "VehicleConfig":
+        if min(self.inertia) <= 0.0:
+            raise ValueError("inertia: all principal moments must be positive")
+        return self
+
+
+class PursuerConfig(_Strict):
+    initial_position: Vector3 = (0.0, 0.0, 0.0)
+    initial_velocity: Vector3 = (0.0, 0.0, 0.0)
+
+
+class ManeuverConfig(_Strict):
+    """A constant-speed horizontal turn: lateral acceleration (m/s^2, + = right turn in NED) from start to end (s)."""
+
+    start: NonNegative
+    end: NonNegative
+    lateral_acceleration: float
+
+    @model_validator(mode="after")
+    def _ordered(self) -> "ManeuverConfig":
+        if self.end <= self.start:
+            raise ValueError(f"end ({self.end}) must be after start ({self.start})")
+        return self
+
+
+class TargetConfig(_Strict):
+    initial_position: Vector3
+    initial_velocity: Vector3
+    maneuvers: tuple[ManeuverConfig, ...] = ()
+
+    @model_validator(mode="after")
+    def _no_overlap(self) -> "TargetConfig":
+        ordered = sorted(self.maneuvers, key=lambda m: m.start)
+        for earlier, later in zip(ordered, ordered[1:]):
+            if later.start < earlier.end:
+                raise ValueError(f"maneuvers overlap: [{earlier.start}, {earlier.end}] and [{later.start}, {later.end}]")
+        if self.maneuvers and math.hypot(*self.initial_velocity[:2]) < 1e-6:
+            raise ValueError("a turning target needs a nonzero horizontal initial_velocity")
+        return self
+
+
+PositiveInt = Annotated[int, Field(gt=0)]
+
+
+class CameraConfig(_Strict):
+    """Pin-hole camera of the paper's simulation (section VIII, Table I), used when sensor.model = 'camera'.
+
+    focal_length: m. pixel_size: (rho_w, rho_h), m. principal_point: (u0, v0), px,
+    inside the image. image_size: (width, height), px. pixel_noise_std: detector noise
+    on the image point, px per axis (before the pixel-grid quantisation).
+    mount_rpy_deg: camera relative to body (roll, pitch, yaw; ZYX, deg; pitch > 0 looks
+    up); zero = looking along body +x, no gimbal.
+    """
+
+    focal_length: Positive = 0.008
+    pixel_size: tuple[Positive, Positive] = (1e-5, 1e-5)
+    principal_point: tuple[float, float] = (512.0, 512.0)
+    image_size: tuple[PositiveInt, PositiveInt] = (1024, 1024)
+    pixel_noise_std: NonNegative = 1.0
+    mount_rpy_deg: Vector3 = (0.0, 0.0, 0.0)
+
+    @model_validator(mode="after")
+    def _principal_point_in_image(self) -> "CameraConfig":
+        (u0, v0), (width, height) = self.principal_point, self.image_size
+        if not (-0.5 <= u0 <= width - 0.5 and -0.5 <= v0 <= height - 0.5):
+            raise ValueError(f"principal_point ({u0}, {v0}) must lie inside the {width} x {height} image")
+        return self
+
+
+class SensorConfig(_Strict):
+    """Bearing sensor: 'additive' is eq. (4) (nu ~ N(0, noise_std^2 I)); 'rotation' is eq. (25)
+    (epsilon ~ N(0, noise_std^2)); 'camera' is the pin-hole camera of section VIII ([sensor.camera];
+    noise_std is then unused)."""
+
+    model: Literal["additive", "rotation", "camera"] = "additive"
+    noise_std: NonNegative = 0.01
+    rate_hz: Positive = 5.0
+    camera: CameraConfig = CameraConfig()
+    range_noise_std: NonNegative | None = None
+    """m. A range sensor beside the bearing (seed 003's measurement set): every bearing then
+    also carries |p_T - p| + N(0, range_noise_std^2). None (default): bearings only."""
+
+
+class EstimatorConfig(_Strict):
+    """Target estimator. kind 'uplkf' is the paper's u-PLKF (section IV); gain_projection 'measured'
+    is its exact form, 'predicted' the default (README), 'noise_free' the simulation-only
+    "optimal u-PLKF" of section VIII-B. The baselines: 'ekf' (azimuth/elevation, Cartesian state,
+    the paper's classic EKF), 'msc_ekf' (modified spherical coordinates), 'ekf_rae' (seed 003:
+    range/azimuth/elevation; needs [sensor] range_noise_std). initialize: 'bearing' starts on the
+    first bearing at the range guess (remark 3); 'position' starts at initial_position itself with
+    an isotropic initial_range_std (the initialisation study of section VIII-B)."""
+
+    kind: Literal["uplkf", "ekf", "msc_ekf", "ekf_rae"] = "uplkf"
+    gain_projection: Literal["predicted", "measured", "noise_free"] = "predicted"
+    initialize: Literal["bearing", "position"] = "bearing"
+    rate_hz: Positive = 50.0
+    process_noise: Positive = 0.04
+    measurement_noise: Positive = 1e-4
+    pursuer_position_std: NonNegative = 0.1
+    restart_when_behind: bool = True
+    initial_position: Vector3 | None = None
+    initial_range: Positive | None = None
+    initial_range_std: Positive = 30.0
+    initial_velocity: Vector3 = (0.0, 0.0, 0.0)
+    initial_velocity_std: Positive = 5.0
+
+    @model_validator(mode="after")
+    def _has_range_guess(self) -> "EstimatorConfig":
+        if self.initial_position is None and self.initial_range is None:
+            raise ValueError("set initial_range or initial_position (the range guess along the first bearing)")
+        if self.initialize == "position" and self.initial_position is None:
+            raise ValueError("initialize = 'position' needs initial_position")
+        return self
+
+
+GUIDANCE_LAWS = ("hng", "ppg", "png", "pd", "retro_png", "zem")
+
+
+class GuidanceConfig(_Strict):
+    """Guidance law (section VI; baselines of section VIII-C). 'hng' helical navigation (eq. 14;
+    c_y = 0 is planar weaving), 'ppg' pure pursuit, 'png' 3-D proportional navigation, 'pd' the
+    PD controller (k_p, k_d; replaces the range controller), 'retro_png' retro-PNG of refs
+    [14]/[16] per horizontal/vertical plane (retro_gain), 'zem' the ZEM-based law of ref. [43]
+    (zem_k_w, zem_max_gain). All but 'pd' add the range controller of eq. (18)."""
+
+    law: Literal["hng", "ppg", "png", "pd", "retro_png", "zem"] = "hng"
+    navigation_gain: Positive = 3.0
+    c_z: NonNegative = 3.5
+    c_y: NonNegative = 3.5
+    weave_frequency: Positive = 1.0
+    scale_with_range: bool = True
+    desired_range: Positive = 8.0
+    range_gain: Positive = 3.0
+    rate_hz: Positive = 20.0
+    los_source: Literal["estimate", "measurement"] = "estimate"
+    pd_kp: Positive = 0.5
+    pd_kd: Positive = 0.2
+    retro_gain: Positive = 2.0
+    zem_k_w: Positive = 0.007
+    zem_max_gain: Positive = 10.0
+
+
+class SimulationConfig(_Strict):
+    duration: Positive = 60.0
+    seed: Annotated[int, Field(ge=0)] = 0
+    physics_rate_hz: Annotated[float, Field(ge=500.0)] = 500.0
+    summary_window: Positive = 20.0
+    converged_range_error: Positive = 1.0
+
+
+Port = Annotated[int, Field(ge=1, le=65535)]
+
+
+class SitlConfig(_Strict):
+    """The bundled SITL plant as a MAVLink vehicle (sitl-plant); PX4 SITL's ports and home by default.
+
+    The vehicle starts at rest on the ground below pursuer.initial_position (local NED
+    z = 0 is the ground at home), heading start_yaw_deg. parameters overrides PX4-style
+    parameters of the plant (e.g. COM_OF_LOSS_T = 0.5); names and ranges are checked
+    when the plant starts.
+    """
+
+    home: Vector3 = (47.397742, 8.545594, 488.0)
+    speed_factor: Annotated[float, Field(gt=0.0, le=100.0)] = 1.0
+    companion_host: str = "127.0.0.1"
+    companion_port: Port = 14540
+    gcs_host: str = "127.0.0.1"
+    gcs_port: Port = 14550
+    bind_host: str = "127.0.0.1"
+    tick_rate_hz: Positive = 250.0
+    start_yaw_deg: Annotated[float, Field(ge=-180.0, le=360.0)] = 0.0
+    parameters: dict[str, float] = {}
+
+    @model_validator(mode="after")
+    def _home_on_earth(self) -> "SitlConfig":
+        latitude, longitude, _ = self.home
+        if not (-90.0 <= latitude <= 90.0 and -180.0 <= longitude <= 180.0):
+            raise ValueError(f"home: latitude/longitude ({latitude}, {longitude}) outside [-90, 90] x [-180, 180]")
+        return self
+
+
+class LinkConfig(_Strict):
+    """The Zenoh link: target fixes in, companion state out, commands (abort) in.
+
+    mode: Zenoh session mode. listen/connect: Zenoh endpoints ("tcp/127.0.0.1:7447",
+    "tls/host:port", ...); the command line can override them. zenoh_overrides: raw Zenoh
+    configuration entries (dotted key -> JSON5 value), e.g. TLS certificates:
+    {"transport.link.tls.root_ca_certificate" = '"/path/ca.pem"'}. Multicast scouting is
+    off unless an override turns it on. The target publishes at sensor.rate_hz.
+    """
+
+    mode: Literal["peer", "client", "router"] = "peer"
+    listen: tuple[str, ...] = ()
+    connect: tuple[str, ...] = ()
+    zenoh_overrides: dict[str, str] = {}
+    target_sender: Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")] = "target-1"
+    companion_id: Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")] = "pursuer-1"
+    fix_frame: Literal["geodetic", "ned"] = "geodetic"
+    fix_noise_std: NonNegative = 0.0
+    state_rate_hz: Positive = 5.0
+
+
+class CompanionConfig(_Strict):
+    """The companion application's mission.
+
+    mavlink_url: MAVSDK URL of the autopilot. engage_altitude: take off to this height above
+    home (m), hover settle_time (s), then engage on the first bearing. follow_duration: follow
+    this long (s of vehicle time) before landing; default simulation.duration.
+    link_timeout / connect_timeout: wall-clock seconds to wait for the first target fix /
+    the autopilot. hold_after_abort: hover this long (s) after an abort before landing.
+    vehicle_link_timeout: wall-clock seconds without odometry after which the vehicle link
+    counts as lost: the companion stops commanding and lets the autopilot's offboard-loss
+    failsafe act. vehicle_link_wait: how long (wall s) to wait for it to come back before
+    giving up. on_vehicle_link_return: "resume" re-engages offboard and goes on following;
+    "land" (the default, the operator's call) lands instead.
+    """
+
+    mavlink_url: str = "udpin://0.0.0.0:14540"
+    engage_altitude: Annotated[float, Field(gt=1.0, le=120.0)] = 20.0
+    settle_time: NonNegative = 1.5
+    follow_duration: Positive | None = None
+    link_timeout: Positive = 60.0
+    connect_timeout: Positive = 30.0
+    hold_after_abort: NonNegative = 3.0
+    vehicle_link_timeout: Positive = 1.0
+    vehicle_link_wait: Positive = 60.0
+    on_vehicle_link_return: Literal["resume", "land"] = "land"
+
+
+Probability = Annotated[float, Field(ge=0.0, le=1.0)]
+SenderName = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")]
+#: How a corrupted fix is broken (sitl_plant.target.link_faults documents each and the decoder's reason it earns).
+CorruptKind = Literal["invalid_utf8", "truncated_json", "missing_field", "non_finite", "string_number",
+                      "absurd_position"]
+CORRUPT_KINDS: tuple[str, ...] = get_args(CorruptKind)
+
+
+class BlackoutWindow(_Strict):
+    """A link outage from start for duration, s (scenario time for the target link, plant time for MAVLink)."""
+
+    start: NonNegative
+    duration: NonNegative
+
+    @property
+    def end(self) -> float:
+        return self.start + self.duration
+
+
+def _check_windows(windows: tuple[BlackoutWindow, ...], key: str) -> None:
+    ordered = sorted(windows, key=lambda w: w.start)
+    for earlier, later in zip(ordered, ordered[1:]):
+        if later.start < earlier.end:
+            raise ValueError(f"{key}: windows [{earlier.start:g}, {earlier.end:g}) and "
+                             f"[{later.start:g}, {later.end:g}) overlap")
+
+
+class BurstLossConfig(_Strict):
+    """Gilbert-Elliott bursty loss: a good/bad Markov chain stepped once per target fix.
+
+    Give either the per-message transition probabilities (p_good_to_bad, p_bad_to_good)
+    or the mean durations in seconds (mean_burst_s in the bad state, mean_gap_s in the
+    good state; converted with the interval between consecutive fixes: p = interval /
+    mean). loss_in_good / loss_in_bad: probability that a fix is lost in that state.
+    """
+
+    p_good_to_bad: Probability | None = None
+    p_bad_to_good: Probability | None = None
+    mean_burst_s: Positive | None = None
+    mean_gap_s: Positive | None = None
+    loss_in_good: Probability = 0.0
+    loss_in_bad: Probability = 1.0
+
+    @model_validator(mode="after")
+    def _one_form(self) -> "BurstLossConfig":
+        given = [name for name in ("p_good_to_bad", "p_bad_to_good", "mean_burst_s", "mean_gap_s")
+                 if getattr(self, name) is not None]
+        if given not in (["p_good_to_bad", "p_bad_to_good"], ["mean_burst_s", "mean_gap_s"]):
+            raise ValueError("burst: give p_good_to_bad and p_bad_to_good, or mean_burst_s and mean_gap_s "
+                             f"(got {', '.join(given) or 'neither'})")
+        return self
+
+
+class MavlinkFaultsConfig(_Strict):
+    """Faults of the companion <-> vehicle MAVLink link (applied by the plant).
+
+    blackouts: windows, s of simulated time since the plant started, during which
+    the link is silent both ways.
+    """
+
+    blackouts: tuple[BlackoutWindow, ...] = ()
+
+    @model_validator(mode="after")
+    def _no_overlap(self) -> "MavlinkFaultsConfig":
+        _check_windows(self.blackouts, "mavlink.blackouts")
+        return self
+
+
+class FaultsConfig(_Strict):
+    """Fault injection on the target -> companion link (sitl_plant.target.link_faults); defaults inject nothing.
+
+    Times of blackouts are scenario time (s since the target started its scenario).
+    loss_probability: independent loss per fix. burst: Gilbert-Elliott bursty loss
+    ([faults.burst]). latency_s + U(0, jitter_s): delivery delay, s. reorder_probability:
+    a fix is held back reorder_delay_s more (choose it above the fix period + jitter so
+    the next fix overtakes it). duplicate_probability: a second copy duplicate_delay_s
+    later. stale_probability: an extra copy of an older fix, stale_min_age_s to
+    stale_max_age_s old. corrupt_probability: the fix is replaced by a broken one, kind
+    drawn uniformly from corrupt_kinds. impostor_rate_hz: a second publisher on the same
+    key as impostor_sender, impostor_offset m (NED) away from the target (0 = off).
+    seed: the faults' own seed (None: derived from simulation.seed). mavlink: faults of
+    the MAVLink link ([faults.mavlink]).
+    """
+
+    seed: Annotated[int, Field(ge=0)] | None = None
+    loss_probability: Probability = 0.0
+    burst: BurstLossConfig | None = None
+    blackouts: tuple[BlackoutWindow, ...] = ()
+    latency_s: NonNegative = 0.0
+    jitter_s: NonNegative = 0.0
+    reorder_probability: Probability = 0.0
+    reorder_delay_s: Positive = 0.3
+    duplicate_probability: Probability = 0.0
+    duplicate_delay_s: NonNegative = 0.01
+    stale_probability: Probability = 0.0
+    stale_min_age_s: NonNegative = 1.0
+    stale_max_age_s: Positive = 5.0
+    corrupt_probability: Probability = 0.0
+    corrupt_kinds: Annotated[tuple[CorruptKind, ...], Field(min_length=1)] = CORRUPT_KINDS
+    impostor_rate_hz: NonNegative = 0.0
+    impostor_sender: SenderName = "impostor-1"
+    impostor_offset: Vector3 = (30.0, 0.0, 0.0)
+    mavlink: MavlinkFaultsConfig = MavlinkFaultsConfig()
+
+    @model_validator(mode="after")
+    def _consistent(self) -> "FaultsConfig":
+        _check_windows(self.blackouts, "blackouts")
+        if self.stale_min_age_s > self.stale_max_age_s:
+            raise ValueError(f"stale_min_age_s ({self.stale_min_age_s}) must not exceed stale_max_age_s "
+                             f"({self.stale_max_age_s})")
+        if len(set(self.corrupt_kinds)) != len(self.corrupt_kinds):
+            raise ValueError("corrupt_kinds: each kind at most once")
+        return self
+
+
+class DropoutConfig(_Strict):
+    """What the companion does when bearings stop and come back (companion.core.pipeline.DropoutPolicy).
+
+    coast_after / coast_limit: s without a bearing before coasting / before the safe
+    behaviour (hold safe_range on the predicted line of sight, no weave, never closing while
+    the predicted range minus 2 sigma is under min_range). max_position_std: m, while
+    coasting the safe behaviour also starts when the prediction gets this uncertain.
+    gate_sigma, reacquire_bearings, restart_range_std: re-acquisition gate and restart.
+    max_jerk (m/s^3) and blend_time (s): how fast the command may change after a mode change.
+    safe_range / min_range default to 1.5 and 0.5 times guidance.desired_range.
+    """
+
+    coast_after: Positive = 0.6
+    coast_limit: Positive = 3.0
+    max_position_std: Positive = 6.0
+    safe_range: Positive | None = None
+    min_range: Positive | None = None
+    gate_sigma: Positive = 4.0
+    reacquire_bearings: Annotated[int, Field(ge=1)] = 2
+    restart_range_std: Positive = 10.0
+    max_jerk: Positive = 15.0
+    blend_time: NonNegative = 2.0
+
+    @model_validator(mode="after")
+    def _ordered(self) -> "DropoutConfig":
+        if self.coast_after > self.coast_limit:
+            raise ValueError("coast_after must not exceed coast_limit")
+        return self
+
+
+class Scenario(_Strict):
+    name: str
+    description: str = ""
+    vehicle: str = "../vehicles/paper_table1.toml"
+    pursuer: PursuerConfig = PursuerConfig()
+    target: TargetConfig
+    sensor: SensorConfig = SensorConfig()
+    estimator: EstimatorConfig
+    guidance: GuidanceConfig = GuidanceConfig()
+    simulation: SimulationConfig = SimulationConfig()
+    sitl: SitlConfig = SitlConfig()
+    link: LinkConfig = LinkConfig()
+    companion: CompanionConfig = CompanionConfig()
+    faults: FaultsConfig = FaultsConfig()
+    dropout: DropoutConfig = DropoutConfig()
+
+    @model_validator(mode="after")
+    def _rates_fit_physics(self) -> "Scenario":
+        physics = self.simulation.physics_rate_hz
+        for key, rate in (("estimator.rate_hz", self.estimator.rate_hz), ("guidance.rate_hz", self.guidance.rate_hz), ("sensor.rate_hz", self.sensor.rate_hz), ("sitl.tick_rate_hz", self.sitl.tick_rate_hz)):
+            ratio = physics / rate
+            if rate > physics or abs(ratio - round(ratio)) > 1e-9:
+                raise ValueError(f"{key} = {rate} must divide simulation.physics_rate_hz = {physics} into whole steps")
+        if self.simulation.summary_window > self.simulation.duration:
+            raise ValueError("simulation.summary_window must not exceed simulation.duration")
+        if self.estimator.kind == "ekf_rae" and self.sensor.range_noise_std is None:
+            raise ValueError("estimator.kind = 'ekf_rae' measures range: set sensor.range_noise_std")
+        if self.estimator.kind != "uplkf" and self.estimator.gain_projection != "predicted":
+            raise ValueError(f"estimator.gain_projection applies to the u-PLKF only, not to kind = {self.estimator.kind!r}")
+        return self
+
+
+#: The repository's config folder: airframes in vehicles/, flights in scenarios/.
+CONFIG_DIR = Path(__file__).resolve().parent.parent / "config"
+SCENARIOS_DIR = CONFIG_DIR / "scenarios"
+VEHICLES_DIR = CONFIG_DIR / "vehicles"
+#: The paper's section VIII-A1 constant-velocity flight, every command's default.
+DEFAULT_SCENARIO = SCENARIOS_DIR / "constant_velocity.toml"
+
+
+def _read_toml(path: Path) -> dict:
+    try:
+        with path.open("rb") as handle:
+            return tomllib.load(handle)
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: file not found") from None
+    except tomllib.TOMLDecodeError as error:
+        raise ConfigError(f"{path}: not valid TOML: {error}") from None
+
+
+def _format(path: Path, error: ValidationError) -> str:
+    lines = [f"{path}: invalid configuration"]
+    for item in error.errors():
+        key = ".".join(str(part) for part in item["loc"]) or "(top level)"
+        message = "unknown key (check the spelling)" if item["type"] == "extra_forbidden" else item["msg"]
+        lines.append(f"  {key}: {message}")
+    return "\n".join(lines)
+
+
+def load_vehicle(path: str | Path) -> VehicleConfig:
+    """Read and validate a vehicle TOML file."""
+    path = Path(path)
+    try:
+        return VehicleConfig.model_validate(_read_toml(path))
+    except ValidationError as error:
+        raise ConfigError(_format(path, error)) from None
+
+
+def load_scenario(path: str | Path) -> tuple[Scenario, VehicleConfig]:
+    """Read and validate a scenario file and the vehicle file it names."""
+    path = Path(path)
+    try:
+        scenario = Scenario.model_validate(_read_toml(path))
+    except ValidationError as error:
+        raise ConfigError(_format(path, error)) from None
+    vehicle = load_vehicle((path.parent / scenario.vehicle).resolve())
+    return scenario, vehicle

@@ -1,0 +1,477 @@
+"""Fault injection on the target -> companion link, on the simulated clock.
+
+The paper's flight campaign lost 2 of about 30 flights to the Zigbee link dropping;
+`LinkFaults` reproduces such links between the target publisher and the companion.
+It works on payload bytes, keeps no clock of its own (every call says what simulated
+time it is) and does no I/O, so the same model serves the in-process simulator and
+`sitl-target`:
+
+    faults = LinkFaults(scenario.faults, fault_rng(scenario.faults, scenario.simulation.seed))
+    faults.offer(now, encode_target_fix(fix), scenario_time)   # each fix as it is produced
+    for payload in faults.due(now):                             # each clock tick
+        publish(payload)
+
+Times: ``now`` is simulated time, s (the plant's clock); ``scenario_time`` is s since the
+target started its scenario (negative or -inf before: no window applies). Blackout
+windows are in scenario time, so "a blackout at 30 s" is 30 s into the scenario in
+every harness. Delivery times are simulated time; `due` releases a message on the first
+call whose ``now`` reaches its delivery time, so the harness's tick period is the
+resolution of every delay.
+
+What happens to one offered message, in this order
+---------------------------------------------------
+1. **blackout** (``blackouts = [{start, duration}]``): offered with start <= scenario
+   time < start + duration: dropped, with everything derived from it (no duplicate, no
+   stale copy). One ``blackout_start`` event when a window is entered and one
+   ``blackout_end`` when it is left (noticed by the next `offer` or `due`), whose detail
+   counts the messages dropped; counters["blackout_drop"] counts them too. Messages
+   already in flight when a window opens are still delivered.
+2. **independent loss** (``loss_probability`` p): dropped with probability p.
+3. **bursty loss** (``[faults.burst]``, Gilbert-Elliott): a good/bad Markov chain,
+   starting good and stepped once per offered message (not before the first): good ->
+   bad with p_good_to_bad, bad -> good with p_bad_to_good; the message is then lost
+   with loss_in_good or loss_in_bad (default 0 and 1). Given as mean_burst_s /
+   mean_gap_s instead, each step uses p = dt / mean (capped at 1) with dt the simulated
+   time since the previous offered message: at a steady period T that is exactly
+   p_bad_to_good = T / mean_burst_s and p_good_to_bad = T / mean_gap_s, so the mean
+   burst lasts mean_burst_s at any rate ("mean burst 2 s" at 5 Hz: 10 messages).
+4. **corruption** (``corrupt_probability``): the bytes are replaced by a broken
+   version, the kind drawn uniformly from ``corrupt_kinds``; `CORRUPTION_REASONS` maps
+   each kind to the `interfaces.link_schema.PayloadError` reason the decoder gives it:
+
+   =================== ============== ============================================
+   ``invalid_utf8``    not_utf8       a 0xFF byte inserted in the middle
+   ``truncated_json``  not_json       cut to a random proper prefix
+   ``missing_field``   missing_field  one required field (random) removed
+   ``non_finite``      not_finite     a position component NaN, Infinity or
+                                      -Infinity (JSON text as Python's json writes)
+   ``string_number``   wrong_type     a position component as the string "NaN"
+   ``absurd_position`` out_of_range   latitude 1000 deg (geodetic) or a NED
+                                      coordinate 1e9 m
+   =================== ============== ============================================
+
+   The JSON kinds need a fix-like JSON object; on other bytes they fall back to
+   ``invalid_utf8`` (said in the event's detail).
+5. **delay**: latency_s + U(0, jitter_s) (uniform, so never negative and never more
+   than latency_s + jitter_s). A jitter above the message period reorders messages by
+   itself. One ``delay`` event per delayed message.
+6. **reordering** (``reorder_probability``): the message is held back a further
+   ``reorder_delay_s`` (default 0.3 s, above one 5 Hz period) so the next one
+   overtakes it.
+7. **duplication** (``duplicate_probability``): a second copy of the (possibly
+   corrupted) bytes, ``duplicate_delay_s`` after the first.
+8. **stale** (``stale_probability``): *in addition to* the current message, a copy of
+   an older original payload (one drawn uniformly from those offered stale_min_age_s
+   to stale_max_age_s ago; none if there is none yet) is delivered right after it; it
+   carries its old stamp and seq.
+
+**Impostor** (``impostor_rate_hz`` > 0): a second publisher on the same key, as
+``impostor_sender``, at ticks k / impostor_rate_hz of simulated time from the first
+offered fix on: a copy of the latest offered fix that decodes, re-encoded with the
+impostor's sender, its own seq (from 0), the tick as stamp and the position moved by
+``impostor_offset`` (NED m; for a geodetic fix, NED about the fix itself). It is
+another transmitter: blackouts, loss, delay and corruption do not touch it; it is
+delivered at its tick. One ``impostor`` event per message.
+
+Events and counters: every injected fault is a `FaultEvent` (simulated time of the
+`offer`/`due` call that injected or noticed it, kind, detail with the seq affected when
+the payload is a JSON object with one) in ``events``; ``counters`` counts events by
+kind, plus ``blackout_drop``.
+
+Randomness: only the Generator given. It is split once into one child generator per
+fault kind (`STREAMS`, fixed order), and every enabled kind draws the same number of
+values for every offered message, whatever happened to it. So the i-th message meets
+the same draws of each kind whatever else is enabled: enabling duplication does not
+change which messages the independent loss drops (useful for campaigns that add one
+fault at a time). Same config, same seed, same calls: same bytes, same events.
+"""
+
+from __future__ import annotations
+
+import heapq
+import json
+import math
+import tomllib
+from collections import Counter, deque
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from pydantic import ValidationError
+
+from interfaces.scenario import ConfigError, FaultsConfig
+from interfaces.link_schema import PayloadError, TargetFix, decode_target_fix, encode_target_fix
+from interfaces.geodesy import ned_to_geodetic
+
+#: One child generator per fault kind, in this order (append new kinds at the end: the others keep their draws).
+STREAMS = ("loss", "burst", "corrupt", "delay", "reorder", "duplicate", "stale", "impostor")
+#: Corruption kind -> the interfaces.link_schema.PayloadError reason decode_target_fix gives it.
+CORRUPTION_REASONS = {
+    "invalid_utf8": "not_utf8",
+    "truncated_json": "not_json",
+    "missing_field": "missing_field",
+    "non_finite": "not_finite",
+    "string_number": "wrong_type",
+    "absurd_position": "out_of_range",
+}
+_REQUIRED_FIELDS = ("schema", "sender", "seq", "stamp", "frame", "position")
+_NON_FINITE = (math.nan, math.inf, -math.inf)
+#: Times closer than this (s) count as equal (clock stamps are sums of floats).
+TIME_TOLERANCE = 1e-9
+#: Payloads kept for stale copies at most (besides the age limit).
+MAX_HISTORY = 10000
+#: Derived fault seeds: SeedSequence(simulation seed, spawn_key=(FAULT_SPAWN_KEY,)), apart from every other stream.
+FAULT_SPAWN_KEY = 0xFA17
+
+
+@dataclass(frozen=True)
+class FaultEvent:
+    """One injected fault: simulated time (s) it happened, kind (e.g. "loss"), detail (seq affected, ...)."""
+
+    time: float
+    kind: str
+    detail: str
+
+
+def fault_rng(config: FaultsConfig, simulation_seed: int) -> np.random.Generator:
+    """The faults' generator: config.seed if set, else a stream derived from `simulation_seed` that no other draw uses."""
+    if config.seed is not None:
+        return np.random.default_rng(config.seed)
+    return np.random.default_rng(np.random.SeedSequence(simulation_seed, spawn_key=(FAULT_SPAWN_KEY,)))
+
+
+def injects_anything(config: FaultsConfig) -> bool:
+    """Whether `config` changes anything on the target link ([faults.mavlink] aside)."""
+    burst = config.burst
+    return bool(config.loss_probability > 0 or (burst is not None and (burst.loss_in_good > 0 or burst.loss_in_bad > 0))
+                or any(window.duration > 0 for window in config.blackouts) or config.latency_s > 0
+                or config.jitter_s > 0 or config.reorder_probability > 0 or config.duplicate_probability > 0
+                or config.stale_probability > 0 or config.corrupt_probability > 0 or config.impostor_rate_hz > 0)
+
+
+def describe(config: FaultsConfig) -> str:
+    """The settings that differ from the defaults, one line (e.g. for a ready message)."""
+    changed = config.model_dump(exclude_defaults=True)
+    return ", ".join(f"{key}={value}" for key, value in changed.items()) or "none"
+
+
+def override_faults(config: FaultsConfig, assignments: Sequence[str]) -> FaultsConfig:
+    """`config` with KEY=VALUE assignments applied (VALUE a TOML value; KEY dotted for nested tables).
+
+    ``loss_probability=0.3``, ``blackouts=[{start=20,duration=5}]`` (replaces the list),
+    ``burst.mean_burst_s=2``, ``burst={mean_burst_s=2,mean_gap_s=20}`` (replaces the
+    table). ConfigError naming the key if an assignment is malformed or the result invalid.
+    """
+    document = config.model_dump()
+    for assignment in assignments:
+        key, separator, text = assignment.partition("=")
+        key, text = key.strip(), text.strip()
+        path = key.split(".")
+        if not separator or not all(part and (part.replace("_", "").replace("-", "").isalnum()) for part in path):
+            raise ConfigError(f"--fault {assignment!r}: expected KEY=VALUE, e.g. loss_probability=0.3")
+        try:
+            value = tomllib.loads(f"value = {text}")["value"]
+        except tomllib.TOMLDecodeError as error:
+            raise ConfigError(f"--fault {key}: {text!r} is not a TOML value ({error})") from None
+        table = document
+        for part in path[:-1]:
+            if table.get(part) is None:
+                table[part] = {}
+            if not isinstance(table[part], dict):
+                raise ConfigError(f"--fault {key}: faults.{part} is not a table")
+            table = table[part]
+        table[path[-1]] = value
+    try:
+        return FaultsConfig.model_validate(document)
+    except ValidationError as error:
+        problems = []
+        for item in error.errors():
+            location = ".".join(str(part) for part in ("faults", *item["loc"]))
+            message = "unknown key (check the spelling)" if item["type"] == "extra_forbidden" else item["msg"]
+            problems.append(f"{location}: {message}")
+        raise ConfigError("--fault: " + "; ".join(problems)) from None
+
+
+class _SeqLabel:
+    """"seq=N" of a payload for event details, parsed only if an event needs it."""
+
+    def __init__(self, payload: bytes) -> None:
+        self._payload, self._text = payload, None
+
+    def __str__(self) -> str:
+        if self._text is None:
+            self._text = _seq_of(self._payload)
+        return self._text
+
+
+def _seq_of(payload: bytes) -> str:
+    try:
+        document = json.loads(payload)
+    except (ValueError, RecursionError):
+        return "seq=?"
+    seq = document.get("seq") if isinstance(document, dict) else None
+    return f"seq={seq}" if isinstance(seq, int) and not isinstance(seq, bool) else "seq=?"
+
+
+def corrupt_payload(payload: bytes, kind: str, draws: np.ndarray) -> tuple[bytes, str]:
+    """(`payload` broken as `kind` says, what was done); draws: 2 uniforms in [0, 1) choosing the details.
+
+    See the module docstring for the kinds; JSON kinds on bytes that are no fix-like
+    JSON object fall back to invalid_utf8.
+    """
+    if kind == "invalid_utf8":
+        middle = len(payload) // 2
+        return payload[:middle] + b"\xff" + payload[middle:], "invalid_utf8: 0xFF inserted"
+    if kind == "truncated_json":
+        if len(payload) < 2:
+            return b"\xff", "invalid_utf8 (too short to truncate)"
+        cut = 1 + int(draws[0] * (len(payload) - 1))
+        return payload[:cut], f"truncated_json: {cut} of {len(payload)} bytes"
+    try:
+        document = json.loads(payload)
+    except (ValueError, RecursionError):
+        document = None
+    position = document.get("position") if isinstance(document, dict) else None
+    if not (isinstance(position, list) and len(position) == 3):
+        broken, _ = corrupt_payload(payload, "invalid_utf8", draws)
+        return broken, f"invalid_utf8 (instead of {kind}: not a fix-like JSON object)"
+    if kind == "missing_field":
+        name = _REQUIRED_FIELDS[int(draws[0] * len(_REQUIRED_FIELDS))]
+        document.pop(name, None)
+        detail = f"missing_field: {name} removed"
+    elif kind == "non_finite":
+        axis, value = int(draws[0] * 3), _NON_FINITE[int(draws[1] * len(_NON_FINITE))]
+        position[axis] = value
+        detail = f"non_finite: position[{axis}] = {value}"
+    elif kind == "string_number":
+        axis = int(draws[0] * 3)
+        position[axis] = "NaN"
+        detail = f"string_number: position[{axis}] = 'NaN'"
+    elif kind == "absurd_position":
+        if document.get("frame") == "geodetic":
+            position[0] = 1000.0
+            detail = "absurd_position: latitude = 1000 deg"
+        else:
+            axis = int(draws[0] * 3)
+            position[axis] = 1e9
+            detail = f"absurd_position: position[{axis}] = 1e9 m"
+    else:
+        raise ValueError(f"unknown corruption kind {kind!r}")
+    return json.dumps(document, allow_nan=True, separators=(",", ":")).encode("utf-8"), detail
+
+
+class LinkFaults:
+    """The fault model of the target link (module docstring): messages in with `offer`, out with `due`.
+
+    config: the [faults] section. rng: the only source of randomness (see `fault_rng`).
+    events: every injected fault, in the order injected. counters: events by kind,
+    plus "blackout_drop" (messages dropped inside a blackout).
+    """
+
+    def __init__(self, config: FaultsConfig, rng: np.random.Generator) -> None:
+        self.config = config
+        self._streams = dict(zip(STREAMS, rng.spawn(len(STREAMS))))
+        self._windows = tuple(sorted((w for w in config.blackouts if w.duration > 0), key=lambda w: w.start))
+        self._enabled = injects_anything(config)
+        self.events: list[FaultEvent] = []
+        self.counters: Counter[str] = Counter()
+        self._pending: list[tuple[float, int, bytes]] = []  # heap of (delivery time s, order, payload)
+        self._order = 0
+        self._reset_state()
+        self._impostor_seq = 0
+
+    @property
+    def enabled(self) -> bool:
+        """False when the config injects nothing: callers may skip the model (it would pass everything through)."""
+        return self._enabled
+
+    @property
+    def pending(self) -> int:
+        """Messages offered (or generated) but not delivered yet."""
+        return len(self._pending)
+
+    def _reset_state(self) -> None:
+        self._last_offer: float | None = None  # simulated time of the previous offer, s
+        self._scenario_offset: float | None = None  # simulated - scenario time, s, once the scenario runs
+        self._window_index = 0  # the first window not yet left
+        self._window_active = False
+        self._window_dropped = 0
+        self._burst_bad = False
+        self._history: deque[tuple[float, bytes]] = deque(maxlen=MAX_HISTORY)  # (offer time s, original payload)
+        self._impostor_template: TargetFix | None = None
+        self._impostor_next: int | None = None  # index k of the next impostor tick k / rate
+
+    def restart(self, now: float) -> None:
+        """The clock went back (a restarted plant): drop what is in flight and start over at simulated time `now`."""
+        discarded = len(self._pending)
+        self._pending.clear()
+        self._reset_state()
+        self._log(now, "restart", f"clock went back; {discarded} messages in flight discarded")
+
+    def offer(self, now: float, payload: bytes, scenario_time: float) -> None:
+        """Take one message produced at simulated time `now` (s); scenario_time: s since the scenario started."""
+        payload = bytes(payload)
+        if not self._enabled:
+            self._push(now, payload)
+            return
+        dt = None if self._last_offer is None else max(0.0, now - self._last_offer)
+        self._last_offer = now
+        if math.isfinite(scenario_time):
+            self._scenario_offset = now - scenario_time
+        self._history.append((now, payload))
+        self._note_impostor_template(payload)
+        self._run_impostor(now)
+        self._advance_blackouts(now, scenario_time)
+        draws = self._draw_all(dt)
+        seq = _SeqLabel(payload)
+        if self._window_active:
+            self._window_dropped += 1
+            self.counters["blackout_drop"] += 1
+            return
+        if "loss" in draws and draws["loss"] < self.config.loss_probability:
+            self._log(now, "loss", str(seq))
+            return
+        if "burst" in draws:
+            lost, state = draws["burst"]
+            if lost:
+                self._log(now, "burst_loss", f"{seq} ({state} state)")
+                return
+        if "corrupt" in draws:
+            decide, which, *details = draws["corrupt"]
+            if decide < self.config.corrupt_probability:
+                kinds = self.config.corrupt_kinds
+                payload, what = corrupt_payload(payload, kinds[int(which * len(kinds))], np.array(details))
+                self._log(now, "corrupt", f"{seq} {what}")
+        delivery = now
+        if "delay" in draws:
+            delay = self.config.latency_s + draws["delay"] * self.config.jitter_s
+            delivery += delay
+            self._log(now, "delay", f"{seq} {delay:.3f} s")
+        if "reorder" in draws and draws["reorder"] < self.config.reorder_probability:
+            delivery += self.config.reorder_delay_s
+            self._log(now, "reorder", f"{seq} held back {self.config.reorder_delay_s:g} s more")
+        self._push(delivery, payload)
+        if "duplicate" in draws and draws["duplicate"] < self.config.duplicate_probability:
+            self._push(delivery + self.config.duplicate_delay_s, payload)
+            self._log(now, "duplicate", f"{seq} again {self.config.duplicate_delay_s:g} s later")
+        if "stale" in draws:
+            decide, which = draws["stale"]
+            if decide < self.config.stale_probability:
+                self._inject_stale(now, delivery, which, seq)
+
+    def due(self, now: float) -> list[bytes]:
+        """Messages whose delivery time (s) is at or before simulated time `now`, in delivery order."""
+        if self._enabled:
+            self._run_impostor(now)
+            if self._scenario_offset is not None:
+                self._advance_blackouts(now, now - self._scenario_offset)
+        delivered = []
+        while self._pending and self._pending[0][0] <= now + TIME_TOLERANCE:
+            delivered.append(heapq.heappop(self._pending)[2])
+        return delivered
+
+    # --- the pieces ---------------------------------------------------------------
+
+    def _push(self, delivery: float, payload: bytes) -> None:
+        heapq.heappush(self._pending, (delivery, self._order, payload))
+        self._order += 1
+
+    def _log(self, now: float, kind: str, detail: str) -> None:
+        self.events.append(FaultEvent(now, kind, detail))
+        self.counters[kind] += 1
+
+    def _draw_all(self, dt: float | None) -> dict:
+        """This message's draws of every enabled kind; a fixed number per kind, whatever happens to the message."""
+        config, streams, draws = self.config, self._streams, {}
+        if config.loss_probability > 0:
+            draws["loss"] = streams["loss"].random()
+        if config.burst is not None:
+            draws["burst"] = self._step_burst(streams["burst"].random(2), dt)
+        if config.corrupt_probability > 0:
+            draws["corrupt"] = streams["corrupt"].random(4)
+        if config.latency_s > 0 or config.jitter_s > 0:
+            draws["delay"] = streams["delay"].random()
+        if config.reorder_probability > 0:
+            draws["reorder"] = streams["reorder"].random()
+        if config.duplicate_probability > 0:
+            draws["duplicate"] = streams["duplicate"].random()
+        if config.stale_probability > 0:
+            draws["stale"] = streams["stale"].random(2)
+        return draws
+
+    def _step_burst(self, uniforms: np.ndarray, dt: float | None) -> tuple[bool, str]:
+        """Step the Gilbert-Elliott chain (not before the first message), then (lost?, state name)."""
+        burst = self.config.burst
+        if dt is not None:
+            if burst.mean_burst_s is not None:
+                to_bad, to_good = min(1.0, dt / burst.mean_gap_s), min(1.0, dt / burst.mean_burst_s)
+            else:
+                to_bad, to_good = burst.p_good_to_bad, burst.p_bad_to_good
+            if uniforms[0] < (to_good if self._burst_bad else to_bad):
+                self._burst_bad = not self._burst_bad
+        loss = burst.loss_in_bad if self._burst_bad else burst.loss_in_good
+        return bool(uniforms[1] < loss), "bad" if self._burst_bad else "good"
+
+    def _advance_blackouts(self, now: float, scenario_time: float) -> None:
+        """Log the windows entered and left by scenario time `scenario_time` (s)."""
+        while self._window_index < len(self._windows):
+            window = self._windows[self._window_index]
+            label = f"[{window.start:g}, {window.end:g}) s scenario time"
+            if not self._window_active:
+                if scenario_time < window.start - TIME_TOLERANCE:
+                    return
+                self._window_active, self._window_dropped = True, 0
+                self._log(now, "blackout_start", f"window {label}")
+            if scenario_time < window.end - TIME_TOLERANCE:
+                return
+            self._log(now, "blackout_end", f"window {label}: {self._window_dropped} messages dropped")
+            self._window_active = False
+            self._window_index += 1
+
+    def _inject_stale(self, now: float, delivery: float, which: float, seq: str) -> None:
+        config = self.config
+        while self._history and now - self._history[0][0] > config.stale_max_age_s + TIME_TOLERANCE:
+            self._history.popleft()
+        candidates = [(time, payload) for time, payload in self._history
+                      if now - time >= config.stale_min_age_s - TIME_TOLERANCE]
+        if not candidates:
+            return
+        time, old = candidates[int(which * len(candidates))]
+        self._push(delivery, old)
+        self._log(now, "stale", f"{_seq_of(old)} ({now - time:.2f} s old) after {seq}")
+
+    def _note_impostor_template(self, payload: bytes) -> None:
+        if self.config.impostor_rate_hz > 0:
+            try:
+                self._impostor_template = decode_target_fix(payload)
+            except PayloadError:
+                pass  # keep the previous template
+
+    def _run_impostor(self, now: float) -> None:
+        """Generate the impostor's messages of the ticks k / rate up to simulated time `now` (s)."""
+        rate = self.config.impostor_rate_hz
+        if rate <= 0 or self._impostor_template is None:
+            return
+        if self._impostor_next is None:
+            self._impostor_next = math.ceil(now * rate - TIME_TOLERANCE * rate)
+        while self._impostor_next / rate <= now + TIME_TOLERANCE:
+            tick = self._impostor_next / rate
+            self._impostor_next += 1
+            self._send_impostor(now, max(tick, 0.0))
+
+    def _send_impostor(self, now: float, stamp: float) -> None:
+        template, config = self._impostor_template, self.config
+        offset = np.array(config.impostor_offset)
+        if template.frame == "geodetic":
+            position = ned_to_geodetic(offset, template.position)
+        else:
+            position = tuple(np.array(template.position) + offset)
+        fix = TargetFix(config.impostor_sender, self._impostor_seq, stamp, template.frame, position, template.velocity)
+        try:
+            payload = encode_target_fix(fix)
+        except PayloadError as error:
+            self._log(now, "impostor_skipped", f"cannot encode: {error}")
+            return
+        self._push(stamp, payload)
+        self._log(now, "impostor", f"seq={self._impostor_seq} as {config.impostor_sender} at t={stamp:.3f} s")
+        self._impostor_seq += 1

@@ -1,0 +1,355 @@
+"""Autopilot low-level side: geometric attitude control (eq. (23)-(24)), mixing and the
+attitude/thrust-setpoint vehicle that the companion side drives.
+
+Frames as in sitl_plant.vehicle.quadrotor: NED inertial, FRD body, R maps body -> NED.
+The hot loop (controller, mixer, plant step) works on plain floats and tuples;
+numpy arrays appear only at the public boundary.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from sitl_plant.vehicle.params import QuadrotorParams
+from sitl_plant.vehicle.quadrotor import (
+    Mat3,
+    Quadrotor,
+    RigidBodyState,
+    Vec3,
+    check_rotation,
+    quaternion_to_rotation,
+    rotation_to_quaternion,
+    rotor_wrench,
+)
+
+Quat = tuple[float, float, float, float]
+
+_ZERO3: Vec3 = (0.0, 0.0, 0.0)
+
+MIN_RATE_HZ = 500.0
+
+
+def _vec3(v: np.ndarray | None, name: str) -> Vec3:
+    if v is None:
+        return _ZERO3
+    a = np.asarray(v, dtype=float).reshape(-1)
+    if a.shape != (3,) or not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} must be 3 finite numbers, got {v!r}")
+    return (float(a[0]), float(a[1]), float(a[2]))
+
+
+class GeometricAttitudeController:
+    """PD controller on the tangent bundle of SO(3), paper eq. (23)-(24).
+
+    tau = -k_p e_R - k_d e_w + [w]x J w - J([w]x R^T R_d w_d - R^T R_d w_d')   (24)
+
+    with e_w = w - R^T R_d w_d and the attitude error of Lee et al. (the paper's
+    ref. [55]), e_R = 1/2 (R_d^T R - R^T R_d)^vee. Section VII prints the two
+    products the other way round; with tau = -k_p e_R that sign would be positive
+    feedback (R = R_d exp(theta [a]x) gives (R^T R_d - R_d^T R)^vee / 2 = -theta a),
+    so the stable convention of [55] is used. Gains: params.attitude_kp
+    (N m / rad) and params.attitude_kd (N m s / rad).
+
+    The hot path works on unit quaternions (w, x, y, z): for R_e = R_d^T R = R(q_e),
+    q_e = q_d^* (x) q, the error is exactly e_R = 2 w_e (x_e, y_e, z_e).
+    """
+
+    def __init__(self, params: QuadrotorParams) -> None:
+        self.params = params
+        self._kp = float(params.attitude_kp)
+        self._kd = float(params.attitude_kd)
+        self._j = tuple(float(x) for x in params.inertia)
+
+    @staticmethod
+    def attitude_error(rotation: np.ndarray, rotation_desired: np.ndarray) -> np.ndarray:
+        """e_R of eq. (24), shape (3,), body frame; equals sin(angle) * axis of R_d^T R."""
+        qe = _error_quaternion(
+            rotation_to_quaternion(check_rotation(rotation)),
+            rotation_to_quaternion(check_rotation(rotation_desired, "rotation_desired")),
+        )
+        return np.array([2.0 * qe[0] * qe[1], 2.0 * qe[0] * qe[2], 2.0 * qe[0] * qe[3]])
+
+    def torque(
+        self,
+        rotation: np.ndarray,
+        angular_velocity: np.ndarray,
+        rotation_desired: np.ndarray,
+        angular_velocity_desired: np.ndarray | None = None,
+        angular_acceleration_desired: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Body torque of eq. (24), N m, shape (3,).
+
+        rotation, rotation_desired: (3, 3) body -> NED. angular_velocity: (3,) rad/s
+        body. angular_velocity_desired / angular_acceleration_desired: (3,) in the
+        desired body frame, rad/s and rad/s^2; default zero as in the paper.
+        """
+        return np.array(
+            self._torque(
+                rotation_to_quaternion(check_rotation(rotation)),
+                _vec3(angular_velocity, "angular_velocity"),
+                rotation_to_quaternion(check_rotation(rotation_desired, "rotation_desired")),
+                _vec3(angular_velocity_desired, "angular_velocity_desired"),
+                _vec3(angular_acceleration_desired, "angular_acceleration_desired"),
+            )
+        )
+
+    def _torque(self, q: Quat, w: Vec3, qd: Quat, wd: Vec3 = _ZERO3, wd_dot: Vec3 = _ZERO3) -> Vec3:
+        """Hot path of eq. (24): attitude and target as unit quaternions, rates as 3-tuples."""
+        kp, kd = self._kp, self._kd
+        jx, jy, jz = self._j
+        qw, qx, qy, qz = q
+        dw, dx, dy, dz = qd
+        # q_e = q_d^* (x) q, written out (see _error_quaternion).
+        ew = dw * qw + dx * qx + dy * qy + dz * qz
+        ex = dw * qx - qw * dx - dy * qz + dz * qy
+        ey = dw * qy - qw * dy - dz * qx + dx * qz
+        ez = dw * qz - qw * dz - dx * qy + dy * qx
+        kp2 = 2.0 * kp * ew
+        wx, wy, wz = w
+        # [w]x J w: the gyroscopic term of eq. (20d), cancelled so the closed loop is PD.
+        gx = (jz - jy) * wy * wz
+        gy = (jx - jz) * wz * wx
+        gz = (jy - jx) * wx * wy
+        if wd is _ZERO3 and wd_dot is _ZERO3:
+            return (
+                gx - kp2 * ex - kd * wx,
+                gy - kp2 * ey - kd * wy,
+                gz - kp2 * ez - kd * wz,
+            )
+        # Feed-forward of eq. (23)-(24); R^T R_d = R_e^T maps desired-body vectors to body.
+        re = quaternion_to_rotation(ew, ex, ey, ez)
+        ax, ay, az = _transpose_times(re, wd)
+        bx, by, bz = _transpose_times(re, wd_dot)
+        cx, cy, cz = wy * az - wz * ay, wz * ax - wx * az, wx * ay - wy * ax
+        return (
+            gx - kp2 * ex - kd * (wx - ax) - jx * (cx - bx),
+            gy - kp2 * ey - kd * (wy - ay) - jy * (cy - by),
+            gz - kp2 * ez - kd * (wz - az) - jz * (cz - bz),
+        )
+
+
+def _error_quaternion(q: Quat, qd: Quat) -> Quat:
+    """q_e = q_d^* (x) q, i.e. R(q_e) = R_d^T R."""
+    qw, qx, qy, qz = q
+    dw, dx, dy, dz = qd
+    return (
+        dw * qw + dx * qx + dy * qy + dz * qz,
+        dw * qx - qw * dx - dy * qz + dz * qy,
+        dw * qy - qw * dy - dz * qx + dx * qz,
+        dw * qz - qw * dz - dx * qy + dy * qx,
+    )
+
+
+def _transpose_times(m: Mat3, v: Vec3) -> Vec3:
+    """M^T v for a row-major 9-tuple M."""
+    return (
+        m[0] * v[0] + m[3] * v[1] + m[6] * v[2],
+        m[1] * v[0] + m[4] * v[1] + m[7] * v[2],
+        m[2] * v[0] + m[5] * v[1] + m[8] * v[2],
+    )
+
+
+class Mixer:
+    """Total thrust + body torque -> rotor speed commands for the X layout.
+
+    Inverts the allocation matrix of sitl_plant.vehicle.quadrotor in squared speeds
+    u_i = w_i^2. Saturation policy, applied in this order so that attitude
+    authority is lost last and yaw first:
+
+    1. thrust is clipped to [0, params.max_total_thrust];
+    2. if the roll/pitch differential alone spans more than [0, u_max], the roll
+       and pitch torques are scaled down together (direction kept);
+    3. the collective is shifted as little as possible so that collective +/-
+       roll/pitch fits in [0, u_max]; roll/pitch beats thrust, so near zero or
+       full thrust the delivered thrust differs from the command (like PX4 airmode);
+    4. yaw torque is clipped to the headroom that is left; it is the first to go.
+
+    Unsaturated, allocation(mixer(T, tau)) == (T, tau) exactly (up to rounding).
+    """
+
+    def __init__(self, params: QuadrotorParams) -> None:
+        self.params = params
+        a = params.arm_length / math.sqrt(2.0)
+        self._t_max = params.max_total_thrust
+        self._w_max = params.max_rotor_speed
+        self._u_max = params.max_rotor_speed**2
+        self._inv_4ct = 1.0 / (4.0 * params.thrust_coefficient)
+        self._inv_4cta = 1.0 / (4.0 * params.thrust_coefficient * a)
+        self._inv_4cm = 1.0 / (4.0 * params.moment_coefficient)
+
+    def rotor_speeds(self, thrust: float, torque: np.ndarray) -> np.ndarray:
+        """Rotor speed commands, rad/s, shape (4,), PX4 motor order.
+
+        thrust: total thrust, N. torque: body torque (roll, pitch, yaw), N m, shape (3,).
+        """
+        if not math.isfinite(thrust):
+            raise ValueError(f"thrust must be finite, got {thrust!r}")
+        return np.array(self._speeds(float(thrust), *_vec3(torque, "torque")))
+
+    def allocation(self, rotor_speeds: np.ndarray) -> tuple[float, np.ndarray]:
+        """Forward allocation (the plant's): rotor speeds (4,) rad/s -> (thrust N, torque (3,) N m)."""
+        return rotor_wrench(self.params, rotor_speeds)
+
+    def _speeds(self, thrust: float, tx: float, ty: float, tz: float) -> tuple[float, float, float, float]:
+        """Hot path of the policy above; returns w_1..w_4 in rad/s.
+
+        Conditional expressions instead of min/max/abs: builtin calls dominate at this size.
+        """
+        u_max = self._u_max
+        t_max = self._t_max
+        thrust = 0.0 if thrust < 0.0 else (t_max if thrust > t_max else thrust)
+        c = thrust * self._inv_4ct
+        dx = tx * self._inv_4cta
+        dy = ty * self._inv_4cta
+        dz = tz * self._inv_4cm
+        # Roll/pitch differentials: motors 1/2 get +/-p, motors 3/4 get +/-q.
+        p = dy - dx
+        q = dx + dy
+        ap = p if p >= 0.0 else -p
+        aq = q if q >= 0.0 else -q
+        half_span = ap if ap > aq else aq
+        if 2.0 * half_span > u_max:
+            k = 0.5 * u_max / half_span
+            p *= k
+            q *= k
+            ap *= k
+            aq *= k
+            half_span = 0.5 * u_max
+        if c < half_span:
+            c = half_span
+        elif c > u_max - half_span:
+            c = u_max - half_span
+        # Yaw: CCW motors 1/2 get +dz, CW motors 3/4 get -dz; clip to the headroom left.
+        if dz > 0.0:
+            up, down = u_max - c - ap, c - aq
+            dz = min(dz, up if up < down else down)
+        else:
+            up, down = u_max - c - aq, c - ap
+            dz = max(dz, -(up if up < down else down))
+        u1 = c + p + dz
+        u2 = c - p + dz
+        u3 = c + q - dz
+        u4 = c - q - dz
+        sqrt = math.sqrt
+        # Rounding may leave u a few ulp outside [0, u_max].
+        return (
+            sqrt(u1) if 0.0 < u1 < u_max else (0.0 if u1 <= 0.0 else self._w_max),
+            sqrt(u2) if 0.0 < u2 < u_max else (0.0 if u2 <= 0.0 else self._w_max),
+            sqrt(u3) if 0.0 < u3 < u_max else (0.0 if u3 <= 0.0 else self._w_max),
+            sqrt(u4) if 0.0 < u4 < u_max else (0.0 if u4 <= 0.0 else self._w_max),
+        )
+
+
+class AttitudeThrustVehicle:
+    """The "PX4 side": attitude + thrust setpoints in, rigid-body motion out.
+
+    Controller (eq. (24)), mixer and plant RK4 all run at rate_hz (>= 500 Hz) with
+    the true attitude and body rates (the autopilot's attitude estimate is assumed
+    perfect). Position/velocity feedback to the companion carries the Gaussian
+    noise of section VIII point 4, drawn from the generator given at construction.
+
+    params: airframe. state: initial state, default hover at the origin.
+    rng: numpy Generator, int seed or None (fresh entropy), as np.random.default_rng.
+    The initial setpoint holds the initial attitude at hover thrust.
+    """
+
+    def __init__(
+        self,
+        params: QuadrotorParams,
+        state: RigidBodyState | None = None,
+        rate_hz: float = 500.0,
+        rng: np.random.Generator | int | None = None,
+    ) -> None:
+        if not (math.isfinite(rate_hz) and rate_hz >= MIN_RATE_HZ):
+            raise ValueError(f"rate_hz must be >= {MIN_RATE_HZ:g}, got {rate_hz!r}")
+        self.params = params
+        self.rate_hz = float(rate_hz)
+        self._dt = 1.0 / self.rate_hz
+        self._plant = Quadrotor(params, state)
+        self._controller = GeometricAttitudeController(params)
+        self._mixer = Mixer(params)
+        self._rng = np.random.default_rng(rng)
+        self._steps = 0
+        self._qd: Quat = self._plant._s[6:10]  # type: ignore[assignment]
+        self._thrust = params.hover_thrust
+
+    @property
+    def quadrotor(self) -> Quadrotor:
+        """The underlying plant (for thrust / acceleration read-outs in tests and logs)."""
+        return self._plant
+
+    @property
+    def state(self) -> RigidBodyState:
+        """Copy of the true plant state."""
+        return self._plant.state
+
+    @property
+    def time(self) -> float:
+        """Simulated time since construction, s (an integer number of internal steps)."""
+        return self._steps * self._dt
+
+    @property
+    def dt(self) -> float:
+        """Internal fixed step, s."""
+        return self._dt
+
+    @property
+    def attitude_target(self) -> tuple[np.ndarray, float]:
+        """Current setpoint: (R_d (3, 3) body -> NED, thrust N)."""
+        return np.array(quaternion_to_rotation(*self._qd)).reshape(3, 3), self._thrust
+
+    def set_attitude_target(self, rotation_desired: np.ndarray, thrust_newton: float) -> None:
+        """Hold attitude R_d ((3, 3) desired body FRD -> NED, proper rotation to 1e-6) and
+        total thrust (N; the mixer clips it to [0, 1.5 m g]) until the next call."""
+        rd = check_rotation(rotation_desired, "rotation_desired")
+        thrust = float(thrust_newton)
+        if not math.isfinite(thrust):
+            raise ValueError(f"thrust_newton must be finite, got {thrust_newton!r}")
+        self._qd = rotation_to_quaternion(rd)
+        self._thrust = thrust
+
+    def set_attitude_target_quaternion(self, quaternion: tuple[float, float, float, float], thrust_newton: float) -> None:
+        """As set_attitude_target, with R_d given as a quaternion (w, x, y, z), body FRD -> NED.
+
+        The quaternion must be finite with norm within 1e-3 of one; it is renormalised.
+        """
+        w, x, y, z = (float(c) for c in quaternion)
+        norm = math.sqrt(w * w + x * x + y * y + z * z)
+        thrust = float(thrust_newton)
+        if not (math.isfinite(norm) and abs(norm - 1.0) < 1e-3 and math.isfinite(thrust)):
+            raise ValueError(f"need a unit quaternion and finite thrust, got {quaternion!r}, {thrust_newton!r}")
+        self._qd = (w / norm, x / norm, y / norm, z / norm)
+        self._thrust = thrust
+
+    def advance(self, duration: float) -> None:
+        """Run controller + mixer + plant for `duration` seconds.
+
+        duration must be a non-negative whole number of internal steps (1/rate_hz);
+        anything else raises ValueError rather than silently drifting the clock.
+        """
+        steps_float = float(duration) * self.rate_hz
+        n = round(steps_float) if math.isfinite(steps_float) else -1
+        if n < 0 or abs(steps_float - n) > 1e-6:
+            raise ValueError(f"duration {duration!r} s is not a non-negative multiple of {self._dt!r} s")
+        plant, h = self._plant, self._dt
+        torque, speeds, step = self._controller._torque, self._mixer._speeds, plant._step
+        qd, thrust = self._qd, self._thrust
+        for _ in range(n):
+            s = plant._s
+            tx, ty, tz = torque(s[6:10], s[10:13], qd)
+            w1, w2, w3, w4 = speeds(thrust, tx, ty, tz)
+            step(h, w1, w2, w3, w4)
+        self._steps += n
+
+    def measured_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """Noisy feedback (position m, velocity m/s), each shape (3,) NED.
+
+        Noise is N(0, params.position_noise_std^2) and N(0, params.velocity_noise_std^2)
+        per axis, independent each call.
+        """
+        s = self._plant._s
+        p = np.array(s[0:3]) + self._rng.normal(0.0, self.params.position_noise_std, 3)
+        v = np.array(s[3:6]) + self._rng.normal(0.0, self.params.velocity_noise_std, 3)
+        return p, v

@@ -1,0 +1,833 @@
+"""MAVLink 2 around the autopilot: the plant speaks to a companion and a ground station like PX4 SITL.
+
+Each link is one UDP socket, like one PX4 mavlink instance: it sends to the
+partner's port (14540 for the offboard/companion link, 14550 for the ground
+station, both configurable) and follows the partner's address once it hears from
+it. Encoding and parsing are pymavlink's (MAVLink 2, common dialect); this module
+only decides what PX4 would answer.
+
+Every incoming packet is either used, ignored as not ours/not needed (counted in
+`ignored`), or rejected as malformed (counted in `rejected` by reason, logged as an
+event). Nothing a peer sends can raise out of `handle_datagram`.
+"""
+
+from __future__ import annotations
+
+import collections
+import errno
+import math
+import os
+import socket
+import struct
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+os.environ.setdefault("MAVLINK20", "1")  # before pymavlink is imported anywhere
+from pymavlink.dialects.v20 import common as mavlink  # noqa: E402
+
+import numpy as np  # noqa: E402
+import pymap3d  # noqa: E402
+
+from sitl_plant.vehicle.autopilot import Autopilot, OffboardAttitude, OffboardTrajectory  # noqa: E402
+from sitl_plant.vehicle.parameters import Parameter, ParameterError  # noqa: E402
+from sitl_plant.vehicle.px4_modes import (  # noqa: E402
+    HOLD,
+    LAND,
+    OFFBOARD,
+    POSITION,
+    TAKEOFF,
+    CommandResult,
+    LandedState,
+    Severity,
+    mode_from_main_sub,
+)
+from sitl_plant.vehicle.quadrotor import quaternion_to_rotation  # noqa: E402
+
+THRUST_BODY_SET = 32  # ATTITUDE_TARGET_TYPEMASK_THRUST_BODY_SET (not in every pymavlink's enum)
+#: A setpoint quaternion whose norm is further than this from 1 is rejected, not renormalised.
+QUATERNION_NORM_TOLERANCE = 0.05
+#: The partner's address is forgotten and the default port used again after this much
+#: wall-clock silence, so a restarted companion is found again.
+PARTNER_TIMEOUT = 5.0
+
+_SENSORS = (
+    mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO
+    | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+    | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG
+    | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
+    | mavlink.MAV_SYS_STATUS_SENSOR_GPS
+    | mavlink.MAV_SYS_STATUS_SENSOR_ANGULAR_RATE_CONTROL
+    | mavlink.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION
+    | mavlink.MAV_SYS_STATUS_SENSOR_YAW_POSITION
+    | mavlink.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL
+    | mavlink.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
+    | mavlink.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
+    | mavlink.MAV_SYS_STATUS_AHRS
+)
+
+CAPABILITIES = (
+    mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+    | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+    | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
+    | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
+    | mavlink.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
+    | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
+)
+#: Reported as PX4 v1.14.0 (release), the version whose modes and parameters are modelled.
+FLIGHT_SW_VERSION = (1 << 24) | (14 << 16) | (0 << 8) | 255
+
+# Default stream rates in Hz of simulated time, per link kind (PX4's "onboard" and "normal" profiles, simplified).
+COMPANION_STREAMS: dict[int, float] = {
+    mavlink.MAVLINK_MSG_ID_SYS_STATUS: 2.0,
+    mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 5.0,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: 50.0,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE: 10.0,
+    mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 30.0,
+    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 10.0,
+    mavlink.MAVLINK_MSG_ID_ODOMETRY: 50.0,
+    mavlink.MAVLINK_MSG_ID_HOME_POSITION: 0.5,
+    mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: 1.0,
+    mavlink.MAVLINK_MSG_ID_SYSTEM_TIME: 1.0,
+}
+GCS_STREAMS: dict[int, float] = {
+    mavlink.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
+    mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 1.0,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: 10.0,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE: 10.0,
+    mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 5.0,
+    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 5.0,
+    mavlink.MAVLINK_MSG_ID_ODOMETRY: 0.0,
+    mavlink.MAVLINK_MSG_ID_HOME_POSITION: 0.5,
+    mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: 1.0,
+    mavlink.MAVLINK_MSG_ID_SYSTEM_TIME: 1.0,
+    mavlink.MAVLINK_MSG_ID_VFR_HUD: 4.0,
+}
+#: Messages a peer may request or re-rate (the streams above plus these one-shot ones).
+STREAMABLE = frozenset(COMPANION_STREAMS) | frozenset(GCS_STREAMS) | {mavlink.MAVLINK_MSG_ID_HEARTBEAT}
+ONE_SHOT = frozenset({mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION})
+
+# Parameters (0-based) each command needs finite; others may be NaN ("unset") as MAVLink allows.
+_PARAMS_USED: dict[int, tuple[int, ...]] = {
+    mavlink.MAV_CMD_COMPONENT_ARM_DISARM: (0,),
+    mavlink.MAV_CMD_DO_SET_MODE: (0, 1),
+    mavlink.MAV_CMD_SET_MESSAGE_INTERVAL: (0, 1),
+    mavlink.MAV_CMD_GET_MESSAGE_INTERVAL: (0,),
+    mavlink.MAV_CMD_REQUEST_MESSAGE: (0,),
+}
+
+# Known messages we receive and deliberately do nothing with (not errors).
+_QUIET = frozenset({
+    "HEARTBEAT", "COMMAND_ACK", "SYSTEM_TIME", "PARAM_VALUE", "TIMESYNC", "MISSION_ACK",
+    "REQUEST_DATA_STREAM", "MANUAL_CONTROL", "RC_CHANNELS_OVERRIDE",
+})
+
+
+@dataclass(frozen=True)
+class Home:
+    """Geodetic position of the local NED origin (WGS-84 degrees, metres above mean sea level)."""
+
+    latitude: float
+    longitude: float
+    altitude: float
+
+    def to_geodetic(self, north: float, east: float, down: float) -> tuple[float, float, float]:
+        lat, lon, alt = pymap3d.ned2geodetic(north, east, down, self.latitude, self.longitude, self.altitude)
+        return float(lat), float(lon), float(alt)
+
+
+@dataclass
+class LinkSpec:
+    """Where a link sends until it hears from its partner, and where it binds (loopback by default)."""
+
+    name: str
+    partner_host: str
+    partner_port: int
+    streams: dict[int, float]
+    bind_host: str = "127.0.0.1"
+    bind_port: int = 0
+
+
+class Link:
+    """One UDP socket speaking MAVLink 2 as system 1 / component 1 (one PX4 mavlink instance)."""
+
+    def __init__(self, spec: LinkSpec, system_id: int, component_id: int) -> None:
+        self.spec = spec
+        self.name = spec.name
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.setblocking(False)
+        self.sock.bind((spec.bind_host, spec.bind_port))
+        self.address: tuple[str, int] = self.sock.getsockname()
+        self.default_partner = (spec.partner_host, spec.partner_port)
+        self.partner = self.default_partner
+        self.partner_heard_wall = -math.inf
+        self.mav = mavlink.MAVLink(self, srcSystem=system_id, srcComponent=component_id)  # encoder (own sequence)
+        self.parser = self.new_parser()
+        self.intervals: dict[int, float] = {mid: (1.0 / hz if hz > 0 else 0.0) for mid, hz in spec.streams.items()}
+        self.defaults = dict(self.intervals)
+        self.next_due: dict[int, float] = {mid: 0.0 for mid in self.intervals}
+        self.sent = 0
+        self.send_errors = 0
+        self.silenced = False  # fault injection: the link is down both ways
+        self.dropped_silenced = 0
+
+    @staticmethod
+    def new_parser() -> mavlink.MAVLink:
+        """A fresh receive-side parser; robust parsing turns bad frames into BAD_DATA messages."""
+        parser = mavlink.MAVLink(None)
+        parser.robust_parsing = True
+        return parser
+
+    def write(self, data: bytes) -> None:
+        """pymavlink's file interface: one packet per datagram to the partner."""
+        if self.silenced:
+            self.dropped_silenced += 1
+            return
+        try:
+            self.sock.sendto(data, self.partner)
+            self.sent += 1
+        except OSError as error:
+            # Nobody listening yet (ICMP port unreachable) or a full buffer: PX4 drops too.
+            if error.errno not in (errno.ECONNREFUSED, errno.EAGAIN, errno.ENOBUFS, errno.EWOULDBLOCK):
+                raise
+            self.send_errors += 1
+
+    def set_interval(self, message_id: int, interval: float) -> None:
+        """interval in simulated seconds; 0 turns the stream off."""
+        self.intervals[message_id] = interval
+        self.next_due.setdefault(message_id, 0.0)
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+@dataclass
+class Event:
+    """Something worth a line in the run log."""
+
+    time: float
+    kind: str
+    detail: str
+
+
+@dataclass
+class MavlinkStats:
+    """Per-run counters: packets used per message type, ignored ones, rejected ones by reason."""
+
+    received: collections.Counter = field(default_factory=collections.Counter)
+    ignored: collections.Counter = field(default_factory=collections.Counter)
+    rejected: collections.Counter = field(default_factory=collections.Counter)
+    commands: collections.Counter = field(default_factory=collections.Counter)
+
+    def as_dict(self) -> dict:
+        return {
+            "received": dict(self.received),
+            "ignored": dict(self.ignored),
+            "rejected": dict(self.rejected),
+            "commands": dict(self.commands),
+        }
+
+
+class Rejected(Exception):
+    """A message is malformed; args[0] is the counter key, args[1] the detail."""
+
+
+def validate_attitude_target(msg: mavlink.MAVLink_set_attitude_target_message) -> OffboardAttitude:
+    """SET_ATTITUDE_TARGET -> OffboardAttitude, honouring type_mask; Rejected if unusable.
+
+    Attitude and thrust are what the plant flies; body rates are accepted only as
+    'ignored' or all zero (this plant has no rate-setpoint mode). Thrust is
+    normalised in [0, 1]; with THRUST_BODY_SET it is -thrust_body z.
+    """
+    mask = int(msg.type_mask)
+    ignore_attitude = bool(mask & mavlink.ATTITUDE_TARGET_TYPEMASK_ATTITUDE_IGNORE)
+    ignore_thrust = bool(mask & mavlink.ATTITUDE_TARGET_TYPEMASK_THROTTLE_IGNORE)
+    values = [*msg.q, msg.thrust, msg.body_roll_rate, msg.body_pitch_rate, msg.body_yaw_rate]
+    thrust_body = getattr(msg, "thrust_body", None)
+    if thrust_body is not None:
+        values.extend(thrust_body)
+    if not all(math.isfinite(v) for v in values):
+        raise Rejected("setpoint_not_finite", f"NaN or inf in {values}")
+    rates = (msg.body_roll_rate, msg.body_pitch_rate, msg.body_yaw_rate)
+    asked = [rate for bit, rate in zip((1, 2, 4), rates) if not mask & bit and rate != 0.0]
+    if asked:
+        raise Rejected("setpoint_rates_unsupported", f"type_mask {mask:#x} asks for body rates {rates}")
+    if ignore_attitude and ignore_thrust:
+        raise Rejected("setpoint_empty", f"type_mask {mask:#x} ignores both attitude and thrust")
+    quaternion = None
+    if not ignore_attitude:
+        w, x, y, z = (float(c) for c in msg.q)
+        norm = math.sqrt(w * w + x * x + y * y + z * z)
+        if norm < 1e-6:
+            raise Rejected("setpoint_quaternion_zero", f"quaternion {tuple(msg.q)} has zero norm")
+        if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
+            raise Rejected("setpoint_quaternion_not_unit", f"quaternion norm {norm:.4f}")
+        quaternion = (w / norm, x / norm, y / norm, z / norm)
+    thrust = None
+    if not ignore_thrust:
+        if mask & THRUST_BODY_SET:
+            if thrust_body is None:
+                raise Rejected("setpoint_thrust_body_missing", "THRUST_BODY_SET without thrust_body")
+            if thrust_body[0] != 0.0 or thrust_body[1] != 0.0:
+                raise Rejected("setpoint_rates_unsupported", f"thrust_body {tuple(thrust_body)} not along body z")
+            thrust = -float(thrust_body[2])
+        else:
+            thrust = float(msg.thrust)
+        if not 0.0 <= thrust <= 1.0:
+            raise Rejected("setpoint_thrust_out_of_range", f"thrust {thrust} outside [0, 1]")
+    return OffboardAttitude(quaternion, thrust)
+
+
+# SET_POSITION_TARGET_LOCAL_NED.type_mask groups (POSITION_TARGET_TYPEMASK_*).
+_POSITION_BITS, _VELOCITY_BITS, _ACCELERATION_BITS = 0x7, 0x38, 0x1C0
+_FORCE_SET, _YAW_IGNORE, _YAW_RATE_IGNORE = 0x200, 0x400, 0x800
+
+
+def validate_position_target(msg, yaw_now: float) -> OffboardTrajectory:
+    """SET_POSITION_TARGET_LOCAL_NED -> OffboardTrajectory; Rejected if unusable.
+
+    Frames: LOCAL_NED, or BODY_NED for velocity/acceleration (rotated by the current yaw,
+    as MAVSDK's velocity_body uses it). Each of position, velocity and acceleration is
+    used all three axes or not at all; force setpoints and yaw rate are not supported.
+    """
+    mask = int(msg.type_mask)
+    groups = {}
+    for name, bits, values in (("position", _POSITION_BITS, (msg.x, msg.y, msg.z)),
+                               ("velocity", _VELOCITY_BITS, (msg.vx, msg.vy, msg.vz)),
+                               ("acceleration", _ACCELERATION_BITS, (msg.afx, msg.afy, msg.afz))):
+        ignored = mask & bits
+        if ignored not in (0, bits):
+            raise Rejected("setpoint_type_mask_unsupported", f"type_mask {mask:#x}: {name} given on some axes only")
+        if not ignored:
+            if not all(math.isfinite(v) for v in values):
+                raise Rejected("setpoint_not_finite", f"{name} {values}")
+            groups[name] = tuple(float(v) for v in values)
+    if mask & _FORCE_SET:
+        raise Rejected("setpoint_type_mask_unsupported", f"type_mask {mask:#x}: force setpoints")
+    if not mask & _YAW_RATE_IGNORE and msg.yaw_rate != 0.0:
+        raise Rejected("setpoint_type_mask_unsupported", f"type_mask {mask:#x}: yaw rate {msg.yaw_rate}")
+    yaw = None
+    if not mask & _YAW_IGNORE:
+        if not math.isfinite(msg.yaw):
+            raise Rejected("setpoint_not_finite", f"yaw {msg.yaw}")
+        yaw = float(msg.yaw)
+    if not groups:
+        raise Rejected("setpoint_empty", f"type_mask {mask:#x} ignores position, velocity and acceleration")
+    if msg.coordinate_frame == mavlink.MAV_FRAME_BODY_NED:
+        if "position" in groups:
+            raise Rejected("setpoint_frame_unsupported", "position in BODY_NED")
+        c, s = math.cos(yaw_now), math.sin(yaw_now)
+        for name in ("velocity", "acceleration"):
+            if name in groups:
+                x, y, z = groups[name]
+                groups[name] = (c * x - s * y, s * x + c * y, z)
+        if yaw is not None:
+            yaw += yaw_now
+    elif msg.coordinate_frame != mavlink.MAV_FRAME_LOCAL_NED:
+        raise Rejected("setpoint_frame_unsupported", f"coordinate frame {msg.coordinate_frame}")
+    return OffboardTrajectory(groups.get("position"), groups.get("velocity"), groups.get("acceleration"), yaw)
+
+
+def _param_wire_value(parameter: Parameter) -> tuple[float, int]:
+    """PX4 encodes integer parameters bytewise: the int32's bytes inside the float field."""
+    if parameter.kind == "int":
+        return struct.unpack("<f", struct.pack("<i", int(parameter.value)))[0], mavlink.MAV_PARAM_TYPE_INT32
+    return float(parameter.value), mavlink.MAV_PARAM_TYPE_REAL32
+
+
+def _param_from_wire(value: float, param_type: int) -> float:
+    if param_type in (mavlink.MAV_PARAM_TYPE_INT32, mavlink.MAV_PARAM_TYPE_UINT32, mavlink.MAV_PARAM_TYPE_INT16,
+                      mavlink.MAV_PARAM_TYPE_UINT16, mavlink.MAV_PARAM_TYPE_INT8, mavlink.MAV_PARAM_TYPE_UINT8):
+        return float(struct.unpack("<i", struct.pack("<f", value))[0])
+    return float(value)
+
+
+class MavlinkVehicle:
+    """The plant as a MAVLink vehicle: decodes, answers and streams on behalf of an Autopilot.
+
+    autopilot: the flight stack. links: the UDP endpoints (companion, ground station...).
+    home: geodetic position of the local origin. on_event: called with each Event
+    (statustext, rejects, mode/arming changes) for the run log.
+    unix_epoch: wall-clock time (s) that simulated time 0 corresponds to, for
+    SYSTEM_TIME; every other timestamp is simulated time since boot.
+    """
+
+    def __init__(
+        self,
+        autopilot: Autopilot,
+        links: list[LinkSpec],
+        home: Home,
+        system_id: int = 1,
+        component_id: int = 1,
+        on_event: Callable[[Event], None] | None = None,
+        unix_epoch: float | None = None,
+    ) -> None:
+        self.autopilot = autopilot
+        self.home = home
+        self.system_id = system_id
+        self.component_id = component_id
+        self.links = [Link(spec, system_id, component_id) for spec in links]
+        self.stats = MavlinkStats()
+        self.on_event = on_event or (lambda event: None)
+        self.unix_epoch = time.time() if unix_epoch is None else unix_epoch
+        self._next_heartbeat = 0.0
+        self._statustext_id = 0
+        self._last_mode = autopilot.mode
+        self._last_armed = autopilot.armed
+        self.on_odometry_sent: Callable[[int], None] | None = None
+        self._builder_table = self._builders()
+        #: Fault injection: (start, end) windows of simulated time when the companion link is down both ways.
+        self.companion_blackouts: list[tuple[float, float]] = []
+
+    # --------------------------------------------------------------- helpers
+    @property
+    def time_boot_ms(self) -> int:
+        return int(self.autopilot.time * 1000.0) & 0xFFFFFFFF
+
+    @property
+    def time_usec(self) -> int:
+        return int(round(self.autopilot.time * 1e6))
+
+    def _event(self, kind: str, detail: str) -> None:
+        self.on_event(Event(self.autopilot.time, kind, detail))
+
+    def _reject(self, link: Link, reason: str, detail: str) -> None:
+        self.stats.rejected[reason] += 1
+        self._event("rejected", f"{link.name}: {reason}: {detail}")
+
+    def close(self) -> None:
+        for link in self.links:
+            link.close()
+
+    def fileno_map(self) -> dict[int, Link]:
+        return {link.sock.fileno(): link for link in self.links}
+
+    # --------------------------------------------------------------- receive
+    def poll(self, link: Link | None = None, max_datagrams: int = 1000) -> int:
+        """Read and handle every datagram waiting (on one link or all); returns how many."""
+        handled = 0
+        for current in [link] if link is not None else self.links:
+            for _ in range(max_datagrams):
+                try:
+                    data, address = current.sock.recvfrom(65535)
+                except (BlockingIOError, InterruptedError):
+                    break
+                except OSError:  # ICMP errors surface here on some kernels
+                    break
+                self.handle_datagram(current, data, address)
+                handled += 1
+        return handled
+
+    def _update_blackouts(self) -> None:
+        now = self.autopilot.time
+        for link in self.links:
+            if link.name != "companion":
+                continue
+            silenced = any(start <= now < end for start, end in self.companion_blackouts)
+            if silenced != link.silenced:
+                link.silenced = silenced
+                self._event("fault", f"mavlink blackout {'start' if silenced else 'end'} on the {link.name} link")
+
+    def handle_datagram(self, link: Link, data: bytes, address: tuple[str, int] | None = None) -> None:
+        """Parse one datagram and act on every message in it; never raises for bad input.
+
+        On UDP a datagram carries whole frames. Bytes left over at its end (a cut-off
+        frame, or garbage with a start byte in it) are rejected as 'truncated_frame' and
+        dropped with the parser state, so they can never swallow the next datagram.
+        """
+        if link.silenced:
+            link.dropped_silenced += 1
+            return
+        try:
+            messages = link.parser.parse_buffer(data) or []
+        except Exception as error:  # pymavlink raises for a few corrupt headers even when robust
+            self._reject(link, "bad_data", f"parser error: {error}")
+            link.parser = link.new_parser()
+            return
+        if link.parser.buf_len() > 0:
+            self._reject(link, "truncated_frame", f"{link.parser.buf_len()} bytes of an incomplete frame")
+            link.parser = link.new_parser()
+        for msg in messages:
+            try:
+                self.handle_message(link, msg, address)
+            except Rejected as rejected:
+                self._reject(link, rejected.args[0], rejected.args[1])
+            except Exception as error:  # a bug here must not take the vehicle down
+                self._reject(link, "handler_error", f"{msg.get_type()}: {error!r}")
+
+    def handle_message(self, link: Link, msg: mavlink.MAVLink_message, address: tuple[str, int] | None) -> None:
+        kind = msg.get_type()
+        if kind == "BAD_DATA":
+            reason = msg.reason.lower()
+            key = "bad_crc" if "crc" in reason else ("bad_prefix" if "prefix" in reason else "bad_data")
+            raise Rejected(key, msg.reason)
+        if kind == "UNKNOWN" or isinstance(msg, mavlink.MAVLink_unknown):
+            raise Rejected("unknown_message_id", f"message id {msg.get_msgId()}")
+        if address is not None:
+            link.partner = address
+            link.partner_heard_wall = time.monotonic()
+        target = getattr(msg, "target_system", None)
+        if target is not None and target not in (0, self.system_id):
+            self.stats.ignored[f"{kind}:other_system"] += 1
+            return
+        target_component = getattr(msg, "target_component", None)
+        if target_component is not None and target_component not in (0, self.component_id):
+            self.stats.ignored[f"{kind}:other_component"] += 1
+            return
+        self.stats.received[kind] += 1
+        handler = getattr(self, f"_on_{kind.lower()}", None)
+        if handler is not None:
+            handler(link, msg)
+        elif kind not in _QUIET:
+            self.stats.ignored[kind] += 1
+
+    # ------------------------------------------------------------- handlers
+    def _on_set_attitude_target(self, link: Link, msg) -> None:
+        self.autopilot.offboard_setpoint(validate_attitude_target(msg))
+
+    def _on_set_position_target_local_ned(self, link: Link, msg) -> None:
+        _, _, yaw = _euler(self.autopilot.telemetry().quaternion)
+        self.autopilot.offboard_trajectory(validate_position_target(msg, yaw))
+
+    def _on_command_long(self, link: Link, msg) -> None:
+        params = (msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7)
+        self._command(link, msg, int(msg.command), params)
+
+    def _on_command_int(self, link: Link, msg) -> None:
+        params = (msg.param1, msg.param2, msg.param3, msg.param4, msg.x * 1e-7, msg.y * 1e-7, msg.z)
+        self._command(link, msg, int(msg.command), params)
+
+    def _command(self, link: Link, msg, command: int, params: tuple[float, ...]) -> None:
+        name = mavlink.enums["MAV_CMD"][command].name if command in mavlink.enums["MAV_CMD"] else str(command)
+        self.stats.commands[name] += 1
+        try:
+            result = self._execute(link, command, params)
+        except Rejected as rejected:
+            self._reject(link, rejected.args[0], rejected.args[1])
+            result = CommandResult.DENIED
+        if result == CommandResult.UNSUPPORTED:
+            self._event("command_unsupported", f"{link.name}: {name} {params}")
+        self._send(link, link.mav.command_ack_encode(command, int(result), 0, 0, msg.get_srcSystem(), msg.get_srcComponent()))
+
+    def _execute(self, link: Link, command: int, p: tuple[float, ...]) -> CommandResult:
+        ap = self.autopilot
+        used = _PARAMS_USED.get(command, ())
+        if not all(math.isfinite(p[i]) for i in used):
+            raise Rejected("command_not_finite", f"command {command} params {p}")
+        if command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
+            force = p[1] == 21196.0
+            if p[0] == 1.0:
+                return ap.arm(force)
+            if p[0] == 0.0:
+                return ap.disarm(force)
+            return CommandResult.DENIED
+        if command == mavlink.MAV_CMD_NAV_TAKEOFF:
+            altitude = p[6]
+            return ap.takeoff(None if not math.isfinite(altitude) else altitude - self.home.altitude)
+        if command == mavlink.MAV_CMD_NAV_LAND:
+            return ap.land()
+        if command == mavlink.MAV_CMD_DO_SET_MODE:
+            if not int(p[0]) & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
+                return CommandResult.UNSUPPORTED
+            mode = mode_from_main_sub(p[1], p[2] if math.isfinite(p[2]) else 0.0)
+            return CommandResult.UNSUPPORTED if mode is None else ap.set_mode(mode)
+        if command == mavlink.MAV_CMD_NAV_LOITER_UNLIM:
+            return ap.set_mode(HOLD)
+        if command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
+            return self._set_message_interval(link, int(p[0]), p[1])
+        if command == mavlink.MAV_CMD_GET_MESSAGE_INTERVAL:
+            message_id = int(p[0])
+            interval = link.intervals.get(message_id)
+            value = -1 if not interval else int(interval * 1e6)
+            if message_id == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
+                value = 1_000_000
+            self._send(link, link.mav.message_interval_encode(message_id, value))
+            return CommandResult.ACCEPTED
+        if command == mavlink.MAV_CMD_REQUEST_MESSAGE:
+            return self._send_once(link, int(p[0]))
+        if command == mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
+            return self._send_once(link, mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
+        return CommandResult.UNSUPPORTED
+
+    def _set_message_interval(self, link: Link, message_id: int, interval_us: float) -> CommandResult:
+        if message_id not in STREAMABLE or message_id == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
+            return CommandResult.UNSUPPORTED if message_id not in STREAMABLE else CommandResult.DENIED
+        if interval_us == -1:
+            link.set_interval(message_id, 0.0)
+        elif interval_us == 0:
+            link.set_interval(message_id, link.defaults.get(message_id, 0.0))
+        elif interval_us > 0:
+            link.set_interval(message_id, max(interval_us * 1e-6, self.autopilot.tick_period))
+        else:
+            return CommandResult.DENIED
+        return CommandResult.ACCEPTED
+
+    def _send_once(self, link: Link, message_id: int) -> CommandResult:
+        if message_id in STREAMABLE or message_id in ONE_SHOT:
+            self._send(link, self._build(link, message_id))
+            return CommandResult.ACCEPTED
+        return CommandResult.UNSUPPORTED
+
+    def _on_param_request_read(self, link: Link, msg) -> None:
+        table = self.autopilot.parameters
+        try:
+            name = msg.param_id if msg.param_index < 0 else table.by_index(msg.param_index).name
+            parameter = table.get(name)
+        except ParameterError as error:
+            self.stats.ignored["PARAM_REQUEST_READ:unknown"] += 1
+            self._event("param_unknown", str(error))
+            return  # PX4 stays silent for unknown parameters; the requester times out
+        self._send_param(link, parameter)
+
+    def _on_param_request_list(self, link: Link, msg) -> None:
+        for parameter in self.autopilot.parameters:
+            self._send_param(link, parameter)
+
+    def _on_param_set(self, link: Link, msg) -> None:
+        table = self.autopilot.parameters
+        if msg.param_id not in table:
+            self.stats.ignored["PARAM_SET:unknown"] += 1
+            self._event("param_unknown", f"set of unknown parameter {msg.param_id!r}")
+            return
+        value = _param_from_wire(msg.param_value, msg.param_type)
+        try:
+            parameter = table.set(msg.param_id, value)
+            self._event("param_set", f"{parameter.name} = {parameter.value:g}")
+        except ParameterError as error:
+            parameter = table.get(msg.param_id)
+            self.stats.rejected["param_set_refused"] += 1
+            self._event("rejected", f"{link.name}: param_set_refused: {error}")
+            self._statustext(Severity.WARNING, f"Param set refused: {error}")
+        for each in self.links:  # PX4 broadcasts the new value on every link
+            self._send_param(each, parameter)
+
+    def _send_param(self, link: Link, parameter: Parameter) -> None:
+        value, kind = _param_wire_value(parameter)
+        table = self.autopilot.parameters
+        self._send(link, link.mav.param_value_encode(
+            parameter.name.encode(), value, kind, len(table), table.index_of(parameter.name)))
+
+    def _on_timesync(self, link: Link, msg) -> None:
+        if msg.tc1 == 0:
+            self._send(link, link.mav.timesync_encode(int(self.autopilot.time * 1e9), msg.ts1))
+
+    def _on_statustext(self, link: Link, msg) -> None:
+        """A peer's STATUSTEXT (the companion's): logged and passed on to the other links, as PX4 does."""
+        text = msg.text if isinstance(msg.text, str) else bytes(msg.text).decode("utf-8", "replace")
+        self._event("peer_statustext", f"{link.name} [{msg.severity}] {text}")
+        for other in self.links:
+            if other is not link:
+                self._send(other, other.mav.statustext_encode(msg.severity, text.encode("utf-8")[:50]))
+
+    def _on_ping(self, link: Link, msg) -> None:
+        if msg.target_system == 0 and msg.target_component == 0:  # a request, not an answer to ours
+            self._send(link, link.mav.ping_encode(msg.time_usec, msg.seq, msg.get_srcSystem(), msg.get_srcComponent()))
+
+    def _on_mission_request_list(self, link: Link, msg) -> None:
+        self._send(link, link.mav.mission_count_encode(msg.get_srcSystem(), msg.get_srcComponent(), 0,
+                                                      getattr(msg, "mission_type", 0)))
+
+    # ------------------------------------------------------------------ send
+    def _send(self, link: Link, msg: mavlink.MAVLink_message) -> None:
+        link.mav.send(msg)
+
+    def _statustext(self, severity: Severity, text: str) -> None:
+        """STATUSTEXT on every link; texts over 50 characters go out in chunks (MAVLink 2 id/chunk_seq)."""
+        self._event("statustext", f"[{severity.name}] {text}")
+        raw = text.encode("utf-8")[:50 * 20]
+        self._statustext_id = (self._statustext_id % 65535) + 1
+        chunks = [raw[i:i + 50] for i in range(0, len(raw), 50)] or [b""]
+        for link in self.links:
+            for seq, chunk in enumerate(chunks):
+                message_id = self._statustext_id if len(chunks) > 1 else 0
+                self._send(link, link.mav.statustext_encode(int(severity), chunk, message_id, seq))
+
+    def after_tick(self) -> None:
+        """Send what is due at the current simulated time: status texts, heartbeat, streams."""
+        ap = self.autopilot
+        now = ap.time
+        if self.companion_blackouts:
+            self._update_blackouts()
+        if ap.mode != self._last_mode or ap.armed != self._last_armed:
+            self._event("state", f"mode={ap.mode.name} armed={ap.armed}")
+            if ap.failsafe_active and self._last_mode == OFFBOARD:
+                self._event("failsafe", f"offboard lost: last setpoint at t={ap.last_setpoint_time:.4f} s, "
+                                        f"now {ap.mode.name}")
+            self._last_mode, self._last_armed = ap.mode, ap.armed
+        for severity, text in ap.take_status_texts():
+            self._statustext(severity, text)
+        wall = time.monotonic()
+        for link in self.links:
+            if link.partner != link.default_partner and wall - link.partner_heard_wall > PARTNER_TIMEOUT:
+                link.partner = link.default_partner
+        if now >= self._next_heartbeat:
+            self._next_heartbeat = now + 1.0
+            for link in self.links:
+                self._send(link, self._heartbeat(link))
+        for link in self.links:
+            for message_id, interval in link.intervals.items():
+                if interval <= 0.0:
+                    continue
+                due = link.next_due[message_id]
+                if now + 1e-9 >= due:
+                    try:
+                        self._send(link, self._build(link, message_id))
+                    except (struct.error, ValueError, OverflowError) as error:
+                        # A value that does not fit its field must not stop the vehicle; count and go on.
+                        self.stats.ignored[f"encode_error:{message_id}"] += 1
+                        self._event("encode_error", f"{link.name}: message {message_id}: {error}")
+                    # Keep the phase but never queue a burst after a pause.
+                    link.next_due[message_id] = due + interval if due + interval > now else now + interval
+
+    # ------------------------------------------------------------- messages
+    def _heartbeat(self, link: Link):
+        ap = self.autopilot
+        base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+        if ap.mode in (HOLD, TAKEOFF, LAND):
+            base |= mavlink.MAV_MODE_FLAG_AUTO_ENABLED | mavlink.MAV_MODE_FLAG_GUIDED_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
+        elif ap.mode == OFFBOARD:
+            base |= mavlink.MAV_MODE_FLAG_GUIDED_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
+        elif ap.mode == POSITION:
+            base |= mavlink.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
+        if ap.armed:
+            base |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+        if ap.failsafe_active:
+            status = mavlink.MAV_STATE_CRITICAL
+        elif ap.armed:
+            status = mavlink.MAV_STATE_ACTIVE
+        else:
+            status = mavlink.MAV_STATE_STANDBY
+        return link.mav.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, base, ap.mode.custom_mode, status)
+
+    def _build(self, link: Link, message_id: int):
+        builder = self._builder_table.get(message_id)
+        if builder is None:
+            raise KeyError(message_id)
+        return builder(link)
+
+    def _builders(self) -> dict[int, Callable]:
+        return {
+            mavlink.MAVLINK_MSG_ID_HEARTBEAT: self._heartbeat,
+            mavlink.MAVLINK_MSG_ID_SYS_STATUS: self._sys_status,
+            mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: self._extended_sys_state,
+            mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: self._attitude_quaternion,
+            mavlink.MAVLINK_MSG_ID_ATTITUDE: self._attitude,
+            mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: self._local_position_ned,
+            mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: self._global_position_int,
+            mavlink.MAVLINK_MSG_ID_ODOMETRY: self._odometry,
+            mavlink.MAVLINK_MSG_ID_HOME_POSITION: self._home_position,
+            mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: self._gps_raw_int,
+            mavlink.MAVLINK_MSG_ID_SYSTEM_TIME: self._system_time,
+            mavlink.MAVLINK_MSG_ID_VFR_HUD: self._vfr_hud,
+            mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION: self._autopilot_version,
+        }
+
+    def _sys_status(self, link: Link):
+        health = _SENSORS
+        ready, _ = self.autopilot.ready_to_arm
+        present = _SENSORS | mavlink.MAV_SYS_STATUS_PREARM_CHECK
+        if ready or self.autopilot.armed:
+            health |= mavlink.MAV_SYS_STATUS_PREARM_CHECK
+        return link.mav.sys_status_encode(present, present, health, 100, 16800, -1, -1, 0, 0, 0, 0, 0, 0)
+
+    def _extended_sys_state(self, link: Link):
+        return link.mav.extended_sys_state_encode(mavlink.MAV_VTOL_STATE_UNDEFINED, int(self.autopilot.landed_state))
+
+    def _attitude_quaternion(self, link: Link):
+        t = self.autopilot.telemetry()
+        w = t.angular_velocity
+        return link.mav.attitude_quaternion_encode(self.time_boot_ms, *t.quaternion, w[0], w[1], w[2], (1.0, 0.0, 0.0, 0.0))
+
+    def _attitude(self, link: Link):
+        t = self.autopilot.telemetry()
+        roll, pitch, yaw = _euler(t.quaternion)
+        w = t.angular_velocity
+        return link.mav.attitude_encode(self.time_boot_ms, roll, pitch, yaw, w[0], w[1], w[2])
+
+    def _local_position_ned(self, link: Link):
+        t = self.autopilot.telemetry()
+        p, v = t.position, t.velocity
+        return link.mav.local_position_ned_encode(self.time_boot_ms, p[0], p[1], p[2], v[0], v[1], v[2])
+
+    def _global_position_int(self, link: Link):
+        t = self.autopilot.telemetry()
+        lat, lon, alt = self.home.to_geodetic(*t.position)
+        _, _, yaw = _euler(t.quaternion)
+        v = t.velocity
+        return link.mav.global_position_int_encode(
+            self.time_boot_ms, int(round(lat * 1e7)), int(round(lon * 1e7)), int(round(alt * 1000.0)),
+            int(round(-t.position[2] * 1000.0)), _i16(v[0] * 100.0), _i16(v[1] * 100.0), _i16(v[2] * 100.0),
+            int(round(math.degrees(yaw) % 360.0 * 100.0)) % 36000,
+        )
+
+    def _odometry(self, link: Link):
+        """ODOMETRY as PX4 sends it: pose in local NED, twist in body FRD (the child frame)."""
+        ap = self.autopilot
+        t = ap.telemetry()
+        r = np.array(quaternion_to_rotation(*t.quaternion)).reshape(3, 3)
+        v_body = r.T @ t.velocity
+        w = t.angular_velocity
+        sp = ap.params.position_noise_std**2
+        sv = ap.params.velocity_noise_std**2
+        pose_cov = [math.nan] * 21
+        vel_cov = [math.nan] * 21
+        pose_cov[0] = pose_cov[6] = pose_cov[11] = sp
+        vel_cov[0] = vel_cov[6] = vel_cov[11] = sv
+        msg = link.mav.odometry_encode(
+            self.time_usec, mavlink.MAV_FRAME_LOCAL_NED, mavlink.MAV_FRAME_BODY_FRD,
+            t.position[0], t.position[1], t.position[2], t.quaternion,
+            v_body[0], v_body[1], v_body[2], w[0], w[1], w[2], pose_cov, vel_cov, 0,
+            mavlink.MAV_ESTIMATOR_TYPE_AUTOPILOT, 100,
+        )
+        if self.on_odometry_sent is not None:
+            self.on_odometry_sent(self.time_usec)
+        return msg
+
+    def _home_position(self, link: Link):
+        ap = self.autopilot
+        lat, lon, alt = self.home.to_geodetic(*ap.home)
+        h = ap.home
+        return link.mav.home_position_encode(
+            int(round(lat * 1e7)), int(round(lon * 1e7)), int(round(alt * 1000.0)), h[0], h[1], h[2],
+            (1.0, 0.0, 0.0, 0.0), 0.0, 0.0, 0.0, self.time_usec)
+
+    def _gps_raw_int(self, link: Link):
+        t = self.autopilot.telemetry()
+        lat, lon, alt = self.home.to_geodetic(*t.position)
+        speed = float(np.hypot(t.velocity[0], t.velocity[1]))
+        course = math.degrees(math.atan2(t.velocity[1], t.velocity[0])) % 360.0
+        return link.mav.gps_raw_int_encode(
+            self.time_usec, mavlink.GPS_FIX_TYPE_3D_FIX, int(round(lat * 1e7)), int(round(lon * 1e7)),
+            int(round(alt * 1000.0)), 80, 120, int(speed * 100.0), int(course * 100.0) % 36000, 14)
+
+    def _system_time(self, link: Link):
+        return link.mav.system_time_encode(int((self.unix_epoch + self.autopilot.time) * 1e6), self.time_boot_ms)
+
+    def _vfr_hud(self, link: Link):
+        t = self.autopilot.telemetry()
+        _, _, yaw = _euler(t.quaternion)
+        speed = float(np.hypot(t.velocity[0], t.velocity[1]))
+        _, _, alt = self.home.to_geodetic(*t.position)
+        return link.mav.vfr_hud_encode(speed, speed, int(math.degrees(yaw) % 360.0), min(100, max(0, int(self.autopilot.thrust_command * 100))),
+                                       alt, -t.velocity[2])
+
+    def _autopilot_version(self, link: Link):
+        return link.mav.autopilot_version_encode(
+            CAPABILITIES, FLIGHT_SW_VERSION, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 1)
+
+
+def _i16(value: float) -> int:
+    return int(max(-32768, min(32767, round(value))))
+
+
+def _euler(quaternion: tuple[float, float, float, float]) -> tuple[float, float, float]:
+    """(roll, pitch, yaw) rad, ZYX convention as MAVLink ATTITUDE uses."""
+    r = quaternion_to_rotation(*quaternion)
+    roll = math.atan2(r[7], r[8])
+    pitch = -math.asin(max(-1.0, min(1.0, r[6])))
+    yaw = math.atan2(r[3], r[0])
+    return roll, pitch, yaw
+
+
+__all__ = ["Home", "Link", "LinkSpec", "MavlinkVehicle", "MavlinkStats", "Rejected", "validate_attitude_target",
+           "LandedState", "LAND", "TAKEOFF"]

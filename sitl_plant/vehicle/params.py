@@ -1,0 +1,82 @@
+"""Physical parameters of the simulated quadrotor (paper Table I).
+
+The plant only knows these numbers; where they come from (a TOML vehicle file)
+is the config module's business.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from interfaces.scenario import VehicleConfig
+
+
+@dataclass(frozen=True)
+class QuadrotorParams:
+    """Quadrotor airframe, motors and low-level attitude-controller gains.
+
+    Defaults are the paper's Table I. Units are SI throughout.
+    """
+
+    mass: float = 1.5  # kg
+    gravity: float = 9.81  # m/s^2
+    inertia: tuple[float, float, float] = (1.745e-2, 1.745e-2, 3.175e-2)  # kg m^2, body principal axes
+    arm_length: float = 0.225  # m, rotor hub to centre of mass
+    thrust_coefficient: float = 1.105e-5  # N / (rad/s)^2
+    moment_coefficient: float = 1.489e-7  # N m / (rad/s)^2
+    motor_time_constant: float = 0.0136  # s, first-order motor lag 1/(T_m s + 1)
+    drag_coefficient: float = 6.579e-2  # N / (m/s), linear body-frame drag, K_r = diag(C_d, C_d, 0)
+    max_thrust_to_weight: float = 1.5  # total thrust <= this * m g
+    attitude_kp: float = 2.0  # N m / rad, geometric attitude controller, eq. (24)
+    # kd/kp = 0.25 s: roll/pitch overdamped (zeta 1.34, 30 deg settles to 1 deg in ~0.8 s) and yaw
+    # critically damped; a smaller ratio makes large yaw steps, which saturate the weak
+    # C_m yaw authority (~0.1 N m at hover), overshoot by tens of degrees.
+    attitude_kd: float = 0.5  # N m s / rad, eq. (24)
+    position_noise_std: float = 0.1  # m, feedback noise sigma_p (section VIII)
+    velocity_noise_std: float = 0.05  # m/s, feedback noise sigma_v (section VIII)
+
+    @property
+    def inertia_matrix(self) -> np.ndarray:
+        """Body inertia J, kg m^2, shape (3, 3)."""
+        return np.diag(self.inertia)
+
+    @property
+    def hover_thrust(self) -> float:
+        """Total thrust that balances gravity, N."""
+        return self.mass * self.gravity
+
+    @property
+    def max_total_thrust(self) -> float:
+        """Largest total thrust the four rotors can give together, N."""
+        return self.max_thrust_to_weight * self.mass * self.gravity
+
+    @property
+    def max_rotor_speed(self) -> float:
+        """Per-rotor speed limit, rad/s, such that four rotors give max_total_thrust."""
+        return float(np.sqrt(self.max_total_thrust / (4.0 * self.thrust_coefficient)))
+
+    @property
+    def hover_thrust_normalized(self) -> float:
+        """Hover thrust as a fraction of max_total_thrust (PX4's MPC_THR_HOVER)."""
+        return 1.0 / self.max_thrust_to_weight
+
+
+def quadrotor_params(vehicle: VehicleConfig) -> QuadrotorParams:
+    """Plant parameters from a vehicle file."""
+    return QuadrotorParams(
+        mass=vehicle.mass,
+        gravity=vehicle.gravity,
+        inertia=tuple(vehicle.inertia),
+        arm_length=vehicle.arm_length,
+        thrust_coefficient=vehicle.thrust_coefficient,
+        moment_coefficient=vehicle.moment_coefficient,
+        motor_time_constant=vehicle.motor_time_constant,
+        drag_coefficient=vehicle.drag_coefficient,
+        max_thrust_to_weight=vehicle.max_thrust_to_weight,
+        attitude_kp=vehicle.attitude_kp,
+        attitude_kd=vehicle.attitude_kd,
+        position_noise_std=vehicle.position_noise_std,
+        velocity_noise_std=vehicle.velocity_noise_std,
+    )

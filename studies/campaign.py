@@ -1,0 +1,269 @@
+"""`bof-campaign`: link-dropout Monte Carlo. Does the companion keep the target when the link misbehaves?
+
+    bof-campaign [config/scenarios/constant_velocity.toml] [--seeds 10] [--patterns blackout_5s loss_30]
+                 [--sitl blackout_5s] [--out runs]
+
+Each fault pattern is a [faults] section applied to the scenario; every (pattern, seed)
+flight runs in the in-process simulator (same pipeline, same fault model, same fix
+validator as the networked companion) in parallel worker processes. Patterns named
+with --sitl are also flown once through the full SITL (bof-sitl, real processes, the
+faults injected by sitl-target). Output (runs/campaign-<scenario>-<time>/): results.csv
+(one row per flight), summary.md (one row per pattern, with the pass/fail of the
+targets below) and summary.json.
+
+Figures per flight (times are scenario seconds):
+* kept: the estimate still tracks at the end (range-estimation error under 1 m over the
+  last 5 s) and the range is within [r_d/2, 2 r_d]; the flight did not blow up.
+* min_range: closest approach after engagement, m.
+* worst_error: largest |range-estimation error| from the first fault onwards (for faults
+  that last the whole flight, from 20 s on, after the initial convergence), m.
+* reconverge: after each blackout ends, time until the range-estimation error is under
+  1 m and stays there until the next fault or the end; the worst of them, s.
+
+Targets (constant-velocity scenario): the target kept in every flight, never closer than
+r_d / 2, range-estimation error back under 1 m within 10 s of the link returning.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, FaultsConfig, Scenario, VehicleConfig, load_scenario
+from studies.closed_loop import Termination, simulate
+from studies.executors import make_executor
+
+DEFAULT_SCENARIO = DEFAULT_SCENARIO
+CONVERGED = 1.0  # m, range-estimation error
+STEADY_FROM = 20.0  # s, when continuous faults start counting (after the initial convergence)
+BLACKOUT_AT = 30.0  # s, scenario time of the blackouts: steady following
+
+#: name -> ([faults] overrides, description). Blackouts are in scenario seconds.
+PATTERNS: dict[str, tuple[dict, str]] = {
+    "none": ({}, "no fault (baseline)"),
+    "blackout_1s": ({"blackouts": [{"start": BLACKOUT_AT, "duration": 1.0}]}, "1 s blackout at 30 s"),
+    "blackout_2s": ({"blackouts": [{"start": BLACKOUT_AT, "duration": 2.0}]}, "2 s blackout at 30 s"),
+    "blackout_5s": ({"blackouts": [{"start": BLACKOUT_AT, "duration": 5.0}]}, "5 s blackout at 30 s"),
+    "blackout_10s": ({"blackouts": [{"start": BLACKOUT_AT, "duration": 10.0}]}, "10 s blackout at 30 s"),
+    "loss_30": ({"loss_probability": 0.3}, "30 % independent loss"),
+    "bursty_2s": ({"burst": {"mean_burst_s": 2.0, "mean_gap_s": 8.0}}, "Gilbert-Elliott, mean burst 2 s, mean gap 8 s"),
+    "latency_jitter": ({"latency_s": 0.15, "jitter_s": 0.1}, "150 ms latency, 100 ms jitter"),
+    "reorder_duplicate": ({"reorder_probability": 0.2, "duplicate_probability": 0.2}, "20 % reordered, 20 % duplicated"),
+    "stale": ({"stale_probability": 0.2}, "20 % stale (old) messages"),
+    "corrupt": ({"corrupt_probability": 0.2}, "20 % corrupted payloads (all kinds)"),
+    "impostor": ({"impostor_rate_hz": 5.0}, "a second publisher on the key, 5 Hz"),
+}
+#: The patterns the issue sets targets for.
+TARGET_PATTERNS = ("blackout_1s", "blackout_2s", "blackout_5s", "blackout_10s", "loss_30", "bursty_2s")
+
+
+def with_faults(scenario: Scenario, overrides: dict) -> Scenario:
+    """The scenario with its [faults] section replaced by `overrides` (validated)."""
+    return scenario.model_copy(update={"faults": FaultsConfig.model_validate(overrides)})
+
+
+def blackout_windows(overrides: dict) -> list[tuple[float, float]]:
+    return sorted((b["start"], b["start"] + b["duration"]) for b in overrides.get("blackouts", []))
+
+
+def flight_metrics(series: dict[str, np.ndarray], scenario: Scenario, termination: Termination,
+                   windows: list[tuple[float, float]], continuous: bool) -> dict:
+    """The figures of one flight (see the module docstring)."""
+    t = series["time"]
+    engaged = np.isfinite(series["estimate_position"][:, 0])
+    error = np.abs(series["range_estimate"] - series["range"])
+    distance = series["range"]
+    desired = scenario.guidance.desired_range
+    end = t >= t[-1] - 5.0
+    kept = bool(termination is Termination.COMPLETED and np.all(engaged[end]) and np.mean(error[end]) < CONVERGED
+                and 0.5 * desired <= distance[-1] <= 2.0 * desired)
+    if windows:
+        fault_from = windows[0][0]
+    elif continuous:
+        fault_from = STEADY_FROM
+    else:
+        fault_from = math.inf
+    during = engaged & (t >= fault_from)
+    reconverge = []
+    for index, (_, stop) in enumerate(windows):
+        horizon = windows[index + 1][0] if index + 1 < len(windows) else t[-1] + 1.0
+        span = (t >= stop) & (t < horizon)
+        bad = span & (error >= CONVERGED)
+        if not span.any():
+            continue
+        if not bad.any():
+            reconverge.append(0.0)
+        elif bad[np.nonzero(span)[0][-1]]:
+            reconverge.append(math.inf)  # still off at the end of the span
+        else:
+            reconverge.append(float(t[np.nonzero(bad)[0][-1] + 1] - stop))
+    return {
+        "kept": kept,
+        "termination": termination.name,
+        "min_range": float(np.min(distance[engaged])) if engaged.any() else math.nan,
+        "worst_error": float(np.max(error[during])) if during.any() else math.nan,
+        "reconverge": max(reconverge) if reconverge else math.nan,
+        "final_error": float(np.mean(error[end])),
+    }
+
+
+def _fly(task: tuple[str, int, Scenario, VehicleConfig]) -> dict:
+    name, seed, scenario, vehicle = task
+    overrides = PATTERNS[name][0] if name in PATTERNS else {}
+    result = simulate(scenario, vehicle, seed)
+    metrics = flight_metrics(result.series, scenario, result.termination, blackout_windows(overrides),
+                             continuous=bool(overrides) and not overrides.get("blackouts"))
+    link = result.summary.get("link", {})
+    modes = result.summary.get("track_mode_changes", [])
+    return {"pattern": name, "seed": seed, **metrics,
+            "fixes_accepted": link.get("accepted", math.nan), "fixes_rejected": sum(link.get("rejected", {}).values()),
+            "rejected_by_reason": json.dumps(link.get("rejected", {}), sort_keys=True),
+            "degraded_entries": sum(1 for _, mode in modes if mode == "degraded"),
+            "reinitialized": result.summary.get("reinitializations", 0)}
+
+
+def pattern_table(rows: list[dict], desired_range: float) -> list[dict]:
+    """One line per pattern: shares, extremes, medians, and the targets' verdict."""
+    table = []
+    for name in dict.fromkeys(row["pattern"] for row in rows):
+        group = [row for row in rows if row["pattern"] == name]
+        kept = sum(row["kept"] for row in group)
+        min_range = min(row["min_range"] for row in group)
+        worst = [row["worst_error"] for row in group if math.isfinite(row["worst_error"])]
+        reconverge = [row["reconverge"] for row in group if not math.isnan(row["reconverge"])]
+        entry = {
+            "pattern": name, "description": PATTERNS.get(name, ({}, name))[1], "flights": len(group),
+            "kept_share": kept / len(group), "min_range": min_range,
+            "worst_error_median": float(np.median(worst)) if worst else math.nan,
+            "worst_error_max": max(worst) if worst else math.nan,
+            "reconverge_median": float(np.median(reconverge)) if reconverge else math.nan,
+            "reconverge_max": max(reconverge) if reconverge else math.nan,
+        }
+        if name in TARGET_PATTERNS:
+            entry["meets_targets"] = bool(kept == len(group) and min_range >= 0.5 * desired_range
+                                          and (not reconverge or max(reconverge) <= 10.0))
+        table.append(entry)
+    return table
+
+
+def _f(value: float, digits: int) -> str:
+    """A number for the tables; '-' where a figure does not apply (no fault, no blackout), 'never' for inf."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "-"
+    if math.isinf(value):
+        return "never"
+    return f"{value:.{digits}f}"
+
+
+def markdown(table: list[dict], sitl_rows: list[dict], scenario: Scenario, seeds: int) -> str:
+    lines = [f"# Link-dropout campaign: {scenario.name}, {seeds} seeds per pattern, r_d = {scenario.guidance.desired_range:g} m",
+             "",
+             "| pattern | flights | target kept | min range (m) | worst range-est. error during fault, median / max (m) | "
+             "re-converge after link returns, median / max (s) | targets |",
+             "|---|---|---|---|---|---|---|"]
+    for e in table:
+        verdict = {True: "met", False: "**missed**"}.get(e.get("meets_targets"), "-")
+        lines.append(f"| {e['pattern']} ({e['description']}) | {e['flights']} | {100 * e['kept_share']:.0f} % | "
+                     f"{_f(e['min_range'], 2)} | {_f(e['worst_error_median'], 2)} / {_f(e['worst_error_max'], 2)} | "
+                     f"{_f(e['reconverge_median'], 1)} / {_f(e['reconverge_max'], 1)} | {verdict} |")
+    if sitl_rows:
+        lines += ["", "Full SITL (real processes, MAVLink, Zenoh; faults injected by sitl-target):", "",
+                  "| pattern | kept | min range (m) | worst error (m) | re-converge (s) | fixes rejected |", "|---|---|---|---|---|---|"]
+        for r in sitl_rows:
+            lines.append(f"| {r['pattern']} | {r['kept']} | {_f(r['min_range'], 2)} | {_f(r['worst_error'], 2)} | "
+                         f"{_f(r['reconverge'], 1)} | {r['fixes_rejected']} |")
+    return "\n".join(lines) + "\n"
+
+
+def _toml_value(value) -> str:
+    """A TOML literal for sitl-target's --fault KEY=VALUE (numbers, lists, inline tables)."""
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{key} = {_toml_value(item)}" for key, item in value.items()) + "}"
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(item) for item in value) + "]"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return json.dumps(value)
+    return repr(float(value)) if isinstance(value, float) else str(value)
+
+
+def _sitl_case(config: Path, name: str, folder: Path, speed: float) -> dict:
+    from studies import full_sitl
+
+    overrides = PATTERNS[name][0]
+    faults = [f"{key}={_toml_value(value)}" for key, value in overrides.items()]
+    code, run_folder, summary = full_sitl.run(config, folder, speed, None, None, plots=True, quiet=True,
+                                              target_faults=faults)
+    scenario, _ = load_scenario(config)
+    series, _ = full_sitl.flight_series(run_folder)
+    metrics = flight_metrics(series, scenario, Termination.COMPLETED if code == 0 else Termination.OUT_OF_CONTROL,
+                             blackout_windows(overrides), continuous=not overrides.get("blackouts"))
+    link = summary["companion"]["link"]
+    return {"pattern": name, **metrics, "fixes_rejected": sum(link["rejected"].values()), "run_folder": str(run_folder)}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="bof-campaign", description=__doc__.split("\n\n")[0])
+    parser.add_argument("config", nargs="?", type=Path, default=DEFAULT_SCENARIO)
+    parser.add_argument("--seeds", type=int, default=10, help="flights per pattern (seeds 1..N)")
+    parser.add_argument("--patterns", nargs="+", default=list(PATTERNS), choices=list(PATTERNS))
+    parser.add_argument("--sitl", nargs="*", default=[], choices=list(PATTERNS), help="patterns also flown in full SITL")
+    parser.add_argument("--sitl-speed", type=float, default=5.0)
+    parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    parser.add_argument("--executor", default="local", help="local (default), serial, dask-local, or tcp://scheduler:port")
+    parser.add_argument("--out", type=Path, default=Path("runs"))
+    args = parser.parse_args(argv)
+    if args.seeds < 1 or args.workers < 1:
+        print("bof-campaign: --seeds and --workers must be >= 1", file=sys.stderr)
+        return 2
+    try:
+        scenario, vehicle = load_scenario(args.config)
+        tasks = [(name, seed, with_faults(scenario, PATTERNS[name][0]), vehicle)
+                 for name in args.patterns for seed in range(1, args.seeds + 1)]
+    except (ConfigError, ValueError) as error:
+        print(f"bof-campaign: {error}", file=sys.stderr)
+        return 2
+    folder = args.out / f"campaign-{scenario.name}-{time.strftime('%Y%m%d-%H%M%S')}"
+    folder.mkdir(parents=True, exist_ok=True)
+    slots: list[dict | None] = [None] * len(tasks)
+    try:
+        executor = make_executor(args.executor, args.workers)
+    except (RuntimeError, ValueError) as error:
+        print(f"bof-campaign: {error}", file=sys.stderr)
+        return 2
+    try:
+        with (folder / "results.csv").open("w", newline="", buffering=1) as handle:
+            writer = None
+            for done, (index, row) in enumerate(executor.map(_fly, tasks), start=1):
+                slots[index] = row
+                if writer is None:
+                    writer = csv.DictWriter(handle, fieldnames=list(row))
+                    writer.writeheader()
+                writer.writerow(row)  # completion order; every row carries its pattern and seed
+                print(f"\rbof-campaign: {done}/{len(tasks)} flights", end="", flush=True)
+    finally:
+        executor.close()
+    print()
+    rows = [row for row in slots if row is not None]
+    table = pattern_table(rows, scenario.guidance.desired_range)
+    sitl_rows = [_sitl_case(args.config, name, folder / "sitl", args.sitl_speed) for name in args.sitl]
+    report = markdown(table, sitl_rows, scenario, args.seeds)
+    (folder / "summary.md").write_text(report)
+    (folder / "summary.json").write_text(json.dumps({"patterns": table, "sitl": sitl_rows}, indent=2, default=float))
+    print(report)
+    print(f"run folder: {folder}")
+    missed = [e["pattern"] for e in table if e.get("meets_targets") is False]
+    return 1 if missed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

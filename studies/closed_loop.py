@@ -1,0 +1,341 @@
+"""In-process closed-loop simulator: plant + target + bearing sensor + the companion pipeline.
+
+Deterministic for a seed, no network, no wall clock. The loop reads like the block
+diagram of the paper's Fig. 2:
+
+    target.step -> bearing sensor -> pipeline.step (estimator, guidance, attitude map)
+    -> autopilot (attitude controller, mixer) -> quadrotor.step
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from companion.assembly import build_sensor, build_pipeline
+from companion.core.bearing_sensor import BearingSensor
+from interfaces.scenario import Scenario, VehicleConfig
+from companion.core.fix_validator import FixRejected, FixValidator
+from companion.fix_intake import FixIntake
+from interfaces.link_schema import TargetFix, encode_target_fix
+from companion.core.messages import BearingMeasurement, PursuerState
+from companion.core.pipeline import TrackMode
+from sitl_plant.vehicle.attitude_control import AttitudeThrustVehicle
+from sitl_plant.vehicle.params import QuadrotorParams, quadrotor_params
+from sitl_plant.vehicle.quadrotor import RigidBodyState
+from sitl_plant.target.link_faults import LinkFaults, fault_rng
+from sitl_plant.target.models import Maneuver, TargetModel
+
+
+class Termination(enum.Enum):
+    """Why a simulated flight ended; the value is a sentence for people."""
+
+    COMPLETED = "flew the whole scenario"
+    ESTIMATE_NOT_FINITE = "estimator state became NaN or infinite"
+    OUT_OF_CONTROL = "out of control: tilted past 90 degrees or faster than 60 m/s"
+
+
+#: track_mode column of the flight log: the pipeline's TrackMode as a number.
+TRACK_MODE_CODES = {TrackMode.TRACKING: 0, TrackMode.COASTING: 1, TrackMode.DEGRADED: 2, TrackMode.REACQUIRING: 3}
+
+MAX_SPEED = 60.0  # m/s, far above anything the Table I vehicle can reach with 1.5 g of thrust
+
+
+class FlightLog:
+    """Time series of one flight, one row per loop tick, preallocated.
+
+    Raw columns are written in the loop; derived ones (range, tilt, heading error...)
+    are computed vectorised by `series()`. Rows before the estimator starts hold NaN.
+    """
+
+    _WIDTHS = {
+        "time": 1, "pursuer_position": 3, "pursuer_velocity": 3, "pursuer_forward": 3, "pursuer_down_z": 1,
+        "target_position": 3, "target_velocity": 3, "estimate_position": 3, "estimate_velocity": 3,
+        "estimate_position_std": 1, "command_acceleration": 3, "thrust_normalized": 1, "track_mode": 1, "bearing_age": 1,
+        "observability_log_det": 1, "observability_min_eigenvalue": 1,
+    }
+
+    def __init__(self, rows: int) -> None:
+        self._data = {key: np.full((rows, width), np.nan) for key, width in self._WIDTHS.items()}
+        self.rows = 0
+
+    def append(self, **values: object) -> None:
+        row = self.rows
+        for key, value in values.items():
+            self._data[key][row] = value
+        self.rows += 1
+
+    def series(self) -> dict[str, np.ndarray]:
+        """All columns trimmed to the rows written, plus the derived ones; (N,) or (N, 3)."""
+        out = {key: (array[: self.rows, 0] if array.shape[1] == 1 else array[: self.rows]) for key, array in self._data.items()}
+        relative = out["target_position"] - out["pursuer_position"]
+        out["range"] = np.linalg.norm(relative, axis=1)
+        out["range_estimate"] = np.linalg.norm(out["estimate_position"] - out["pursuer_position"], axis=1)
+        out["pursuer_tilt"] = np.degrees(np.arccos(np.clip(out["pursuer_down_z"], -1.0, 1.0)))
+        forward, los = out["pursuer_forward"][:, :2], relative[:, :2]
+        norms = np.linalg.norm(forward, axis=1) * np.linalg.norm(los, axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cosine = np.where(norms > 1e-9, np.einsum("ij,ij->i", forward, los) / norms, np.nan)
+        out["heading_error"] = np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0)))
+        return out
+
+
+@dataclass(frozen=True)
+class SimulationResult:
+    """A finished flight: its series (see FlightLog), the summary and why it ended."""
+
+    scenario: Scenario
+    series: dict[str, np.ndarray]
+    summary: dict
+    termination: Termination
+
+
+def _initial_state(scenario: Scenario, params: QuadrotorParams) -> RigidBodyState:
+    hover = RigidBodyState.hover(params, np.array(scenario.pursuer.initial_position))
+    return RigidBodyState(hover.position, np.array(scenario.pursuer.initial_velocity), hover.rotation, hover.angular_velocity, hover.rotor_speeds)
+
+
+def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None) -> SimulationResult:
+    """Fly one scenario in process. seed overrides scenario.simulation.seed."""
+    seed = scenario.simulation.seed if seed is None else seed
+    # The third stream (range noise) leaves the first two exactly as they were without it.
+    plant_rng, sensor_rng, range_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(3))
+    link = InProcessLink(scenario, seed)
+    params = quadrotor_params(vehicle)
+    autopilot = AttitudeThrustVehicle(params, _initial_state(scenario, params), scenario.simulation.physics_rate_hz, plant_rng)
+    target = TargetModel(
+        np.array(scenario.target.initial_position),
+        np.array(scenario.target.initial_velocity),
+        tuple(Maneuver(m.start, m.end, m.lateral_acceleration) for m in scenario.target.maneuvers),
+    )
+    pipeline = build_pipeline(scenario, vehicle, params.hover_thrust_normalized)
+    sensor = build_sensor(scenario.sensor)
+
+    physics_hz = scenario.simulation.physics_rate_hz
+    every = {
+        "estimator": round(physics_hz / scenario.estimator.rate_hz),
+        "control": round(physics_hz / scenario.guidance.rate_hz),
+        "sensor": round(physics_hz / scenario.sensor.rate_hz),
+    }
+    dt = 1.0 / physics_hz
+    total_steps = round(scenario.simulation.duration * physics_hz)
+    # The loop visits only the physics steps where something happens (a bearing, an
+    # estimator tick, a control tick); the plant runs on its own fixed step in between.
+    event_steps = sorted({step for period in every.values() for step in range(0, total_steps + 1, period)})
+    log = FlightLog(len(event_steps))
+    termination = Termination.COMPLETED
+    bearings_used = 0
+    bearings_out_of_view = 0
+
+    for index, step in enumerate(event_steps):
+        time = step * dt
+        truth = autopilot.state
+        measured_position, measured_velocity = autopilot.measured_state()
+        pursuer = PursuerState(time, measured_position, measured_velocity)
+        bearings = []
+        if link.enabled:
+            # Fixes go through the fault model and the validator, as over the real link; the
+            # bearing is then taken at each delivered fix's time from the pursuer's state then.
+            if step % every["sensor"] == 0:
+                link.offer(time, target.position, target.velocity, truth, measured_position)
+            for stamp, fix_position, sample in link.deliver(time):
+                bearing = _measure(sensor, stamp, fix_position - sample.true_position, sample.rotation,
+                                   sample.measured_position, sensor_rng, range_rng)
+                if bearing is None:
+                    bearings_out_of_view += 1
+                else:
+                    bearings.append(bearing)
+        elif step % every["sensor"] == 0:
+            # The camera sees through the vehicle's true attitude; outside its field of view no bearing comes.
+            bearing = _measure(sensor, time, target.position - truth.position, truth.rotation, measured_position,
+                               sensor_rng, range_rng)
+            if bearing is None:
+                bearings_out_of_view += 1
+            else:
+                bearings.append(bearing)
+        bearings_used += len(bearings)
+        output = None
+        for bearing in bearings or [None]:
+            output = pipeline.step(time, pursuer, bearing)
+        if output.new_setpoint and output.setpoint is not None:
+            # The autopilot side: attitude in, normalised thrust scaled by its own maximum.
+            # (The networked harness sends the same attitude as a quaternion.)
+            autopilot.set_attitude_target(output.setpoint.rotation, output.setpoint.thrust_normalized * params.max_total_thrust)
+
+        estimate = output.estimate
+        if estimate is not None and not math.isfinite(float(estimate.position.sum() + estimate.velocity.sum())):
+            termination = Termination.ESTIMATE_NOT_FINITE
+        if truth.rotation[2, 2] < 0.0 or float(truth.velocity @ truth.velocity) > MAX_SPEED**2:
+            termination = Termination.OUT_OF_CONTROL
+        _log_tick(log, time, truth, target, output)
+        if termination is not Termination.COMPLETED or index + 1 == len(event_steps):
+            break
+        gap = event_steps[index + 1] - step
+        target.step(gap * dt)
+        autopilot.advance(gap * dt)
+
+    series = log.series()
+    summary = summarize(series, scenario, termination)
+    summary["bearings_used"] = bearings_used
+    summary["bearings_out_of_view"] = bearings_out_of_view
+    summary["track_mode_changes"] = [(round(t, 3), mode.value) for t, mode in pipeline.mode_changes]
+    summary["reinitializations"] = pipeline.reinitializations
+    if link.enabled:
+        summary["link"] = link.summary()
+        summary["fault_events"] = [(round(e.time, 3), e.kind, e.detail) for e in link.faults.events]
+    summary["seed"] = seed
+    return SimulationResult(scenario, series, summary, termination)
+
+
+def _measure(sensor: BearingSensor, time: float, line_of_sight: np.ndarray, rotation: np.ndarray,
+             measured_position: np.ndarray, sensor_rng: np.random.Generator,
+             range_rng: np.random.Generator) -> BearingMeasurement | None:
+    """The bearing (and range, with a range sensor) of the true line of sight; None when not seen.
+
+    The noise-free direction rides along as true_direction for the simulation-only
+    "optimal u-PLKF" benchmark (section VIII-B); every other estimator ignores it.
+    """
+    distance = float(np.linalg.norm(line_of_sight))
+    true_direction = line_of_sight / distance
+    direction = sensor.measure(true_direction, sensor_rng, rotation)
+    if direction is None:
+        return None
+    return BearingMeasurement(time, direction, measured_position, sensor.measure_range(distance, range_rng), true_direction)
+
+
+@dataclass(frozen=True)
+class _Sample:
+    true_position: np.ndarray
+    rotation: np.ndarray
+    measured_position: np.ndarray
+
+
+class InProcessLink:
+    """The target link of the in-process simulator when [faults] injects something: fixes are
+    encoded as on the real link (local NED frame), pass LinkFaults, and are checked by the same
+    FixValidator as the companion's. The pursuer's state at each fix time is kept so a late
+    fix gives the bearing of its own time."""
+
+    def __init__(self, scenario: Scenario, seed: int) -> None:
+        self.faults = LinkFaults(scenario.faults, fault_rng(scenario.faults, seed))
+        self.enabled = self.faults.enabled
+        self.sender = scenario.link.target_sender
+        self.validator = FixValidator(self.sender)
+        self.intake = FixIntake(self.validator, scenario.sitl.home)
+        self._seq = 0
+        self._samples: dict[int, _Sample] = {}
+        self._rate = scenario.sensor.rate_hz
+        self.offered = 0
+        self.delivered = 0
+
+    def offer(self, time: float, position: np.ndarray, velocity: np.ndarray, truth: RigidBodyState,
+              measured_position: np.ndarray) -> None:
+        payload = encode_target_fix(TargetFix(self.sender, self._seq, time, "ned", position, velocity))
+        self._seq += 1
+        key = round(time * self._rate)
+        self._samples[key] = _Sample(truth.position, truth.rotation, measured_position)
+        self._samples.pop(key - round(30.0 * self._rate), None)  # keep 30 s for stale fixes
+        self.faults.offer(time, payload, time)
+        self.offered += 1
+
+    def deliver(self, time: float):
+        """(stamp, NED position, pursuer sample at the stamp) of each valid fix due now."""
+        for payload in self.faults.due(time):
+            self.delivered += 1
+            try:
+                fix, position = self.intake.check(payload)
+            except FixRejected:
+                continue
+            sample = self._samples.get(round(fix.stamp * self._rate))
+            if sample is not None:
+                yield fix.stamp, position, sample
+
+    def summary(self) -> dict:
+        return {"offered": self.offered, "delivered": self.delivered, "accepted": self.validator.accepted,
+                "rejected": dict(self.validator.rejected), "faults": dict(self.faults.counters)}
+
+
+def _log_tick(log: FlightLog, time: float, truth: RigidBodyState, target: TargetModel, output) -> None:
+    estimate, setpoint = output.estimate, output.setpoint
+    row = dict(
+        time=time,
+        pursuer_position=truth.position,
+        pursuer_velocity=truth.velocity,
+        pursuer_forward=truth.rotation[:, 0],
+        pursuer_down_z=truth.rotation[2, 2],
+        target_position=target.position,
+        target_velocity=target.velocity,
+    )
+    if estimate is not None:
+        row.update(
+            estimate_position=estimate.position,
+            estimate_velocity=estimate.velocity,
+            estimate_position_std=math.sqrt(max(float(np.trace(estimate.covariance[:3, :3])), 0.0)),
+        )
+    if setpoint is not None:
+        row.update(command_acceleration=setpoint.acceleration, thrust_normalized=setpoint.thrust_normalized)
+    if estimate is not None:
+        row.update(track_mode=TRACK_MODE_CODES[output.mode], bearing_age=output.bearing_age)
+    if output.observability is not None:
+        row.update(observability_log_det=output.observability["log_det"],
+                   observability_min_eigenvalue=output.observability["min_eigenvalue"])
+    log.append(**row)
+
+
+def _rms(values: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(values)))) if values.size else math.nan
+
+
+def summarize(series: dict[str, np.ndarray], scenario: Scenario, termination: Termination) -> dict:
+    """Figures of merit over the last summary_window seconds, plus whole-flight extremes.
+
+    range_error: |p_T - p| - r_d (m); range_estimation_error: |p^_T - p| - |p_T - p| (m);
+    convergence_time: first time after which both stay within converged_range_error.
+    """
+    time = series["time"]
+    window = time >= time[-1] - scenario.simulation.summary_window
+    range_error = series["range"] - scenario.guidance.desired_range
+    estimation_error = series["range_estimate"] - series["range"]
+    position_error = np.linalg.norm(series["estimate_position"] - series["target_position"], axis=1)
+    velocity_error = np.linalg.norm(series["estimate_velocity"] - series["target_velocity"], axis=1)
+    threshold = scenario.simulation.converged_range_error
+    outside = ~((np.abs(range_error) < threshold) & (np.abs(estimation_error) < threshold))
+    if not outside.any():
+        convergence_time = float(time[0])
+    elif outside[-1]:
+        convergence_time = math.nan
+    else:
+        convergence_time = float(time[np.nonzero(outside)[0][-1] + 1])
+    return {
+        "scenario": scenario.name,
+        "termination": termination.name,
+        "termination_reason": termination.value,
+        "duration": float(time[-1]),
+        "summary_window": scenario.simulation.summary_window,
+        "desired_range": scenario.guidance.desired_range,
+        "range_error_rms": _rms(range_error[window]),
+        "range_error_max_abs": float(np.max(np.abs(range_error[window]))),
+        "range_estimation_error_rms": _rms(estimation_error[window]),
+        "range_estimation_error_max_abs": float(np.max(np.abs(estimation_error[window]))),
+        "position_estimation_error_rms": _rms(position_error[window]),
+        "velocity_estimation_error_rms": _rms(velocity_error[window]),
+        "convergence_time": convergence_time,
+        "convergence_threshold": threshold,
+        "min_range": float(np.min(series["range"])),
+        "max_tilt_deg": float(np.max(series["pursuer_tilt"])),
+        "max_speed": float(np.max(np.linalg.norm(series["pursuer_velocity"], axis=1))),
+        "heading_error_rms_deg": _rms(series["heading_error"][window][np.isfinite(series["heading_error"][window])]),
+        "observability_log_det_median": _median_finite(series.get("observability_log_det"), window),
+    }
+
+
+def _median_finite(values: np.ndarray | None, window: np.ndarray) -> float:
+    """Median of the finite values in the window (the windowed FIM's log10 det; -inf when singular)."""
+    if values is None:
+        return math.nan
+    chosen = values[window]
+    chosen = chosen[np.isfinite(chosen)]
+    return float(np.median(chosen)) if chosen.size else math.nan

@@ -1,0 +1,358 @@
+"""`bof-sitl`: one scenario flown end to end through real processes, real MAVLink and real Zenoh.
+
+    bof-sitl [config/scenarios/constant_velocity.toml] [--speed-factor 2] [--out runs]
+
+Starts, on free loopback ports, the plant (sitl-plant: MAVLink vehicle, simulated
+clock on Zenoh), the target simulator (sitl-target: fixes on Zenoh) and the companion
+(companion: MAVSDK + Zenoh + the shared pipeline), then acts as the ground station: it
+watches the companion's state on Zenoh, prints progress, and sends the target its
+"start" (the paper's action command, Fig. 16 network A) once the companion is
+following. When the companion has landed it stops everything and writes the run folder:
+
+    plant/ target/ companion/   each process's own logs (companion/mavlink.tlog included)
+    summary.json                the same figures of merit as bof-sim, from the truth logs
+    trajectory.png errors.png   3-D trajectory and errors (paper Fig. 8 style)
+    link.png                    target link timeline: fixes received/rejected, bearings used, latency
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import socket
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from interfaces import link_schema as link
+from interfaces import zenoh_transport
+from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, load_scenario
+from studies.closed_loop import Termination, summarize
+from studies.processes import ChildProcess, free_port
+
+DEFAULT_SCENARIO = DEFAULT_SCENARIO
+GROUND_STATION_ID = "ground-station"
+
+
+def _read_csv(path: Path) -> dict[str, np.ndarray]:
+    lines = path.read_text().splitlines()
+    header = lines[0].split(",")
+    columns: dict[str, list] = {name: [] for name in header}
+    for line in lines[1:]:
+        values = line.split(",")
+        if len(values) != len(header):
+            continue  # a line cut by an interruption
+        for name, value in zip(header, values):
+            columns[name].append(value)
+    out = {}
+    for name, values in columns.items():
+        try:
+            out[name] = np.array([float(v) if v != "" else math.nan for v in values])
+        except ValueError:
+            out[name] = np.array(values)
+    return out
+
+
+def _interp(times: np.ndarray, source_times: np.ndarray, values: np.ndarray) -> np.ndarray:
+    return np.column_stack([np.interp(times, source_times, values[:, i]) for i in range(values.shape[1])])
+
+
+def flight_series(run: Path) -> tuple[dict[str, np.ndarray], float]:
+    """The engaged part of the flight as a bof-sim style series (time since engagement),
+    truth interpolated from the plant's and target's logs at the companion's sample times.
+    Returns (series, engagement time in simulated seconds)."""
+    companion = _read_csv(run / "companion" / "series.csv")
+    plant = _read_csv(run / "plant" / "vehicle.csv")
+    target = _read_csv(run / "target" / "target.csv")
+    engaged = np.isfinite(companion["est_x"]) & (companion["phase"] == "following")
+    if not engaged.any():
+        raise RuntimeError("the companion never engaged; see companion/events.jsonl")
+    t = companion["time"][engaged]
+    t0 = float(t[0])
+    stack = lambda source, keys: np.column_stack([source[k] for k in keys])  # noqa: E731
+    pursuer = _interp(t, plant["time"], stack(plant, ("x", "y", "z")))
+    pursuer_velocity = _interp(t, plant["time"], stack(plant, ("vx", "vy", "vz")))
+    q = _interp(t, plant["time"], stack(plant, ("qw", "qx", "qy", "qz")))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    w, x, y, z = q.T
+    forward = np.column_stack([1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)])
+    down_z = 1 - 2 * (x * x + y * y)
+    target_time = target["stamp"]
+    target_position = _interp(t, target_time, stack(target, ("true_n", "true_e", "true_d")))
+    target_velocity = _interp(t, target_time, stack(target, ("true_vn", "true_ve", "true_vd")))
+    estimate_position = np.column_stack([companion[k][engaged] for k in ("est_x", "est_y", "est_z")])
+    estimate_velocity = np.column_stack([companion[k][engaged] for k in ("est_vx", "est_vy", "est_vz")])
+    relative = target_position - pursuer
+    series = {
+        "time": t - t0,
+        "pursuer_position": pursuer,
+        "pursuer_velocity": pursuer_velocity,
+        "pursuer_forward": forward,
+        "pursuer_down_z": down_z,
+        "target_position": target_position,
+        "target_velocity": target_velocity,
+        "estimate_position": estimate_position,
+        "estimate_velocity": estimate_velocity,
+        "range": np.linalg.norm(relative, axis=1),
+        "range_estimate": np.linalg.norm(estimate_position - pursuer, axis=1),
+        "pursuer_tilt": np.degrees(np.arccos(np.clip(down_z, -1.0, 1.0))),
+    }
+    horizontal = forward[:, :2]
+    los = relative[:, :2]
+    norms = np.linalg.norm(horizontal, axis=1) * np.linalg.norm(los, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        series["heading_error"] = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", horizontal, los) / norms, -1.0, 1.0)))
+    return series, t0
+
+
+def bearing_only_check(run: Path) -> dict:
+    """What the estimator was given: every bearing in the companion's estimator-input log is a
+    direction (norm ~1, the noise of eq. (4) aside). range_inputs_logged counts the bearings that
+    carried a measured range (only with a [sensor] range_noise_std) plus any range input column
+    in the series log; a bearing-only flight has 0."""
+    companion = _read_csv(run / "companion" / "series.csv")
+    inputs = _read_csv(run / "companion" / "bearings.csv")
+    bearings = np.column_stack([inputs[k] for k in ("direction_x", "direction_y", "direction_z")])
+    norms = np.linalg.norm(bearings, axis=1)
+    return {
+        "bearings_logged": int(len(norms)),
+        "bearing_norm_min": float(norms.min()) if norms.size else math.nan,
+        "bearing_norm_max": float(norms.max()) if norms.size else math.nan,
+        "range_inputs_logged": (int(np.count_nonzero(np.isfinite(inputs["range"]))) if "range" in inputs else 0)
+        + sum(1 for key in companion if "range" in key and key != "range_estimate"),
+    }
+
+
+def plot_link(run: Path, engaged_at: float, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    records = [json.loads(line) for line in (run / "companion" / "zenoh_rx.jsonl").read_text().splitlines() if line.strip()]
+    accepted = [r for r in records if r.get("verdict") == "accepted" and r.get("stamp") is not None]
+    rejected = [r for r in records if r.get("verdict") == "rejected" and r.get("sim_time") is not None]
+    latency = _read_csv(run / "companion" / "latency.csv")
+    figure, axes = plt.subplots(2, 1, figsize=(8.0, 5.5), sharex=True)
+    stamps = np.array([r["stamp"] for r in accepted]) - engaged_at
+    if stamps.size > 1:
+        axes[0].plot(stamps[1:], np.diff(stamps), "b.", markersize=3, label="fix interval (accepted)")
+    if rejected:
+        axes[0].plot(np.array([r["sim_time"] for r in rejected]) - engaged_at, np.zeros(len(rejected)), "rx", label="rejected")
+    top = max(0.5, 1.2 * float(np.max(np.diff(stamps)))) if stamps.size > 1 else 1.0
+    axes[0].set_ylim(0.0, top)
+    axes[0].ticklabel_format(axis="y", useOffset=False)
+    axes[0].set_ylabel("interval between fixes [s]")
+    axes[0].legend(loc="upper right")
+    axes[0].grid(True, alpha=0.3)
+    if latency.get("fix_stamp") is not None and latency["fix_stamp"].size:
+        axes[1].plot(latency["fix_stamp"] - engaged_at, latency["latency_ms"], "k.", markersize=3)
+    axes[1].set_ylabel("fix received -> setpoint sent [ms]")
+    axes[1].set_xlabel("time since engagement [s]")
+    axes[1].grid(True, alpha=0.3)
+    axes[0].set_title("target link")
+    figure.tight_layout()
+    figure.savefig(path, dpi=120)
+    plt.close(figure)
+
+
+class GroundStation:
+    """Watches the companion's state on Zenoh and starts the target when the companion follows."""
+
+    def __init__(self, endpoint: str, scenario: Scenario) -> None:
+        self.scenario = scenario
+        self.session = zenoh_transport.open_session(zenoh_transport.zenoh_config("peer", listen=(), connect=(endpoint,)))
+        self.latest: dict | None = None
+        self.states = 0
+        self.session.declare_subscriber(link.companion_state_key(scenario.link.companion_id), self._on_state)
+        self._target_command = zenoh_transport.publisher(self.session, link.target_command_key(scenario.link.target_sender))
+        self._companion_command = zenoh_transport.publisher(self.session, link.companion_command_key(scenario.link.companion_id))
+        self._seq = 0
+        self.target_started = False
+        self.abort_sent = False
+        self.engaged_stamp: float | None = None
+
+    def _on_state(self, sample) -> None:
+        try:
+            self.latest = json.loads(sample.payload.to_bytes())
+            self.states += 1
+        except ValueError:
+            pass
+
+    def abort_companion(self, stamp: float) -> None:
+        self._seq += 1
+        self._companion_command.put(link.encode_command(link.Command(GROUND_STATION_ID, self._seq, stamp, "abort",
+                                                                     "ground station --abort-after")))
+        self.abort_sent = True
+
+    def start_target(self, stamp: float) -> None:
+        self._seq += 1
+        self._target_command.put(link.encode_command(link.Command(GROUND_STATION_ID, self._seq, stamp, "start")))
+        self.target_started = True
+
+    def close(self) -> None:
+        self.session.close()
+
+
+def _progress(state: dict | None) -> str:
+    if state is None:
+        return "waiting for the companion"
+    text = f"t={state.get('stamp', 0.0):6.1f}s phase={state.get('phase', '?'):10s}"
+    estimate = state.get("estimate")
+    if estimate:
+        text += f" range^={estimate['range']:6.1f} m  sigma_p={estimate['position_std']:5.2f} m"
+    link_state = state.get("link", {})
+    text += f"  fixes {link_state.get('accepted', 0)} ok / {sum(link_state.get('rejected', {}).values())} rejected"
+    return text
+
+
+def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, timeout: float | None,
+        plots: bool = True, quiet: bool = False, abort_after: float | None = None,
+        target_faults: list[str] | None = None) -> tuple[int, Path, dict]:
+    """Fly `config` through the three processes; returns (exit code, run folder, summary).
+
+    abort_after: send the companion an abort this many simulated seconds after it engaged.
+    target_faults: KEY=VALUE overrides of [faults] for sitl-target (its --fault option)."""
+    scenario, _ = load_scenario(config)
+    speed = scenario.sitl.speed_factor if speed_factor is None else speed_factor
+    seed = scenario.simulation.seed if seed is None else seed
+    folder = out / f"sitl-{scenario.name}-seed{seed}-{time.strftime('%Y%m%d-%H%M%S')}"
+    folder.mkdir(parents=True, exist_ok=True)
+    companion_port, gcs_port = free_port(), free_port()
+    endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+    python = sys.executable
+    plant = ChildProcess([python, "-m", "sitl_plant.sitl", "--config", str(config), "--speed-factor", str(speed),
+                          "--companion-port", str(companion_port), "--gcs-port", str(gcs_port), "--seed", str(seed),
+                          "--log-dir", str(folder / "plant"), "--zenoh-listen", endpoint, "--quiet"],
+                         folder / "plant.out", ready="sitl-plant ready")
+    target = ChildProcess([python, "-m", "sitl_plant.target.publisher", "--config", str(config), "--zenoh-connect", endpoint,
+                           "--seed", str(seed), "--log-dir", str(folder / "target"), "--wait-for-start",
+                           *[arg for fault in (target_faults or []) for arg in ("--fault", fault)]],
+                          folder / "target.out", ready="sitl-target ready")
+    companion = ChildProcess([python, "-m", "companion", "--config", str(config), "--mavlink",
+                              f"udpin://127.0.0.1:{companion_port}", "--zenoh-connect", endpoint, "--seed", str(seed),
+                              "--log-dir", str(folder / "companion")],
+                             folder / "companion.out", ready="companion ready")
+    duration = scenario.companion.follow_duration or scenario.simulation.duration
+    budget = timeout if timeout is not None else (duration + 90.0) / speed + 60.0
+    station = None
+    code = 1
+    try:
+        plant.start()
+        target.start()
+        station = GroundStation(endpoint, scenario)
+        companion.start()
+        deadline = time.monotonic() + budget
+        next_print = 0.0
+        while companion.running:
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"the flight did not finish within {budget:.0f} s of wall time")
+            state = station.latest
+            if state and state.get("phase") == "following" and not station.target_started:
+                station.engaged_stamp = float(state.get("stamp", 0.0))
+                station.start_target(station.engaged_stamp)
+            if (abort_after is not None and state and station.engaged_stamp is not None and not station.abort_sent
+                    and float(state.get("stamp", 0.0)) >= station.engaged_stamp + abort_after):
+                station.abort_companion(float(state["stamp"]))
+            if not quiet and time.monotonic() >= next_print:
+                next_print = time.monotonic() + 2.0
+                print(f"bof-sitl: {_progress(state)}", flush=True)
+            for child in (plant, target):
+                if not child.running:
+                    raise RuntimeError(f"{child.command[2]} exited early:\n{child.output()[-2000:]}")
+            time.sleep(0.05)
+        code = companion.process.returncode
+    finally:
+        companion_code = companion.stop()
+        if station is not None:
+            station.close()
+        target_code = target.stop()
+        plant_code = plant.stop()
+    summary: dict = {"companion_exit_code": companion_code, "target_exit_code": target_code, "plant_exit_code": plant_code,
+                     "speed_factor": speed, "seed": seed, "run_folder": str(folder),
+                     "abort_sent": station.abort_sent if station is not None else False}
+    companion_summary = json.loads((folder / "companion" / "summary.json").read_text())
+    summary["companion"] = companion_summary
+    plant_stats = json.loads((folder / "plant" / "stats.json").read_text())
+    summary["plant"] = {k: plant_stats[k] for k in ("speed_factor_achieved", "late_ticks", "ticks", "slips")}
+    summary["plant"]["mavlink_rejected"] = plant_stats["mavlink"]["rejected"]
+    try:
+        series, engaged_at = flight_series(folder)
+        summary["flight"] = summarize(series, scenario, Termination.COMPLETED)
+        summary["flight"]["engaged_at_sim_time"] = engaged_at
+        summary["bearing_only"] = bearing_only_check(folder)
+        if plots:
+            from studies.plots import plot_errors, plot_trajectories
+
+            plot_trajectories(series, folder / "trajectory.png", f"{scenario.name} (SITL)")
+            plot_errors(series, scenario.guidance.desired_range, folder / "errors.png", f"{scenario.name} (SITL)")
+            plot_link(folder, engaged_at, folder / "link.png")
+    except (RuntimeError, FileNotFoundError, KeyError) as error:
+        summary["flight"] = None
+        summary["flight_error"] = str(error)
+        code = code or 1
+    (folder / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True, default=float))
+    return code, folder, summary
+
+
+def format_summary(summary: dict) -> str:
+    flight = summary.get("flight")
+    lines = [f"run folder: {summary['run_folder']}"]
+    if not flight:
+        lines.append(f"no flight figures: {summary.get('flight_error')}")
+        return "\n".join(lines)
+    companion = summary["companion"]
+    latency = companion["latency_fix_to_setpoint_ms"]
+    lines += [
+        f"  range error vs r_d = {flight['desired_range']:g} m (last {flight['summary_window']:g} s): rms {flight['range_error_rms']:.3f} m",
+        f"  range estimation error: rms {flight['range_estimation_error_rms']:.3f} m, max {flight['range_estimation_error_max_abs']:.3f} m",
+        f"  position / velocity estimation: rms {flight['position_estimation_error_rms']:.3f} m, {flight['velocity_estimation_error_rms']:.3f} m/s",
+        f"  converged (both < {flight['convergence_threshold']:g} m for good) at t = {flight['convergence_time']:.2f} s after engagement",
+        f"  minimum range {flight['min_range']:.2f} m, max tilt {flight['max_tilt_deg']:.1f} deg",
+        f"  link: {companion['link']['accepted']} fixes accepted, {sum(companion['link']['rejected'].values())} rejected, "
+        f"{companion['link']['bearings_used']} bearings used",
+        f"  fix received -> bearing into the estimator: p50 {companion['latency_fix_to_estimator_ms']['p50']:.2f} ms, "
+        f"p99 {companion['latency_fix_to_estimator_ms']['p99']:.2f} ms",
+        f"  fix received -> next setpoint sent: p50 {latency['p50']:.2f} ms, p99 {latency['p99']:.2f} ms; "
+        f"deadline misses {companion['deadline_misses']}/{companion['setpoints_sent']}",
+        f"  plant: x{summary['plant']['speed_factor_achieved']} achieved (asked x{summary['speed_factor']:g}), "
+        f"MAVLink rejected {summary['plant']['mavlink_rejected'] or 'none'}",
+    ]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="bof-sitl", description=__doc__.split("\n\n")[0])
+    parser.add_argument("config", nargs="?", type=Path, default=DEFAULT_SCENARIO, help="scenario TOML (default: %(default)s)")
+    parser.add_argument("--speed-factor", type=float, default=None, help="simulated seconds per wall second ([sitl] speed_factor)")
+    parser.add_argument("--seed", type=int, default=None)
+    parser.add_argument("--out", type=Path, default=Path("runs"))
+    parser.add_argument("--timeout", type=float, default=None, help="wall-clock limit for the whole flight, s")
+    parser.add_argument("--no-plots", action="store_true")
+    parser.add_argument("--fault", action="append", default=None, metavar="KEY=VALUE",
+                        help="override a [faults] setting of the target link (sitl-target --fault), e.g. loss_probability=0.3")
+    parser.add_argument("--abort-after", type=float, default=None,
+                        help="as the ground station, send the companion 'abort' this many simulated seconds after it engages")
+    parser.add_argument("--quiet", action="store_true")
+    args = parser.parse_args(argv)
+    if args.speed_factor is not None and not 0.5 <= args.speed_factor <= 20.0:
+        print("bof-sitl: --speed-factor must be within [0.5, 20] (MAVSDK needs heartbeats; the plant tops out near 20x)", file=sys.stderr)
+        return 2
+    try:
+        code, folder, summary = run(args.config, args.out, args.speed_factor, args.seed, args.timeout, not args.no_plots,
+                                    args.quiet, args.abort_after, args.fault)
+    except ConfigError as error:
+        print(f"bof-sitl: {error}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("bof-sitl: interrupted; children stopped, logs kept", file=sys.stderr)
+        return 130
+    print(format_summary(summary))
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,472 @@
+"""`bof-montecarlo`: seeded Monte Carlo over estimators x guidance laws x parameter cases.
+
+    bof-montecarlo [SCENARIO.toml ...] --runs 20 --estimators uplkf ekf --guidance hng ppg
+                   [--case NAME:key=value,key=value ...] [--initial-box X0,X1,Y0,Y1,Z0,Z1]
+                   [--executor local|serial|dask-local|tcp://host:port] [--workers 2] [--out runs]
+    bof-montecarlo --study estimators|guidance|table2 [--runs N] ...   # the paper's section VIII-B/C/D
+
+Every flight is the in-process simulator (studies.closed_loop.simulate): the same
+pipeline object as the networked companion, only the estimator / guidance / parameters
+named by its case changed. Runs are seeded 1..N; a flight depends only on its scenario,
+case and seed, so the results are the same whichever executor ran them.
+
+Estimators (names -> [estimator] settings): uplkf (the default, gain from the predicted line
+of sight), uplkf_paper (the paper's exact u-PLKF), uplkf_optimal (noise-free projection,
+simulation only), ekf (azimuth/elevation, Cartesian), msc_ekf (modified spherical
+coordinates), ekf_rae (seed 003's range/azimuth/elevation EKF; adds a 1 m range sensor).
+Guidance: hng, hng_planar (c_Y = 0), ppg, png, pd, retro_png, zem.
+
+Per flight (results.csv): final_error, mean |range-estimation error| over the last 5 s;
+rms_error over the scenario's summary window; diverged: the flight did not complete or
+final_error > --divergence-threshold (default 2 m); lost: mean |range - r_d| over the last
+5 s > the same threshold (the guidance did not hold the following distance); plus
+convergence time, min range, max tilt, the windowed-FIM observability. Time series at
+0.2 s go to series.npz for the figures. Output in runs/montecarlo-<label>-<time>/:
+results.csv, summary.md, summary.json, series.npz, and the figures (error over time per
+group, trajectories and normalised image-plane tracks of the first seed of each group).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import itertools
+import json
+import math
+import sys
+import time
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from interfaces.scenario import SCENARIOS_DIR, ConfigError, Scenario, VehicleConfig, load_scenario
+from studies.closed_loop import Termination, simulate
+from studies.executors import make_executor
+
+SCENARIOS = SCENARIOS_DIR
+DEFAULT_SCENARIO = SCENARIOS / "constant_velocity.toml"
+SAMPLE_PERIOD = 0.2  # s, time grid of the stored series
+FINAL_WINDOW = 5.0  # s, the end of the flight that decides divergence
+
+#: estimator name -> scenario overrides (dotted keys)
+ESTIMATORS: dict[str, dict[str, Any]] = {
+    "uplkf": {"estimator.kind": "uplkf", "estimator.gain_projection": "predicted"},
+    "uplkf_paper": {"estimator.kind": "uplkf", "estimator.gain_projection": "measured"},
+    "uplkf_optimal": {"estimator.kind": "uplkf", "estimator.gain_projection": "noise_free"},
+    "ekf": {"estimator.kind": "ekf", "estimator.gain_projection": "predicted"},
+    "msc_ekf": {"estimator.kind": "msc_ekf", "estimator.gain_projection": "predicted"},
+    "ekf_rae": {"estimator.kind": "ekf_rae", "estimator.gain_projection": "predicted", "sensor.range_noise_std": 1.0},
+}
+#: guidance name -> scenario overrides
+GUIDANCE: dict[str, dict[str, Any]] = {
+    "hng": {"guidance.law": "hng"},
+    "hng_planar": {"guidance.law": "hng", "guidance.c_y": 0.0},
+    "ppg": {"guidance.law": "ppg"},
+    "png": {"guidance.law": "png"},
+    "pd": {"guidance.law": "pd"},
+    "retro_png": {"guidance.law": "retro_png"},
+    "zem": {"guidance.law": "zem"},
+}
+#: Table II of the paper: HNG parameter sets (N, c_Z, c_Y)
+TABLE_II = {"a": (1.0, 3.0, 3.0), "b": (3.0, 3.0, 3.0), "c": (3.0, 3.0, 0.0), "d": (3.0, 3.5, 3.5)}
+#: Section VIII-B: the initial estimate drawn uniformly in this box (x0, x1, y0, y1, z0, z1), m
+PAPER_INITIAL_BOX = (20.0, 120.0, -50.0, 50.0, -50.0, 50.0)
+
+
+@dataclass(frozen=True)
+class Study:
+    """A named grid: scenarios x estimators x guidance x cases."""
+
+    label: str
+    scenarios: tuple[str, ...]
+    estimators: tuple[str, ...]
+    guidance: tuple[str, ...]
+    cases: tuple[tuple[str, dict[str, Any]], ...]
+    initial_box: tuple[float, ...] | None = None
+    curves_by: str | None = None
+    title: str = ""
+    windows: tuple[tuple[float, float], ...] = ()
+
+
+STUDIES: dict[str, Study] = {
+    "estimators": Study(
+        "estimators", ("constant_velocity",), tuple(ESTIMATORS), ("hng",),
+        (("5Hz", {"sensor.rate_hz": 5.0}), ("50Hz", {"sensor.rate_hz": 50.0})),
+        initial_box=PAPER_INITIAL_BOX, curves_by="estimator", windows=((5.0, 15.0), (15.0, 30.0), (30.0, 60.0)),
+        title="Section VIII-B (Fig. 10): estimators, initial estimate uniform in x [20,120], y, z [-50,50] m"),
+    "guidance": Study(
+        "guidance", ("constant_velocity", "s_maneuver"), ("uplkf",), tuple(GUIDANCE), (("default", {}),),
+        curves_by="guidance", windows=((10.0, 30.0), (30.0, 60.0)),
+        title="Section VIII-C (Figs. 11-12): guidance laws, constant-velocity and maneuvering targets"),
+    "table2": Study(
+        "table2", ("s_maneuver",), ("uplkf",), ("hng",),
+        tuple((name, {"guidance.navigation_gain": n, "guidance.c_z": cz, "guidance.c_y": cy})
+              for name, (n, cz, cy) in TABLE_II.items()),
+        curves_by="case", windows=((10.0, 30.0), (30.0, 60.0)),
+        title="Section VIII-D (Table II, Figs. 13-14): HNG parameter sets on the maneuvering target"),
+}
+
+
+@dataclass(frozen=True)
+class FlightTask:
+    """One flight: its labels, the fully resolved scenario and vehicle, its seed."""
+
+    labels: dict[str, str]
+    scenario: Scenario
+    vehicle: VehicleConfig
+    seed: int
+    divergence_threshold: float
+    windows: tuple[tuple[float, float], ...] = ()
+
+
+def with_overrides(scenario: Scenario, overrides: dict[str, Any]) -> Scenario:
+    """The scenario with dotted-key overrides applied and validated ("guidance.c_y": 0.0)."""
+    data = scenario.model_dump()
+    for key, value in overrides.items():
+        node = data
+        *parents, leaf = key.split(".")
+        for part in parents:
+            if not isinstance(node.get(part), dict):
+                raise ConfigError(f"override {key!r}: no section {part!r}")
+            node = node[part]
+        if leaf not in node:
+            raise ConfigError(f"override {key!r}: unknown key {leaf!r}")
+        node[leaf] = value
+    try:
+        return Scenario.model_validate(data)
+    except ValueError as error:
+        raise ConfigError(f"overrides {overrides}: {error}") from None
+
+
+def drawn_initial_position(seed: int, box: tuple[float, ...]) -> tuple[float, float, float]:
+    """The initial estimate of run `seed`, uniform in box (x0, x1, y0, y1, z0, z1), section VIII-B.
+
+    Drawn from its own generator keyed on the seed only, so every estimator of a seed starts
+    from the same point ("with the same initialization, each quadrotor...").
+    """
+    rng = np.random.default_rng([int(seed), 8])
+    low, high = np.array(box[0::2]), np.array(box[1::2])
+    return tuple(float(v) for v in rng.uniform(low, high))
+
+
+def parse_case(text: str) -> tuple[str, dict[str, Any]]:
+    """'NAME:key=value,key=value' -> (NAME, overrides); values are TOML literals."""
+    name, _, body = text.partition(":")
+    if not name or not body:
+        raise ValueError(f"case {text!r}: expected NAME:key=value[,key=value]")
+    overrides = {}
+    for item in body.split(","):
+        key, _, literal = item.partition("=")
+        if not key.strip() or not literal.strip():
+            raise ValueError(f"case {text!r}: {item!r} is not key=value")
+        try:
+            overrides[key.strip()] = tomllib.loads(f"v = {literal.strip()}")["v"]
+        except tomllib.TOMLDecodeError:
+            raise ValueError(f"case {text!r}: {literal!r} is not a TOML value (quote strings)") from None
+    return name, overrides
+
+
+def build_tasks(scenarios: list[tuple[Scenario, VehicleConfig]], estimators: list[str], guidance: list[str],
+                cases: list[tuple[str, dict[str, Any]]], runs: int, initial_box: tuple[float, ...] | None,
+                divergence_threshold: float, duration: float | None = None,
+                windows: tuple[tuple[float, float], ...] = ()) -> list[FlightTask]:
+    """Every (scenario, estimator, guidance, case, seed) combination, resolved and validated up front."""
+    tasks = []
+    for (scenario, vehicle), estimator, law, (case, overrides) in itertools.product(scenarios, estimators, guidance, cases):
+        combined = {**ESTIMATORS[estimator], **GUIDANCE[law], **overrides}
+        if duration is not None:
+            combined["simulation.duration"] = duration
+            combined["simulation.summary_window"] = min(scenario.simulation.summary_window, duration)
+        base = with_overrides(scenario, combined)
+        labels = {"scenario": scenario.name, "estimator": estimator, "guidance": law, "case": case}
+        for seed in range(1, runs + 1):
+            flown = base
+            if initial_box is not None:
+                flown = with_overrides(base, {"estimator.initialize": "position",
+                                              "estimator.initial_position": drawn_initial_position(seed, initial_box)})
+            tasks.append(FlightTask(labels, flown, vehicle, seed, divergence_threshold, tuple(windows)))
+    return tasks
+
+
+def image_plane(relative: np.ndarray, forward: np.ndarray) -> np.ndarray:
+    """Target in the normalised image plane of a vertical camera with the vehicle's position and yaw
+    (section VIII-D, Fig. 14): (x_n, y_n) = (d.right, d.down) / (d.forward), shape (N, 2); NaN behind.
+
+    relative: p_T - p, (N, 3), NED. forward: the body x axis in NED, (N, 3) (only its yaw is used).
+    """
+    yaw = np.arctan2(forward[:, 1], forward[:, 0])
+    ahead = relative[:, 0] * np.cos(yaw) + relative[:, 1] * np.sin(yaw)
+    right = -relative[:, 0] * np.sin(yaw) + relative[:, 1] * np.cos(yaw)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        points = np.stack([right / ahead, relative[:, 2] / ahead], axis=1)
+    points[ahead <= 1e-6] = np.nan
+    return points
+
+
+def _resample(time: np.ndarray, values: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    if values.ndim == 1:
+        return np.interp(grid, time, values, left=np.nan, right=np.nan)
+    return np.stack([_resample(time, values[:, k], grid) for k in range(values.shape[1])], axis=1)
+
+
+def fly(task: FlightTask) -> dict:
+    """One flight -> its row of figures and its series on the 0.2 s grid (module level: picklable)."""
+    scenario = task.scenario
+    result = simulate(scenario, task.vehicle, task.seed)
+    series, summary = result.series, result.summary
+    t = series["time"]
+    error = np.abs(series["range_estimate"] - series["range"])
+    range_error = np.abs(series["range"] - scenario.guidance.desired_range)
+    end = t >= t[-1] - FINAL_WINDOW
+    final_error = float(np.mean(error[end])) if np.all(np.isfinite(error[end])) else math.inf
+    final_range_error = float(np.mean(range_error[end]))
+    completed = result.termination is Termination.COMPLETED and t[-1] >= scenario.simulation.duration - 1e-6
+    engaged = np.isfinite(series["estimate_position"][:, 0])
+    row = {
+        **task.labels, "seed": task.seed,
+        "termination": result.termination.name,
+        "diverged": bool(not completed or not final_error <= task.divergence_threshold),
+        "lost": bool(not completed or not final_range_error <= task.divergence_threshold),
+        "final_error": final_error,
+        "rms_error": summary["range_estimation_error_rms"],
+        "final_range_error": final_range_error,
+        "range_error_rms": summary["range_error_rms"],
+        "convergence_time": summary["convergence_time"],
+        "min_range": float(np.min(series["range"][engaged])) if engaged.any() else math.nan,
+        "max_tilt_deg": summary["max_tilt_deg"],
+        "observability_log_det": summary["observability_log_det_median"],
+        "reinitialized": summary.get("reinitializations", 0),
+        "initial_estimate": json.dumps(list(scenario.estimator.initial_position or ())),
+    }
+    for start, stop in task.windows:  # mean |range-estimation error| inside each requested window
+        inside = (t >= start) & (t < stop)
+        row[window_key(start, stop)] = float(np.mean(error[inside])) if inside.any() else math.nan
+    grid = np.arange(0.0, scenario.simulation.duration + 1e-9, SAMPLE_PERIOD)
+    relative = series["target_position"] - series["pursuer_position"]
+    samples = {
+        "time": grid,
+        "range_estimation_error": _resample(t, series["range_estimate"] - series["range"], grid),
+        "range": _resample(t, series["range"], grid),
+        "pursuer_position": _resample(t, series["pursuer_position"], grid),
+        "target_position": _resample(t, series["target_position"], grid),
+        "estimate_position": _resample(t, series["estimate_position"], grid),
+        "image_plane": _resample(t, image_plane(relative, series["pursuer_forward"]), grid),
+    }
+    return {"row": row, "series": samples}
+
+
+# --------------------------------------------------------------------------- summaries
+
+
+def window_key(start: float, stop: float) -> str:
+    return f"error_{start:g}-{stop:g}s"
+
+
+def parse_window(text: str) -> tuple[float, float]:
+    """'A:B' (s) -> (A, B) with 0 <= A < B."""
+    start, _, stop = text.partition(":")
+    try:
+        window = (float(start), float(stop))
+    except ValueError:
+        raise ValueError(f"--error-window {text!r}: expected START:STOP in seconds") from None
+    if not (0.0 <= window[0] < window[1]):
+        raise ValueError(f"--error-window {text!r}: need 0 <= START < STOP")
+    return window
+
+
+def group_key(row: dict) -> tuple[str, str, str, str]:
+    return (row["scenario"], row["estimator"], row["guidance"], row["case"])
+
+
+def _finite(values: list[float]) -> list[float]:
+    return [v for v in values if isinstance(v, (int, float)) and math.isfinite(v)]
+
+
+def group_table(rows: list[dict]) -> list[dict]:
+    """One line per (scenario, estimator, guidance, case): divergence counted, then robust statistics."""
+    table = []
+    for key in dict.fromkeys(group_key(row) for row in rows):
+        group = [row for row in rows if group_key(row) == key]
+        kept = [row for row in group if not row["diverged"]]
+        final = _finite([row["final_error"] for row in group])
+        rms = _finite([row["rms_error"] for row in kept])
+        conv = _finite([row["convergence_time"] for row in group])
+        table.append({
+            "scenario": key[0], "estimator": key[1], "guidance": key[2], "case": key[3], "runs": len(group),
+            "diverged": sum(row["diverged"] for row in group), "lost": sum(row["lost"] for row in group),
+            "final_error_median": float(np.median(final)) if final else math.nan,
+            "final_error_p90": float(np.percentile(final, 90)) if final else math.nan,
+            "rms_error_median_kept": float(np.median(rms)) if rms else math.nan,
+            "range_error_rms_median": float(np.median(_finite([row["range_error_rms"] for row in group]) or [math.nan])),
+            "converged_runs": len(conv),
+            "convergence_time_median": float(np.median(conv)) if conv else math.nan,
+            "min_range": min(_finite([row["min_range"] for row in group]) or [math.nan]),
+            "max_tilt_deg": max(_finite([row["max_tilt_deg"] for row in group]) or [math.nan]),
+            "observability_log_det_median": float(np.median(_finite([row["observability_log_det"] for row in group]) or [math.nan])),
+            **{f"{key}_median": float(np.median(_finite([row[key] for row in group]) or [math.nan]))
+               for key in group[0] if key.startswith("error_")},
+        })
+    return table
+
+
+def _f(value: float, digits: int = 2) -> str:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "-"
+    if isinstance(value, float) and math.isinf(value):
+        return "inf"
+    return f"{value:.{digits}f}"
+
+
+def markdown(table: list[dict], title: str, runs: int, threshold: float, executor: str) -> str:
+    lines = [f"# {title}", "",
+             f"{runs} seeded runs per row (seeds 1..{runs}); executor: {executor}. diverged: did not complete, or mean "
+             f"|range-estimation error| over the last {FINAL_WINDOW:g} s > {threshold:g} m. lost: mean |range - r_d| "
+             f"over the last {FINAL_WINDOW:g} s > {threshold:g} m. Error statistics in m; final error over all runs, "
+             "RMS (last summary window) over the runs that did not diverge.", "",
+             "| scenario | estimator | guidance | case | diverged | lost | final error median / p90 | RMS error median (kept) "
+             "| range error RMS median | converged runs, median time (s) | min range (m) | max tilt (deg) | log10 det FIM median |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    windows = [key[: -len("_median")] for key in (table[0] if table else {}) if key.startswith("error_")]
+    if windows:
+        lines[-2] += "".join(f" mean abs error {key[len('error_'):]}, median |" for key in windows)
+        lines[-1] += "---|" * len(windows)
+    for e in table:
+        lines.append(
+            f"| {e['scenario']} | {e['estimator']} | {e['guidance']} | {e['case']} | {e['diverged']}/{e['runs']} | "
+            f"{e['lost']}/{e['runs']} | {_f(e['final_error_median'])} / {_f(e['final_error_p90'])} | "
+            f"{_f(e['rms_error_median_kept'], 3)} | {_f(e['range_error_rms_median'], 3)} | "
+            f"{e['converged_runs']}, {_f(e['convergence_time_median'], 1)} | {_f(e['min_range'])} | "
+            f"{_f(e['max_tilt_deg'], 1)} | {_f(e['observability_log_det_median'], 1)} |"
+            + "".join(f" {_f(e[key + '_median'], 3)} |" for key in windows))
+    return "\n".join(lines) + "\n"
+
+
+# --------------------------------------------------------------------------- runner
+
+
+class Progress:
+    """A one-line progress bar on stderr: done/total, elapsed, estimated time left."""
+
+    def __init__(self, total: int, width: int = 30) -> None:
+        self.total, self.width, self.start = total, width, time.monotonic()
+        self.interactive = sys.stderr.isatty()
+        self._last_printed = -1
+
+    def update(self, done: int) -> None:
+        elapsed = time.monotonic() - self.start
+        left = elapsed / done * (self.total - done) if done else math.nan
+        filled = round(self.width * done / self.total)
+        line = (f"[{'#' * filled}{'.' * (self.width - filled)}] {done}/{self.total} flights, "
+                f"{elapsed:.0f} s elapsed, ~{_f(left, 0)} s left")
+        if self.interactive:
+            print("\r" + line, end="" if done < self.total else "\n", file=sys.stderr, flush=True)
+        elif done == self.total or done * 10 // self.total != self._last_printed:
+            self._last_printed = done * 10 // self.total
+            print(line, file=sys.stderr, flush=True)
+
+
+def run_tasks(tasks: list[FlightTask], executor_spec: str, workers: int | None, folder: Path,
+              progress: bool = True) -> tuple[list[dict], dict[str, np.ndarray], str]:
+    """Fly every task; rows in task order. Each row is appended to results.partial.csv as soon as it
+    arrives (an interrupted campaign keeps what it flew); the ordered results.csv replaces it at the end."""
+    executor = make_executor(executor_spec, workers)
+    rows: list[dict | None] = [None] * len(tasks)
+    series: list[dict | None] = [None] * len(tasks)
+    bar = Progress(len(tasks)) if progress else None
+    partial = folder / "results.partial.csv"
+    try:
+        with partial.open("w", newline="", buffering=1) as handle:
+            writer = None
+            for done, (index, result) in enumerate(executor.map(fly, tasks), start=1):
+                rows[index], series[index] = result["row"], result["series"]
+                if writer is None:
+                    writer = csv.DictWriter(handle, fieldnames=["index", *result["row"]])
+                    writer.writeheader()
+                writer.writerow({"index": index, **result["row"]})
+                if bar is not None:
+                    bar.update(done)
+    finally:
+        name = executor.name
+        executor.close()
+    ordered = [row for row in rows if row is not None]
+    with (folder / "results.csv").open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=list(ordered[0]))
+        writer.writeheader()
+        writer.writerows(ordered)
+    partial.unlink()
+    stacked = {key: np.stack([s[key] for s in series]) for key in series[0]} if series[0] is not None else {}
+    return ordered, stacked, name
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="bof-montecarlo", description=__doc__.split("\n\n")[0])
+    parser.add_argument("scenarios", nargs="*", type=Path, help=f"scenario files (default {DEFAULT_SCENARIO.name})")
+    parser.add_argument("--study", choices=list(STUDIES), help="a preset grid reproducing a comparison of the paper")
+    parser.add_argument("--runs", type=int, default=None, help="seeded flights per grid point (default 10; 100 for --study estimators)")
+    parser.add_argument("--estimators", nargs="+", choices=list(ESTIMATORS))
+    parser.add_argument("--guidance", nargs="+", choices=list(GUIDANCE))
+    parser.add_argument("--case", action="append", default=None, metavar="NAME:key=value,...",
+                        help="a named set of scenario overrides (repeat for a grid), e.g. planar:guidance.c_y=0")
+    parser.add_argument("--initial-box", type=str, default=None, metavar="X0,X1,Y0,Y1,Z0,Z1",
+                        help="draw each run's initial estimate uniformly in this box, m (section VIII-B)")
+    parser.add_argument("--duration", type=float, default=None, help="override the scenarios' duration, s")
+    parser.add_argument("--error-window", action="append", default=None, metavar="START:STOP",
+                        help="also report the mean |range-estimation error| in this window, s (repeatable)")
+    parser.add_argument("--divergence-threshold", type=float, default=2.0, help="m (see the module docstring)")
+    parser.add_argument("--executor", default="local", help="local (default), serial, dask-local, or tcp://scheduler:port")
+    parser.add_argument("--workers", type=int, default=None, help="worker processes (default: all cores)")
+    parser.add_argument("--out", type=Path, default=Path("runs"))
+    parser.add_argument("--no-plots", action="store_true")
+    args = parser.parse_args(argv)
+
+    study = STUDIES.get(args.study) if args.study else None
+    runs = args.runs if args.runs is not None else (100 if args.study == "estimators" else 10)
+    if runs < 1 or (args.workers is not None and args.workers < 1) or args.divergence_threshold <= 0:
+        print("bof-montecarlo: --runs and --workers must be >= 1, --divergence-threshold > 0", file=sys.stderr)
+        return 2
+    try:
+        paths = args.scenarios or ([SCENARIOS / f"{name}.toml" for name in study.scenarios] if study else [DEFAULT_SCENARIO])
+        scenarios = [load_scenario(path) for path in paths]
+        estimators = args.estimators or (list(study.estimators) if study else ["uplkf"])
+        guidance = args.guidance or (list(study.guidance) if study else ["hng"])
+        cases = [parse_case(text) for text in args.case] if args.case else (list(study.cases) if study else [("default", {})])
+        box = study.initial_box if study else None
+        if args.initial_box:
+            box = tuple(float(v) for v in args.initial_box.split(","))
+            if len(box) != 6 or any(box[2 * k] > box[2 * k + 1] for k in range(3)):
+                raise ValueError("--initial-box needs X0,X1,Y0,Y1,Z0,Z1 with each low <= high")
+        windows = [parse_window(text) for text in args.error_window] if args.error_window else (list(study.windows) if study else [])
+        tasks = build_tasks(scenarios, estimators, guidance, cases, runs, box, args.divergence_threshold, args.duration,
+                            tuple(windows))
+    except (ConfigError, ValueError) as error:
+        print(f"bof-montecarlo: {error}", file=sys.stderr)
+        return 2
+    label = study.label if study else "grid"
+    title = study.title if study else f"Monte Carlo grid: {', '.join(s.name for s, _ in scenarios)}"
+    folder = args.out / f"montecarlo-{label}-{time.strftime('%Y%m%d-%H%M%S')}"
+    folder.mkdir(parents=True, exist_ok=True)
+    print(f"bof-montecarlo: {len(tasks)} flights -> {folder}", flush=True)
+    try:
+        rows, series, executor_name = run_tasks(tasks, args.executor, args.workers, folder)
+    except (RuntimeError, ValueError, OSError) as error:
+        print(f"bof-montecarlo: {error}", file=sys.stderr)
+        return 2
+    table = group_table(rows)
+    report = markdown(table, title, runs, args.divergence_threshold, executor_name)
+    np.savez_compressed(folder / "series.npz", **series)
+    (folder / "summary.json").write_text(json.dumps({"title": title, "runs": runs, "groups": table}, indent=2, default=float))
+    if not args.no_plots:
+        from studies import montecarlo_plots
+
+        report += montecarlo_plots.draw_all(rows, series, folder, curves_by=study.curves_by if study else None, title=title)
+    (folder / "summary.md").write_text(report)
+    print(report)
+    print(f"run folder: {folder}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
