@@ -1,4 +1,4 @@
-"""The Zenoh link shared by every process: key expressions, JSON payloads, session configuration.
+"""The Zenoh link shared by every process: key expressions and the declared JSON payloads.
 
 In the paper's flight experiment the target's position reached the pursuer over a
 Zigbee radio; here it travels over Zenoh. Three processes meet on one loopback
@@ -17,27 +17,38 @@ key                            payload              published by
 ``bof/target/<sender>/command`` ``bof.command/1``   a ground station (start)
 =============================  ===================  ============================
 
-Payloads are UTF-8 JSON objects (Zenoh encoding ``application/json``). Every one
-carries ``schema`` (name/version), ``sender`` (its author, 1-64 characters from
-``A-Z a-z 0-9 _ . -``, also usable as a key segment), ``seq`` (int >= 0, +1 per message
-of that sender and key) and ``stamp`` (float >= 0, **simulated seconds** of the
-sender's clock, i.e. of the plant's ``bof/sim/clock``). Unknown fields are rejected:
-any change of fields is a new schema version.
+Payloads are UTF-8 JSON objects (Zenoh encoding ``application/json``), each declared
+as a pydantic model below (strict: no type coercion, no NaN/inf, unknown fields
+refused). Every one carries the `Envelope`: ``schema`` (name/version), ``sender`` (its
+author, 1-64 characters from ``A-Z a-z 0-9 _ . -``, also usable as a key segment),
+``seq`` (int >= 0, +1 per message of that sender and key) and ``stamp`` (float >= 0,
+**simulated seconds** of the sender's clock, i.e. of the plant's ``bof/sim/clock``).
+Any change of fields is a new schema version.
 
-* ``bof.target_fix/1``: ``frame`` is ``"geodetic"`` (``position`` = [lat_deg, lon_deg,
-  alt_m_amsl], WGS-84) or ``"ned"`` (``position`` = [n, e, d] m in the shared local
-  NED frame, origin at home, z down); optional ``velocity`` = [vn, ve, vd] m/s, NED
-  in both frames (as GNSS receivers report it).
-* ``bof.clock/1``: the envelope only; ``stamp`` is the plant's simulated time.
-* ``bof.command/1``: ``command`` (one of ``COMMANDS``: ``"abort"``, ``"resume"`` for a
-  companion, ``"start"`` for a target waiting for its action command) and an
-  optional ``detail`` (free text, <= 200 characters, for the logs).
-* ``bof.companion_state/1``: the envelope plus any JSON-able fields (encode only,
-  `encode_state`).
+* ``bof.target_fix/1`` (`TargetFixPayload`): ``frame`` is ``"geodetic"`` (``position`` =
+  [lat_deg, lon_deg, alt_m_amsl], WGS-84) or ``"ned"`` (``position`` = [n, e, d] m in
+  the shared local NED frame, origin at home, z down); optional ``velocity`` = [vn, ve,
+  vd] m/s, NED in both frames (as GNSS receivers report it).
+* ``bof.clock/1`` (`ClockPayload`): the envelope only; ``stamp`` is the plant's simulated time.
+* ``bof.command/1`` (`CommandPayload`): ``command`` (one of ``COMMANDS``: ``"abort"``,
+  ``"resume"`` for a companion, ``"start"`` for a target waiting for its action
+  command) and an optional ``detail`` (free text, <= 200 characters, for the logs).
+* ``bof.companion_state/1`` (`CompanionState`): the envelope plus ``phase`` (the
+  companion's phase: waiting, arming, taking_off, ready, following, vehicle_link_lost,
+  aborting, landing, done, failed), ``pursuer`` {``position``, ``velocity``} (NED m,
+  m/s), ``link`` {``received``, ``accepted``, ``rejected`` (count by reason),
+  ``bearings_used``, ``bearings_dropped`` (count by reason), ``last_seq``,
+  ``last_stamp`` (s), ``last_fix_age_wall`` (wall s)}, ``setpoints_sent``, and once
+  there is one: ``track`` {``mode``, ``bearing_age`` (s)}, ``observability``
+  {``log_det``, ``min_eigenvalue``, ``spread``, ``count``} and ``estimate`` {``time``
+  (s), ``position``, ``velocity`` (NED m, m/s), ``position_std``, ``velocity_std``
+  (m, m/s: sqrt of the mean diagonal of the covariance block), ``range`` (m)}. A
+  number may be ``null`` ("no value", e.g. log_det of a singular information
+  matrix): `encode_state` turns NaN and +-inf into null.
 
 Decoding bytes never raises anything but `PayloadError`, whose ``reason`` is one of
 `REASONS`; the first problem found wins (size, UTF-8, JSON, object, schema, unknown
-then missing fields, then field by field):
+then missing fields, then field by field in the order listed above):
 
 ==================  ==============================================================
 ``too_large``       more than `MAX_PAYLOAD_BYTES` bytes
@@ -55,10 +66,11 @@ then missing fields, then field by field):
 ``out_of_range``    a number outside its domain: seq < 0 or >= 2**63, stamp < 0 or
                     > 1e9 s, latitude outside [-90, 90], longitude outside [-180,
                     180], altitude outside [-1e3, 1e5] m, |NED coordinate| > 1e6 m,
-                    |velocity component| > 1e3 m/s, detail longer than 200 chars
+                    |velocity component| > 1e3 m/s, detail longer than 200 chars,
+                    a count < 0, an integer too large for a float
 ==================  ==============================================================
 
-The ``encode_*`` functions check their input with the same rules, so nothing a
+The ``encode_*`` functions check their input with the same models, so nothing a
 decoder would refuse is ever sent (they raise `PayloadError` too).
 
 Geodesy lives in `interfaces.geodesy`, the Zenoh session (topology, loopback-only
@@ -82,14 +94,17 @@ Usage::
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import re
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Annotated, Any, Literal, Union, get_args
 
 import numpy as np
+from pydantic import (BaseModel, BeforeValidator, ConfigDict, Discriminator, Field, Strict, Tag, TypeAdapter,
+                      ValidationError, ValidationInfo)
 
 from interfaces.geodesy import geodetic_to_ned
 
@@ -128,17 +143,19 @@ def target_command_key(sender: str) -> str:
     return f"bof/target/{_segment(sender, 'target sender')}/command"
 
 
-# --- payloads ----------------------------------------------------------------------
+# --- constants and public value types ----------------------------------------------
 
 TARGET_FIX_SCHEMA = "bof.target_fix/1"
 CLOCK_SCHEMA = "bof.clock/1"
 COMMAND_SCHEMA = "bof.command/1"
 COMPANION_STATE_SCHEMA = "bof.companion_state/1"
 
-FRAMES = ("geodetic", "ned")
+Frame = Literal["geodetic", "ned"]
+FRAMES = get_args(Frame)
 #: Commands a companion accepts; extend here (a new command an older companion does not
 #: know is rejected with "unknown_command", never silently ignored).
-COMMANDS = ("abort", "resume", "start")
+CommandName = Literal["abort", "resume", "start"]
+COMMANDS = get_args(CommandName)
 REASONS = frozenset({"too_large", "not_utf8", "not_json", "not_object", "missing_field", "wrong_schema",
                      "unknown_field", "wrong_type", "not_finite", "bad_sender", "bad_frame", "unknown_command",
                      "out_of_range"})
@@ -167,7 +184,7 @@ Vector3 = tuple[float, float, float]
 
 @dataclass(frozen=True)
 class TargetFix:
-    """A target position fix.
+    """A target position fix (not checked until encoded; decoded ones passed `TargetFixPayload`).
 
     sender: target name. seq: message counter. stamp: simulated time of the fix, s.
     frame: "geodetic" (position = latitude deg, longitude deg, altitude m AMSL) or
@@ -178,7 +195,7 @@ class TargetFix:
     sender: str
     seq: int
     stamp: float
-    frame: Literal["geodetic", "ned"]
+    frame: Frame
     position: Vector3
     velocity: Vector3 | None = None
 
@@ -208,6 +225,221 @@ class Command:
     detail: str = ""
 
 
+# --- payload models ----------------------------------------------------------------
+
+class _Declared(BaseModel):
+    # strict: booleans are not numbers, "1.0" is not a number, nothing is converted.
+    model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False, frozen=True)
+
+
+Number = Annotated[float, Strict()]
+Sender = Annotated[str, Field(pattern=f"^{_NAME.pattern}$")]
+Seq = Annotated[int, Field(ge=0, le=MAX_SEQ)]
+Stamp = Annotated[float, Field(ge=0.0, le=MAX_STAMP)]
+Latitude = Annotated[Number, Field(ge=-90.0, le=90.0)]  # deg
+Longitude = Annotated[Number, Field(ge=-180.0, le=180.0)]  # deg
+Altitude = Annotated[Number, Field(ge=ALTITUDE_RANGE[0], le=ALTITUDE_RANGE[1])]  # m AMSL
+NedCoordinate = Annotated[Number, Field(ge=-MAX_NED, le=MAX_NED)]  # m
+SpeedComponent = Annotated[Number, Field(ge=-MAX_SPEED_COMPONENT, le=MAX_SPEED_COMPONENT)]  # m/s
+# JSON has arrays, not tuples: these containers take a list (Strict(False)); their items stay strict.
+GeodeticPosition = Annotated[tuple[Latitude, Longitude, Altitude], Strict(False)]
+NedPosition = Annotated[tuple[NedCoordinate, NedCoordinate, NedCoordinate], Strict(False)]
+NedVelocity = Annotated[tuple[SpeedComponent, SpeedComponent, SpeedComponent], Strict(False)]
+
+
+class Envelope(_Declared):
+    """What every payload starts with: schema name/version, sender, seq, stamp (s of simulated time)."""
+
+    schema_: str = Field(alias="schema")
+    sender: Sender
+    seq: Seq
+    stamp: Stamp
+
+
+class ClockPayload(Envelope):
+    """``bof.clock/1``: the plant's simulated time (stamp, s)."""
+
+    schema_: Literal[CLOCK_SCHEMA] = Field(alias="schema")
+
+
+class CommandPayload(Envelope):
+    """``bof.command/1``: a command (`COMMANDS`) and optional free text for the logs."""
+
+    schema_: Literal[COMMAND_SCHEMA] = Field(alias="schema")
+    command: CommandName
+    detail: Annotated[str, Field(max_length=MAX_DETAIL)] = ""
+
+
+class TargetFixPayload(Envelope):
+    """``bof.target_fix/1`` whatever its frame; decoded as `GeodeticFixPayload` or `NedFixPayload`.
+
+    A fix whose frame is neither is checked against this model, which refuses the frame
+    after the fields before it (and unknown/missing fields) have been checked.
+    """
+
+    schema_: Literal[TARGET_FIX_SCHEMA] = Field(alias="schema")
+    frame: Frame
+    position: Annotated[tuple[Number, Number, Number], Strict(False)]
+    velocity: NedVelocity | None = None
+
+
+class GeodeticFixPayload(TargetFixPayload):
+    """A fix in WGS-84: position = (latitude deg, longitude deg, altitude m AMSL)."""
+
+    frame: Literal["geodetic"]
+    position: GeodeticPosition
+
+
+class NedFixPayload(TargetFixPayload):
+    """A fix in the shared local NED frame: position = (north, east, down) m about home."""
+
+    frame: Literal["ned"]
+    position: NedPosition
+
+
+def _frame_tag(document: Any) -> str:
+    """Which fix model checks `document`: its frame's, or TargetFixPayload (which refuses the frame)."""
+    frame = document.get("frame") if isinstance(document, dict) else getattr(document, "frame", None)
+    return frame if isinstance(frame, str) and frame in FRAMES else "other"
+
+
+# --- the companion state -----------------------------------------------------------
+
+_OUTGOING = {"outgoing": True}
+
+
+def _plain(value: Any) -> Any:
+    """numpy scalars and arrays as Python numbers and lists (the companion hands its numpy state over)."""
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    return value
+
+
+def _no_value(value: Any, info: ValidationInfo) -> Any:
+    """Outgoing, a NaN/inf float means "no value" and is sent as null; incoming, it is refused."""
+    value = _plain(value)
+    if info.context == _OUTGOING and isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+Value = Annotated[Number | None, BeforeValidator(_no_value)]
+StateVector = Annotated[tuple[Value, Value, Value], Strict(False), BeforeValidator(_plain)]
+Count = Annotated[int, Strict(), Field(ge=0), BeforeValidator(_plain)]
+
+
+class PursuerState(_Declared):
+    """The vehicle's state as the companion last heard it: position m, velocity m/s, NED."""
+
+    position: StateVector
+    velocity: StateVector
+
+
+class LinkState(_Declared):
+    """The target link so far: fixes received/accepted, rejections and dropped bearings by reason."""
+
+    received: Count
+    accepted: Count
+    rejected: dict[str, Count]
+    bearings_used: Count
+    bearings_dropped: dict[str, Count]
+    last_seq: Annotated[Seq | None, BeforeValidator(_plain)]
+    last_stamp: Value  # s, simulated
+    last_fix_age_wall: Value  # s, wall clock
+
+
+class TrackState(_Declared):
+    """The dropout handling: mode (tracking, coasting, degraded, reacquiring), bearing_age s."""
+
+    mode: str
+    bearing_age: Value
+
+
+class ObservabilityState(_Declared):
+    """The windowed FIM measure (companion.core.observability): log10 det, min eigenvalue, spread, count."""
+
+    log_det: Value
+    min_eigenvalue: Value
+    spread: Value
+    count: Count
+
+
+class EstimateState(_Declared):
+    """The estimator's target state at `time` s: NED position m, velocity m/s, their std, range m."""
+
+    time: Value
+    position: StateVector
+    velocity: StateVector
+    position_std: Value
+    velocity_std: Value
+    range: Value
+
+
+class CompanionState(Envelope):
+    """``bof.companion_state/1``: what the companion publishes at [link] state_rate_hz (module docstring)."""
+
+    schema_: Literal[COMPANION_STATE_SCHEMA] = Field(alias="schema")
+    seq: Annotated[Seq, BeforeValidator(_plain)]
+    stamp: Annotated[Stamp, BeforeValidator(_plain)]
+    phase: str
+    pursuer: PursuerState
+    link: LinkState
+    setpoints_sent: Count
+    track: TrackState | None = None
+    observability: ObservabilityState | None = None
+    estimate: EstimateState | None = None
+
+
+_TARGET_FIX = TypeAdapter(Annotated[
+    Union[Annotated[GeodeticFixPayload, Tag("geodetic")], Annotated[NedFixPayload, Tag("ned")],
+          Annotated[TargetFixPayload, Tag("other")]],
+    Discriminator(_frame_tag)])
+_CLOCK = TypeAdapter(ClockPayload)
+_COMMAND = TypeAdapter(CommandPayload)
+_STATE = TypeAdapter(CompanionState)
+
+
+# --- pydantic's errors as reason codes ---------------------------------------------
+
+_REASON_OF_ERROR = {"extra_forbidden": "unknown_field", "missing": "missing_field", "finite_number": "not_finite",
+                    "string_pattern_mismatch": "bad_sender", "greater_than_equal": "out_of_range",
+                    "less_than_equal": "out_of_range", "string_too_long": "out_of_range"}
+_REASON_OF_LITERAL = {"schema": "wrong_schema", "frame": "bad_frame", "command": "unknown_command"}
+_PRECEDENCE = {"unknown_field": 1, "missing_field": 2}  # then field by field (3), in pydantic's order
+_MESSAGES = {("out_of_range", "float_type"): "too large for a float", ("wrong_type", "missing"): "too few items"}
+
+
+def _reason(kind: str, loc: tuple, value: Any) -> str:
+    if not loc:
+        return "not_object"
+    if kind == "literal_error" and (loc[-1] == "schema" or isinstance(value, str)):
+        return _REASON_OF_LITERAL[loc[-1]]
+    if kind == "missing" and isinstance(loc[-1], int):  # an array too short
+        return "wrong_type"
+    if kind == "float_type" and type(value) is int:  # an integer no float can hold
+        return "out_of_range"
+    return _REASON_OF_ERROR.get(kind, "wrong_type")  # every *_type, too_long, ... error
+
+
+def _validate(adapter: TypeAdapter, document: Any, *, tagged: bool = False, context: dict | None = None) -> Any:
+    """`document` checked by `adapter`'s model; PayloadError for the first problem (module docstring)."""
+    try:
+        return adapter.validate_python(document, context=context)
+    except ValidationError as error:
+        problems = []
+        for item in error.errors(include_url=False):
+            loc = item["loc"][1:] if tagged else item["loc"]  # a tagged union puts the tag first
+            reason = _reason(item["type"], loc, item.get("input"))
+            problems.append((0 if loc == ("schema",) else _PRECEDENCE.get(reason, 3), len(problems), reason, loc, item))
+        _, _, reason, loc, item = min(problems)
+        path = "".join(f"[{part}]" if isinstance(part, int) else f".{part}" for part in loc).lstrip(".") or "payload"
+        shown = "" if item["type"] in ("missing", "extra_forbidden") else f" = {repr(item.get('input'))[:60]}"
+        message = _MESSAGES.get((reason, item["type"]), item["msg"])
+        raise PayloadError(reason, f"{path}{shown}: {message}") from None
+
+
 # --- decoding ----------------------------------------------------------------------
 
 def _parse(payload: Any) -> dict:
@@ -223,7 +455,7 @@ def _parse(payload: Any) -> dict:
     except UnicodeDecodeError as error:
         raise PayloadError("not_utf8", str(error)) from None
     try:
-        document = json.loads(text)
+        document = json.loads(text)  # NaN/Infinity tokens parse, and the models refuse them (not_finite)
     except (ValueError, RecursionError) as error:  # JSONDecodeError, too many digits, too deep
         raise PayloadError("not_json", str(error)[:200]) from None
     if not isinstance(document, dict):
@@ -231,133 +463,39 @@ def _parse(payload: Any) -> dict:
     return document
 
 
-def _check_fields(document: dict, schema: str, required: tuple[str, ...], optional: tuple[str, ...] = ()) -> None:
-    if "schema" not in document:
-        raise PayloadError("missing_field", "schema")
-    if document["schema"] != schema:
-        found = document["schema"]
-        found = repr(found[:60]) if isinstance(found, str) else f"a JSON {type(found).__name__}"
-        raise PayloadError("wrong_schema", f"{found}, expected {schema!r}")
-    unknown = sorted(set(document) - {"schema", *required, *optional})
-    if unknown:
-        raise PayloadError("unknown_field", f"{', '.join(repr(k)[:40] for k in unknown[:5])} not in {schema}")
-    for name in required:
-        if name not in document:
-            raise PayloadError("missing_field", name)
-
-
-def _is_number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
-
-
-def _number(value: Any, name: str) -> float:
-    if not _is_number(value):
-        raise PayloadError("wrong_type", f"{name} must be a number, got {type(value).__name__}")
-    try:
-        number = float(value)
-    except OverflowError:
-        raise PayloadError("out_of_range", f"{name} is too large") from None
-    if not math.isfinite(number):
-        raise PayloadError("not_finite", f"{name} is {number}")
-    return number
-
-
-def _in_range(number: float, low: float, high: float, name: str) -> float:
-    if not low <= number <= high:
-        raise PayloadError("out_of_range", f"{name} = {number!r} outside [{low:g}, {high:g}]")
-    return number
-
-
-def _vector(value: Any, name: str) -> Vector3:
-    if not isinstance(value, list) or len(value) != 3:
-        raise PayloadError("wrong_type", f"{name} must be a list of 3 numbers")
-    return tuple(_number(component, f"{name}[{i}]") for i, component in enumerate(value))
-
-
-def _envelope(document: dict) -> tuple[str, int, float]:
-    sender, seq = document["sender"], document["seq"]
-    if not isinstance(sender, str):
-        raise PayloadError("wrong_type", f"sender must be a string, got {type(sender).__name__}")
-    if not _NAME.fullmatch(sender):
-        raise PayloadError("bad_sender", f"{sender[:80]!r}: 1-64 characters from A-Z a-z 0-9 _ . -")
-    if not isinstance(seq, int) or isinstance(seq, bool):
-        raise PayloadError("wrong_type", f"seq must be an integer, got {type(seq).__name__}")
-    if not 0 <= seq <= MAX_SEQ:
-        raise PayloadError("out_of_range", "seq > 2**63 - 1" if seq > 0 else f"seq = {seq} < 0")
-    stamp = _in_range(_number(document["stamp"], "stamp"), 0.0, MAX_STAMP, "stamp")
-    return sender, seq, stamp
-
-
-def _position(frame: str, position: Vector3) -> Vector3:
-    if frame == "geodetic":
-        _in_range(position[0], -90.0, 90.0, "latitude")
-        _in_range(position[1], -180.0, 180.0, "longitude")
-        _in_range(position[2], *ALTITUDE_RANGE, "altitude")
-    else:
-        for axis, value in zip("ned", position):
-            _in_range(value, -MAX_NED, MAX_NED, f"position {axis}")
-    return position
-
-
-def _decode_target_fix(document: dict) -> TargetFix:
-    _check_fields(document, TARGET_FIX_SCHEMA, ("sender", "seq", "stamp", "frame", "position"), ("velocity",))
-    sender, seq, stamp = _envelope(document)
-    frame = document["frame"]
-    if not isinstance(frame, str):
-        raise PayloadError("wrong_type", f"frame must be a string, got {type(frame).__name__}")
-    if frame not in FRAMES:
-        raise PayloadError("bad_frame", f"{frame[:40]!r}, expected one of {FRAMES}")
-    position = _position(frame, _vector(document["position"], "position"))
-    velocity = document.get("velocity")
-    if velocity is not None:
-        velocity = _vector(velocity, "velocity")
-        for axis, value in zip(("vn", "ve", "vd"), velocity):
-            _in_range(value, -MAX_SPEED_COMPONENT, MAX_SPEED_COMPONENT, f"velocity {axis}")
-    return TargetFix(sender, seq, stamp, frame, position, velocity)
-
-
-def _decode_clock(document: dict) -> ClockTick:
-    _check_fields(document, CLOCK_SCHEMA, ("sender", "seq", "stamp"))
-    return ClockTick(*_envelope(document))
-
-
-def _decode_command(document: dict) -> Command:
-    _check_fields(document, COMMAND_SCHEMA, ("sender", "seq", "stamp", "command"), ("detail",))
-    sender, seq, stamp = _envelope(document)
-    command, detail = document["command"], document.get("detail", "")
-    if not isinstance(command, str):
-        raise PayloadError("wrong_type", f"command must be a string, got {type(command).__name__}")
-    if command not in COMMANDS:
-        raise PayloadError("unknown_command", f"{command[:40]!r}, expected one of {COMMANDS}")
-    if not isinstance(detail, str):
-        raise PayloadError("wrong_type", f"detail must be a string, got {type(detail).__name__}")
-    if len(detail) > MAX_DETAIL:
-        raise PayloadError("out_of_range", f"detail has {len(detail)} characters > {MAX_DETAIL}")
-    return Command(sender, seq, stamp, command, detail)
-
-
 def decode_target_fix(payload: "bytes | zenoh.ZBytes") -> TargetFix:
     """Parse and check a ``bof.target_fix/1`` payload; PayloadError (with .reason) if it is refused."""
-    return _decode_target_fix(_parse(payload))
+    fix = _validate(_TARGET_FIX, _parse(payload), tagged=True)
+    return TargetFix(fix.sender, fix.seq, fix.stamp, fix.frame, fix.position, fix.velocity)
 
 
 def decode_clock(payload: "bytes | zenoh.ZBytes") -> ClockTick:
     """Parse and check a ``bof.clock/1`` payload; PayloadError (with .reason) if it is refused."""
-    return _decode_clock(_parse(payload))
+    tick = _validate(_CLOCK, _parse(payload))
+    return ClockTick(tick.sender, tick.seq, tick.stamp)
 
 
 def decode_command(payload: "bytes | zenoh.ZBytes") -> Command:
     """Parse and check a ``bof.command/1`` payload; PayloadError (with .reason) if it is refused."""
-    return _decode_command(_parse(payload))
+    command = _validate(_COMMAND, _parse(payload))
+    return Command(command.sender, command.seq, command.stamp, command.command, command.detail)
+
+
+def decode_state(payload: "bytes | zenoh.ZBytes") -> CompanionState:
+    """Parse and check a ``bof.companion_state/1`` payload; PayloadError (with .reason) if it is refused.
+
+    Absent sections (track, observability, estimate) are None, as are null numbers.
+    """
+    return _validate(_STATE, _parse(payload))
 
 
 # --- encoding ----------------------------------------------------------------------
 
-def _dump(document: dict) -> bytes:
+def _dump(model: Envelope) -> bytes:
+    # Optional fields at their default (no velocity, no detail, no estimate yet) are left out.
+    document = model.model_dump(by_alias=True, exclude_defaults=True)
     try:
         data = json.dumps(document, allow_nan=False, separators=(",", ":"), ensure_ascii=False).encode("utf-8")
-    except ValueError as error:  # a NaN/inf that slipped past a check
-        raise PayloadError("not_finite", str(error)) from None
     except UnicodeEncodeError as error:  # lone surrogates in a string
         raise PayloadError("not_utf8", str(error)) from None
     if len(data) > MAX_PAYLOAD_BYTES:
@@ -365,81 +503,31 @@ def _dump(document: dict) -> bytes:
     return data
 
 
-def _envelope_dict(schema: str, sender: str, seq: int, stamp: float) -> dict:
-    return {"schema": schema, "sender": sender, "seq": seq, "stamp": stamp}
-
-
 def encode_target_fix(fix: TargetFix) -> bytes:
     """The ``bof.target_fix/1`` payload of `fix`; PayloadError if a decoder would refuse it."""
-    document = _envelope_dict(TARGET_FIX_SCHEMA, fix.sender, fix.seq, fix.stamp)
-    document.update(frame=fix.frame, position=list(fix.position))
-    if fix.velocity is not None:
-        document["velocity"] = list(fix.velocity)
-    _decode_target_fix(document)
-    return _dump(document)
+    return _dump(_validate(_TARGET_FIX, {"schema": TARGET_FIX_SCHEMA, **dataclasses.asdict(fix)}, tagged=True))
 
 
 def encode_clock(tick: ClockTick) -> bytes:
     """The ``bof.clock/1`` payload of `tick`; PayloadError if a decoder would refuse it."""
-    document = _envelope_dict(CLOCK_SCHEMA, tick.sender, tick.seq, tick.stamp)
-    _decode_clock(document)
-    return _dump(document)
+    return _dump(_validate(_CLOCK, {"schema": CLOCK_SCHEMA, **dataclasses.asdict(tick)}))
 
 
 def encode_command(command: Command) -> bytes:
     """The ``bof.command/1`` payload of `command`; PayloadError if a decoder would refuse it."""
-    document = _envelope_dict(COMMAND_SCHEMA, command.sender, command.seq, command.stamp)
-    document["command"] = command.command
-    if command.detail:
-        document["detail"] = command.detail
-    _decode_command(document)
-    return _dump(document)
-
-
-def _json_value(value: Any, path: str) -> Any:
-    if value is None or isinstance(value, (bool, str)):
-        return value
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, int):
-        return value
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, np.ndarray):
-        return _json_value(value.tolist(), path)
-    if isinstance(value, (list, tuple)):
-        return [_json_value(item, f"{path}[{i}]") for i, item in enumerate(value)]
-    if isinstance(value, dict):
-        converted = {}
-        for key, item in value.items():
-            if not isinstance(key, str):
-                raise PayloadError("wrong_type", f"{path}: key {key!r} is not a string")
-            converted[key] = _json_value(item, f"{path}.{key}")
-        return converted
-    raise PayloadError("wrong_type", f"{path}: {type(value).__name__} is not JSON-serialisable")
+    return _dump(_validate(_COMMAND, {"schema": COMMAND_SCHEMA, **dataclasses.asdict(command)}))
 
 
 def encode_state(state: dict) -> bytes:
-    """A ``bof.companion_state/1`` payload: `state` with the schema added.
+    """The ``bof.companion_state/1`` payload of `state` (a dict of `CompanionState`'s fields, schema optional).
 
-    state must hold sender, seq and stamp (checked as in every payload) and may hold
-    anything JSON-able: None, bool, int, float, str, lists/tuples, dicts with string
-    keys, numpy scalars and arrays. Non-finite floats (NaN, +-inf: "no value", e.g. no
-    estimate yet) become null. Anything else raises PayloadError("wrong_type").
+    numpy scalars and arrays are taken as Python numbers and lists; non-finite floats
+    (NaN, +-inf: "no value", e.g. no observability yet) in the state's numbers become
+    null (the envelope's stamp must be finite). PayloadError if a decoder would refuse it.
     """
     if not isinstance(state, dict):
         raise PayloadError("not_object", f"state must be a dict, got {type(state).__name__}")
-    if "schema" in state and state["schema"] != COMPANION_STATE_SCHEMA:
-        raise PayloadError("wrong_schema", f"{state['schema']!r}, expected {COMPANION_STATE_SCHEMA!r}")
-    for name in ("sender", "seq", "stamp"):
-        if name not in state:
-            raise PayloadError("missing_field", name)
-    envelope = {name: state[name].item() if isinstance(state[name], np.generic) else state[name]
-                for name in ("sender", "seq", "stamp")}
-    sender, seq, stamp = _envelope(envelope)
-    document = {"schema": COMPANION_STATE_SCHEMA, **_json_value(state, "state")}
-    document.update(sender=sender, seq=seq, stamp=stamp)
-    return _dump(document)
+    return _dump(_validate(_STATE, {"schema": COMPANION_STATE_SCHEMA, **state}, context=_OUTGOING))
 
 
 # --- frames ------------------------------------------------------------------------

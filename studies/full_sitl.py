@@ -165,7 +165,7 @@ class GroundStation:
     def __init__(self, endpoint: str, scenario: Scenario) -> None:
         self.scenario = scenario
         self.session = zenoh_transport.open_session(zenoh_transport.zenoh_config("peer", listen=(), connect=(endpoint,)))
-        self.latest: dict | None = None
+        self.latest: link.CompanionState | None = None
         self.states = 0
         self.session.declare_subscriber(link.companion_state_key(scenario.link.companion_id), self._on_state)
         self._target_command = zenoh_transport.publisher(self.session, link.target_command_key(scenario.link.target_sender))
@@ -177,9 +177,9 @@ class GroundStation:
 
     def _on_state(self, sample) -> None:
         try:
-            self.latest = json.loads(sample.payload.to_bytes())
+            self.latest = link.decode_state(sample.payload)
             self.states += 1
-        except ValueError:
+        except link.PayloadError:
             pass
 
     def abort_companion(self, stamp: float) -> None:
@@ -197,15 +197,13 @@ class GroundStation:
         self.session.close()
 
 
-def _progress(state: dict | None) -> str:
+def _progress(state: link.CompanionState | None) -> str:
     if state is None:
         return "waiting for the companion"
-    text = f"t={state.get('stamp', 0.0):6.1f}s phase={state.get('phase', '?'):10s}"
-    estimate = state.get("estimate")
-    if estimate:
-        text += f" range^={estimate['range']:6.1f} m  sigma_p={estimate['position_std']:5.2f} m"
-    link_state = state.get("link", {})
-    text += f"  fixes {link_state.get('accepted', 0)} ok / {sum(link_state.get('rejected', {}).values())} rejected"
+    text = f"t={state.stamp:6.1f}s phase={state.phase:10s}"
+    if state.estimate is not None:
+        text += f" range^={state.estimate.range:6.1f} m  sigma_p={state.estimate.position_std:5.2f} m"
+    text += f"  fixes {state.link.accepted} ok / {sum(state.link.rejected.values())} rejected"
     return text
 
 
@@ -251,12 +249,12 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
             if time.monotonic() > deadline:
                 raise TimeoutError(f"the flight did not finish within {budget:.0f} s of wall time")
             state = station.latest
-            if state and state.get("phase") == "following" and not station.target_started:
-                station.engaged_stamp = float(state.get("stamp", 0.0))
+            if state and state.phase == "following" and not station.target_started:
+                station.engaged_stamp = state.stamp
                 station.start_target(station.engaged_stamp)
             if (abort_after is not None and state and station.engaged_stamp is not None and not station.abort_sent
-                    and float(state.get("stamp", 0.0)) >= station.engaged_stamp + abort_after):
-                station.abort_companion(float(state["stamp"]))
+                    and state.stamp >= station.engaged_stamp + abort_after):
+                station.abort_companion(state.stamp)
             if not quiet and time.monotonic() >= next_print:
                 next_print = time.monotonic() + 2.0
                 print(f"bof-sitl: {_progress(state)}", flush=True)

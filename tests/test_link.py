@@ -78,24 +78,73 @@ def test_decoders_take_zenoh_bytes_and_refuse_non_bytes():
         decode_clock("{}")
 
 
+def _state(**changes) -> dict:
+    """A state as the companion builds it (numpy arrays and scalars included)."""
+    state = {"phase": "following", "sender": "pursuer-1", "seq": np.int64(5), "stamp": np.float64(2.5),
+             "pursuer": {"position": np.array([1.0, 2.0, -20.0]), "velocity": np.array([0.5, 0.0, 0.0])},
+             "link": {"received": 12, "accepted": 10, "rejected": {"not_json": 2}, "bearings_used": 9,
+                      "bearings_dropped": {"no_own_state": 1}, "last_seq": 11, "last_stamp": np.float64(2.2),
+                      "last_fix_age_wall": None},
+             "setpoints_sent": 120,
+             "track": {"mode": "tracking", "bearing_age": 0.1},
+             "observability": {"log_det": -math.inf, "min_eigenvalue": 0.0, "spread": math.nan, "count": 9},
+             "estimate": {"time": 2.4, "position": np.array([60.0, np.nan, -20.0]), "velocity": np.array([1.0, np.inf, 0.0]),
+                          "position_std": 0.8, "velocity_std": 0.3, "range": 59.0}}
+    state.update(changes)
+    return state
+
+
 def test_state_encoding_nulls_non_finite_and_converts_numpy():
-    state = {"sender": "pursuer-1", "seq": np.int64(5), "stamp": np.float64(2.5), "phase": "track",
-             "estimate": np.array([1.0, np.nan, np.inf]), "range": float("nan"), "nested": {"ok": [True, None, 3]}}
-    document = json.loads(encode_state(state))
-    assert document == {"schema": "bof.companion_state/1", "sender": "pursuer-1", "seq": 5, "stamp": 2.5,
-                        "phase": "track", "estimate": [1.0, None, None], "range": None, "nested": {"ok": [True, None, 3]}}
-    for bad, reason in (
-        ({"seq": 1, "stamp": 0.0}, "missing_field"),
-        ({"sender": "c", "seq": 1, "stamp": float("nan")}, "not_finite"),
-        ({"sender": "c", "seq": -1, "stamp": 0.0}, "out_of_range"),
-        ({"sender": "c", "seq": 1, "stamp": 0.0, "when": object()}, "wrong_type"),
-        ({"sender": "c", "seq": 1, "stamp": 0.0, "map": {1: 2}}, "wrong_type"),
-        ({"sender": "c", "seq": 1, "stamp": 0.0, "schema": "bof.other/1"}, "wrong_schema"),
-        ([("sender", "c")], "not_object"),
-    ):
-        with pytest.raises(PayloadError) as error:
-            encode_state(bad)
-        assert error.value.reason == reason
+    document = json.loads(encode_state(_state()))
+    assert document == {
+        "schema": "bof.companion_state/1", "sender": "pursuer-1", "seq": 5, "stamp": 2.5, "phase": "following",
+        "pursuer": {"position": [1.0, 2.0, -20.0], "velocity": [0.5, 0.0, 0.0]},
+        "link": {"received": 12, "accepted": 10, "rejected": {"not_json": 2}, "bearings_used": 9,
+                 "bearings_dropped": {"no_own_state": 1}, "last_seq": 11, "last_stamp": 2.2, "last_fix_age_wall": None},
+        "setpoints_sent": 120, "track": {"mode": "tracking", "bearing_age": 0.1},
+        "observability": {"log_det": None, "min_eigenvalue": 0.0, "spread": None, "count": 9},
+        "estimate": {"time": 2.4, "position": [60.0, None, -20.0], "velocity": [1.0, None, 0.0], "position_std": 0.8,
+                     "velocity_std": 0.3, "range": 59.0}}
+    # Before the first bearing the app sends no track, observability or estimate: they stay absent.
+    early = json.loads(encode_state(_state(track=None, observability=None, estimate=None)))
+    assert not {"track", "observability", "estimate"} & set(early)
+
+
+def test_state_decodes_for_the_ground_station():
+    state = link.decode_state(encode_state(_state()))
+    assert (state.sender, state.seq, state.stamp, state.phase) == ("pursuer-1", 5, 2.5, "following")
+    assert state.estimate.position == (60.0, None, -20.0) and state.estimate.range == 59.0
+    assert state.observability.log_det is None and state.link.rejected == {"not_json": 2}
+    assert link.decode_state(encode_state(_state(estimate=None))).estimate is None
+    # Incoming, a non-finite number is refused like in every payload (only the encoder maps it to null).
+    document = json.loads(encode_state(_state()))
+    document["estimate"]["range"] = math.inf
+    with pytest.raises(PayloadError) as error:
+        link.decode_state(json.dumps(document).encode())
+    assert error.value.reason == "not_finite"
+
+
+@pytest.mark.parametrize("state, reason", [
+    ({k: v for k, v in _state().items() if k != "sender"}, "missing_field"),
+    ({k: v for k, v in _state().items() if k != "link"}, "missing_field"),
+    (_state(estimate={"time": 1.0, "position": [0.0] * 3, "velocity": [0.0] * 3, "position_std": 1.0,
+                      "velocity_std": 1.0}), "missing_field"),
+    (_state(stamp=float("nan")), "not_finite"),
+    (_state(seq=-1), "out_of_range"),
+    (_state(setpoints_sent=-1), "out_of_range"),
+    (_state(phase=object()), "wrong_type"),
+    (_state(setpoints_sent=True), "wrong_type"),
+    (_state(pursuer={"position": [0.0, 0.0], "velocity": [0.0] * 3}), "wrong_type"),
+    (_state(link=dict(_state()["link"], rejected={1: 2})), "wrong_type"),
+    (_state(schema="bof.other/1"), "wrong_schema"),
+    (_state(colour="red"), "unknown_field"),
+    (_state(track={"mode": "tracking", "bearing_age": 0.1, "why": "?"}), "unknown_field"),
+    ([("sender", "c")], "not_object"),
+], ids=lambda value: value if isinstance(value, str) else "")
+def test_state_encoding_refuses_what_the_schema_does_not_declare(state, reason):
+    with pytest.raises(PayloadError) as error:
+        encode_state(state)
+    assert error.value.reason == reason
 
 
 REFUSALS = [
@@ -224,6 +273,174 @@ def test_fuzz_nearly_valid_documents(schema, field, value, delete):
     else:
         document[field] = value
     _decode_all(json.dumps(document).encode())
+
+
+# --- properties of the declared payloads (bounds as the module docstring documents them) ---
+
+PROPERTY = settings(max_examples=200, derandomize=True, deadline=None, database=None)
+
+
+def _finite(low: float, high: float):
+    return st.floats(low, high, allow_nan=False, allow_infinity=False)
+
+
+senders = st.from_regex(r"[A-Za-z0-9_.\-]{1,64}", fullmatch=True)
+seqs = st.integers(0, 2**63 - 1)
+stamps = _finite(0.0, 1e9)
+positions = st.one_of(
+    st.tuples(st.just("geodetic"), st.tuples(_finite(-90.0, 90.0), _finite(-180.0, 180.0), _finite(-1e3, 1e5))),
+    st.tuples(st.just("ned"), st.tuples(*[_finite(-1e6, 1e6)] * 3)))
+velocities = st.none() | st.tuples(*[_finite(-1e3, 1e3)] * 3)
+valid_fixes = st.builds(lambda sender, seq, stamp, placed, velocity: TargetFix(sender, seq, stamp, *placed, velocity),
+                        senders, seqs, stamps, positions, velocities)
+FIX_FIELDS = ("schema", "sender", "seq", "stamp", "frame", "position", "velocity")
+
+
+def _document(fix: TargetFix) -> dict:
+    document = {"schema": "bof.target_fix/1", "sender": fix.sender, "seq": fix.seq, "stamp": fix.stamp,
+                "frame": fix.frame, "position": list(fix.position)}
+    if fix.velocity is not None:
+        document["velocity"] = list(fix.velocity)
+    return document
+
+
+def _reason(decode, document) -> str | None:
+    try:
+        decode(json.dumps(document).encode())
+    except PayloadError as error:
+        return error.reason
+    return None
+
+
+@PROPERTY
+@given(valid_fixes)
+def test_any_valid_fix_survives_encoding_exactly(fix):
+    payload = encode_target_fix(fix)
+    assert json.loads(payload) == _document(fix)  # read back by Python's own JSON parser
+    assert decode_target_fix(payload) == fix
+
+
+@PROPERTY
+@given(st.builds(ClockTick, senders, seqs, stamps),
+       st.builds(Command, senders, seqs, stamps, st.sampled_from(["abort", "resume", "start"]), st.text(max_size=200)))
+def test_any_valid_clock_tick_and_command_survive_encoding(tick, command):
+    assert decode_clock(encode_clock(tick)) == tick
+    assert decode_command(encode_command(command)) == command
+
+
+@PROPERTY
+@given(valid_fixes, st.text(min_size=1, max_size=12).filter(lambda key: key not in FIX_FIELDS), json_values)
+def test_any_extra_key_is_an_unknown_field(fix, key, value):
+    assert _reason(decode_target_fix, {**_document(fix), key: value}) == "unknown_field"
+    tick = {"schema": "bof.clock/1", "sender": fix.sender, "seq": fix.seq, "stamp": fix.stamp}
+    assert _reason(decode_clock, {**tick, key: value}) == "unknown_field"
+    command = {"schema": "bof.command/1", "sender": fix.sender, "seq": fix.seq, "stamp": fix.stamp, "command": "abort"}
+    if key != "detail":
+        assert _reason(decode_command, {**command, key: value}) == "unknown_field"
+
+
+NUMBER_SLOTS = [("stamp", None), ("position", 0), ("position", 1), ("position", 2),
+                ("velocity", 0), ("velocity", 1), ("velocity", 2)]
+
+
+def _with(document: dict, slot: tuple[str, int | None], value) -> dict:
+    name, index = slot
+    document = dict(document, velocity=list(document.get("velocity") or [0.0, 0.0, 0.0]))
+    if index is None:
+        document[name] = value
+    else:
+        document[name] = list(document[name])
+        document[name][index] = value
+    return document
+
+
+def _as_fix(document: dict) -> TargetFix:
+    return TargetFix(document["sender"], document["seq"], document["stamp"], document["frame"], document["position"],
+                     document["velocity"])
+
+
+@PROPERTY
+@given(valid_fixes, st.sampled_from(NUMBER_SLOTS), st.sampled_from([math.nan, math.inf, -math.inf]))
+def test_any_non_finite_number_is_not_finite(fix, slot, value):
+    document = _with(_document(fix), slot, value)  # json.dumps writes the NaN / Infinity tokens
+    assert _reason(decode_target_fix, document) == "not_finite"
+    with pytest.raises(PayloadError) as error:
+        encode_target_fix(_as_fix(document))
+    assert error.value.reason == "not_finite"
+
+
+@PROPERTY
+@given(valid_fixes, st.sampled_from([*NUMBER_SLOTS, ("seq", None)]), st.booleans())
+def test_booleans_are_not_numbers(fix, slot, value):
+    assert _reason(decode_target_fix, _with(_document(fix), slot, value)) == "wrong_type"
+
+
+def _outside(low: float, high: float):
+    return _finite(-1e300, low).filter(lambda v: v < low) | _finite(high, 1e300).filter(lambda v: v > high)
+
+
+@PROPERTY
+@given(valid_fixes, st.data())
+def test_any_number_outside_its_documented_domain_is_out_of_range(fix, data):
+    bounds = {("stamp", None): (0.0, 1e9), ("velocity", 0): (-1e3, 1e3), ("velocity", 1): (-1e3, 1e3),
+              ("velocity", 2): (-1e3, 1e3)}
+    if fix.frame == "geodetic":
+        bounds.update({("position", 0): (-90.0, 90.0), ("position", 1): (-180.0, 180.0), ("position", 2): (-1e3, 1e5)})
+    else:
+        bounds.update({("position", axis): (-1e6, 1e6) for axis in range(3)})
+    slot = data.draw(st.sampled_from(sorted(bounds, key=str)))
+    document = _with(_document(fix), slot, data.draw(_outside(*bounds[slot])))
+    assert _reason(decode_target_fix, document) == "out_of_range"
+    with pytest.raises(PayloadError) as error:
+        encode_target_fix(_as_fix(document))
+    assert error.value.reason == "out_of_range"
+    seq = data.draw(st.integers(max_value=-1) | st.integers(min_value=2**63))
+    assert _reason(decode_target_fix, dict(_document(fix), seq=seq)) == "out_of_range"
+
+
+# One fault per field, in the fields' order: what each does alone.
+FIELD_FAULTS = [("sender", "bad/sender", "bad_sender"), ("seq", -1, "out_of_range"), ("stamp", "1.0", "wrong_type"),
+                ("frame", "enu", "bad_frame"), ("position", [1.0, 2.0], "wrong_type"),
+                ("velocity", [0.0, 0.0, 2e3], "out_of_range")]
+
+
+@PROPERTY
+@given(valid_fixes, st.sampled_from([None, "missing", "wrong"]), st.booleans(),
+       st.sets(st.sampled_from(["sender", "seq", "stamp", "frame", "position"])),
+       st.sets(st.sampled_from(range(len(FIELD_FAULTS)))))
+def test_the_first_problem_in_the_documented_order_wins(fix, schema_fault, extra, dropped, faulted):
+    """Schema, then unknown fields, then missing fields, then field by field."""
+    document = _document(fix)
+    for index in faulted:
+        name, value, _ = FIELD_FAULTS[index]
+        document[name] = value
+    for name in dropped:
+        document.pop(name)
+    if extra:
+        document["colour"] = "red"
+    if schema_fault == "missing":
+        document.pop("schema")
+    elif schema_fault == "wrong":
+        document["schema"] = "bof.target_fix/2"
+    field_reasons = [reason for index, (name, _, reason) in enumerate(FIELD_FAULTS)
+                     if index in faulted and name not in dropped]
+    expected = ({"missing": "missing_field", "wrong": "wrong_schema"}.get(schema_fault)
+                or ("unknown_field" if extra else None) or ("missing_field" if dropped else None)
+                or (field_reasons[0] if field_reasons else None))
+    assert _reason(decode_target_fix, document) == expected
+
+
+@PROPERTY
+@given(st.lists(st.one_of(_finite(-1e6, 1e6), st.sampled_from([math.nan, math.inf, -math.inf])),
+                min_size=10, max_size=10))
+def test_state_numbers_go_out_finite_or_null(values):
+    estimate = {"time": values[0], "position": np.array(values[1:4]), "velocity": np.array(values[4:7]),
+                "position_std": values[7], "velocity_std": values[8], "range": values[9]}
+    sent = json.loads(encode_state(_state(estimate=estimate)))["estimate"]
+    flat = [sent["time"], *sent["position"], *sent["velocity"], sent["position_std"], sent["velocity_std"], sent["range"]]
+    assert flat == [value if math.isfinite(value) else None for value in values]
+    received = link.decode_state(encode_state(_state(estimate=estimate))).estimate
+    assert [received.time, *received.position, *received.velocity] == flat[:7]
 
 
 # --- frames ------------------------------------------------------------------------
