@@ -30,17 +30,18 @@ import time
 from pathlib import Path
 
 import numpy as np
-from interfaces import link_schema as link
-from interfaces import zenoh_transport
-from companion.assembly import build_sensor, build_pipeline
-from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, VehicleConfig, load_scenario
-from companion.adapters.recorder import RunRecorder, TlogWriter
-from companion.core.state_history import StateHistory
+
 from companion.adapters.mavsdk_vehicle import MavsdkVehicle, VehicleError
+from companion.adapters.recorder import RunRecorder, TlogWriter
+from companion.assembly import build_pipeline, build_sensor
+from companion.core.state_history import StateHistory
 from companion.follower import Follower
 from companion.mission import MissionSequencer, Phase
 from companion.state_publisher import StatePublisher
 from companion.target_link import TargetLink
+from interfaces import link_schema as link
+from interfaces import zenoh_transport
+from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, VehicleConfig, load_scenario
 
 __all__ = ["CompanionApp", "Phase", "main"]
 
@@ -206,7 +207,6 @@ def main(argv: list[str] | None = None) -> int:
 
     async def run() -> int:
         loop = asyncio.get_running_loop()
-
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.add_signal_handler(sig, app.sequencer.request_stop)
         print(f"companion ready: {scenario.name}, vehicle {app.mavlink_url}, log {log_dir}", flush=True)
