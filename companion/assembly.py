@@ -1,11 +1,20 @@
-"""Build the pipeline a scenario describes (used by both harnesses)."""
+"""Build the pipeline a scenario describes (used by both harnesses).
+
+The one bridge from a scenario to core objects. Each choice the schema offers as a Literal
+(sensor model, estimator kind, guidance law) is a registry from that literal to a small
+factory, so adding a baseline is one entry.
+"""
 
 from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
 from companion.core.attitude import VehicleLimits
-from interfaces.scenario import ConfigError, Scenario, SensorConfig, VehicleConfig
+from interfaces.scenario import (ConfigError, EstimatorConfig, GuidanceConfig, Scenario, SensorConfig,
+                                 VehicleConfig)
 from companion.core.bearing_sensor import BearingSensor, CameraModel
 from companion.core.baseline_estimators import AzElEKF, MSCEKF, RangeAzElEKF
 from companion.core.baseline_guidance import (PDFollowingController, ProportionalNavigationGuidance,
@@ -15,10 +24,8 @@ from companion.core.guidance import HelicalNavigationGuidance, LateralGuidance, 
 from companion.core.pipeline import DropoutPolicy, FollowingPipeline
 
 
-def build_sensor(config: SensorConfig) -> BearingSensor:
-    """The bearing sensor a scenario's [sensor] section describes (eq. (4), eq. (25) or the camera)."""
-    if config.model != "camera":
-        return BearingSensor(config.model, config.noise_std, range_noise_std=config.range_noise_std)
+def _camera_sensor(config: SensorConfig) -> BearingSensor:
+    """The pin-hole camera of section VIII ([sensor.camera]; noise_std unused)."""
     settings = config.camera
     roll, pitch, yaw = np.radians(settings.mount_rpy_deg)
     camera = CameraModel.with_mount_angles(
@@ -33,47 +40,109 @@ def build_sensor(config: SensorConfig) -> BearingSensor:
     return BearingSensor("camera", config.noise_std, camera, config.range_noise_std)
 
 
+def _direction_noise_sensor(config: SensorConfig) -> BearingSensor:
+    """Direction noise added to the true line of sight: eq. (4) ('additive') or eq. (25) ('rotation')."""
+    return BearingSensor(config.model, config.noise_std, range_noise_std=config.range_noise_std)
+
+
+#: [sensor] model -> the sensor it builds. Keys are exactly SensorConfig.model's Literal values.
+SENSORS: dict[str, Callable[[SensorConfig], BearingSensor]] = {
+    "additive": _direction_noise_sensor,
+    "rotation": _direction_noise_sensor,
+    "camera": _camera_sensor,
+}
+
+
+def build_sensor(config: SensorConfig) -> BearingSensor:
+    """The bearing sensor a scenario's [sensor] section describes (eq. (4), eq. (25) or the camera)."""
+    return SENSORS[config.model](config)
+
+
+@dataclass(frozen=True)
+class EstimatorSettings:
+    """What every estimator factory receives, derived once from [estimator] (and [sensor]).
+
+    period: 1 / rate_hz, s. process_noise: Q = process_noise I, (m/s^2)^2, shape (3, 3).
+    measurement_noise: Sigma = measurement_noise I of eq. (4), shape (3, 3).
+    """
+
+    scenario: Scenario
+    period: float
+    process_noise: np.ndarray
+    measurement_noise: np.ndarray
+
+    @property
+    def config(self) -> EstimatorConfig:
+        return self.scenario.estimator
+
+
+def _uplkf(s: EstimatorSettings) -> TargetEstimator:
+    """The paper's u-PLKF (section IV) with the configured gain projection."""
+    return UPLKF(period=s.period, process_noise=s.process_noise, measurement_noise=s.measurement_noise,
+                 gain_projection=GainProjection(s.config.gain_projection),
+                 pursuer_position_std=s.config.pursuer_position_std, restart_when_behind=s.config.restart_when_behind)
+
+
+def _azel_ekf(s: EstimatorSettings) -> TargetEstimator:
+    """The classic azimuth/elevation EKF of section VIII-B (Cartesian state)."""
+    return AzElEKF(s.period, s.process_noise, s.measurement_noise, pursuer_position_std=s.config.pursuer_position_std,
+                   restart_when_behind=s.config.restart_when_behind)
+
+
+def _msc_ekf(s: EstimatorSettings) -> TargetEstimator:
+    """The modified-spherical-coordinates EKF of section II-A."""
+    return MSCEKF(s.period, s.process_noise, s.measurement_noise, pursuer_position_std=s.config.pursuer_position_std,
+                  restart_when_behind=s.config.restart_when_behind)
+
+
+def _range_azel_ekf(s: EstimatorSettings) -> TargetEstimator:
+    """Seed 003's range/azimuth/elevation EKF; the Scenario validator guarantees a range sensor."""
+    range_noise_std = s.scenario.sensor.range_noise_std
+    assert range_noise_std is not None
+    return RangeAzElEKF(s.period, measurement_noise=s.measurement_noise, range_noise_std=max(range_noise_std, 1e-3),
+                        pursuer_position_std=s.config.pursuer_position_std)
+
+
+#: [estimator] kind -> its factory. Keys are exactly EstimatorConfig.kind's Literal values;
+#: a new baseline is one entry here and one value in the schema's Literal.
+ESTIMATORS: dict[str, Callable[[EstimatorSettings], TargetEstimator]] = {
+    "uplkf": _uplkf,
+    "ekf": _azel_ekf,
+    "msc_ekf": _msc_ekf,
+    "ekf_rae": _range_azel_ekf,
+}
+
+
 def build_estimator(scenario: Scenario) -> TargetEstimator:
     """The estimator of the scenario's [estimator] section: the u-PLKF or a baseline of section VIII-B."""
     settings = scenario.estimator
-    period = 1.0 / settings.rate_hz
-    process_noise = settings.process_noise * np.eye(3)
-    measurement_noise = settings.measurement_noise * np.eye(3)
-    if settings.kind == "ekf":
-        return AzElEKF(period, process_noise, measurement_noise, pursuer_position_std=settings.pursuer_position_std,
-                       restart_when_behind=settings.restart_when_behind)
-    if settings.kind == "msc_ekf":
-        return MSCEKF(period, process_noise, measurement_noise, pursuer_position_std=settings.pursuer_position_std,
-                      restart_when_behind=settings.restart_when_behind)
-    if settings.kind == "ekf_rae":
-        assert scenario.sensor.range_noise_std is not None  # the Scenario validator guarantees it
-        return RangeAzElEKF(period, measurement_noise=measurement_noise,
-                            range_noise_std=max(scenario.sensor.range_noise_std, 1e-3),
-                            pursuer_position_std=settings.pursuer_position_std)
-    return UPLKF(
-        period=period,
-        process_noise=process_noise,
-        measurement_noise=measurement_noise,
-        gain_projection=GainProjection(settings.gain_projection),
-        pursuer_position_std=settings.pursuer_position_std,
-        restart_when_behind=settings.restart_when_behind,
-    )
+    derived = EstimatorSettings(scenario, period=1.0 / settings.rate_hz,
+                                process_noise=settings.process_noise * np.eye(3),
+                                measurement_noise=settings.measurement_noise * np.eye(3))
+    return ESTIMATORS[settings.kind](derived)
+
+
+#: [guidance] law -> its factory. Keys are exactly GuidanceConfig.law's Literal values.
+LATERAL_GUIDANCE: dict[str, Callable[[GuidanceConfig], LateralGuidance]] = {
+    "hng": lambda g: HelicalNavigationGuidance(g.navigation_gain, g.c_z, g.c_y, g.weave_frequency, g.scale_with_range),
+    "ppg": lambda g: PurePursuitGuidance(g.navigation_gain),
+    "png": lambda g: ProportionalNavigationGuidance(g.navigation_gain),
+    "pd": lambda g: PDFollowingController(g.pd_kp, g.pd_kd, g.desired_range),
+    "retro_png": lambda g: RetroProportionalNavigationGuidance(g.retro_gain),
+    "zem": lambda g: ZEMObservabilityGuidance(g.zem_k_w, g.zem_max_gain, g.desired_range),
+}
 
 
 def build_lateral_guidance(scenario: Scenario) -> LateralGuidance:
     """The [guidance] law: HNG (eq. 14) or a baseline of section VIII-C."""
-    settings = scenario.guidance
-    if settings.law == "ppg":
-        return PurePursuitGuidance(settings.navigation_gain)
-    if settings.law == "png":
-        return ProportionalNavigationGuidance(settings.navigation_gain)
-    if settings.law == "pd":
-        return PDFollowingController(settings.pd_kp, settings.pd_kd, settings.desired_range)
-    if settings.law == "retro_png":
-        return RetroProportionalNavigationGuidance(settings.retro_gain)
-    if settings.law == "zem":
-        return ZEMObservabilityGuidance(settings.zem_k_w, settings.zem_max_gain, settings.desired_range)
-    return HelicalNavigationGuidance(settings.navigation_gain, settings.c_z, settings.c_y, settings.weave_frequency, settings.scale_with_range)
+    return LATERAL_GUIDANCE[scenario.guidance.law](scenario.guidance)
+
+
+def build_range_controller(scenario: Scenario) -> RangeController:
+    """The range controller of eq. (15)-(19). The schema has no choice of range controller: every law
+    but 'pd' (whose class says includes_range_control) gets this longitudinal term, and the dropout
+    policy's safe behaviour uses it for every law."""
+    return RangeController(scenario.guidance.desired_range, scenario.guidance.range_gain)
 
 
 def initial_guess(scenario: Scenario) -> InitialGuess:
@@ -104,7 +173,7 @@ def build_pipeline(scenario: Scenario, vehicle: VehicleConfig, hover_thrust_norm
     return FollowingPipeline(
         estimator=build_estimator(scenario),
         lateral_guidance=build_lateral_guidance(scenario),
-        range_controller=RangeController(scenario.guidance.desired_range, scenario.guidance.range_gain),
+        range_controller=build_range_controller(scenario),
         limits=vehicle_limits(vehicle, hover_thrust_normalized),
         initial_guess=initial_guess(scenario),
         control_period=1.0 / scenario.guidance.rate_hz,

@@ -273,7 +273,7 @@ def _log_tick(log: FlightLog, time: float, truth: RigidBodyState, target: Target
         row.update(
             estimate_position=estimate.position,
             estimate_velocity=estimate.velocity,
-            estimate_position_std=math.sqrt(max(float(np.trace(estimate.covariance[:3, :3])), 0.0)),
+            estimate_position_std=estimate.position_std,
         )
     if setpoint is not None:
         row.update(command_acceleration=setpoint.acceleration, thrust_normalized=setpoint.thrust_normalized)

@@ -1,4 +1,4 @@
-"""The companion application's link handling, driven directly (no vehicle, no sockets)."""
+"""The companion application's target link and command handling, driven directly (no vehicle, no sockets)."""
 
 from __future__ import annotations
 
@@ -26,51 +26,53 @@ def _fix(seq: int, stamp: float, position=(60.0, -20.0, -20.0), sender="target-1
 
 
 def test_fixes_are_validated_and_counted_by_reason(app):
-    app._on_fix(_fix(0, 1.0), 0)
-    app._on_fix(_fix(1, 1.2, sender="intruder"), 0)
-    app._on_fix(_fix(1, 1.2), 0)
-    app._on_fix(_fix(1, 1.4), 0)  # repeated seq
-    app._on_fix(_fix(2, 1.2), 0)  # stamp not after the last one
-    app._on_fix(b"\xff\xfe not json", 0)
-    app._on_fix(b'{"schema": "bof.target_fix/1"}', 0)
-    assert app.health.received == 7
-    assert app.health.accepted == 2
-    assert dict(app.health.rejected) == {"wrong_sender": 1, "stale_seq": 1, "stale_stamp": 1, "not_utf8": 1, "missing_field": 1}
+    app.target_link.on_fix(_fix(0, 1.0), 0)
+    app.target_link.on_fix(_fix(1, 1.2, sender="intruder"), 0)
+    app.target_link.on_fix(_fix(1, 1.2), 0)
+    app.target_link.on_fix(_fix(1, 1.4), 0)  # repeated seq
+    app.target_link.on_fix(_fix(2, 1.2), 0)  # stamp not after the last one
+    app.target_link.on_fix(b"\xff\xfe not json", 0)
+    app.target_link.on_fix(b'{"schema": "bof.target_fix/1"}', 0)
+    assert app.target_link.health.received == 7
+    assert app.target_link.health.accepted == 2
+    assert dict(app.target_link.health.rejected) == {"wrong_sender": 1, "stale_seq": 1, "stale_stamp": 1, "not_utf8": 1, "missing_field": 1}
     records = [json.loads(line) for line in (app.recorder.folder / "zenoh_rx.jsonl").read_text().splitlines()]
     assert [r["verdict"] for r in records] == ["accepted", "rejected", "accepted", "rejected", "rejected", "rejected", "rejected"]
     # Before the companion is ready to follow, fixes only prove the link is up.
-    assert not app.pending
+    assert not app.target_link.pending
 
 
 def test_geodetic_fix_becomes_the_ned_position_about_home(app):
-    app.phase = Phase.READY
+    app.sequencer.phase = Phase.READY
     home = app.scenario.sitl.home
     geodetic = geodesy.ned_to_geodetic((60.0, -20.0, -20.0), home)
-    app._on_fix(_fix(0, 2.0, position=geodetic, frame="geodetic"), 123)
-    assert len(app.pending) == 1
-    np.testing.assert_allclose(app.pending[0].position, [60.0, -20.0, -20.0], atol=1e-3)
-    assert app.pending[0].received_ns == 123
+    app.target_link.on_fix(_fix(0, 2.0, position=geodetic, frame="geodetic"), 123)
+    assert len(app.target_link.pending) == 1
+    np.testing.assert_allclose(app.target_link.pending[0].position, [60.0, -20.0, -20.0], atol=1e-3)
+    assert app.target_link.pending[0].received_ns == 123
 
 
 def test_a_bearing_is_built_at_the_fix_time_from_own_state_history(app):
-    app.phase = Phase.READY
+    app.sequencer.phase = Phase.READY
     for k in range(11):  # own state at 50 Hz, flying north at 5 m/s
         t = 2.0 + 0.02 * k
         app.history.append(t, np.array([5.0 * (t - 2.0), 0.0, -20.0]), np.array([5.0, 0.0, 0.0]), np.eye(3))
-    app._on_fix(_fix(0, 2.1, position=(60.0, 0.0, -20.0)), 0)
-    app._on_fix(_fix(1, 2.5, position=(60.0, 0.0, -20.0)), 0)  # ahead of the own state: waits
-    bearings = app._due_bearings(2.2)
-    assert len(bearings) == 1 and len(app.pending) == 1
+    app.target_link.on_fix(_fix(0, 2.1, position=(60.0, 0.0, -20.0)), 0)
+    app.target_link.on_fix(_fix(1, 2.5, position=(60.0, 0.0, -20.0)), 0)  # ahead of the own state: waits
+    due = app.target_link.due_bearings(2.2)
+    assert len(due) == 1 and len(app.target_link.pending) == 1
+    assert due[0][0].seq == 0
+    bearings = [bearing for _, bearing in due]
     assert bearings[0].time == pytest.approx(2.1)
     np.testing.assert_allclose(bearings[0].pursuer_position, [0.5, 0.0, -20.0], atol=1e-9)
     assert np.linalg.norm(bearings[0].direction - [1.0, 0.0, 0.0]) < 0.05  # eq. (4) noise, sigma 0.01
 
 
 def test_abort_command_is_honoured_and_garbage_commands_are_not(app):
-    app._on_command(b"abort")
-    assert not app.abort_requested
-    app._on_command(link.encode_command(link.Command("ground-station", 0, 3.0, "abort")))
-    assert app.abort_requested
+    app.on_command(b"abort")
+    assert not app.sequencer.abort_requested
+    app.on_command(link.encode_command(link.Command("ground-station", 0, 3.0, "abort")))
+    assert app.sequencer.abort_requested
     events = [json.loads(line) for line in (app.recorder.folder / "events.jsonl").read_text().splitlines()]
     assert [e["kind"] for e in events] == ["command_rejected", "command"]
 
@@ -78,19 +80,19 @@ def test_abort_command_is_honoured_and_garbage_commands_are_not(app):
 def test_every_malformed_kind_is_counted_under_its_reason_and_never_reaches_the_bearings(app):
     from sitl_plant.target.link_faults import CORRUPTION_REASONS, corrupt_payload
 
-    app.phase = Phase.READY
-    app._on_fix(_fix(0, 1.0), 0)
+    app.sequencer.phase = Phase.READY
+    app.target_link.on_fix(_fix(0, 1.0), 0)
     expected = {}
     for seq, (kind, reason) in enumerate(sorted(CORRUPTION_REASONS.items()), start=1):
         broken, _ = corrupt_payload(_fix(seq, 1.0 + 0.2 * seq), kind, np.array([0.3, 0.6]))
-        app._on_fix(broken, 0)
+        app.target_link.on_fix(broken, 0)
         expected[reason] = expected.get(reason, 0) + 1
-    app._on_fix(_fix(50, 9.0, sender="impostor-1"), 0)
-    app._on_fix(_fix(0, 1.0), 0)  # a duplicate / stale message
-    app._on_fix(_fix(51, 9.2, position=(5000.0, 0.0, -20.0)), 0)  # a wild jump
+    app.target_link.on_fix(_fix(50, 9.0, sender="impostor-1"), 0)
+    app.target_link.on_fix(_fix(0, 1.0), 0)  # a duplicate / stale message
+    app.target_link.on_fix(_fix(51, 9.2, position=(5000.0, 0.0, -20.0)), 0)  # a wild jump
     expected.update(wrong_sender=1, stale_seq=1, implausible_jump=1)
-    assert dict(app.health.rejected) == expected
-    assert app.health.accepted == 1 and len(app.pending) == 1  # only the valid fix is queued
+    assert dict(app.target_link.health.rejected) == expected
+    assert app.target_link.health.accepted == 1 and len(app.target_link.pending) == 1  # only the valid fix is queued
 
 
 @pytest.fixture
@@ -111,9 +113,49 @@ def test_fuzzed_payloads_never_crash_the_companion_and_are_all_accounted_for(bar
     @settings(max_examples=300, derandomize=True, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
     @given(st.one_of(st.binary(max_size=300), json_like.map(lambda value: json.dumps(value).encode())))
     def run(payload):
-        before = bare_app.health.received
-        bare_app._on_fix(payload, 0)
-        assert bare_app.health.received == before + 1
-        assert bare_app.health.accepted + sum(bare_app.health.rejected.values()) == bare_app.health.received
+        before = bare_app.target_link.health.received
+        bare_app.target_link.on_fix(payload, 0)
+        assert bare_app.target_link.health.received == before + 1
+        assert bare_app.target_link.health.accepted + sum(bare_app.target_link.health.rejected.values()) == bare_app.target_link.health.received
 
     run()
+
+
+class _Control:
+    """What the state publisher reads from the follower."""
+
+    def __init__(self, last_output) -> None:
+        self.last_output = last_output
+        self.setpoints_sent = 7
+
+
+def test_state_payload_carries_the_estimate_summary_at_the_state_rate(app):
+    """5 Hz of vehicle time; position_std / velocity_std are the RMS per-axis sigmas sqrt(trace/3) of the
+    covariance blocks (here diag(4, 9, 16) m^2 and diag(1, 1, 1) (m/s)^2), range |p^_T - p|."""
+    from companion.adapters.mavsdk_vehicle import VehicleSample
+    from companion.core.messages import PursuerState, TargetEstimate
+    from companion.core.pipeline import TrackMode
+    from companion.state_publisher import StatePublisher
+    from types import SimpleNamespace
+
+    estimate = TargetEstimate(3.0, np.array([30.0, 40.0, -20.0]), np.array([1.0, 0.0, 0.0]),
+                              np.diag([4.0, 9.0, 16.0, 1.0, 1.0, 1.0]))
+    output = SimpleNamespace(mode=TrackMode.TRACKING, bearing_age=0.1, observability=None, estimate=estimate)
+    sent: list[bytes] = []
+    publisher = StatePublisher("pursuer-1", 5.0, sent.append, phase=lambda: "following",
+                               health=app.target_link.health, control=_Control(output))
+    for k in range(26):  # 0.5 s at 50 Hz
+        publisher.publish(VehicleSample(PursuerState(3.0 + 0.02 * k, np.array([0.0, 0.0, -20.0]), np.zeros(3)), np.eye(3)))
+    states = [json.loads(payload) for payload in sent]
+    assert [s["seq"] for s in states] == [0, 1, 2]
+    stamps = np.array([s["stamp"] for s in states])
+    assert stamps[0] == 3.0 and np.all((np.diff(stamps) > 0.2 - 1e-9) & (np.diff(stamps) < 0.2 + 0.02 + 1e-9))
+    state = states[0]
+    assert (state["schema"], state["sender"], state["phase"], state["setpoints_sent"]) == (
+        "bof.companion_state/1", "pursuer-1", "following", 7)
+    assert state["estimate"]["position_std"] == pytest.approx(np.sqrt(29.0 / 3.0))
+    assert state["estimate"]["velocity_std"] == pytest.approx(1.0)
+    assert state["estimate"]["range"] == pytest.approx(50.0)
+    assert state["track"] == {"mode": "tracking", "bearing_age": 0.1}
+    assert set(state) == {"schema", "sender", "seq", "stamp", "phase", "pursuer", "link", "setpoints_sent", "track",
+                          "estimate"}

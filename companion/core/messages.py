@@ -6,6 +6,7 @@ All positions and velocities are in the local NED frame, SI units.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -59,6 +60,21 @@ class TargetEstimate:
     position: np.ndarray
     velocity: np.ndarray
     covariance: np.ndarray
+
+    @property
+    def position_std(self) -> float:
+        """RMS per-axis standard deviation of the position, m: sqrt(trace(P_pos) / 3).
+
+        P_pos = covariance[:3, :3]. For an isotropic covariance sigma^2 I it is sigma; it is
+        the figure the dropout policy, the companion's state/series and the simulator's
+        flight log all report (one definition, so the harnesses agree).
+        """
+        return math.sqrt(max(float(np.trace(self.covariance[:3, :3])), 0.0) / 3.0)
+
+    @property
+    def velocity_std(self) -> float:
+        """RMS per-axis standard deviation of the velocity, m/s: sqrt(trace(P_vel) / 3), P_vel = covariance[3:, 3:]."""
+        return math.sqrt(max(float(np.trace(self.covariance[3:, 3:])), 0.0) / 3.0)
 
     def extrapolated(self, time: float) -> "TargetEstimate":
         """Constant-velocity extrapolation of the mean to `time` (covariance unchanged)."""

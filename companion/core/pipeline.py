@@ -258,7 +258,7 @@ class FollowingPipeline:
             return
         gap = time - self._last_bearing_time
         estimate = self.estimator.estimate
-        position_std = float(np.sqrt(max(np.trace(estimate.covariance[:3, :3]), 0.0) / 3.0))
+        position_std = estimate.position_std
         policy = self.dropout
         if gap >= policy.coast_limit or (gap >= policy.coast_after and position_std > policy.max_position_std):
             mode = TrackMode.DEGRADED

@@ -1,0 +1,140 @@
+"""The control loop while following: one odometry sample in, at most one setpoint out.
+
+Per sample: own state into the history the bearings are rebuilt from, the bearings whose fix
+time that history now covers, the shared FollowingPipeline on the vehicle's clock, then (when
+the mission sequencer allows commanding) the setpoint to the autopilot. It also keeps the
+control-side figures of the run (setpoints sent, deadline misses, fix-to-setpoint latency),
+announces track-mode changes (log, STATUSTEXT) and writes the series row. Whether it may
+command at all is the sequencer's decision (companion.mission).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from companion.adapters.mavsdk_vehicle import MavsdkVehicle, VehicleError, VehicleSample
+from companion.adapters.recorder import RunRecorder
+from companion.core.messages import BearingMeasurement
+from companion.core.pipeline import FollowingPipeline, PipelineOutput
+from companion.core.state_history import StateHistory
+
+if TYPE_CHECKING:
+    from companion.target_link import PendingFix, TargetLink
+
+#: Track mode -> (STATUSTEXT severity, text) the autopilot forwards to the ground station.
+TRACK_MODE_TEXTS = {
+    "coasting": ("INFO", "target link silent: coasting on prediction"),
+    "degraded": ("WARNING", "target link lost: holding safe distance"),
+    "reacquiring": ("INFO", "target fixes back: re-acquiring"),
+    "tracking": ("INFO", "target tracked"),
+}
+
+
+class Follower:
+    """Drives the pipeline with odometry and bearings; `attach` the vehicle and pipeline before `step`.
+
+    target_link: gives the bearings due at a time. history: the own-state history the target
+    link's bearing builder reads. recorder: the run folder (events, series, latency).
+    """
+
+    def __init__(self, target_link: "TargetLink", history: StateHistory, recorder: RunRecorder) -> None:
+        self.target_link = target_link
+        self.history = history
+        self.recorder = recorder
+        self.vehicle: MavsdkVehicle | None = None
+        self.pipeline: FollowingPipeline | None = None
+        self.setpoints_sent = 0
+        self.deadline_misses = 0
+        self.latencies_ms: list[float] = []  # fix received -> first setpoint sent after its bearing
+        self.last_output: PipelineOutput | None = None
+        self._awaiting_setpoint: list["PendingFix"] = []
+
+    def attach(self, vehicle: MavsdkVehicle, pipeline: FollowingPipeline) -> None:
+        self.vehicle = vehicle
+        self.pipeline = pipeline
+
+    def record_state(self, sample: VehicleSample) -> None:
+        state = sample.state
+        self.history.append(state.time, state.position, state.velocity, sample.rotation)
+
+    def step(self, sample: VehicleSample) -> tuple[PipelineOutput, list[BearingMeasurement]]:
+        """Own state in, due bearings (oldest first) through the pipeline; returns its last output and the bearings."""
+        self.record_state(sample)
+        due = self.target_link.due_bearings(sample.state.time)
+        self._awaiting_setpoint.extend(fix for fix, _ in due)
+        bearings = [bearing for _, bearing in due]
+        output = None
+        for bearing in bearings or [None]:
+            output = self.pipeline.step(sample.state.time, sample.state, bearing)
+        return output, bearings
+
+    async def engage(self, output: PipelineOutput) -> None:
+        """Start offboard with the first setpoint (PX4 needs the stream before the mode switch)."""
+        await self.vehicle.start_offboard(output.setpoint)
+        self._sent(output)
+
+    async def send(self, output: PipelineOutput) -> None:
+        await self.vehicle.send_setpoint(output.setpoint)
+        self._sent(output)
+
+    async def resume(self, sample: VehicleSample) -> None:
+        """Re-engage after the autopilot had taken over: a fresh setpoint from the newest state, then offboard."""
+        self.record_state(sample)
+        output = self.pipeline.step(sample.state.time, sample.state, None)
+        await self.vehicle.start_offboard(output.setpoint)
+
+    async def report(self, sample: VehicleSample, output: PipelineOutput, bearings: list[BearingMeasurement],
+                     phase: str) -> None:
+        """Announce a track-mode change, remember the output (the state publisher reads it), write the series row."""
+        if self.last_output is not None and output.mode != self.last_output.mode:
+            await self._track_mode_changed(output)
+        self.last_output = output
+        self._log_row(sample, output, bearings, phase)
+
+    async def _track_mode_changed(self, output: PipelineOutput) -> None:
+        """Say so in the log, on Zenoh (next state) and to the autopilot/ground station (STATUSTEXT)."""
+        severity, text = TRACK_MODE_TEXTS[output.mode.value]
+        self.recorder.event(output.time, "track_mode", f"{output.mode.value} (bearing age {output.bearing_age:.2f} s)")
+        try:
+            await self.vehicle.status_text(text, severity)
+        except VehicleError as error:
+            self.recorder.event(output.time, "status_text_failed", str(error))
+
+    def _sent(self, output: PipelineOutput) -> None:
+        now_ns = time.monotonic_ns()
+        self.setpoints_sent += 1
+        for fix in self._awaiting_setpoint:
+            self.recorder.latency(fix.seq, fix.stamp, fix.received_ns, now_ns)
+            self.latencies_ms.append((now_ns - fix.received_ns) * 1e-6)
+        self._awaiting_setpoint = []
+        # Deadline: the setpoint of a control tick must be out before the next tick is due.
+        newest = self.vehicle.latest.state.time
+        if newest - output.time > self.pipeline.control_period:
+            self.deadline_misses += 1
+
+    def _log_row(self, sample: VehicleSample, output: PipelineOutput, bearings: list[BearingMeasurement], phase: str) -> None:
+        s = sample.state
+        row = {"time": s.time, "phase": phase, "track_mode": output.mode.value, "bearing_age": output.bearing_age,
+               "px": s.position[0], "py": s.position[1], "pz": s.position[2],
+               "vx": s.velocity[0], "vy": s.velocity[1], "vz": s.velocity[2],
+               "new_setpoint": int(output.new_setpoint)}
+        if output.estimate is not None:
+            e = output.estimate.extrapolated(s.time)
+            row.update(est_x=e.position[0], est_y=e.position[1], est_z=e.position[2],
+                       est_vx=e.velocity[0], est_vy=e.velocity[1], est_vz=e.velocity[2],
+                       est_position_std=e.position_std,
+                       range_estimate=float(np.linalg.norm(e.position - s.position)))
+        if bearings:
+            b = bearings[-1]
+            row.update(bearing_x=float(b.direction[0]), bearing_y=float(b.direction[1]), bearing_z=float(b.direction[2]),
+                       bearing_time=b.time)
+        if output.observability is not None:
+            row.update(observability_log_det=float(output.observability["log_det"]),
+                       observability_min_eigenvalue=float(output.observability["min_eigenvalue"]))
+        if output.setpoint is not None:
+            a = output.setpoint.acceleration
+            row.update(acc_x=float(a[0]), acc_y=float(a[1]), acc_z=float(a[2]), thrust_normalized=output.setpoint.thrust_normalized)
+        self.recorder.series(row)
