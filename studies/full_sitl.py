@@ -26,6 +26,7 @@ import math
 import socket
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -219,11 +220,15 @@ def _progress(state: dict | None) -> str:
 
 def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, timeout: float | None,
         plots: bool = True, quiet: bool = False, abort_after: float | None = None,
-        target_faults: list[str] | None = None) -> tuple[int, Path, dict]:
+        target_faults: list[str] | None = None,
+        on_state: Callable[[dict | None, float | None], None] | None = None) -> tuple[int, Path, dict]:
     """Fly `config` through the three processes; returns (exit code, run folder, summary).
 
     abort_after: send the companion an abort this many simulated seconds after it engaged.
-    target_faults: KEY=VALUE overrides of [faults] for sitl-target (its --fault option)."""
+    target_faults: KEY=VALUE overrides of [faults] for sitl-target (its --fault option).
+    on_state: called about every 50 ms of wall time with the companion's latest state payload
+    (None before the first) and the vehicle time it engaged at (s; None before), e.g. to show
+    progress while `quiet`."""
     scenario, _ = load_scenario(config)
     speed = scenario.sitl.speed_factor if speed_factor is None else speed_factor
     seed = scenario.simulation.seed if seed is None else seed
@@ -265,6 +270,8 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
             if (abort_after is not None and state and station.engaged_stamp is not None and not station.abort_sent
                     and float(state.get("stamp", 0.0)) >= station.engaged_stamp + abort_after):
                 station.abort_companion(float(state["stamp"]))
+            if on_state is not None:
+                on_state(state, station.engaged_stamp)
             if not quiet and time.monotonic() >= next_print:
                 next_print = time.monotonic() + 2.0
                 print(f"bof-sitl: {_progress(state)}", flush=True)
