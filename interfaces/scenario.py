@@ -13,7 +13,7 @@ import tomllib
 from pathlib import Path
 from typing import Annotated, Literal, get_args
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, Strict, ValidationError, model_validator
 
 
 class ConfigError(ValueError):
@@ -26,13 +26,18 @@ def _finite_vector(value: tuple[float, float, float]) -> tuple[float, float, flo
     return value
 
 
-Vector3 = Annotated[tuple[float, float, float], AfterValidator(_finite_vector)]
+#: TOML has arrays, not tuples: a tuple field takes a list for its container; its items stay strict.
+FROM_ARRAY = Strict(False)
+Vector3 = Annotated[tuple[float, float, float], FROM_ARRAY, AfterValidator(_finite_vector)]
 Positive = Annotated[float, Field(gt=0.0)]
 NonNegative = Annotated[float, Field(ge=0.0)]
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, strict=False)
+    """Every section: unknown keys refused, no NaN/inf, no coercion (the string "12" is not the
+    number 12; an integer is accepted where a float is expected, as TOML writes `8` for 8.0)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, strict=True)
 
 
 class VehicleConfig(_Strict):
@@ -83,7 +88,7 @@ class ManeuverConfig(_Strict):
 class TargetConfig(_Strict):
     initial_position: Vector3
     initial_velocity: Vector3
-    maneuvers: tuple[ManeuverConfig, ...] = ()
+    maneuvers: Annotated[tuple[ManeuverConfig, ...], FROM_ARRAY] = ()
 
     @model_validator(mode="after")
     def _no_overlap(self) -> "TargetConfig":
@@ -110,9 +115,9 @@ class CameraConfig(_Strict):
     """
 
     focal_length: Positive = 0.008
-    pixel_size: tuple[Positive, Positive] = (1e-5, 1e-5)
-    principal_point: tuple[float, float] = (512.0, 512.0)
-    image_size: tuple[PositiveInt, PositiveInt] = (1024, 1024)
+    pixel_size: Annotated[tuple[Positive, Positive], FROM_ARRAY] = (1e-5, 1e-5)
+    principal_point: Annotated[tuple[float, float], FROM_ARRAY] = (512.0, 512.0)
+    image_size: Annotated[tuple[PositiveInt, PositiveInt], FROM_ARRAY] = (1024, 1024)
     pixel_noise_std: NonNegative = 1.0
     mount_rpy_deg: Vector3 = (0.0, 0.0, 0.0)
 
@@ -247,8 +252,8 @@ class LinkConfig(_Strict):
     """
 
     mode: Literal["peer", "client", "router"] = "peer"
-    listen: tuple[str, ...] = ()
-    connect: tuple[str, ...] = ()
+    listen: Annotated[tuple[str, ...], FROM_ARRAY] = ()
+    connect: Annotated[tuple[str, ...], FROM_ARRAY] = ()
     zenoh_overrides: dict[str, str] = {}
     target_sender: Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")] = "target-1"
     companion_id: Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")] = "pursuer-1"
@@ -344,7 +349,7 @@ class MavlinkFaultsConfig(_Strict):
     the link is silent both ways.
     """
 
-    blackouts: tuple[BlackoutWindow, ...] = ()
+    blackouts: Annotated[tuple[BlackoutWindow, ...], FROM_ARRAY] = ()
 
     @model_validator(mode="after")
     def _no_overlap(self) -> "MavlinkFaultsConfig":
@@ -371,7 +376,7 @@ class FaultsConfig(_Strict):
     seed: Annotated[int, Field(ge=0)] | None = None
     loss_probability: Probability = 0.0
     burst: BurstLossConfig | None = None
-    blackouts: tuple[BlackoutWindow, ...] = ()
+    blackouts: Annotated[tuple[BlackoutWindow, ...], FROM_ARRAY] = ()
     latency_s: NonNegative = 0.0
     jitter_s: NonNegative = 0.0
     reorder_probability: Probability = 0.0
@@ -382,7 +387,7 @@ class FaultsConfig(_Strict):
     stale_min_age_s: NonNegative = 1.0
     stale_max_age_s: Positive = 5.0
     corrupt_probability: Probability = 0.0
-    corrupt_kinds: Annotated[tuple[CorruptKind, ...], Field(min_length=1)] = CORRUPT_KINDS
+    corrupt_kinds: Annotated[tuple[CorruptKind, ...], FROM_ARRAY, Field(min_length=1)] = CORRUPT_KINDS
     impostor_rate_hz: NonNegative = 0.0
     impostor_sender: SenderName = "impostor-1"
     impostor_offset: Vector3 = (30.0, 0.0, 0.0)

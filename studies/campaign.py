@@ -40,6 +40,7 @@ import numpy as np
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, FaultsConfig, Scenario, VehicleConfig, load_scenario
 from studies.closed_loop import Termination, simulate
 from studies.executors import make_executor
+from studies.metrics import write_summary
 
 DEFAULT_SCENARIO = DEFAULT_SCENARIO
 CONVERGED = 1.0  # m, range-estimation error
@@ -258,7 +259,7 @@ def main(argv: list[str] | None = None) -> int:
     sitl_rows = [_sitl_case(args.config, name, folder / "sitl", args.sitl_speed) for name in args.sitl]
     report = markdown(table, sitl_rows, scenario, args.seeds)
     (folder / "summary.md").write_text(report)
-    (folder / "summary.json").write_text(json.dumps({"patterns": table, "sitl": sitl_rows}, indent=2, default=float))
+    write_summary(folder / "summary.json", {"patterns": table, "sitl": sitl_rows})
     print(report)
     print(f"run folder: {folder}")
     missed = [e["pattern"] for e in table if e.get("meets_targets") is False]

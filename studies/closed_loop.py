@@ -28,6 +28,7 @@ from sitl_plant.vehicle.params import QuadrotorParams, quadrotor_params
 from sitl_plant.vehicle.quadrotor import RigidBodyState
 from sitl_plant.target.link_faults import LinkFaults, fault_rng
 from sitl_plant.target.models import Maneuver, TargetModel
+from studies.metrics import summarize
 
 
 class Termination(enum.Enum):
@@ -283,59 +284,3 @@ def _log_tick(log: FlightLog, time: float, truth: RigidBodyState, target: Target
         row.update(observability_log_det=output.observability["log_det"],
                    observability_min_eigenvalue=output.observability["min_eigenvalue"])
     log.append(**row)
-
-
-def _rms(values: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(np.square(values)))) if values.size else math.nan
-
-
-def summarize(series: dict[str, np.ndarray], scenario: Scenario, termination: Termination) -> dict:
-    """Figures of merit over the last summary_window seconds, plus whole-flight extremes.
-
-    range_error: |p_T - p| - r_d (m); range_estimation_error: |p^_T - p| - |p_T - p| (m);
-    convergence_time: first time after which both stay within converged_range_error.
-    """
-    time = series["time"]
-    window = time >= time[-1] - scenario.simulation.summary_window
-    range_error = series["range"] - scenario.guidance.desired_range
-    estimation_error = series["range_estimate"] - series["range"]
-    position_error = np.linalg.norm(series["estimate_position"] - series["target_position"], axis=1)
-    velocity_error = np.linalg.norm(series["estimate_velocity"] - series["target_velocity"], axis=1)
-    threshold = scenario.simulation.converged_range_error
-    outside = ~((np.abs(range_error) < threshold) & (np.abs(estimation_error) < threshold))
-    if not outside.any():
-        convergence_time = float(time[0])
-    elif outside[-1]:
-        convergence_time = math.nan
-    else:
-        convergence_time = float(time[np.nonzero(outside)[0][-1] + 1])
-    return {
-        "scenario": scenario.name,
-        "termination": termination.name,
-        "termination_reason": termination.value,
-        "duration": float(time[-1]),
-        "summary_window": scenario.simulation.summary_window,
-        "desired_range": scenario.guidance.desired_range,
-        "range_error_rms": _rms(range_error[window]),
-        "range_error_max_abs": float(np.max(np.abs(range_error[window]))),
-        "range_estimation_error_rms": _rms(estimation_error[window]),
-        "range_estimation_error_max_abs": float(np.max(np.abs(estimation_error[window]))),
-        "position_estimation_error_rms": _rms(position_error[window]),
-        "velocity_estimation_error_rms": _rms(velocity_error[window]),
-        "convergence_time": convergence_time,
-        "convergence_threshold": threshold,
-        "min_range": float(np.min(series["range"])),
-        "max_tilt_deg": float(np.max(series["pursuer_tilt"])),
-        "max_speed": float(np.max(np.linalg.norm(series["pursuer_velocity"], axis=1))),
-        "heading_error_rms_deg": _rms(series["heading_error"][window][np.isfinite(series["heading_error"][window])]),
-        "observability_log_det_median": _median_finite(series.get("observability_log_det"), window),
-    }
-
-
-def _median_finite(values: np.ndarray | None, window: np.ndarray) -> float:
-    """Median of the finite values in the window (the windowed FIM's log10 det; -inf when singular)."""
-    if values is None:
-        return math.nan
-    chosen = values[window]
-    chosen = chosen[np.isfinite(chosen)]
-    return float(np.median(chosen)) if chosen.size else math.nan

@@ -2,6 +2,8 @@
 
     bof-sitl [config/scenarios/constant_velocity.toml] [--speed-factor 2] [--out runs]
 
+The run folder sitl-<scenario>-seed<seed>-<time>/ is created inside --out (default runs/).
+
 Starts, on free loopback ports, the plant (sitl-plant: MAVLink vehicle, simulated
 clock on Zenoh), the target simulator (sitl-target: fixes on Zenoh) and the companion
 (companion: MAVSDK + Zenoh + the shared pipeline), then acts as the ground station: it
@@ -10,7 +12,8 @@ watches the companion's state on Zenoh, prints progress, and sends the target it
 following. When the companion has landed it stops everything and writes the run folder:
 
     plant/ target/ companion/   each process's own logs (companion/mavlink.tlog included)
-    summary.json                the same figures of merit as bof-sim, from the truth logs
+    summary.json                the same figures of merit as bof-sim (studies.metrics), from the
+                                truth logs; figures that do not apply are null
     trajectory.png errors.png   3-D trajectory and errors (paper Fig. 8 style)
     link.png                    target link timeline: fixes received/rejected, bearings used, latency
 """
@@ -23,6 +26,7 @@ import math
 import socket
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +34,8 @@ import numpy as np
 from interfaces import link_schema as link
 from interfaces import zenoh_transport
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, load_scenario
-from studies.closed_loop import Termination, summarize
+from studies.closed_loop import Termination
+from studies.metrics import convergence_text, summarize, write_summary
 from studies.processes import ChildProcess, free_port
 
 DEFAULT_SCENARIO = DEFAULT_SCENARIO
@@ -100,6 +105,10 @@ def flight_series(run: Path) -> tuple[dict[str, np.ndarray], float]:
         "range_estimate": np.linalg.norm(estimate_position - pursuer, axis=1),
         "pursuer_tilt": np.degrees(np.arccos(np.clip(down_z, -1.0, 1.0))),
     }
+    # The companion's windowed FIM (section V), -inf while singular, as bof-sim logs it.
+    for key in ("observability_log_det", "observability_min_eigenvalue"):
+        if key in companion:
+            series[key] = companion[key][engaged]
     horizontal = forward[:, :2]
     los = relative[:, :2]
     norms = np.linalg.norm(horizontal, axis=1) * np.linalg.norm(los, axis=1)
@@ -209,11 +218,15 @@ def _progress(state: link.CompanionState | None) -> str:
 
 def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, timeout: float | None,
         plots: bool = True, quiet: bool = False, abort_after: float | None = None,
-        target_faults: list[str] | None = None) -> tuple[int, Path, dict]:
+        target_faults: list[str] | None = None,
+        on_state: Callable[[link.CompanionState | None, float | None], None] | None = None) -> tuple[int, Path, dict]:
     """Fly `config` through the three processes; returns (exit code, run folder, summary).
 
     abort_after: send the companion an abort this many simulated seconds after it engaged.
-    target_faults: KEY=VALUE overrides of [faults] for sitl-target (its --fault option)."""
+    target_faults: KEY=VALUE overrides of [faults] for sitl-target (its --fault option).
+    on_state: called about every 50 ms of wall time with the companion's latest state payload
+    (None before the first) and the vehicle time it engaged at (s; None before), e.g. to show
+    progress while `quiet`."""
     scenario, _ = load_scenario(config)
     speed = scenario.sitl.speed_factor if speed_factor is None else speed_factor
     seed = scenario.simulation.seed if seed is None else seed
@@ -255,6 +268,8 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
             if (abort_after is not None and state and station.engaged_stamp is not None and not station.abort_sent
                     and state.stamp >= station.engaged_stamp + abort_after):
                 station.abort_companion(state.stamp)
+            if on_state is not None:
+                on_state(state, station.engaged_stamp)
             if not quiet and time.monotonic() >= next_print:
                 next_print = time.monotonic() + 2.0
                 print(f"bof-sitl: {_progress(state)}", flush=True)
@@ -292,7 +307,7 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
         summary["flight"] = None
         summary["flight_error"] = str(error)
         code = code or 1
-    (folder / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True, default=float))
+    write_summary(folder / "summary.json", summary, sort_keys=True)
     return code, folder, summary
 
 
@@ -308,7 +323,7 @@ def format_summary(summary: dict) -> str:
         f"  range error vs r_d = {flight['desired_range']:g} m (last {flight['summary_window']:g} s): rms {flight['range_error_rms']:.3f} m",
         f"  range estimation error: rms {flight['range_estimation_error_rms']:.3f} m, max {flight['range_estimation_error_max_abs']:.3f} m",
         f"  position / velocity estimation: rms {flight['position_estimation_error_rms']:.3f} m, {flight['velocity_estimation_error_rms']:.3f} m/s",
-        f"  converged (both < {flight['convergence_threshold']:g} m for good) at t = {flight['convergence_time']:.2f} s after engagement",
+        f"  {convergence_text(flight, after=' after engagement')}",
         f"  minimum range {flight['min_range']:.2f} m, max tilt {flight['max_tilt_deg']:.1f} deg",
         f"  link: {companion['link']['accepted']} fixes accepted, {sum(companion['link']['rejected'].values())} rejected, "
         f"{companion['link']['bearings_used']} bearings used",
@@ -325,16 +340,28 @@ def format_summary(summary: dict) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="bof-sitl", description=__doc__.split("\n\n")[0])
     parser.add_argument("config", nargs="?", type=Path, default=DEFAULT_SCENARIO, help="scenario TOML (default: %(default)s)")
-    parser.add_argument("--speed-factor", type=float, default=None, help="simulated seconds per wall second ([sitl] speed_factor)")
-    parser.add_argument("--seed", type=int, default=None)
-    parser.add_argument("--out", type=Path, default=Path("runs"))
-    parser.add_argument("--timeout", type=float, default=None, help="wall-clock limit for the whole flight, s")
-    parser.add_argument("--no-plots", action="store_true")
+    parser.add_argument("--speed-factor", type=float, default=None,
+                        help="simulated seconds per wall second, within [0.5, 20] (default: the scenario's [sitl] "
+                             "speed_factor)")
+    parser.add_argument("--seed", type=int, default=None,
+                        help="seed of the plant's, target's and companion's noise (default: the scenario's "
+                             "[simulation] seed)")
+    parser.add_argument("--out", type=Path, default=Path("runs"),
+                        help="parent folder: the run folder sitl-<scenario>-seed<seed>-<time>/ is created inside it "
+                             "(default: %(default)s)")
+    parser.add_argument("--timeout", type=float, default=None,
+                        help="wall-clock limit for the whole flight, s (default: (follow duration + 90 s) / "
+                             "speed factor + 60 s)")
+    parser.add_argument("--no-plots", action="store_true",
+                        help="skip trajectory.png, errors.png and link.png (default: draw them)")
     parser.add_argument("--fault", action="append", default=None, metavar="KEY=VALUE",
-                        help="override a [faults] setting of the target link (sitl-target --fault), e.g. loss_probability=0.3")
+                        help="override a [faults] setting of the target link (sitl-target --fault), e.g. "
+                             "loss_probability=0.3; repeatable (default: the scenario's [faults])")
     parser.add_argument("--abort-after", type=float, default=None,
-                        help="as the ground station, send the companion 'abort' this many simulated seconds after it engages")
-    parser.add_argument("--quiet", action="store_true")
+                        help="as the ground station, send the companion 'abort' this many simulated seconds after it "
+                             "engages (default: never)")
+    parser.add_argument("--quiet", action="store_true",
+                        help="no progress line every 2 s of wall time, only the final summary (default: print them)")
     args = parser.parse_args(argv)
     if args.speed_factor is not None and not 0.5 <= args.speed_factor <= 20.0:
         print("bof-sitl: --speed-factor must be within [0.5, 20] (MAVSDK needs heartbeats; the plant tops out near 20x)", file=sys.stderr)

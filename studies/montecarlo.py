@@ -45,6 +45,7 @@ import numpy as np
 from interfaces.scenario import SCENARIOS_DIR, ConfigError, Scenario, VehicleConfig, load_scenario
 from studies.closed_loop import Termination, simulate
 from studies.executors import make_executor
+from studies.metrics import write_summary
 
 SCENARIOS = SCENARIOS_DIR
 DEFAULT_SCENARIO = SCENARIOS / "constant_velocity.toml"
@@ -457,7 +458,7 @@ def main(argv: list[str] | None = None) -> int:
     table = group_table(rows)
     report = markdown(table, title, runs, args.divergence_threshold, executor_name)
     np.savez_compressed(folder / "series.npz", **series)
-    (folder / "summary.json").write_text(json.dumps({"title": title, "runs": runs, "groups": table}, indent=2, default=float))
+    write_summary(folder / "summary.json", {"title": title, "runs": runs, "groups": table})
     if not args.no_plots:
         from studies import montecarlo_plots
 

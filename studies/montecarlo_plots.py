@@ -20,8 +20,13 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from studies.plots import set_metric_aspect  # noqa: E402
+
 DIMENSIONS = ("scenario", "estimator", "guidance", "case")
 MAX_PANELS = 16
+#: Font sizes (pt) readable at the saved size on a laptop screen or a printed page.
+FONTS = {"font.size": 11, "axes.titlesize": 11, "axes.labelsize": 11, "xtick.labelsize": 10, "ytick.labelsize": 10,
+         "legend.fontsize": 10, "figure.titlesize": 13}
 
 
 def choose_curves_by(rows: list[dict]) -> str:
@@ -34,17 +39,25 @@ def _label(row: dict, dims: tuple[str, ...]) -> str:
     return " / ".join(str(row[dim]) for dim in dims)
 
 
+def _common(rows: list[dict], dims: tuple[str, ...]) -> str:
+    """'scenario constant_velocity, guidance hng' for the dims of `dims` that one value fills in every row."""
+    return ", ".join(f"{dim} {rows[0][dim]}" for dim in dims if len({row[dim] for row in rows}) == 1)
+
+
 def _grid(count: int) -> tuple[int, int]:
     columns = min(count, 4)
     return math.ceil(count / columns), columns
 
 
+@plt.rc_context(FONTS)
 def errors_over_time(rows: list[dict], series: dict[str, np.ndarray], path: Path, curves_by: str, title: str) -> None:
+    """One panel per combination of the dimensions other than `curves_by` that vary; its title names
+    that combination, or (a single panel) what all runs share."""
     facets_dims = tuple(dim for dim in DIMENSIONS if dim != curves_by and len({row[dim] for row in rows}) > 1)
     facets = list(dict.fromkeys(_label(row, facets_dims) for row in rows))[:MAX_PANELS]
     curves = list(dict.fromkeys(row[curves_by] for row in rows))
     n_rows, n_cols = _grid(len(facets))
-    figure, axes = plt.subplots(n_rows, n_cols, figsize=(5.2 * n_cols, 3.8 * n_rows), squeeze=False, sharey=True)
+    figure, axes = plt.subplots(n_rows, n_cols, figsize=(6.0 * n_cols, 4.4 * n_rows), squeeze=False, sharey=True)
     time = series["time"][0]
     error = np.abs(series["range_estimation_error"])
     for panel, facet in enumerate(facets):
@@ -60,15 +73,16 @@ def errors_over_time(rows: list[dict], series: dict[str, np.ndarray], path: Path
             diverged = sum(rows[i]["diverged"] for i in chosen)
             axis.semilogy(time, mean, color=f"C{colour}", label=f"{curve} ({diverged}/{len(chosen)} diverged)")
             axis.semilogy(time, median, color=f"C{colour}", linestyle="--", linewidth=0.8)
-        axis.set_title(facet or "all", fontsize=9)
+        shared = _common(rows, tuple(dim for dim in DIMENSIONS if dim != curves_by))
+        axis.set_title(facet or f"one curve per {curves_by}" + (f"\n{shared}" if shared else ""))
         axis.set_xlabel("time (s)")
         axis.set_ylim(1e-3, 1e3)
         axis.grid(True, which="both", alpha=0.3)
-        axis.legend(fontsize=7)
+        axis.legend()
     for axis in axes.flat[len(facets):]:
         axis.set_visible(False)
     axes[0, 0].set_ylabel("|range-estimation error| (m)\nmean solid, median dashed")
-    figure.suptitle(title, fontsize=10)
+    figure.suptitle(title)
     figure.tight_layout()
     figure.savefig(path, dpi=110)
     plt.close(figure)
@@ -83,11 +97,12 @@ def _first_seed_per_group(rows: list[dict]) -> list[int]:
     return list(seen.values())[:MAX_PANELS]
 
 
+@plt.rc_context(FONTS)
 def trajectories(rows: list[dict], series: dict[str, np.ndarray], path: Path, title: str) -> None:
     chosen = _first_seed_per_group(rows)
     dims = tuple(dim for dim in DIMENSIONS if len({row[dim] for row in rows}) > 1) or ("scenario",)
     n_rows, n_cols = _grid(len(chosen))
-    figure = plt.figure(figsize=(4.6 * n_cols, 4.2 * n_rows))
+    figure = plt.figure(figsize=(5.4 * n_cols, 5.0 * n_rows))
     for panel, index in enumerate(chosen):
         axis = figure.add_subplot(n_rows, n_cols, panel + 1, projection="3d")
         pursuer, target = series["pursuer_position"][index], series["target_position"][index]
@@ -97,24 +112,25 @@ def trajectories(rows: list[dict], series: dict[str, np.ndarray], path: Path, ti
         axis.scatter([target[0, 0], pursuer[0, 0]], [target[0, 1], pursuer[0, 1]], [-target[0, 2], -pursuer[0, 2]],
                      marker="*", s=80, color="k")
         row = rows[index]
-        axis.set_title(f"{_label(row, dims)}, seed {row['seed']}" + (" (lost)" if row["lost"] else ""), fontsize=8)
-        axis.set_xlabel("north (m)", fontsize=7)
-        axis.set_ylabel("east (m)", fontsize=7)
-        axis.set_zlabel("up (m)", fontsize=7)
-        axis.tick_params(labelsize=6)
+        axis.set_title(f"{_label(row, dims)}, seed {row['seed']}" + (" (lost)" if row["lost"] else ""))
+        axis.set_xlabel("north (m)")
+        axis.set_ylabel("east (m)")
+        set_metric_aspect(axis, np.concatenate([np.column_stack([p[:, 0], p[:, 1], -p[:, 2]]) for p in (pursuer, target)]),
+                          "up (m)")
         if panel == 0:
-            axis.legend(fontsize=7)
-    figure.suptitle(title, fontsize=10)
+            axis.legend()
+    figure.suptitle(title)
     figure.tight_layout()
     figure.savefig(path, dpi=110)
     plt.close(figure)
 
 
+@plt.rc_context(FONTS)
 def image_plane(rows: list[dict], series: dict[str, np.ndarray], path: Path, title: str) -> None:
     chosen = _first_seed_per_group(rows)
     dims = tuple(dim for dim in DIMENSIONS if len({row[dim] for row in rows}) > 1) or ("scenario",)
     n_rows, n_cols = _grid(len(chosen))
-    figure, axes = plt.subplots(n_rows, n_cols, figsize=(4.0 * n_cols, 3.8 * n_rows), squeeze=False)
+    figure, axes = plt.subplots(n_rows, n_cols, figsize=(4.6 * n_cols, 4.6 * n_rows), squeeze=False)
     for panel, index in enumerate(chosen):
         axis = axes.flat[panel]
         points = series["image_plane"][index]
@@ -126,13 +142,15 @@ def image_plane(rows: list[dict], series: dict[str, np.ndarray], path: Path, tit
         axis.set_xlim(-1.0, 1.0)
         axis.set_ylim(1.0, -1.0)  # image y (down) grows downwards
         axis.set_aspect("equal")
+        axis.set_xticks([-1.0, -0.5, 0.0, 0.5, 1.0])
+        axis.set_yticks([-1.0, -0.5, 0.0, 0.5, 1.0])
         axis.grid(True, alpha=0.3)
-        axis.set_title(f"{_label(rows[index], dims)}, seed {rows[index]['seed']}", fontsize=8)
-        axis.set_xlabel("x_n (right)", fontsize=7)
-        axis.set_ylabel("y_n (down)", fontsize=7)
+        axis.set_title(f"{_label(rows[index], dims)}, seed {rows[index]['seed']}")
+        axis.set_xlabel("x_n (right)")
+        axis.set_ylabel("y_n (down)")
     for axis in axes.flat[len(chosen):]:
         axis.set_visible(False)
-    figure.suptitle(title + "\nnormalised image plane of a level camera with the vehicle's position and yaw", fontsize=9)
+    figure.suptitle(title + "\nnormalised image plane of a level camera with the vehicle's position and yaw")
     figure.tight_layout()
     figure.savefig(path, dpi=110)
     plt.close(figure)

@@ -2,13 +2,13 @@
 
 Writes fig3.png (convergence snapshots), fig4.png (stronger plane; plus top/bottom planes),
 fig5.png (||G||_F of the optimised placement against random placements) and summary.json
-into --out (default runs/observability-<time>/). sigma = r_d = 1 and n = 10 throughout.
+into a new run folder observability-<time>/ inside --out (default runs/), like every bof-*
+command. sigma = r_d = 1 and n = 10 throughout.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import time
 from pathlib import Path
@@ -20,6 +20,7 @@ import matplotlib.pyplot as plt  # noqa: E402  (backend must be chosen first)
 import numpy as np  # noqa: E402
 
 from interfaces.scenario import DEFAULT_SCENARIO  # noqa: E402
+from studies.metrics import write_summary  # noqa: E402
 from companion.core.observability import (  # noqa: E402
     Plane,
     PlacementResult,
@@ -39,7 +40,25 @@ TOP_PLANE = Plane(point=[0.0, 0.0, 1.0], normal=[0.0, 0.0, -1.0], gain=2.0)
 BOTTOM_PLANE = Plane(point=[0.0, 0.0, -1.0], normal=[0.0, 0.0, 1.0], gain=2.0)
 
 
-def _draw_particles(axes, positions: np.ndarray, velocities: np.ndarray, title: str) -> None:
+def _draw_planes(axes, planes: list[Plane]) -> None:
+    """Each repulsive plane of eq. (12c) as a translucent square of side 2 (the sphere's box) around
+    its point, with a short arrow along its normal into the allowed side (as in the paper's Fig. 3)."""
+    for plane in planes:
+        # Two unit vectors spanning the plane: Gram-Schmidt on the axis least aligned with the normal.
+        seed = np.eye(3)[int(np.argmin(np.abs(plane.normal)))]
+        first = seed - (seed @ plane.normal) * plane.normal
+        first /= np.linalg.norm(first)
+        second = np.cross(plane.normal, first)
+        s, t = np.meshgrid([-1.0, 1.0], [-1.0, 1.0])
+        corners = plane.point + s[..., None] * first + t[..., None] * second
+        axes.plot_surface(corners[..., 0], corners[..., 1], corners[..., 2], color="tab:orange", alpha=0.25,
+                          edgecolor="tab:orange", linewidth=0.8, shade=False)
+        axes.quiver(*plane.point, *(0.4 * plane.normal), color="tab:orange", linewidth=1.2)
+
+
+def _draw_particles(axes, positions: np.ndarray, velocities: np.ndarray, title: str,
+                    planes: list[Plane] = ()) -> None:
+    _draw_planes(axes, list(planes))
     u, v = np.mgrid[0 : 2 * np.pi : 30j, 0 : np.pi : 15j]
     axes.plot_wireframe(np.cos(u) * np.sin(v), np.sin(u) * np.sin(v), np.cos(v), color="0.85", linewidth=0.4)
     axes.scatter(*positions.T, color="tab:blue", s=25, depthshade=False)
@@ -48,6 +67,8 @@ def _draw_particles(axes, positions: np.ndarray, velocities: np.ndarray, title: 
     axes.set_ylim(-1, 1)
     axes.set_zlim(-1, 1)
     axes.set_box_aspect((1, 1, 1))
+    for set_ticks in (axes.set_xticks, axes.set_yticks, axes.set_zticks):
+        set_ticks([-1.0, 0.0, 1.0])
     axes.set_xlabel("x")
     axes.set_ylabel("y")
     axes.set_zlabel("z")
@@ -59,7 +80,9 @@ def _g_norm(bearings: np.ndarray) -> float:
 
 
 def figure3(initial: np.ndarray, path: Path) -> PlacementResult:
-    """Fig. 3: one plane through [-1,0,0], k_g = k_b = 1, k_m = 5; snapshots at 0, 1, 2, 10 s."""
+    """Fig. 3: one plane through [-1,0,0], k_g = k_b = 1, k_m = 5; snapshots at 0, 1, 2, 10 s.
+
+    The plane is drawn (orange, arrow into the allowed side x > -1)."""
     planes = [Plane(gain=1.0, **BACK_PLANE)]
     result = optimize_placement(
         initial, planes, K_G, K_M, DT, duration=max(SNAPSHOT_TIMES), record_times=SNAPSHOT_TIMES
@@ -68,7 +91,9 @@ def figure3(initial: np.ndarray, path: Path) -> PlacementResult:
     for index, (when, positions, velocities) in enumerate(zip(result.times, result.positions, result.velocities)):
         axes = figure.add_subplot(1, 4, index + 1, projection="3d")
         title = f"({'abcd'[index]}) t = {when:g} s, ||G||_F = {_g_norm(positions):.3f}"
-        _draw_particles(axes, positions, velocities, title)
+        _draw_particles(axes, positions, velocities, title, planes)
+    figure.suptitle("particles (blue) and velocities (red) on the unit sphere; repulsive plane x = -1 (orange)",
+                    fontsize=9)
     figure.tight_layout()
     figure.savefig(path, dpi=120)
     plt.close(figure)
@@ -85,10 +110,11 @@ def figure4(initial: np.ndarray, path: Path) -> tuple[PlacementResult, Placement
         for planes in cases
     )
     figure = plt.figure(figsize=(8.0, 4.0))
-    for index, (label, result) in enumerate(zip(("(a) k_b = 10", "(b) + top/bottom planes, k_b = 2"), results)):
+    labels = ("(a) k_b = 10", "(b) + top/bottom planes, k_b = 2")
+    for index, (label, result, planes) in enumerate(zip(labels, results, cases)):
         axes = figure.add_subplot(1, 2, index + 1, projection="3d")
         title = f"{label}, ||G||_F = {result.final_g_norm:.3f}"
-        _draw_particles(axes, result.positions[-1], result.velocities[-1], title)
+        _draw_particles(axes, result.positions[-1], result.velocities[-1], title, planes)
     figure.tight_layout()
     figure.savefig(path, dpi=120)
     plt.close(figure)
@@ -137,16 +163,19 @@ def guidance_comparison(config: Path, path: Path) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="bof-observability", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--out", type=Path, default=None, help="output folder (default runs/observability-<time>/)")
-    parser.add_argument("--seed", type=int, default=1, help="seed of the initial and random placements")
-    parser.add_argument("--random", type=int, default=1000, help="number of random placements in Fig. 5")
+    parser.add_argument("--out", type=Path, default=Path("runs"),
+                        help="parent folder: the run folder observability-<time>/ is created inside it "
+                             "(default: %(default)s)")
+    parser.add_argument("--seed", type=int, default=1, help="seed of the initial and random placements (default: %(default)s)")
+    parser.add_argument("--random", type=int, default=1000, help="number of random placements in Fig. 5 (default: %(default)s)")
     parser.add_argument("--flight", type=Path, nargs="?", const=DEFAULT_FLIGHT, default=None,
-                        help="also fly this scenario (default constant_velocity) in process with HNG and with PPG and "
-                             "plot the live, windowed FIM of the bearings used (fig_flight_observability.png)")
+                        help="also fly this scenario (without a value: constant_velocity) in process with HNG and with "
+                             "PPG and plot the live, windowed FIM of the bearings used (fig_flight_observability.png); "
+                             "default: no flight")
     args = parser.parse_args(argv)
     if args.random < 1:
         parser.error("--random must be at least 1")
-    out = args.out or Path("runs") / f"observability-{time.strftime('%Y%m%d-%H%M%S')}"
+    out = args.out / f"observability-{time.strftime('%Y%m%d-%H%M%S')}"
     out.mkdir(parents=True, exist_ok=True)
 
     rng = np.random.default_rng(args.seed)
@@ -177,7 +206,7 @@ def main(argv: list[str] | None = None) -> int:
     }
     if args.flight is not None:
         summary["flight"] = guidance_comparison(args.flight, out / "fig_flight_observability.png")
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    write_summary(out / "summary.json", summary)
     print(f"wrote {out}: ||G||_F optimised {fig3.final_g_norm:.4f} (paper {PAPER_G_NORM}), "
           f"{100 * summary['share_random_worse']:.1f}% of {args.random} random placements worse")
     return 0

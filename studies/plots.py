@@ -9,16 +9,49 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402  (backend must be chosen first)
 import numpy as np  # noqa: E402
+from matplotlib.ticker import MaxNLocator  # noqa: E402
 
 
 def _north_east_up(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return positions[:, 0], positions[:, 1], -positions[:, 2]
 
 
+#: The up axis is drawn at least this fraction of the longer horizontal side, so a weave of a few
+#: metres stays visible on a 200 m track; when that stretches it, the axis label says by how much.
+MIN_VERTICAL_SHARE = 0.25
+
+
+def vertical_exaggeration(spans: tuple[float, float, float]) -> float:
+    """How much the up axis of a 3-D trajectory is stretched against north/east (1 = equal aspect).
+
+    spans: extents (north, east, up) of the plotted data, m. Returns k >= 1 such that the up side
+    of the box is k * spans[2], i.e. at least MIN_VERTICAL_SHARE of the longer horizontal side.
+    """
+    horizontal = max(spans[0], spans[1])
+    if spans[2] <= 0.0 or spans[2] >= MIN_VERTICAL_SHARE * horizontal:
+        return 1.0
+    return MIN_VERTICAL_SHARE * horizontal / spans[2]
+
+
+def set_metric_aspect(axes, points: np.ndarray, up_label: str = "up [m]") -> None:
+    """On 3-D `axes`, given the plotted points (N, 3) (north, east, up; m): equal metres on north and
+    east, and on up unless a flat flight needs stretching, which the up label then says."""
+    points = points[np.all(np.isfinite(points), axis=1)]
+    spans = tuple(float(max(np.ptp(points[:, axis]), 1e-3)) for axis in range(3)) if len(points) else (1.0, 1.0, 1.0)
+    stretch = vertical_exaggeration(spans)
+    axes.set_box_aspect((spans[0], spans[1], spans[2] * stretch))
+    axes.zaxis.set_major_locator(MaxNLocator(4))
+    axes.set_zlabel(up_label if stretch == 1.0 else f"{up_label}, stretched x{stretch:.2g}")
+
+
 def plot_trajectories(series: dict[str, np.ndarray], path: Path, title: str) -> None:
-    """Fig. 8(a): target, estimated target and pursuer in 3-D (north, east, up), stars at the start."""
+    """Fig. 8(a): target, estimated target and pursuer in 3-D (north, east, up), stars at the start.
+
+    North and east share one scale; up too, unless the flight is so flat that its weave would be
+    invisible: the up axis is then stretched and its label says by how much."""
     figure = plt.figure(figsize=(7.5, 6.0))
     axes = figure.add_subplot(projection="3d")
+    drawn = []
     for key, label, style in (
         ("target_position", "target", "r-"),
         ("estimate_position", "estimated target", "g--"),
@@ -27,12 +60,13 @@ def plot_trajectories(series: dict[str, np.ndarray], path: Path, title: str) -> 
         north, east, up = _north_east_up(series[key])
         finite = np.isfinite(north)
         axes.plot(north[finite], east[finite], up[finite], style, label=label, linewidth=1.2)
+        drawn.append(np.column_stack([north[finite], east[finite], up[finite]]))
         if finite.any():
             first = np.argmax(finite)
             axes.scatter([north[first]], [east[first]], [up[first]], marker="*", s=80, color=style[0])
     axes.set_xlabel("north [m]")
     axes.set_ylabel("east [m]")
-    axes.set_zlabel("up [m]")
+    set_metric_aspect(axes, np.concatenate(drawn))
     axes.set_title(title)
     axes.legend(loc="upper left")
     figure.tight_layout()
@@ -41,7 +75,10 @@ def plot_trajectories(series: dict[str, np.ndarray], path: Path, title: str) -> 
 
 
 def plot_errors(series: dict[str, np.ndarray], desired_range: float, path: Path, title: str) -> None:
-    """Fig. 8(b): position, velocity and range estimation errors, and the range against r_d."""
+    """Fig. 8(b): position, velocity and range estimation errors, and the range against r_d.
+
+    The two error norms (>= 0) are on a log axis; the signed range-estimation error on a
+    symmetric-log axis (linear within +-1 m); the range on a linear axis."""
     time = series["time"]
     position_error = np.linalg.norm(series["estimate_position"] - series["target_position"], axis=1)
     velocity_error = np.linalg.norm(series["estimate_velocity"] - series["target_velocity"], axis=1)
@@ -60,10 +97,11 @@ def plot_errors(series: dict[str, np.ndarray], desired_range: float, path: Path,
     axes[3].set_ylabel("range [m]")
     axes[3].set_xlabel("time [s]")
     axes[3].legend(loc="upper right")
-    for ax in axes[:3]:
-        ax.set_yscale("symlog", linthresh=1.0)
-        ax.grid(True, alpha=0.3)
-    axes[3].grid(True, alpha=0.3)
+    for ax in axes[:2]:
+        ax.set_yscale("log")
+    axes[2].set_yscale("symlog", linthresh=1.0)
+    for ax in axes:
+        ax.grid(True, which="major", alpha=0.3)
     axes[0].set_title(title)
     figure.tight_layout()
     figure.savefig(path, dpi=120)

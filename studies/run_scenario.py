@@ -1,23 +1,25 @@
 """`bof-sim`: fly a scenario in the in-process simulator and write a run folder.
 
-The run folder holds series.npz (every logged column), series.csv (the main
-columns, for spreadsheets), summary.json and two plots (trajectory.png, errors.png).
+The run folder <scenario>-seed<seed>-<time>/, created inside --out (default runs/), holds
+series.npz (every logged column), series.csv (the main columns, for spreadsheets),
+summary.json (figures that do not apply are null) and two plots (trajectory.png, errors.png).
+The in-process loop has no MAVLink link: a scenario's [faults.mavlink] applies in bof-sitl only,
+which the summary ("notes") and the terminal say.
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
-import json
-import math
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, load_scenario
+from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, load_scenario
 from studies.closed_loop import SimulationResult, simulate
+from studies.metrics import convergence_text, write_summary
 from studies.plots import plot_errors, plot_trajectories
 
 DEFAULT_SCENARIO = DEFAULT_SCENARIO
@@ -39,14 +41,19 @@ def write_run_folder(result: SimulationResult, folder: Path) -> None:
                 + [f"{value:.4f}" for key in vectors for value in series[key][row]]
                 + [f"{series[key][row]:.4f}" for key in scalars]
             )
-    (folder / "summary.json").write_text(json.dumps(_json_safe(result.summary), indent=2) + "\n")
+    write_summary(folder / "summary.json", result.summary)
     title = f"{result.scenario.name} (seed {result.summary['seed']})"
     plot_trajectories(series, folder / "trajectory.png", title)
     plot_errors(series, result.scenario.guidance.desired_range, folder / "errors.png", title)
 
 
-def _json_safe(summary: dict) -> dict:
-    return {key: (None if isinstance(value, float) and not math.isfinite(value) else value) for key, value in summary.items()}
+def in_process_notes(scenario: Scenario) -> list[str]:
+    """What of `scenario` the in-process simulator leaves out (one sentence each; empty: nothing)."""
+    notes = []
+    if scenario.faults.mavlink.blackouts:
+        notes.append(f"[faults.mavlink] ({len(scenario.faults.mavlink.blackouts)} blackout(s)) applies in SITL only "
+                     "(bof-sitl): the in-process simulator has no MAVLink link, so this flight has none")
+    return notes
 
 
 def format_summary(summary: dict) -> str:
@@ -57,18 +64,24 @@ def format_summary(summary: dict) -> str:
         f"    range error |p_T - p| - r_d     rms {summary['range_error_rms']:.3f} m, max {summary['range_error_max_abs']:.3f} m (r_d = {summary['desired_range']} m)",
         f"    range-estimation error          rms {summary['range_estimation_error_rms']:.3f} m, max {summary['range_estimation_error_max_abs']:.3f} m",
         f"    position / velocity estimation  rms {summary['position_estimation_error_rms']:.3f} m, {summary['velocity_estimation_error_rms']:.3f} m/s",
-        f"  converged (both errors < {summary['convergence_threshold']} m for good) at t = {summary['convergence_time']:.2f} s",
+        f"  {convergence_text(summary)}",
         f"  minimum range {summary['min_range']:.2f} m, max tilt {summary['max_tilt_deg']:.1f} deg, max speed {summary['max_speed']:.1f} m/s",
     ]
+    lines += [f"  note: {note}" for note in summary.get("notes", ())]
     return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="bof-sim", description="Fly a bearing-only following scenario in the in-process simulator.")
-    parser.add_argument("scenario", nargs="?", default=str(DEFAULT_SCENARIO), help="scenario TOML (default: the paper's constant-velocity case)")
-    parser.add_argument("--out", default="runs", help="parent folder for the run folder (default: runs/)")
-    parser.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
-    parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    parser.add_argument("scenario", nargs="?", default=str(DEFAULT_SCENARIO),
+                        help="scenario TOML (default: the paper's constant-velocity case, %(default)s)")
+    parser.add_argument("--out", default="runs",
+                        help="parent folder: the run folder <scenario>-seed<seed>-<time>/ is created inside it "
+                             "(default: %(default)s)")
+    parser.add_argument("--seed", type=int, default=None,
+                        help="seed of the flight's noise (default: the scenario's [simulation] seed)")
+    parser.add_argument("--no-plots", action="store_true",
+                        help="write only series.npz and summary.json, no PNG plots or series.csv (default: write them)")
     args = parser.parse_args(argv)
 
     try:
@@ -79,11 +92,14 @@ def main(argv: list[str] | None = None) -> int:
     started = time.perf_counter()
     result = simulate(scenario, vehicle, seed=args.seed)
     elapsed = time.perf_counter() - started
+    notes = in_process_notes(scenario)
+    if notes:
+        result.summary["notes"] = notes
     folder = Path(args.out) / f"{scenario.name}-seed{result.summary['seed']}-{time.strftime('%Y%m%d-%H%M%S')}"
     if args.no_plots:
         folder.mkdir(parents=True, exist_ok=True)
         np.savez_compressed(folder / "series.npz", **result.series)
-        (folder / "summary.json").write_text(json.dumps(_json_safe(result.summary), indent=2) + "\n")
+        write_summary(folder / "summary.json", result.summary)
     else:
         write_run_folder(result, folder)
     print(format_summary(result.summary))

@@ -1,10 +1,14 @@
 """Scenario files: every shipped one loads; bad ones fail with a message naming the key."""
 
+import tomllib
 from pathlib import Path
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from pydantic import ValidationError
 
-from interfaces.scenario import ConfigError, load_scenario
+from interfaces.scenario import VEHICLES_DIR, ConfigError, Scenario, load_scenario, load_vehicle
 from tests.conftest import SCENARIOS
 
 VALID = (SCENARIOS / "constant_velocity.toml").read_text()
@@ -81,3 +85,76 @@ def test_missing_and_malformed_files(tmp_path):
     path = _write(tmp_path, "name = [unclosed\n")
     with pytest.raises(ConfigError, match="not valid TOML"):
         load_scenario(path)
+
+
+# --- strict types: what TOML writes is what the model gets, nothing is coerced ---------------
+
+@pytest.mark.parametrize(
+    "old, new, key",
+    [
+        ("desired_range = 8.0", 'desired_range = "12"', "guidance.desired_range"),
+        ("seed = 1", 'seed = "3"', "simulation.seed"),
+        ("seed = 1", "seed = 3.0", "simulation.seed"),
+        ("rate_hz = 50.0", 'rate_hz = "50"', "estimator.rate_hz"),
+        ("initial_velocity = [3.0, 4.0, 0.0]", 'initial_velocity = [3.0, "4", 0.0]', "target.initial_velocity.1"),
+    ],
+)
+def test_numeric_strings_are_refused_naming_the_key(tmp_path, old, new, key):
+    assert old in VALID
+    path = _write(tmp_path, VALID.replace(old, new, 1))
+    with pytest.raises(ConfigError) as error:
+        load_scenario(path)
+    assert f"  {key}: " in str(error.value)
+    assert "valid" in str(error.value).split(f"  {key}: ", 1)[1].splitlines()[0]
+
+
+def test_a_boolean_string_is_refused(tmp_path):
+    path = _write(tmp_path, VALID.replace("[guidance]", '[guidance]\nscale_with_range = "true"', 1))
+    with pytest.raises(ConfigError, match="guidance.scale_with_range"):
+        load_scenario(path)
+
+
+def _guidance_with(literal: str):
+    return Scenario.model_validate(tomllib.loads(VALID.replace("desired_range = 8.0", f"desired_range = {literal}", 1)))
+
+
+@given(st.floats(min_value=1e-3, max_value=1e4, allow_nan=False))
+def test_a_toml_float_loads_and_its_quoted_form_does_not(value):
+    assert _guidance_with(repr(value)).guidance.desired_range == value
+    with pytest.raises(ValidationError):
+        _guidance_with(f'"{value!r}"')
+
+
+@given(st.integers(min_value=1, max_value=10**6))
+def test_a_toml_integer_is_a_valid_float(value):
+    # TOML writes 8 for 8.0; a strict schema must still take it, as the same number.
+    desired_range = _guidance_with(str(value)).guidance.desired_range
+    assert isinstance(desired_range, float) and desired_range == float(value)
+
+
+@given(st.lists(st.floats(min_value=-1e4, max_value=1e4), min_size=3, max_size=3))
+def test_toml_arrays_load_as_vectors(components):
+    literal = "[" + ", ".join(repr(c) for c in components) + "]"
+    scenario = Scenario.model_validate(
+        tomllib.loads(VALID.replace("initial_velocity = [3.0, 4.0, 0.0]", f"initial_velocity = {literal}", 1)))
+    assert scenario.target.initial_velocity == tuple(components)
+
+
+@pytest.mark.parametrize("path", sorted(VEHICLES_DIR.glob("*.toml")), ids=lambda p: p.stem)
+def test_every_shipped_vehicle_loads(path):
+    vehicle = load_vehicle(path)
+    assert vehicle.mass > 0 and len(vehicle.inertia) == 3
+
+
+@pytest.mark.parametrize("path", sorted(SCENARIOS.glob("*.toml")), ids=lambda p: p.stem)
+def test_every_shipped_scenario_keeps_its_arrays(path):
+    """Each TOML array of the file arrives as a tuple with the same numbers (the container is the
+    only thing converted)."""
+    raw = tomllib.loads(path.read_text())
+    scenario, _ = load_scenario(path)
+    for section, body in raw.items():
+        if not isinstance(body, dict):
+            continue
+        for key, value in body.items():
+            if isinstance(value, list) and all(isinstance(item, (int, float)) for item in value):
+                assert getattr(getattr(scenario, section), key) == tuple(value), f"{section}.{key}"

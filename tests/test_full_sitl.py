@@ -7,8 +7,10 @@ run at 5x real time (about 25 s of wall time each).
 
 from __future__ import annotations
 
+import csv
 import json
 import math
+import statistics
 from pathlib import Path
 
 import numpy as np
@@ -55,6 +57,28 @@ def test_follows_at_the_desired_range_with_a_small_range_estimation_error(flown)
     assert flight["min_range"] > 0.5 * flight["desired_range"]
     for name in ("trajectory.png", "errors.png", "link.png", "summary.json"):
         assert (folder / name).stat().st_size > 0
+
+
+def test_summary_json_is_strict_json_with_the_observability_median(flown):
+    """summary.json has no NaN (not JSON); the windowed-FIM median is that of the companion's own
+    finite log10 det values over the last summary window (-inf while the FIM is singular)."""
+    _, folder, _ = flown
+
+    def refuse(constant):
+        raise ValueError(f"{constant} in summary.json")
+
+    written = json.loads((folder / "summary.json").read_text(), parse_constant=refuse)
+    flight = written["flight"]
+    with (folder / "companion" / "series.csv").open(newline="") as handle:
+        rows = [row for row in csv.DictReader(handle) if row["phase"] == "following" and row["est_x"] not in ("", "nan")]
+    engaged = float(rows[0]["time"])
+    end = float(rows[-1]["time"])
+    logged = [float(row["observability_log_det"]) for row in rows
+              if float(row["time"]) - engaged >= end - engaged - flight["summary_window"]
+              and row["observability_log_det"] not in ("", "nan")]
+    finite = [value for value in logged if math.isfinite(value)]
+    assert len(finite) > 100
+    assert flight["observability_log_det_median"] == pytest.approx(statistics.median(finite), rel=1e-9)
 
 
 def test_the_estimator_only_ever_got_bearings(flown):

@@ -155,8 +155,10 @@ def test_helix_beats_pure_pursuit():
 
 
 def test_figure_command_writes_files(tmp_path):
-    out = tmp_path / "figs"
-    assert observability_figures.main(["--out", str(out), "--seed", "1", "--random", "50"]) == 0
+    # --out is the parent folder, as for every bof-* command: one run folder is created inside it.
+    assert observability_figures.main(["--out", str(tmp_path), "--seed", "1", "--random", "50"]) == 0
+    (out,) = tmp_path.iterdir()
+    assert out.name.startswith("observability-")
     for name in ("fig3.png", "fig4.png", "fig5.png", "summary.json"):
         assert (out / name).stat().st_size > 0
     summary = json.loads((out / "summary.json").read_text())

@@ -1,0 +1,124 @@
+"""Figures of merit of one flight, the same for both harnesses, and the run folder's summary.json.
+
+`summarize` takes a flight series (the in-process simulator's FlightLog.series(), or the
+SITL run's studies.full_sitl.flight_series(): the same keys) and returns the figures
+bof-sim, bof-sitl, the campaign and the Monte Carlo study report. A figure that does not
+apply (no convergence, no observability data) is NaN in memory and `null` in summary.json:
+`write_summary` turns every non-finite number into null and refuses to write NaN, which is
+not JSON.
+"""
+
+from __future__ import annotations
+
+import enum
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from interfaces.scenario import Scenario
+
+
+def rms(values: np.ndarray) -> float:
+    """Root mean square of a 1-D array (units of the input); NaN when empty."""
+    return float(np.sqrt(np.mean(np.square(values)))) if values.size else math.nan
+
+
+def median_finite(values: np.ndarray | None, window: np.ndarray) -> float:
+    """Median of the finite values of `values` (N,) inside the boolean `window` (N,); NaN when there
+    are none or no series. Used for the windowed FIM's log10 det (section V, eq. (7)), which is -inf
+    while the FIM is singular."""
+    if values is None:
+        return math.nan
+    chosen = values[window]
+    chosen = chosen[np.isfinite(chosen)]
+    return float(np.median(chosen)) if chosen.size else math.nan
+
+
+def convergence_time(time: np.ndarray, range_error: np.ndarray, estimation_error: np.ndarray,
+                     threshold: float) -> float:
+    """First time (s, from `time` (N,)) after which |range_error| and |estimation_error| (N,, m) both
+    stay below `threshold` (m) to the end; NaN if they are not both below it at the last sample."""
+    outside = ~((np.abs(range_error) < threshold) & (np.abs(estimation_error) < threshold))
+    if not outside.any():
+        return float(time[0])
+    if outside[-1]:
+        return math.nan
+    return float(time[np.nonzero(outside)[0][-1] + 1])
+
+
+def summarize(series: dict[str, np.ndarray], scenario: Scenario, termination: enum.Enum) -> dict:
+    """Figures of merit over the last simulation.summary_window seconds, plus whole-flight extremes.
+
+    series: "time" (N,) s; "range", "range_estimate" (N,) m; "pursuer_tilt", "heading_error" (N,)
+    deg; "estimate_position", "target_position" (N, 3) m; "estimate_velocity", "target_velocity",
+    "pursuer_velocity" (N, 3) m/s; optional "observability_log_det" (N,).
+    range_error: |p_T - p| - r_d (m); range_estimation_error: |p^_T - p| - |p_T - p| (m);
+    convergence_time: see `convergence_time` (NaN: did not converge). termination: why the flight
+    ended (studies.closed_loop.Termination; its name and its sentence are copied).
+    """
+    time = series["time"]
+    window = time >= time[-1] - scenario.simulation.summary_window
+    range_error = series["range"] - scenario.guidance.desired_range
+    estimation_error = series["range_estimate"] - series["range"]
+    position_error = np.linalg.norm(series["estimate_position"] - series["target_position"], axis=1)
+    velocity_error = np.linalg.norm(series["estimate_velocity"] - series["target_velocity"], axis=1)
+    threshold = scenario.simulation.converged_range_error
+    heading_error = series["heading_error"][window]
+    return {
+        "scenario": scenario.name,
+        "termination": termination.name,
+        "termination_reason": termination.value,
+        "duration": float(time[-1]),
+        "summary_window": scenario.simulation.summary_window,
+        "desired_range": scenario.guidance.desired_range,
+        "range_error_rms": rms(range_error[window]),
+        "range_error_max_abs": float(np.max(np.abs(range_error[window]))),
+        "range_estimation_error_rms": rms(estimation_error[window]),
+        "range_estimation_error_max_abs": float(np.max(np.abs(estimation_error[window]))),
+        "position_estimation_error_rms": rms(position_error[window]),
+        "velocity_estimation_error_rms": rms(velocity_error[window]),
+        "convergence_time": convergence_time(time, range_error, estimation_error, threshold),
+        "convergence_threshold": threshold,
+        "min_range": float(np.min(series["range"])),
+        "max_tilt_deg": float(np.max(series["pursuer_tilt"])),
+        "max_speed": float(np.max(np.linalg.norm(series["pursuer_velocity"], axis=1))),
+        "heading_error_rms_deg": rms(heading_error[np.isfinite(heading_error)]),
+        "observability_log_det_median": median_finite(series.get("observability_log_det"), window),
+    }
+
+
+def convergence_text(summary: dict, after: str = "") -> str:
+    """One line for people: "converged (...) at t = 12.34 s[ after]" or "did not converge (...)".
+
+    summary: a `summarize` result (convergence_time may be NaN, or None when read back from JSON).
+    """
+    condition = f"both errors < {summary['convergence_threshold']:g} m for good"
+    time = summary["convergence_time"]
+    if time is None or not math.isfinite(time):
+        return f"did not converge ({condition} never held to the end)"
+    return f"converged ({condition}) at t = {time:.2f} s{after}"
+
+
+def json_ready(value: Any) -> Any:
+    """`value` with numpy scalars/arrays as Python numbers/lists, tuples as lists and every NaN or
+    infinity as None (JSON null: "not applicable"), recursively through dicts and lists."""
+    if isinstance(value, dict):
+        return {str(key): json_ready(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_ready(item) for item in value]
+    if isinstance(value, np.ndarray):
+        return json_ready(value.tolist())
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def write_summary(path: Path, document: dict, sort_keys: bool = False) -> None:
+    """Write `document` as indented JSON to `path`, non-finite numbers as null (see json_ready);
+    anything not representable raises instead of producing invalid JSON."""
+    path.write_text(json.dumps(json_ready(document), indent=2, sort_keys=sort_keys, allow_nan=False) + "\n")
