@@ -157,7 +157,8 @@ class CompanionApp:
         if phase != self.phase:
             self.phase = phase
             sample = self.vehicle.latest if self.vehicle is not None else None
-            self.recorder.event(sample.state.time if sample else None, "phase", f"{phase.value} {detail}".strip())
+            self.recorder.event(sample.state.time if sample else None, "phase", f"{phase.value} {detail}".strip(),
+                                phase=phase.value)
             print(f"companion: {phase.value} {detail}".rstrip(), flush=True)
 
     async def run(self) -> int:
@@ -331,7 +332,8 @@ class CompanionApp:
             "tracking": ("INFO", "target tracked"),
         }
         severity, text = texts[output.mode.value]
-        self.recorder.event(output.time, "track_mode", f"{output.mode.value} (bearing age {output.bearing_age:.2f} s)")
+        self.recorder.event(output.time, "track_mode", f"{output.mode.value} (bearing age {output.bearing_age:.2f} s)",
+                            mode=output.mode.value, bearing_age=output.bearing_age)
         try:
             await self.vehicle.status_text(text, severity)
         except VehicleError as error:
@@ -414,7 +416,8 @@ class CompanionApp:
         except link.PayloadError as error:
             self.recorder.event(None, "command_rejected", f"{error.reason}: {error}")
             return
-        self.recorder.event(None, "command", f"{command.command} from {command.sender}")
+        self.recorder.event(None, "command", f"{command.command} from {command.sender}", command=command.command,
+                            sender=command.sender)
         if command.command == "abort":
             self.abort_requested = True
 
