@@ -211,11 +211,13 @@ def _progress(state: dict | None) -> str:
 
 def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, timeout: float | None,
         plots: bool = True, quiet: bool = False, abort_after: float | None = None,
-        target_faults: list[str] | None = None) -> tuple[int, Path, dict]:
+        target_faults: list[str] | None = None, progress=None) -> tuple[int, Path, dict]:
     """Fly `config` through the three processes; returns (exit code, run folder, summary).
 
     abort_after: send the companion an abort this many simulated seconds after it engaged.
-    target_faults: KEY=VALUE overrides of [faults] for sitl-target (its --fault option)."""
+    target_faults: KEY=VALUE overrides of [faults] for sitl-target (its --fault option).
+    progress: called every 2 s of wall time with the companion's latest state (dict, None before the
+    first) instead of printing a progress line."""
     scenario, _ = load_scenario(config)
     speed = scenario.sitl.speed_factor if speed_factor is None else speed_factor
     seed = scenario.simulation.seed if seed is None else seed
@@ -257,9 +259,12 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
             if (abort_after is not None and state and station.engaged_stamp is not None and not station.abort_sent
                     and float(state.get("stamp", 0.0)) >= station.engaged_stamp + abort_after):
                 station.abort_companion(float(state["stamp"]))
-            if not quiet and time.monotonic() >= next_print:
+            if (progress is not None or not quiet) and time.monotonic() >= next_print:
                 next_print = time.monotonic() + 2.0
-                print(f"bof-sitl: {_progress(state)}", flush=True)
+                if progress is not None:
+                    progress(state)
+                else:
+                    print(f"bof-sitl: {_progress(state)}", flush=True)
             for child in (plant, target):
                 if not child.running:
                     raise RuntimeError(f"{child.command[2]} exited early:\n{child.output()[-2000:]}")

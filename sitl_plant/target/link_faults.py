@@ -94,15 +94,13 @@ from __future__ import annotations
 import heapq
 import json
 import math
-import tomllib
 from collections import Counter, deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from pydantic import ValidationError
-
-from interfaces.scenario import ConfigError, FaultsConfig
+from interfaces.overrides import apply_overrides, parse_assignment
+from interfaces.scenario import FaultsConfig
 from interfaces.link_schema import PayloadError, TargetFix, decode_target_fix, encode_target_fix
 from interfaces.geodesy import ned_to_geodetic
 
@@ -169,36 +167,11 @@ def override_faults(config: FaultsConfig, assignments: Sequence[str]) -> FaultsC
 
     ``loss_probability=0.3``, ``blackouts=[{start=20,duration=5}]`` (replaces the list),
     ``burst.mean_burst_s=2``, ``burst={mean_burst_s=2,mean_gap_s=20}`` (replaces the
-    table). ConfigError naming the key if an assignment is malformed or the result invalid.
+    table). ConfigError naming the key if an assignment is malformed or the result invalid
+    (interfaces.overrides).
     """
-    document = config.model_dump()
-    for assignment in assignments:
-        key, separator, text = assignment.partition("=")
-        key, text = key.strip(), text.strip()
-        path = key.split(".")
-        if not separator or not all(part and (part.replace("_", "").replace("-", "").isalnum()) for part in path):
-            raise ConfigError(f"--fault {assignment!r}: expected KEY=VALUE, e.g. loss_probability=0.3")
-        try:
-            value = tomllib.loads(f"value = {text}")["value"]
-        except tomllib.TOMLDecodeError as error:
-            raise ConfigError(f"--fault {key}: {text!r} is not a TOML value ({error})") from None
-        table = document
-        for part in path[:-1]:
-            if table.get(part) is None:
-                table[part] = {}
-            if not isinstance(table[part], dict):
-                raise ConfigError(f"--fault {key}: faults.{part} is not a table")
-            table = table[part]
-        table[path[-1]] = value
-    try:
-        return FaultsConfig.model_validate(document)
-    except ValidationError as error:
-        problems = []
-        for item in error.errors():
-            location = ".".join(str(part) for part in ("faults", *item["loc"]))
-            message = "unknown key (check the spelling)" if item["type"] == "extra_forbidden" else item["msg"]
-            problems.append(f"{location}: {message}")
-        raise ConfigError("--fault: " + "; ".join(problems)) from None
+    overrides = [parse_assignment(text, "--fault", example="loss_probability=0.3") for text in assignments]
+    return apply_overrides(config, overrides, "--fault", root="faults")
 
 
 class _SeqLabel:
