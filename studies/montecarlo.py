@@ -29,7 +29,6 @@ group, trajectories and normalised image-plane tracks of the first seed of each 
 from __future__ import annotations
 
 import argparse
-import csv
 import itertools
 import json
 import math
@@ -41,6 +40,7 @@ from typing import Any
 
 import numpy as np
 
+from interfaces.records import CsvLog
 from interfaces.overrides import apply_overrides, parse_assignment
 from interfaces.scenario import SCENARIOS_DIR, ConfigError, Scenario, VehicleConfig, load_scenario
 from studies.closed_loop import Termination, simulate
@@ -314,27 +314,26 @@ def run_tasks(tasks: list[FlightTask], executor_spec: str, workers: int | None, 
     rows: list[dict | None] = [None] * len(tasks)
     series: list[dict | None] = [None] * len(tasks)
     bar = reporting.progress_bar(len(tasks), "flights", enabled=progress, description="bof-montecarlo")
-    partial = folder / "results.partial.csv"
+    partial = None
     try:
-        with partial.open("w", newline="", buffering=1) as handle:
-            writer = None
-            for index, result in executor.map(fly, tasks):
-                rows[index], series[index] = result["row"], result["series"]
-                if writer is None:
-                    writer = csv.DictWriter(handle, fieldnames=["index", *result["row"]])
-                    writer.writeheader()
-                writer.writerow({"index": index, **result["row"]})
-                bar.update()
+        for index, result in executor.map(fly, tasks):
+            rows[index], series[index] = result["row"], result["series"]
+            if partial is None:
+                partial = CsvLog(folder / "results.partial.csv", ["index", *result["row"]])
+            partial.write({"index": index, **result["row"]})
+            bar.update()
     finally:
         bar.close()
         name = executor.name
         executor.close()
+        if partial is not None:
+            partial.close()
     ordered = [row for row in rows if row is not None]
-    with (folder / "results.csv").open("w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=list(ordered[0]))
-        writer.writeheader()
-        writer.writerows(ordered)
-    partial.unlink()
+    results = CsvLog(folder / "results.csv", ordered[0])
+    for row in ordered:
+        results.write(row)
+    results.close()
+    partial.path.unlink()
     stacked = {key: np.stack([s[key] for s in series]) for key in series[0]} if series[0] is not None else {}
     return ordered, stacked, name
 
