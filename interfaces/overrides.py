@@ -97,22 +97,13 @@ def _toml_literal(value: Any) -> str:
         return "[" + ", ".join(_toml_literal(item) for item in value) + "]"
     if isinstance(value, bool):
         return "true" if value else "false"
-    if isinstance(value, str):
-        # A TOML basic string: escape what JSON escapes too (backslash, quote, control characters).
-        return '"' + "".join(_escape(char) for char in value) + '"'
+    if isinstance(value, str):  # a TOML basic string: quote, backslash and control characters as \uXXXX
+        return '"' + "".join(f"\\u{ord(c):04x}" if c in '"\\' or ord(c) < 0x20 or ord(c) == 0x7F else c for c in value) + '"'
     if isinstance(value, int):
         return str(value)
     if isinstance(value, float):
         return repr(value) if math.isfinite(value) else ("nan" if math.isnan(value) else ("inf" if value > 0 else "-inf"))
     raise ValueError(f"{value!r} has no TOML literal")
-
-
-def _escape(char: str) -> str:
-    if char in '"\\':
-        return "\\" + char
-    if ord(char) < 0x20 or ord(char) == 0x7F:
-        return f"\\u{ord(char):04x}"
-    return char
 
 
 def _dotted(*parts: Any) -> str:

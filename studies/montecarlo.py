@@ -262,7 +262,7 @@ def group_key(row: dict) -> tuple[str, str, str, str]:
 #: group-table figure -> (results.csv column, statistic over the group's runs; NaN and inf skipped)
 GROUP_FIGURES = {
     "runs": ("seed", "size"), "diverged": ("diverged", "sum"), "lost": ("lost", "sum"),
-    "final_error_median": ("final_error", "median"), "final_error_p90": ("final_error", "p90"),
+    "final_error_median": ("final_error", "median"), "final_error_p90": ("final_error", lambda values: values.quantile(0.9)),
     "rms_error_median_kept": ("rms_error_kept", "median"), "range_error_rms_median": ("range_error_rms", "median"),
     "converged_runs": ("convergence_time", "count"), "convergence_time_median": ("convergence_time", "median"),
     "min_range": ("min_range", "min"), "max_tilt_deg": ("max_tilt_deg", "max"),

@@ -12,33 +12,25 @@ from __future__ import annotations
 
 import math
 import sys
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
-import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
-#: statistic name -> function of a pandas Series (NaN skipped); what `summarize` accepts besides pandas' own names.
-STATISTICS: dict[str, Callable[[pd.Series], float]] = {
-    "p90": lambda values: float(np.percentile(values.dropna(), 90)) if values.notna().any() else math.nan,
-}
-
-
-def summarize(rows: Sequence[Mapping[str, Any]], by: Sequence[str], statistics: Mapping[str, tuple[str, str]],
+def summarize(rows: Sequence[Mapping[str, Any]], by: Sequence[str], statistics: Mapping[str, tuple[str, Any]],
               finite: Sequence[str] = ()) -> list[dict]:
     """One dict per group of `rows` (groups in order of first appearance): the `by` labels, then
     output name -> (column, statistic) in the order given.
 
-    statistic: a pandas aggregation ("size", "sum", "count", "median", "min", "max") or a name in
-    STATISTICS; NaN never counts. finite: columns whose infinities count as missing too (e.g. the
+    statistic: a pandas aggregation ("size", "sum", "count", "median", "min", "max") or a function of
+    the group's pandas Series; NaN never counts. finite: columns whose infinities count as missing too (e.g. the
     final error of a flight that blew up: counted elsewhere, never averaged in).
     """
     frame = pd.DataFrame(list(rows))
     for column in finite:
         frame[column] = pd.to_numeric(frame[column], errors="coerce").replace([math.inf, -math.inf], math.nan)
-    named = {name: (column, STATISTICS.get(statistic, statistic)) for name, (column, statistic) in statistics.items()}
-    table = frame.groupby(list(by), sort=False).agg(**named).reset_index()
+    table = frame.groupby(list(by), sort=False).agg(**statistics).reset_index()
     return table.to_dict("records")
 
 
