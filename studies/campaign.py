@@ -9,7 +9,8 @@ validator as the networked companion) in parallel worker processes. Patterns nam
 with --sitl are also flown once through the full SITL (bof-sitl, real processes, the
 faults injected by sitl-target). Output (runs/campaign-<scenario>-<time>/): results.csv
 (one row per flight), summary.md (one row per pattern, with the pass/fail of the
-targets below) and summary.json.
+targets below) and summary.json. Progress bars on stderr (flights done; simulated time and
+phase of each SITL flight); --quiet turns them off.
 
 Figures per flight (times are scenario seconds):
 * kept: the estimate still tracks at the end (range-estimation error under 1 m over the

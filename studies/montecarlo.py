@@ -24,6 +24,7 @@ convergence time, min range, max tilt, the windowed-FIM observability. Time seri
 0.2 s go to series.npz for the figures. Output in runs/montecarlo-<label>-<time>/:
 results.csv, summary.md, summary.json, series.npz, and the figures (error over time per
 group, trajectories and normalised image-plane tracks of the first seed of each group).
+A progress bar runs on stderr (--quiet: none).
 """
 
 from __future__ import annotations
