@@ -145,7 +145,8 @@ class CompanionApp:
         except link.PayloadError as error:
             self.recorder.event(None, "command_rejected", f"{error.reason}: {error}")
             return
-        self.recorder.event(None, "command", f"{command.command} from {command.sender}")
+        self.recorder.event(None, "command", f"{command.command} from {command.sender}", command=command.command,
+                            sender=command.sender)
         if command.command == "abort":
             self.sequencer.request_abort()
 

@@ -97,7 +97,8 @@ class Follower:
     async def _track_mode_changed(self, output: PipelineOutput) -> None:
         """Say so in the log, on Zenoh (next state) and to the autopilot/ground station (STATUSTEXT)."""
         severity, text = TRACK_MODE_TEXTS[output.mode.value]
-        self.recorder.event(output.time, "track_mode", f"{output.mode.value} (bearing age {output.bearing_age:.2f} s)")
+        self.recorder.event(output.time, "track_mode", f"{output.mode.value} (bearing age {output.bearing_age:.2f} s)",
+                            mode=output.mode.value, bearing_age=round(output.bearing_age, 4))
         try:
             await self.vehicle.status_text(text, severity)
         except VehicleError as error:

@@ -136,7 +136,8 @@ class MissionSequencer:
         transition = Transition(sample.state.time if sample else None, self.phase, phase, detail)
         self.phase = phase
         self.transitions.append(transition)
-        self.log.event(transition.time, "phase", f"{phase.value} {detail}".strip())
+        self.log.event(transition.time, "phase", f"{phase.value} {detail}".strip(), phase=phase.value,
+                       previous=transition.source.value)
         self.echo(f"companion: {phase.value} {detail}".rstrip())
 
     def fail(self, detail: str) -> None:

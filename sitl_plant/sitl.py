@@ -17,9 +17,7 @@ interrupted run keeps everything up to the interruption.
 from __future__ import annotations
 
 import argparse
-import json
 import math
-import os
 import select
 import signal
 import sys
@@ -29,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, VehicleConfig, load_scenario
+from interfaces.records import CsvLog, JsonLinesLog, write_json
 from interfaces.link_schema import CLOCK_KEY, ClockTick, encode_clock
 from interfaces.zenoh_transport import LinkError, open_session, publisher, zenoh_config
 from sitl_plant.vehicle.autopilot import Autopilot
@@ -78,9 +77,10 @@ def build_vehicle(
 
 
 class RunLog:
-    """The plant's run folder; every line is flushed when written."""
+    """The plant's run folder (interfaces.records writers: every line flushed as written); no folder, no files."""
 
-    COLUMNS = ("time,x,y,z,vx,vy,vz,qw,qx,qy,qz,p,q,r,armed,mode,landed_state,thrust_command")
+    COLUMNS = ("time", "x", "y", "z", "vx", "vy", "vz", "qw", "qx", "qy", "qz", "p", "q", "r",
+               "armed", "mode", "landed_state", "thrust_command")
 
     def __init__(self, folder: Path | None, rate_hz: float, latency: bool = False) -> None:
         self.folder = folder
@@ -89,44 +89,38 @@ class RunLog:
         self._vehicle = self._events = self._latency = None
         if folder is None:
             return
-        folder.mkdir(parents=True, exist_ok=True)
-        self._vehicle = (folder / "vehicle.csv").open("w", buffering=1)
-        self._vehicle.write(self.COLUMNS + "\n")
-        self._events = (folder / "events.jsonl").open("w", buffering=1)
+        self._vehicle = CsvLog(folder / "vehicle.csv", self.COLUMNS)
+        self._events = JsonLinesLog(folder / "events.jsonl")
         if latency:
-            self._latency = (folder / "odometry_sent.csv").open("w", buffering=1)
-            self._latency.write("time_usec,wall_monotonic_ns\n")
+            self._latency = CsvLog(folder / "odometry_sent.csv", ("time_usec", "wall_monotonic_ns"))
 
     def event(self, event: Event) -> None:
         if self._events is not None:
-            self._events.write(json.dumps({"time": round(event.time, 6), "kind": event.kind, "detail": event.detail}) + "\n")
+            self._events.write({"time": round(event.time, 6), "kind": event.kind, "detail": event.detail,
+                                **event.fields})
 
     def odometry_sent(self, time_usec: int) -> None:
         if self._latency is not None:
-            self._latency.write(f"{time_usec},{time.monotonic_ns()}\n")
+            self._latency.write({"time_usec": time_usec, "wall_monotonic_ns": time.monotonic_ns()})
 
     def sample(self, autopilot: Autopilot) -> None:
         if self._vehicle is None or autopilot.time + 1e-9 < self._next:
             return
         self._next = autopilot.time + self.period
-        s = autopilot.vehicle.quadrotor._s
-        values = ",".join(f"{v:.6g}" for v in s[:13])
-        self._vehicle.write(
-            f"{autopilot.time:.4f},{values},{int(autopilot.armed)},{autopilot.mode.name},"
-            f"{int(autopilot.landed_state)},{autopilot.thrust_command:.4f}\n"
-        )
+        state = autopilot.vehicle.quadrotor._s[:13]
+        self._vehicle.write({
+            "time": f"{autopilot.time:.4f}", **{column: f"{value:.6g}" for column, value in zip(self.COLUMNS[1:14], state)},
+            "armed": int(autopilot.armed), "mode": autopilot.mode.name, "landed_state": int(autopilot.landed_state),
+            "thrust_command": f"{autopilot.thrust_command:.4f}"})
 
     def write_stats(self, stats: dict) -> None:
-        if self.folder is None:
-            return
-        tmp = self.folder / "stats.json.tmp"
-        tmp.write_text(json.dumps(stats, indent=2, sort_keys=True))
-        os.replace(tmp, self.folder / "stats.json")
+        if self.folder is not None:
+            write_json(self.folder / "stats.json", stats, indent=2, sort_keys=True)
 
     def close(self) -> None:
-        for handle in (self._vehicle, self._events, self._latency):
-            if handle is not None:
-                handle.close()
+        for log in (self._vehicle, self._events, self._latency):
+            if log is not None:
+                log.close()
 
 
 class ClockPublisher:

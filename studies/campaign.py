@@ -9,7 +9,8 @@ validator as the networked companion) in parallel worker processes. Patterns nam
 with --sitl are also flown once through the full SITL (bof-sitl, real processes, the
 faults injected by sitl-target). Output (runs/campaign-<scenario>-<time>/): results.csv
 (one row per flight), summary.md (one row per pattern, with the pass/fail of the
-targets below) and summary.json.
+targets below) and summary.json. Progress bars on stderr (flights done; simulated time and
+phase of each SITL flight); --quiet turns them off.
 
 Figures per flight (times are scenario seconds):
 * kept: the estimate still tracks at the end (range-estimation error under 1 m over the
@@ -27,7 +28,6 @@ r_d / 2, range-estimation error back under 1 m within 10 s of the link returning
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import math
 import os
@@ -37,8 +37,12 @@ from pathlib import Path
 
 import numpy as np
 
-from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, FaultsConfig, Scenario, VehicleConfig, load_scenario
+from interfaces import link_schema
+from interfaces.overrides import apply_overrides, format_assignment
+from interfaces.records import CsvLog
+from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, VehicleConfig, load_scenario
 from studies.closed_loop import Termination, simulate
+from studies import reporting
 from studies.executors import make_executor
 from studies.metrics import write_summary
 
@@ -67,8 +71,8 @@ TARGET_PATTERNS = ("blackout_1s", "blackout_2s", "blackout_5s", "blackout_10s", 
 
 
 def with_faults(scenario: Scenario, overrides: dict) -> Scenario:
-    """The scenario with its [faults] section replaced by `overrides` (validated)."""
-    return scenario.model_copy(update={"faults": FaultsConfig.model_validate(overrides)})
+    """The scenario with its [faults] section replaced by `overrides`, the whole scenario re-validated."""
+    return apply_overrides(scenario, {"faults": overrides}, "bof-campaign [faults]")
 
 
 def blackout_windows(overrides: dict) -> list[tuple[float, float]]:
@@ -131,79 +135,67 @@ def _fly(task: tuple[str, int, Scenario, VehicleConfig]) -> dict:
             "reinitialized": result.summary.get("reinitializations", 0)}
 
 
+#: pattern-table figure -> (results.csv column, statistic over the pattern's flights; NaN skipped)
+PATTERN_FIGURES = {
+    "flights": ("seed", "size"), "kept": ("kept", "sum"), "min_range": ("min_range", "min"),
+    "worst_error_median": ("worst_error", "median"), "worst_error_max": ("worst_error", "max"),
+    "reconverge_median": ("reconverge", "median"), "reconverge_max": ("reconverge", "max"),
+}
+
+
 def pattern_table(rows: list[dict], desired_range: float) -> list[dict]:
-    """One line per pattern: shares, extremes, medians, and the targets' verdict."""
+    """One line per pattern: shares, extremes, medians, and the targets' verdict. A reconvergence that
+    never came (inf) counts in the median and the maximum; the worst error counts where finite."""
     table = []
-    for name in dict.fromkeys(row["pattern"] for row in rows):
-        group = [row for row in rows if row["pattern"] == name]
-        kept = sum(row["kept"] for row in group)
-        min_range = min(row["min_range"] for row in group)
-        worst = [row["worst_error"] for row in group if math.isfinite(row["worst_error"])]
-        reconverge = [row["reconverge"] for row in group if not math.isnan(row["reconverge"])]
-        entry = {
-            "pattern": name, "description": PATTERNS.get(name, ({}, name))[1], "flights": len(group),
-            "kept_share": kept / len(group), "min_range": min_range,
-            "worst_error_median": float(np.median(worst)) if worst else math.nan,
-            "worst_error_max": max(worst) if worst else math.nan,
-            "reconverge_median": float(np.median(reconverge)) if reconverge else math.nan,
-            "reconverge_max": max(reconverge) if reconverge else math.nan,
-        }
+    for group in reporting.summarize(rows, ["pattern"], PATTERN_FIGURES, finite=["worst_error"]):
+        name, kept = group["pattern"], group.pop("kept")
+        entry = {"pattern": name, "description": PATTERNS.get(name, ({}, name))[1], "flights": group["flights"],
+                 "kept_share": kept / group["flights"],
+                 **{key: group[key] for key in PATTERN_FIGURES if key not in ("flights", "kept")}}
         if name in TARGET_PATTERNS:
-            entry["meets_targets"] = bool(kept == len(group) and min_range >= 0.5 * desired_range
-                                          and (not reconverge or max(reconverge) <= 10.0))
+            reconverge_max = entry["reconverge_max"]
+            entry["meets_targets"] = bool(kept == group["flights"] and entry["min_range"] >= 0.5 * desired_range
+                                          and (math.isnan(reconverge_max) or reconverge_max <= 10.0))
         table.append(entry)
     return table
 
 
-def _f(value: float, digits: int) -> str:
-    """A number for the tables; '-' where a figure does not apply (no fault, no blackout), 'never' for inf."""
-    if value is None or (isinstance(value, float) and math.isnan(value)):
-        return "-"
-    if math.isinf(value):
-        return "never"
-    return f"{value:.{digits}f}"
-
-
 def markdown(table: list[dict], sitl_rows: list[dict], scenario: Scenario, seeds: int) -> str:
-    lines = [f"# Link-dropout campaign: {scenario.name}, {seeds} seeds per pattern, r_d = {scenario.guidance.desired_range:g} m",
-             "",
-             "| pattern | flights | target kept | min range (m) | worst range-est. error during fault, median / max (m) | "
-             "re-converge after link returns, median / max (s) | targets |",
-             "|---|---|---|---|---|---|---|"]
-    for e in table:
-        verdict = {True: "met", False: "**missed**"}.get(e.get("meets_targets"), "-")
-        lines.append(f"| {e['pattern']} ({e['description']}) | {e['flights']} | {100 * e['kept_share']:.0f} % | "
-                     f"{_f(e['min_range'], 2)} | {_f(e['worst_error_median'], 2)} / {_f(e['worst_error_max'], 2)} | "
-                     f"{_f(e['reconverge_median'], 1)} / {_f(e['reconverge_max'], 1)} | {verdict} |")
+    def f(value: float, digits: int) -> str:  # 'never' for a reconvergence that did not come
+        return reporting.cell(value, digits, infinite="never")
+
+    headers = ["pattern", "flights", "target kept", "min range (m)",
+               "worst range-est. error during fault, median / max (m)",
+               "re-converge after link returns, median / max (s)", "targets"]
+    lines = [dict(zip(headers, (
+        f"{e['pattern']} ({e['description']})", str(e["flights"]), f"{100 * e['kept_share']:.0f} %", f(e["min_range"], 2),
+        f"{f(e['worst_error_median'], 2)} / {f(e['worst_error_max'], 2)}",
+        f"{f(e['reconverge_median'], 1)} / {f(e['reconverge_max'], 1)}",
+        {True: "met", False: "**missed**"}.get(e.get("meets_targets"), "-")))) for e in table]
+    parts = [f"# Link-dropout campaign: {scenario.name}, {seeds} seeds per pattern, r_d = {scenario.guidance.desired_range:g} m",
+             "", reporting.markdown(lines, headers)]
     if sitl_rows:
-        lines += ["", "Full SITL (real processes, MAVLink, Zenoh; faults injected by sitl-target):", "",
-                  "| pattern | kept | min range (m) | worst error (m) | re-converge (s) | fixes rejected |", "|---|---|---|---|---|---|"]
-        for r in sitl_rows:
-            lines.append(f"| {r['pattern']} | {r['kept']} | {_f(r['min_range'], 2)} | {_f(r['worst_error'], 2)} | "
-                         f"{_f(r['reconverge'], 1)} | {r['fixes_rejected']} |")
-    return "\n".join(lines) + "\n"
+        headers = ["pattern", "kept", "min range (m)", "worst error (m)", "re-converge (s)", "fixes rejected"]
+        lines = [dict(zip(headers, (r["pattern"], str(r["kept"]), f(r["min_range"], 2), f(r["worst_error"], 2),
+                                    f(r["reconverge"], 1), str(r["fixes_rejected"])))) for r in sitl_rows]
+        parts += ["", "Full SITL (real processes, MAVLink, Zenoh; faults injected by sitl-target):", "",
+                  reporting.markdown(lines, headers)]
+    return "\n".join(parts) + "\n"
 
 
-def _toml_value(value) -> str:
-    """A TOML literal for sitl-target's --fault KEY=VALUE (numbers, lists, inline tables)."""
-    if isinstance(value, dict):
-        return "{" + ", ".join(f"{key} = {_toml_value(item)}" for key, item in value.items()) + "}"
-    if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(_toml_value(item) for item in value) + "]"
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, str):
-        return json.dumps(value)
-    return repr(float(value)) if isinstance(value, float) else str(value)
-
-
-def _sitl_case(config: Path, name: str, folder: Path, speed: float) -> dict:
+def _sitl_case(config: Path, name: str, folder: Path, speed: float, show_progress: bool = True) -> dict:
     from studies import full_sitl
 
     overrides = PATTERNS[name][0]
-    faults = [f"{key}={_toml_value(value)}" for key, value in overrides.items()]
-    code, run_folder, summary = full_sitl.run(config, folder, speed, None, None, plots=True, quiet=True,
-                                              target_faults=faults)
+    faults = [format_assignment(key, value) for key, value in overrides.items()]
+    with reporting.progress_bar(None, "sim s", enabled=show_progress, description=f"bof-campaign SITL {name}") as bar:
+        def progress(state: link_schema.CompanionState | None, engaged_at: float | None) -> None:
+            if state is not None:
+                bar.update(state.stamp - bar.n)
+                bar.set_postfix(phase=state.phase, refresh=False)
+
+        code, run_folder, summary = full_sitl.run(config, folder, speed, None, None, plots=True, quiet=True,
+                                                  target_faults=faults, on_state=progress)
     scenario, _ = load_scenario(config)
     series, _ = full_sitl.flight_series(run_folder)
     metrics = flight_metrics(series, scenario, Termination.COMPLETED if code == 0 else Termination.OUT_OF_CONTROL,
@@ -212,17 +204,28 @@ def _sitl_case(config: Path, name: str, folder: Path, speed: float) -> dict:
     return {"pattern": name, **metrics, "fixes_rejected": sum(link["rejected"].values()), "run_folder": str(run_folder)}
 
 
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="bof-campaign", description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    parser.add_argument("config", nargs="?", type=Path, default=DEFAULT_SCENARIO, help="scenario TOML")
+    parser.add_argument("--seeds", type=int, default=10, help="in-process flights per pattern (seeds 1..N)")
+    parser.add_argument("--patterns", nargs="+", default=list(PATTERNS), choices=list(PATTERNS), metavar="PATTERN",
+                        help="fault patterns flown in process: " + "; ".join(
+                            f"{name}: {description}".replace("%", "%%") for name, (_, description) in PATTERNS.items()))
+    parser.add_argument("--sitl", nargs="*", default=[], choices=list(PATTERNS), metavar="PATTERN",
+                        help="patterns also flown once each in full SITL (bof-sitl: real processes, faults by sitl-target)")
+    parser.add_argument("--sitl-speed", type=float, default=5.0, help="SITL speed factor, simulated seconds per wall second")
+    parser.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="worker processes for the in-process flights")
+    parser.add_argument("--executor", default="local",
+                        help="where the in-process flights run: local (processes), serial, dask-local, or tcp://scheduler:port")
+    parser.add_argument("--out", type=Path, default=Path("runs"),
+                        help="parent folder; the run goes to OUT/campaign-<scenario>-<time>/")
+    parser.add_argument("--quiet", action="store_true", help="no progress bars (they go to stderr)")
+    return parser.parse_args(argv)
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="bof-campaign", description=__doc__.split("\n\n")[0])
-    parser.add_argument("config", nargs="?", type=Path, default=DEFAULT_SCENARIO)
-    parser.add_argument("--seeds", type=int, default=10, help="flights per pattern (seeds 1..N)")
-    parser.add_argument("--patterns", nargs="+", default=list(PATTERNS), choices=list(PATTERNS))
-    parser.add_argument("--sitl", nargs="*", default=[], choices=list(PATTERNS), help="patterns also flown in full SITL")
-    parser.add_argument("--sitl-speed", type=float, default=5.0)
-    parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
-    parser.add_argument("--executor", default="local", help="local (default), serial, dask-local, or tcp://scheduler:port")
-    parser.add_argument("--out", type=Path, default=Path("runs"))
-    args = parser.parse_args(argv)
+    args = parse_args(argv)
     if args.seeds < 1 or args.workers < 1:
         print("bof-campaign: --seeds and --workers must be >= 1", file=sys.stderr)
         return 2
@@ -241,22 +244,23 @@ def main(argv: list[str] | None = None) -> int:
     except (RuntimeError, ValueError) as error:
         print(f"bof-campaign: {error}", file=sys.stderr)
         return 2
+    results = None
+    bar = reporting.progress_bar(len(tasks), "flights", enabled=not args.quiet, description="bof-campaign")
     try:
-        with (folder / "results.csv").open("w", newline="", buffering=1) as handle:
-            writer = None
-            for done, (index, row) in enumerate(executor.map(_fly, tasks), start=1):
-                slots[index] = row
-                if writer is None:
-                    writer = csv.DictWriter(handle, fieldnames=list(row))
-                    writer.writeheader()
-                writer.writerow(row)  # completion order; every row carries its pattern and seed
-                print(f"\rbof-campaign: {done}/{len(tasks)} flights", end="", flush=True)
+        for index, row in executor.map(_fly, tasks):
+            slots[index] = row
+            if results is None:
+                results = CsvLog(folder / "results.csv", row)
+            results.write(row)  # completion order; every row carries its pattern and seed
+            bar.update()
     finally:
+        bar.close()
         executor.close()
-    print()
+        if results is not None:
+            results.close()
     rows = [row for row in slots if row is not None]
     table = pattern_table(rows, scenario.guidance.desired_range)
-    sitl_rows = [_sitl_case(args.config, name, folder / "sitl", args.sitl_speed) for name in args.sitl]
+    sitl_rows = [_sitl_case(args.config, name, folder / "sitl", args.sitl_speed, not args.quiet) for name in args.sitl]
     report = markdown(table, sitl_rows, scenario, args.seeds)
     (folder / "summary.md").write_text(report)
     write_summary(folder / "summary.json", {"patterns": table, "sitl": sitl_rows})

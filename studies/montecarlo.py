@@ -24,26 +24,28 @@ convergence time, min range, max tilt, the windowed-FIM observability. Time seri
 0.2 s go to series.npz for the figures. Output in runs/montecarlo-<label>-<time>/:
 results.csv, summary.md, summary.json, series.npz, and the figures (error over time per
 group, trajectories and normalised image-plane tracks of the first seed of each group).
+A progress bar runs on stderr (--quiet: none).
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
 import itertools
 import json
 import math
 import sys
 import time
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from interfaces.records import CsvLog
+from interfaces.overrides import apply_overrides, parse_assignment
 from interfaces.scenario import SCENARIOS_DIR, ConfigError, Scenario, VehicleConfig, load_scenario
 from studies.closed_loop import Termination, simulate
+from studies import reporting
 from studies.executors import make_executor
 from studies.metrics import write_summary
 
@@ -124,22 +126,8 @@ class FlightTask:
 
 
 def with_overrides(scenario: Scenario, overrides: dict[str, Any]) -> Scenario:
-    """The scenario with dotted-key overrides applied and validated ("guidance.c_y": 0.0)."""
-    data = scenario.model_dump()
-    for key, value in overrides.items():
-        node = data
-        *parents, leaf = key.split(".")
-        for part in parents:
-            if not isinstance(node.get(part), dict):
-                raise ConfigError(f"override {key!r}: no section {part!r}")
-            node = node[part]
-        if leaf not in node:
-            raise ConfigError(f"override {key!r}: unknown key {leaf!r}")
-        node[leaf] = value
-    try:
-        return Scenario.model_validate(data)
-    except ValueError as error:
-        raise ConfigError(f"overrides {overrides}: {error}") from None
+    """The scenario with dotted-key overrides applied and validated ("guidance.c_y": 0.0; interfaces.overrides)."""
+    return apply_overrides(scenario, overrides, f"overrides {overrides}")
 
 
 def drawn_initial_position(seed: int, box: tuple[float, ...]) -> tuple[float, float, float]:
@@ -154,20 +142,11 @@ def drawn_initial_position(seed: int, box: tuple[float, ...]) -> tuple[float, fl
 
 
 def parse_case(text: str) -> tuple[str, dict[str, Any]]:
-    """'NAME:key=value,key=value' -> (NAME, overrides); values are TOML literals."""
+    """'NAME:key=value,key=value' -> (NAME, overrides); values are TOML literals (interfaces.overrides)."""
     name, _, body = text.partition(":")
     if not name or not body:
         raise ValueError(f"case {text!r}: expected NAME:key=value[,key=value]")
-    overrides = {}
-    for item in body.split(","):
-        key, _, literal = item.partition("=")
-        if not key.strip() or not literal.strip():
-            raise ValueError(f"case {text!r}: {item!r} is not key=value")
-        try:
-            overrides[key.strip()] = tomllib.loads(f"v = {literal.strip()}")["v"]
-        except tomllib.TOMLDecodeError:
-            raise ValueError(f"case {text!r}: {literal!r} is not a TOML value (quote strings)") from None
-    return name, overrides
+    return name, dict(parse_assignment(item, f"case {text!r}:") for item in body.split(","))
 
 
 def build_tasks(scenarios: list[tuple[Scenario, VehicleConfig]], estimators: list[str], guidance: list[str],
@@ -282,91 +261,51 @@ def group_key(row: dict) -> tuple[str, str, str, str]:
     return (row["scenario"], row["estimator"], row["guidance"], row["case"])
 
 
-def _finite(values: list[float]) -> list[float]:
-    return [v for v in values if isinstance(v, (int, float)) and math.isfinite(v)]
+#: group-table figure -> (results.csv column, statistic over the group's runs; NaN and inf skipped)
+GROUP_FIGURES = {
+    "runs": ("seed", "size"), "diverged": ("diverged", "sum"), "lost": ("lost", "sum"),
+    "final_error_median": ("final_error", "median"), "final_error_p90": ("final_error", lambda values: values.quantile(0.9)),
+    "rms_error_median_kept": ("rms_error_kept", "median"), "range_error_rms_median": ("range_error_rms", "median"),
+    "converged_runs": ("convergence_time", "count"), "convergence_time_median": ("convergence_time", "median"),
+    "min_range": ("min_range", "min"), "max_tilt_deg": ("max_tilt_deg", "max"),
+    "observability_log_det_median": ("observability_log_det", "median"),
+}
 
 
 def group_table(rows: list[dict]) -> list[dict]:
-    """One line per (scenario, estimator, guidance, case): divergence counted, then robust statistics."""
-    table = []
-    for key in dict.fromkeys(group_key(row) for row in rows):
-        group = [row for row in rows if group_key(row) == key]
-        kept = [row for row in group if not row["diverged"]]
-        final = _finite([row["final_error"] for row in group])
-        rms = _finite([row["rms_error"] for row in kept])
-        conv = _finite([row["convergence_time"] for row in group])
-        table.append({
-            "scenario": key[0], "estimator": key[1], "guidance": key[2], "case": key[3], "runs": len(group),
-            "diverged": sum(row["diverged"] for row in group), "lost": sum(row["lost"] for row in group),
-            "final_error_median": float(np.median(final)) if final else math.nan,
-            "final_error_p90": float(np.percentile(final, 90)) if final else math.nan,
-            "rms_error_median_kept": float(np.median(rms)) if rms else math.nan,
-            "range_error_rms_median": float(np.median(_finite([row["range_error_rms"] for row in group]) or [math.nan])),
-            "converged_runs": len(conv),
-            "convergence_time_median": float(np.median(conv)) if conv else math.nan,
-            "min_range": min(_finite([row["min_range"] for row in group]) or [math.nan]),
-            "max_tilt_deg": max(_finite([row["max_tilt_deg"] for row in group]) or [math.nan]),
-            "observability_log_det_median": float(np.median(_finite([row["observability_log_det"] for row in group]) or [math.nan])),
-            **{f"{key}_median": float(np.median(_finite([row[key] for row in group]) or [math.nan]))
-               for key in group[0] if key.startswith("error_")},
-        })
-    return table
-
-
-def _f(value: float, digits: int = 2) -> str:
-    if value is None or (isinstance(value, float) and math.isnan(value)):
-        return "-"
-    if isinstance(value, float) and math.isinf(value):
-        return "inf"
-    return f"{value:.{digits}f}"
+    """One line per (scenario, estimator, guidance, case): divergence counted, then robust statistics
+    (medians over the runs with a finite figure; the RMS error over the runs that did not diverge)."""
+    windows = [key for key in rows[0] if key.startswith("error_")] if rows else []
+    rows = [{**row, "rms_error_kept": math.nan if row["diverged"] else row["rms_error"]} for row in rows]
+    figures = {**GROUP_FIGURES, **{f"{key}_median": (key, "median") for key in windows}}
+    finite = ["final_error", "rms_error_kept", "range_error_rms", "convergence_time", "min_range", "max_tilt_deg",
+              "observability_log_det", *windows]
+    return reporting.summarize(rows, ["scenario", "estimator", "guidance", "case"], figures, finite)
 
 
 def markdown(table: list[dict], title: str, runs: int, threshold: float, executor: str) -> str:
-    lines = [f"# {title}", "",
-             f"{runs} seeded runs per row (seeds 1..{runs}); executor: {executor}. diverged: did not complete, or mean "
-             f"|range-estimation error| over the last {FINAL_WINDOW:g} s > {threshold:g} m. lost: mean |range - r_d| "
-             f"over the last {FINAL_WINDOW:g} s > {threshold:g} m. Error statistics in m; final error over all runs, "
-             "RMS (last summary window) over the runs that did not diverge.", "",
-             "| scenario | estimator | guidance | case | diverged | lost | final error median / p90 | RMS error median (kept) "
-             "| range error RMS median | converged runs, median time (s) | min range (m) | max tilt (deg) | log10 det FIM median |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     windows = [key[: -len("_median")] for key in (table[0] if table else {}) if key.startswith("error_")]
-    if windows:
-        lines[-2] += "".join(f" mean abs error {key[len('error_'):]}, median |" for key in windows)
-        lines[-1] += "---|" * len(windows)
-    for e in table:
-        lines.append(
-            f"| {e['scenario']} | {e['estimator']} | {e['guidance']} | {e['case']} | {e['diverged']}/{e['runs']} | "
-            f"{e['lost']}/{e['runs']} | {_f(e['final_error_median'])} / {_f(e['final_error_p90'])} | "
-            f"{_f(e['rms_error_median_kept'], 3)} | {_f(e['range_error_rms_median'], 3)} | "
-            f"{e['converged_runs']}, {_f(e['convergence_time_median'], 1)} | {_f(e['min_range'])} | "
-            f"{_f(e['max_tilt_deg'], 1)} | {_f(e['observability_log_det_median'], 1)} |"
-            + "".join(f" {_f(e[key + '_median'], 3)} |" for key in windows))
-    return "\n".join(lines) + "\n"
+    headers = ["scenario", "estimator", "guidance", "case", "diverged", "lost", "final error median / p90",
+               "RMS error median (kept)", "range error RMS median", "converged runs, median time (s)", "min range (m)",
+               "max tilt (deg)", "log10 det FIM median",
+               *(f"mean abs error {key[len('error_'):]}, median" for key in windows)]
+    f = reporting.cell
+    lines = [dict(zip(headers, (
+        e["scenario"], e["estimator"], e["guidance"], e["case"], f"{e['diverged']}/{e['runs']}", f"{e['lost']}/{e['runs']}",
+        f"{f(e['final_error_median'])} / {f(e['final_error_p90'])}", f(e["rms_error_median_kept"], 3),
+        f(e["range_error_rms_median"], 3), f"{e['converged_runs']}, {f(e['convergence_time_median'], 1)}",
+        f(e["min_range"]), f(e["max_tilt_deg"], 1), f(e["observability_log_det_median"], 1),
+        *(f(e[key + "_median"], 3) for key in windows)))) for e in table]
+    return "\n".join([
+        f"# {title}", "",
+        f"{runs} seeded runs per row (seeds 1..{runs}); executor: {executor}. diverged: did not complete, or mean "
+        f"|range-estimation error| over the last {FINAL_WINDOW:g} s > {threshold:g} m. lost: mean |range - r_d| "
+        f"over the last {FINAL_WINDOW:g} s > {threshold:g} m. Error statistics in m; final error over all runs, "
+        "RMS (last summary window) over the runs that did not diverge.", "",
+        reporting.markdown(lines, headers)]) + "\n"
 
 
 # --------------------------------------------------------------------------- runner
-
-
-class Progress:
-    """A one-line progress bar on stderr: done/total, elapsed, estimated time left."""
-
-    def __init__(self, total: int, width: int = 30) -> None:
-        self.total, self.width, self.start = total, width, time.monotonic()
-        self.interactive = sys.stderr.isatty()
-        self._last_printed = -1
-
-    def update(self, done: int) -> None:
-        elapsed = time.monotonic() - self.start
-        left = elapsed / done * (self.total - done) if done else math.nan
-        filled = round(self.width * done / self.total)
-        line = (f"[{'#' * filled}{'.' * (self.width - filled)}] {done}/{self.total} flights, "
-                f"{elapsed:.0f} s elapsed, ~{_f(left, 0)} s left")
-        if self.interactive:
-            print("\r" + line, end="" if done < self.total else "\n", file=sys.stderr, flush=True)
-        elif done == self.total or done * 10 // self.total != self._last_printed:
-            self._last_printed = done * 10 // self.total
-            print(line, file=sys.stderr, flush=True)
 
 
 def run_tasks(tasks: list[FlightTask], executor_spec: str, workers: int | None, folder: Path,
@@ -376,28 +315,27 @@ def run_tasks(tasks: list[FlightTask], executor_spec: str, workers: int | None, 
     executor = make_executor(executor_spec, workers)
     rows: list[dict | None] = [None] * len(tasks)
     series: list[dict | None] = [None] * len(tasks)
-    bar = Progress(len(tasks)) if progress else None
-    partial = folder / "results.partial.csv"
+    bar = reporting.progress_bar(len(tasks), "flights", enabled=progress, description="bof-montecarlo")
+    partial = None
     try:
-        with partial.open("w", newline="", buffering=1) as handle:
-            writer = None
-            for done, (index, result) in enumerate(executor.map(fly, tasks), start=1):
-                rows[index], series[index] = result["row"], result["series"]
-                if writer is None:
-                    writer = csv.DictWriter(handle, fieldnames=["index", *result["row"]])
-                    writer.writeheader()
-                writer.writerow({"index": index, **result["row"]})
-                if bar is not None:
-                    bar.update(done)
+        for index, result in executor.map(fly, tasks):
+            rows[index], series[index] = result["row"], result["series"]
+            if partial is None:
+                partial = CsvLog(folder / "results.partial.csv", ["index", *result["row"]])
+            partial.write({"index": index, **result["row"]})
+            bar.update()
     finally:
+        bar.close()
         name = executor.name
         executor.close()
+        if partial is not None:
+            partial.close()
     ordered = [row for row in rows if row is not None]
-    with (folder / "results.csv").open("w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=list(ordered[0]))
-        writer.writeheader()
-        writer.writerows(ordered)
-    partial.unlink()
+    results = CsvLog(folder / "results.csv", ordered[0])
+    for row in ordered:
+        results.write(row)
+    results.close()
+    partial.path.unlink()
     stacked = {key: np.stack([s[key] for s in series]) for key in series[0]} if series[0] is not None else {}
     return ordered, stacked, name
 
@@ -421,6 +359,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=None, help="worker processes (default: all cores)")
     parser.add_argument("--out", type=Path, default=Path("runs"))
     parser.add_argument("--no-plots", action="store_true")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar (it goes to stderr)")
     args = parser.parse_args(argv)
 
     study = STUDIES.get(args.study) if args.study else None
@@ -451,7 +390,7 @@ def main(argv: list[str] | None = None) -> int:
     folder.mkdir(parents=True, exist_ok=True)
     print(f"bof-montecarlo: {len(tasks)} flights -> {folder}", flush=True)
     try:
-        rows, series, executor_name = run_tasks(tasks, args.executor, args.workers, folder)
+        rows, series, executor_name = run_tasks(tasks, args.executor, args.workers, folder, progress=not args.quiet)
     except (RuntimeError, ValueError, OSError) as error:
         print(f"bof-montecarlo: {error}", file=sys.stderr)
         return 2

@@ -68,7 +68,7 @@ def _seqs(delivered: list[tuple[float, bytes]], sender: str = "target-1") -> lis
 
 
 def _event_seqs(faults: LinkFaults, kind: str) -> list[int]:
-    return [int(event.detail.split()[0].removeprefix("seq=")) for event in faults.events if event.kind == kind]
+    return [event.fields["seq"] for event in faults.events if event.kind == kind]
 
 
 # --- pass-through, loss ---------------------------------------------------------------
@@ -120,7 +120,7 @@ def test_burst_loss_in_good_and_bad_states():
     faults = _faults(burst={"p_good_to_bad": 0.0, "p_bad_to_good": 0.0, "loss_in_good": 0.5})
     delivered = _seqs(_run(faults, 2000))
     assert abs(len(delivered) - 1000) < 4 * math.sqrt(500)
-    assert all(event.detail.endswith("(good state)") for event in faults.events)
+    assert all(event.fields["state"] == "good" for event in faults.events)
 
 
 # --- blackouts ------------------------------------------------------------------------
@@ -133,7 +133,7 @@ def test_blackout_drops_exactly_the_fixes_in_its_scenario_time_window_and_logs_s
     starts_ends = [(event.kind, event.time) for event in faults.events]
     assert starts_ends == [("blackout_start", 4.0), ("blackout_end", 6.0), ("blackout_start", 9.0),
                            ("blackout_end", 9.2)]
-    assert "10 messages dropped" in faults.events[1].detail and "[3, 5)" in faults.events[1].detail
+    assert faults.events[1].fields == {"window_start": 3.0, "window_end": 5.0, "dropped": 10}
     assert faults.counters["blackout_drop"] == 11
 
 
@@ -213,7 +213,8 @@ def test_each_corruption_is_refused_by_the_decoder_with_its_reason(kind, frame):
         with pytest.raises(PayloadError) as error:
             decode_target_fix(payload)
         assert error.value.reason == CORRUPTION_REASONS[kind], (kind, payload)
-    assert all(f"seq={seq} {kind}" in event.detail for seq, event in enumerate(faults.events))
+    assert [(event.fields["seq"], event.fields["corruption"]) for event in faults.events] == [
+        (seq, kind) for seq in range(60)]
 
 
 def test_corruption_of_arbitrary_bytes_and_a_uniform_mix():
@@ -223,7 +224,7 @@ def test_corruption_of_arbitrary_bytes_and_a_uniform_mix():
             decode_target_fix(broken)
     faults = _faults(corrupt_probability=0.5)
     _run(faults, 1200)
-    kinds = [event.detail.split()[1].rstrip(":") for event in faults.events]
+    kinds = [event.fields["corruption"] for event in faults.events]
     assert abs(len(kinds) - 600) < 4 * math.sqrt(300)
     assert {kind: kinds.count(kind) for kind in CORRUPT_KINDS} == pytest.approx(
         {kind: 100 for kind in CORRUPT_KINDS}, abs=4 * math.sqrt(100))
@@ -291,7 +292,7 @@ def test_restart_discards_what_is_in_flight():
         faults.offer(seq / RATE, _fix(seq), seq / RATE)
     assert faults.pending == 2
     faults.restart(0.0)
-    assert faults.pending == 0 and faults.events[-1].kind == "restart" and "2 messages" in faults.events[-1].detail
+    assert faults.pending == 0 and faults.events[-1].kind == "restart" and faults.events[-1].fields == {"discarded": 2}
 
 
 # --- configuration --------------------------------------------------------------------
@@ -389,7 +390,7 @@ def test_target_publisher_applies_the_dropout_scenario_on_the_clock(tmp_path):
     assert max(stamp for stamp in stamps if stamp < 32) == pytest.approx(29.8) and 35.0 in stamps
     lines = [json.loads(line) for line in (tmp_path / "faults.jsonl").read_text().splitlines()]
     assert [(line["kind"], line["time"]) for line in lines] == [("blackout_start", 30.0), ("blackout_end", 35.0)]
-    assert "25 messages dropped" in lines[1]["detail"]
+    assert lines[1]["dropped"] == 25 and (lines[1]["window_start"], lines[1]["window_end"]) == (30.0, 35.0)
 
 
 def test_target_process_with_a_blackout_loss_and_an_impostor_end_to_end(tmp_path):
@@ -420,7 +421,7 @@ def test_target_process_with_a_blackout_loss_and_an_impostor_end_to_end(tmp_path
     events = [json.loads(line) for line in (tmp_path / "logs" / "faults.jsonl").read_text().splitlines()]
     kinds = [(event["kind"], event["time"]) for event in events if event["kind"].startswith("blackout")]
     assert kinds == [("blackout_start", 6.0), ("blackout_end", 8.0)]
-    lost = {int(event["detail"].removeprefix("seq=")) for event in events if event["kind"] == "loss"}
+    lost = {event["seq"] for event in events if event["kind"] == "loss"}
     produced = [line.split(",") for line in (tmp_path / "logs" / "target.csv").read_text().splitlines()[1:]]
     in_window = {int(row[0]) for row in produced if 6.0 - 1e-9 <= float(row[1]) < 8.0 - 1e-9}
     last = fixes[-1].seq

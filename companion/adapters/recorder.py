@@ -14,14 +14,13 @@ interrupted run keeps everything up to the interruption.
 
 from __future__ import annotations
 
-import json
-import math
-import os
 import socket
 import struct
 import threading
 import time
 from pathlib import Path
+
+from interfaces.records import CsvLog, JsonLinesLog, fmt, write_json
 
 SERIES_COLUMNS = (
     "time", "phase", "track_mode", "bearing_age",
@@ -31,67 +30,53 @@ SERIES_COLUMNS = (
     "acc_x", "acc_y", "acc_z", "thrust_normalized", "new_setpoint",
     "observability_log_det", "observability_min_eigenvalue",
 )
-
-
-def _json_default(value):
-    if hasattr(value, "tolist"):
-        return value.tolist()
-    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+BEARING_COLUMNS = ("time", "direction_x", "direction_y", "direction_z", "pursuer_x", "pursuer_y", "pursuer_z",
+                   "fix_seq", "range")
+LATENCY_COLUMNS = ("fix_seq", "fix_stamp", "received_ns", "setpoint_sent_ns", "latency_ms")
 
 
 class RunRecorder:
-    """Opens the run folder's files; all writes are line-buffered."""
+    """Opens the run folder's files (interfaces.records writers: every line flushed as written)."""
 
     def __init__(self, folder: Path) -> None:
         self.folder = Path(folder)
-        self.folder.mkdir(parents=True, exist_ok=True)
-        self._series = (self.folder / "series.csv").open("w", buffering=1)
-        self._series.write(",".join(SERIES_COLUMNS) + "\n")
-        self._zenoh = (self.folder / "zenoh_rx.jsonl").open("w", buffering=1)
-        self._events = (self.folder / "events.jsonl").open("w", buffering=1)
-        self._bearings = (self.folder / "bearings.csv").open("w", buffering=1)
-        self._bearings.write("time,direction_x,direction_y,direction_z,pursuer_x,pursuer_y,pursuer_z,fix_seq,range\n")
-        self._latency = (self.folder / "latency.csv").open("w", buffering=1)
-        self._latency.write("fix_seq,fix_stamp,received_ns,setpoint_sent_ns,latency_ms\n")
-        self._lock = threading.Lock()
+        self._series = CsvLog(self.folder / "series.csv", SERIES_COLUMNS, ignore_extra=True)
+        self._zenoh = JsonLinesLog(self.folder / "zenoh_rx.jsonl")
+        self._events = JsonLinesLog(self.folder / "events.jsonl")
+        self._bearings = CsvLog(self.folder / "bearings.csv", BEARING_COLUMNS)
+        self._latency = CsvLog(self.folder / "latency.csv", LATENCY_COLUMNS)
 
     def series(self, row: dict) -> None:
-        values = []
-        for column in SERIES_COLUMNS:
-            value = row.get(column, "")
-            if isinstance(value, float):
-                value = "" if math.isnan(value) else f"{value:.6g}"
-            values.append(str(value))
-        self._series.write(",".join(values) + "\n")
+        """One own-state sample: SERIES_COLUMNS -> value; floats with 6 significant digits, NaN left empty."""
+        self._series.write({column: fmt(value, ".6g") if isinstance(value, float) else value
+                            for column, value in row.items()})
 
     def zenoh(self, record: dict) -> None:
-        with self._lock:
-            self._zenoh.write(json.dumps(record, default=_json_default) + "\n")
+        self._zenoh.write(record)
 
-    def event(self, sim_time: float | None, kind: str, detail: str) -> None:
-        record = {"time": None if sim_time is None else round(sim_time, 4), "wall": round(time.time(), 3),
-                  "kind": kind, "detail": detail}
-        with self._lock:
-            self._events.write(json.dumps(record) + "\n")
+    def event(self, sim_time: float | None, kind: str, detail: str, **fields) -> None:
+        """One event: simulated time (s, None before telemetry), kind, human-readable detail, and the
+        event's figures as structured fields (e.g. phase="following", bearing_age=0.4)."""
+        self._events.write({"time": None if sim_time is None else round(sim_time, 4), "wall": round(time.time(), 3),
+                            "kind": kind, "detail": detail, **fields})
 
     def bearing(self, bearing, fix_seq: int) -> None:
         """One estimator input: the bearing (its time, direction, projection centre), the fix it came from,
         and the measured range when a range sensor is configured (empty otherwise)."""
         values = (bearing.time, *bearing.direction, *bearing.pursuer_position)
-        measured_range = "" if bearing.range is None else f"{float(bearing.range):.6g}"
-        self._bearings.write(",".join(f"{float(v):.9g}" for v in values) + f",{fix_seq},{measured_range}\n")
+        row = {column: fmt(value, ".9g") for column, value in zip(BEARING_COLUMNS, values)}
+        self._bearings.write({**row, "fix_seq": fix_seq, "range": fmt(bearing.range, ".6g")})
 
     def latency(self, fix_seq: int, fix_stamp: float, received_ns: int, sent_ns: int) -> None:
-        self._latency.write(f"{fix_seq},{fix_stamp:.4f},{received_ns},{sent_ns},{(sent_ns - received_ns) * 1e-6:.3f}\n")
+        self._latency.write({"fix_seq": fix_seq, "fix_stamp": f"{fix_stamp:.4f}", "received_ns": received_ns,
+                             "setpoint_sent_ns": sent_ns, "latency_ms": f"{(sent_ns - received_ns) * 1e-6:.3f}"})
 
     def summary(self, summary: dict) -> None:
-        tmp = self.folder / "summary.json.tmp"
-        tmp.write_text(json.dumps(summary, indent=2, sort_keys=True, default=_json_default))
-        os.replace(tmp, self.folder / "summary.json")
+        write_json(self.folder / "summary.json", summary, indent=2, sort_keys=True)
 
     def close(self) -> None:
-        for handle in (self._series, self._zenoh, self._events, self._latency, self._bearings):
-            handle.close()
+        for log in (self._series, self._zenoh, self._events, self._latency, self._bearings):
+            log.close()
 
 
 class TlogWriter:

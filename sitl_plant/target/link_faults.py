@@ -74,9 +74,12 @@ another transmitter: blackouts, loss, delay and corruption do not touch it; it i
 delivered at its tick. One ``impostor`` event per message.
 
 Events and counters: every injected fault is a `FaultEvent` (simulated time of the
-`offer`/`due` call that injected or noticed it, kind, detail with the seq affected when
-the payload is a JSON object with one) in ``events``; ``counters`` counts events by
-kind, plus ``blackout_drop``.
+`offer`/`due` call that injected or noticed it, kind, a human-readable detail, and its
+figures as fields: ``seq`` of the message affected (None when the payload is no JSON
+object with an integer seq), ``state``, ``corruption`` (the kind applied), ``delay_s``,
+``held_back_s``, ``after_s``, ``stale_seq`` and ``age_s``, ``window_start``/``window_end``
+and ``dropped``, ``discarded``, the impostor's ``sender`` and ``stamp``) in ``events``;
+``counters`` counts events by kind, plus ``blackout_drop``.
 
 Randomness: only the Generator given. It is split once into one child generator per
 fault kind (`STREAMS`, fixed order), and every enabled kind draws the same number of
@@ -91,15 +94,13 @@ from __future__ import annotations
 import heapq
 import json
 import math
-import tomllib
 from collections import Counter, deque
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
-from pydantic import ValidationError
-
-from interfaces.scenario import ConfigError, FaultsConfig
+from interfaces.overrides import apply_overrides, parse_assignment
+from interfaces.scenario import FaultsConfig
 from interfaces.link_schema import PayloadError, TargetFix, decode_target_fix, encode_target_fix
 from interfaces.geodesy import ned_to_geodetic
 
@@ -126,11 +127,17 @@ FAULT_SPAWN_KEY = 0xFA17
 
 @dataclass(frozen=True)
 class FaultEvent:
-    """One injected fault: simulated time (s) it happened, kind (e.g. "loss"), detail (seq affected, ...)."""
+    """One injected fault: simulated time (s) it happened, kind (e.g. "loss"), a human-readable detail, and
+    its figures as fields (seq of the message affected, None if it has none; delay_s, dropped, ...)."""
 
     time: float
     kind: str
     detail: str
+    fields: dict = field(default_factory=dict)
+
+    def record(self) -> dict:
+        """The event as one log record: {"time", "kind", "detail", **fields}."""
+        return {"time": self.time, "kind": self.kind, "detail": self.detail, **self.fields}
 
 
 def fault_rng(config: FaultsConfig, simulation_seed: int) -> np.random.Generator:
@@ -160,57 +167,39 @@ def override_faults(config: FaultsConfig, assignments: Sequence[str]) -> FaultsC
 
     ``loss_probability=0.3``, ``blackouts=[{start=20,duration=5}]`` (replaces the list),
     ``burst.mean_burst_s=2``, ``burst={mean_burst_s=2,mean_gap_s=20}`` (replaces the
-    table). ConfigError naming the key if an assignment is malformed or the result invalid.
+    table). ConfigError naming the key if an assignment is malformed or the result invalid
+    (interfaces.overrides).
     """
-    document = config.model_dump()
-    for assignment in assignments:
-        key, separator, text = assignment.partition("=")
-        key, text = key.strip(), text.strip()
-        path = key.split(".")
-        if not separator or not all(part and (part.replace("_", "").replace("-", "").isalnum()) for part in path):
-            raise ConfigError(f"--fault {assignment!r}: expected KEY=VALUE, e.g. loss_probability=0.3")
-        try:
-            value = tomllib.loads(f"value = {text}")["value"]
-        except tomllib.TOMLDecodeError as error:
-            raise ConfigError(f"--fault {key}: {text!r} is not a TOML value ({error})") from None
-        table = document
-        for part in path[:-1]:
-            if table.get(part) is None:
-                table[part] = {}
-            if not isinstance(table[part], dict):
-                raise ConfigError(f"--fault {key}: faults.{part} is not a table")
-            table = table[part]
-        table[path[-1]] = value
-    try:
-        return FaultsConfig.model_validate(document)
-    except ValidationError as error:
-        problems = []
-        for item in error.errors():
-            location = ".".join(str(part) for part in ("faults", *item["loc"]))
-            message = "unknown key (check the spelling)" if item["type"] == "extra_forbidden" else item["msg"]
-            problems.append(f"{location}: {message}")
-        raise ConfigError("--fault: " + "; ".join(problems)) from None
+    overrides = [parse_assignment(text, "--fault", example="loss_probability=0.3") for text in assignments]
+    return apply_overrides(config, overrides, "--fault", root="faults")
 
 
 class _SeqLabel:
-    """"seq=N" of a payload for event details, parsed only if an event needs it."""
+    """The seq of a payload for events, parsed only if an event needs it: `value` (int or None), str "seq=N"."""
+
+    _UNPARSED = object()
 
     def __init__(self, payload: bytes) -> None:
-        self._payload, self._text = payload, None
+        self._payload, self._value = payload, self._UNPARSED
+
+    @property
+    def value(self) -> int | None:
+        if self._value is self._UNPARSED:
+            self._value = _seq_of(self._payload)
+        return self._value
 
     def __str__(self) -> str:
-        if self._text is None:
-            self._text = _seq_of(self._payload)
-        return self._text
+        return f"seq={'?' if self.value is None else self.value}"
 
 
-def _seq_of(payload: bytes) -> str:
+def _seq_of(payload: bytes) -> int | None:
+    """The integer "seq" of a JSON object payload; None if it is no such object or has no integer seq."""
     try:
         document = json.loads(payload)
     except (ValueError, RecursionError):
-        return "seq=?"
+        return None
     seq = document.get("seq") if isinstance(document, dict) else None
-    return f"seq={seq}" if isinstance(seq, int) and not isinstance(seq, bool) else "seq=?"
+    return seq if isinstance(seq, int) and not isinstance(seq, bool) else None
 
 
 def corrupt_payload(payload: bytes, kind: str, draws: np.ndarray) -> tuple[bytes, str]:
@@ -219,14 +208,20 @@ def corrupt_payload(payload: bytes, kind: str, draws: np.ndarray) -> tuple[bytes
     See the module docstring for the kinds; JSON kinds on bytes that are no fix-like
     JSON object fall back to invalid_utf8.
     """
+    broken, _, detail = _corrupt(payload, kind, draws)
+    return broken, detail
+
+
+def _corrupt(payload: bytes, kind: str, draws: np.ndarray) -> tuple[bytes, str, str]:
+    """`corrupt_payload`, also saying which kind was applied (kind itself, or invalid_utf8 when it fell back)."""
     if kind == "invalid_utf8":
         middle = len(payload) // 2
-        return payload[:middle] + b"\xff" + payload[middle:], "invalid_utf8: 0xFF inserted"
+        return payload[:middle] + b"\xff" + payload[middle:], kind, "invalid_utf8: 0xFF inserted"
     if kind == "truncated_json":
         if len(payload) < 2:
-            return b"\xff", "invalid_utf8 (too short to truncate)"
+            return b"\xff", "invalid_utf8", "invalid_utf8 (too short to truncate)"
         cut = 1 + int(draws[0] * (len(payload) - 1))
-        return payload[:cut], f"truncated_json: {cut} of {len(payload)} bytes"
+        return payload[:cut], kind, f"truncated_json: {cut} of {len(payload)} bytes"
     try:
         document = json.loads(payload)
     except (ValueError, RecursionError):
@@ -234,7 +229,7 @@ def corrupt_payload(payload: bytes, kind: str, draws: np.ndarray) -> tuple[bytes
     position = document.get("position") if isinstance(document, dict) else None
     if not (isinstance(position, list) and len(position) == 3):
         broken, _ = corrupt_payload(payload, "invalid_utf8", draws)
-        return broken, f"invalid_utf8 (instead of {kind}: not a fix-like JSON object)"
+        return broken, "invalid_utf8", f"invalid_utf8 (instead of {kind}: not a fix-like JSON object)"
     if kind == "missing_field":
         name = _REQUIRED_FIELDS[int(draws[0] * len(_REQUIRED_FIELDS))]
         document.pop(name, None)
@@ -257,7 +252,7 @@ def corrupt_payload(payload: bytes, kind: str, draws: np.ndarray) -> tuple[bytes
             detail = f"absurd_position: position[{axis}] = 1e9 m"
     else:
         raise ValueError(f"unknown corruption kind {kind!r}")
-    return json.dumps(document, allow_nan=True, separators=(",", ":")).encode("utf-8"), detail
+    return json.dumps(document, allow_nan=True, separators=(",", ":")).encode("utf-8"), kind, detail
 
 
 class LinkFaults:
@@ -306,7 +301,7 @@ class LinkFaults:
         discarded = len(self._pending)
         self._pending.clear()
         self._reset_state()
-        self._log(now, "restart", f"clock went back; {discarded} messages in flight discarded")
+        self._log(now, "restart", f"clock went back; {discarded} messages in flight discarded", discarded=discarded)
 
     def offer(self, now: float, payload: bytes, scenario_time: float) -> None:
         """Take one message produced at simulated time `now` (s); scenario_time: s since the scenario started."""
@@ -329,31 +324,33 @@ class LinkFaults:
             self.counters["blackout_drop"] += 1
             return
         if "loss" in draws and draws["loss"] < self.config.loss_probability:
-            self._log(now, "loss", str(seq))
+            self._log(now, "loss", str(seq), seq=seq.value)
             return
         if "burst" in draws:
             lost, state = draws["burst"]
             if lost:
-                self._log(now, "burst_loss", f"{seq} ({state} state)")
+                self._log(now, "burst_loss", f"{seq} ({state} state)", seq=seq.value, state=state)
                 return
         if "corrupt" in draws:
             decide, which, *details = draws["corrupt"]
             if decide < self.config.corrupt_probability:
                 kinds = self.config.corrupt_kinds
-                payload, what = corrupt_payload(payload, kinds[int(which * len(kinds))], np.array(details))
-                self._log(now, "corrupt", f"{seq} {what}")
+                payload, applied, what = _corrupt(payload, kinds[int(which * len(kinds))], np.array(details))
+                self._log(now, "corrupt", f"{seq} {what}", seq=seq.value, corruption=applied)
         delivery = now
         if "delay" in draws:
             delay = self.config.latency_s + draws["delay"] * self.config.jitter_s
             delivery += delay
-            self._log(now, "delay", f"{seq} {delay:.3f} s")
+            self._log(now, "delay", f"{seq} {delay:.3f} s", seq=seq.value, delay_s=delay)
         if "reorder" in draws and draws["reorder"] < self.config.reorder_probability:
             delivery += self.config.reorder_delay_s
-            self._log(now, "reorder", f"{seq} held back {self.config.reorder_delay_s:g} s more")
+            self._log(now, "reorder", f"{seq} held back {self.config.reorder_delay_s:g} s more", seq=seq.value,
+                      held_back_s=self.config.reorder_delay_s)
         self._push(delivery, payload)
         if "duplicate" in draws and draws["duplicate"] < self.config.duplicate_probability:
             self._push(delivery + self.config.duplicate_delay_s, payload)
-            self._log(now, "duplicate", f"{seq} again {self.config.duplicate_delay_s:g} s later")
+            self._log(now, "duplicate", f"{seq} again {self.config.duplicate_delay_s:g} s later", seq=seq.value,
+                      after_s=self.config.duplicate_delay_s)
         if "stale" in draws:
             decide, which = draws["stale"]
             if decide < self.config.stale_probability:
@@ -376,8 +373,8 @@ class LinkFaults:
         heapq.heappush(self._pending, (delivery, self._order, payload))
         self._order += 1
 
-    def _log(self, now: float, kind: str, detail: str) -> None:
-        self.events.append(FaultEvent(now, kind, detail))
+    def _log(self, now: float, kind: str, detail: str, **fields) -> None:
+        self.events.append(FaultEvent(now, kind, detail, fields))
         self.counters[kind] += 1
 
     def _draw_all(self, dt: float | None) -> dict:
@@ -421,14 +418,15 @@ class LinkFaults:
                 if scenario_time < window.start - TIME_TOLERANCE:
                     return
                 self._window_active, self._window_dropped = True, 0
-                self._log(now, "blackout_start", f"window {label}")
+                self._log(now, "blackout_start", f"window {label}", window_start=window.start, window_end=window.end)
             if scenario_time < window.end - TIME_TOLERANCE:
                 return
-            self._log(now, "blackout_end", f"window {label}: {self._window_dropped} messages dropped")
+            self._log(now, "blackout_end", f"window {label}: {self._window_dropped} messages dropped",
+                      window_start=window.start, window_end=window.end, dropped=self._window_dropped)
             self._window_active = False
             self._window_index += 1
 
-    def _inject_stale(self, now: float, delivery: float, which: float, seq: str) -> None:
+    def _inject_stale(self, now: float, delivery: float, which: float, seq: _SeqLabel) -> None:
         config = self.config
         while self._history and now - self._history[0][0] > config.stale_max_age_s + TIME_TOLERANCE:
             self._history.popleft()
@@ -438,7 +436,9 @@ class LinkFaults:
             return
         time, old = candidates[int(which * len(candidates))]
         self._push(delivery, old)
-        self._log(now, "stale", f"{_seq_of(old)} ({now - time:.2f} s old) after {seq}")
+        stale_seq = _seq_of(old)
+        self._log(now, "stale", f"seq={'?' if stale_seq is None else stale_seq} ({now - time:.2f} s old) after {seq}",
+                  seq=seq.value, stale_seq=stale_seq, age_s=now - time)
 
     def _note_impostor_template(self, payload: bytes) -> None:
         if self.config.impostor_rate_hz > 0:
@@ -473,5 +473,6 @@ class LinkFaults:
             self._log(now, "impostor_skipped", f"cannot encode: {error}")
             return
         self._push(stamp, payload)
-        self._log(now, "impostor", f"seq={self._impostor_seq} as {config.impostor_sender} at t={stamp:.3f} s")
+        self._log(now, "impostor", f"seq={self._impostor_seq} as {config.impostor_sender} at t={stamp:.3f} s",
+                  seq=self._impostor_seq, sender=config.impostor_sender, stamp=stamp)
         self._impostor_seq += 1

@@ -27,7 +27,7 @@ overrides one setting. The faults' seed is [faults] seed, else derived from the 
 Log (--log-dir): target.csv, one row per fix produced, before the link faults (seq,
 stamp, scenario time, true NED position and velocity, published position in the
 published frame), and faults.jsonl, one line per injected fault ({"time": simulated s,
-"kind", "detail"}), both flushed line by line. A one-line count of the faults is
+"kind", "detail", and the fault's fields such as "seq"}), both flushed line by line. A one-line count of the faults is
 printed at exit. SIGINT/SIGTERM, or reaching --duration simulated seconds, closes the session,
 finishes the log and exits 0; bad arguments exit 2.
 """
@@ -35,7 +35,6 @@ finishes the log and exits 0; bad arguments exit 2.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import queue
 import signal
@@ -49,6 +48,7 @@ import numpy as np
 
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, FaultsConfig, TargetConfig, load_scenario
 from interfaces.link_schema import CLOCK_KEY, PayloadError, TargetFix, decode_clock, decode_command, encode_target_fix, target_command_key, target_fix_key
+from interfaces.records import CsvLog, JsonLinesLog
 from interfaces.zenoh_transport import LinkError, open_session, publisher, zenoh_config
 from interfaces.geodesy import ned_to_geodetic
 from sitl_plant.target.link_faults import FaultEvent, LinkFaults, describe, fault_rng, override_faults
@@ -118,48 +118,49 @@ class TargetTruth:
 
 
 class TargetLog:
-    """target.csv: one row per published fix, flushed as written."""
+    """target.csv: one row per fix produced (interfaces.records.CsvLog, flushed as written); no folder, no file.
+
+    Positions and velocities are written with repr (every digit), so readers recover the exact floats.
+    """
 
     def __init__(self, folder: Path | None, frame: str) -> None:
-        self._handle = None
+        self._log = None
         if folder is None:
             return
-        folder.mkdir(parents=True, exist_ok=True)
         published = ("published_lat_deg", "published_lon_deg", "published_alt_m") if frame == "geodetic" else (
             "published_n", "published_e", "published_d")
-        self._handle = (folder / "target.csv").open("w", buffering=1)
-        self._handle.write(",".join(("seq", "stamp", "scenario_time", "true_n", "true_e", "true_d", "true_vn",
-                                     "true_ve", "true_vd", *published)) + "\n")
+        self._columns = ("seq", "stamp", "scenario_time", "true_n", "true_e", "true_d", "true_vn", "true_ve", "true_vd",
+                         *published)
+        self._log = CsvLog(folder / "target.csv", self._columns)
 
     def fix(self, fix: TargetFix, scenario_time: float, position: np.ndarray, velocity: np.ndarray) -> None:
-        if self._handle is not None:
+        if self._log is not None:
             values = (fix.stamp, scenario_time, *position, *velocity, *fix.position)
-            self._handle.write(f"{fix.seq}," + ",".join(repr(float(v)) for v in values) + "\n")
+            self._log.write({"seq": fix.seq, **{column: repr(float(value))
+                                                for column, value in zip(self._columns[1:], values)}})
 
     def close(self) -> None:
-        if self._handle is not None:
-            self._handle.close()
-            self._handle = None
+        if self._log is not None:
+            self._log.close()
+            self._log = None
 
 
 class FaultLog:
-    """faults.jsonl: one JSON line per injected link fault, flushed as written (no file without a folder)."""
+    """faults.jsonl: one JSON line per injected link fault (its time, kind, detail and fields), flushed as
+    written (no file without a folder)."""
 
     def __init__(self, folder: Path | None) -> None:
-        self._handle = None
-        if folder is not None:
-            folder.mkdir(parents=True, exist_ok=True)
-            self._handle = (folder / "faults.jsonl").open("w", buffering=1)
+        self._log = JsonLinesLog(folder / "faults.jsonl") if folder is not None else None
 
     def write(self, events: list[FaultEvent]) -> None:
-        if self._handle is not None:
+        if self._log is not None:
             for event in events:
-                self._handle.write(json.dumps({"time": event.time, "kind": event.kind, "detail": event.detail}) + "\n")
+                self._log.write(event.record())
 
     def close(self) -> None:
-        if self._handle is not None:
-            self._handle.close()
-            self._handle = None
+        if self._log is not None:
+            self._log.close()
+            self._log = None
 
 
 class TargetPublisher:

@@ -203,11 +203,13 @@ class Link:
 
 @dataclass
 class Event:
-    """Something worth a line in the run log."""
+    """Something worth a line in the run log: simulated time (s), kind, human-readable detail, and the
+    event's figures as structured fields (logged beside the detail, e.g. mode="Offboard", armed=True)."""
 
     time: float
     kind: str
     detail: str
+    fields: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -388,8 +390,8 @@ class MavlinkVehicle:
     def time_usec(self) -> int:
         return int(round(self.autopilot.time * 1e6))
 
-    def _event(self, kind: str, detail: str) -> None:
-        self.on_event(Event(self.autopilot.time, kind, detail))
+    def _event(self, kind: str, detail: str, **fields) -> None:
+        self.on_event(Event(self.autopilot.time, kind, detail, fields))
 
     def _reject(self, link: Link, reason: str, detail: str) -> None:
         self.stats.rejected[reason] += 1
@@ -649,10 +651,11 @@ class MavlinkVehicle:
         if self.companion_blackouts:
             self._update_blackouts()
         if ap.mode != self._last_mode or ap.armed != self._last_armed:
-            self._event("state", f"mode={ap.mode.name} armed={ap.armed}")
+            self._event("state", f"mode={ap.mode.name} armed={ap.armed}", mode=ap.mode.name, armed=bool(ap.armed))
             if ap.failsafe_active and self._last_mode == OFFBOARD:
                 self._event("failsafe", f"offboard lost: last setpoint at t={ap.last_setpoint_time:.4f} s, "
-                                        f"now {ap.mode.name}")
+                                        f"now {ap.mode.name}", last_setpoint_time=ap.last_setpoint_time,
+                            mode=ap.mode.name)
             self._last_mode, self._last_armed = ap.mode, ap.armed
         for severity, text in ap.take_status_texts():
             self._statustext(severity, text)

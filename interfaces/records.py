@@ -1,0 +1,99 @@
+"""The run-folder writers every process uses: CSV tables and JSON-lines logs, one line per record.
+
+Run folders are read after the run by other processes (studies.full_sitl, the plots, the tests), so
+the formats are part of what the processes agree on. Every line is flushed when written (line
+buffering), so a run that is killed keeps everything up to the interruption; a line cut by the
+kill itself is the only loss, and the readers skip it.
+
+    table = CsvLog(folder / "series.csv", ("time", "x"))
+    table.write({"time": 0.02, "x": fmt(1.234567, ".3g")})      # missing columns are left empty
+    events = JsonLinesLog(folder / "events.jsonl")
+    events.write({"time": 1.5, "kind": "phase", "detail": "following"})
+    write_json(folder / "summary.json", {"rms": 0.3})               # whole file, replaced atomically
+
+CSV rows go through `csv.DictWriter` (header from the column list, "\\n" line ends, empty cells for
+absent values); JSON through `json` (numpy scalars and arrays converted with their ``tolist``). The
+writers do no numerical formatting of their own: a column whose readers depend on a number format
+is formatted by its caller with `fmt`.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import threading
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+
+def plain(value: Any) -> Any:
+    """`json` default hook: numpy scalars and arrays (anything with ``tolist``) as Python values."""
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+
+
+def fmt(value: Any, spec: str) -> str:
+    """`value` as text with the format `spec` (e.g. ".6g"); "" for None and NaN (an empty CSV cell)."""
+    if value is None:
+        return ""
+    number = float(value)
+    return "" if math.isnan(number) else format(number, spec)
+
+
+class CsvLog:
+    """A CSV table written row by row, each row flushed as written.
+
+    path: the file (created, parents too; an existing file is replaced). columns: the header, in order.
+    ignore_extra: keys of a row that are not columns are dropped (else ValueError).
+    """
+
+    def __init__(self, path: Path, columns: Iterable[str], ignore_extra: bool = False) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.columns = tuple(columns)
+        self._handle = self.path.open("w", newline="", buffering=1)
+        self._writer = csv.DictWriter(self._handle, fieldnames=self.columns, restval="", lineterminator="\n",
+                                      extrasaction="ignore" if ignore_extra else "raise")
+        self._writer.writeheader()
+
+    def write(self, row: Mapping[str, Any]) -> None:
+        """One row: column -> value (str as given, other values through str(); absent or None: empty)."""
+        self._writer.writerow(row)
+
+    def close(self) -> None:
+        self._handle.close()
+
+
+class JsonLinesLog:
+    """A JSON-lines log: one JSON object per line, each flushed as written; safe to call from several threads."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._handle = self.path.open("w", buffering=1)
+        self._lock = threading.Lock()
+
+    def write(self, record: Mapping[str, Any]) -> None:
+        line = json.dumps(record, default=plain)
+        with self._lock:
+            self._handle.write(line + "\n")
+
+    def close(self) -> None:
+        with self._lock:
+            self._handle.close()
+
+
+def write_json(path: Path, document: Any, **dumps: Any) -> None:
+    """`document` as a JSON file that readers never see half written (a temporary file, then os.replace).
+
+    dumps: keyword arguments of json.dumps (indent, sort_keys, default; default `plain` unless given).
+    """
+    path = Path(path)
+    dumps.setdefault("default", plain)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(document, **dumps))
+    os.replace(tmp, path)
