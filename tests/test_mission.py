@@ -123,9 +123,11 @@ class FakeFollower:
 class Events:
     def __init__(self) -> None:
         self.records: list[tuple[float | None, str, str]] = []
+        self.fields: list[dict] = []
 
-    def event(self, sim_time, kind, detail) -> None:
+    def event(self, sim_time, kind, detail, **fields) -> None:
         self.records.append((sim_time, kind, detail))
+        self.fields.append({"kind": kind, **fields})
 
 
 def _fly(vehicle: FakeVehicle, link_up=lambda: True, **settings) -> MissionSequencer:
@@ -150,7 +152,7 @@ def _assert_consistent(sequencer: MissionSequencer) -> None:
     for transition in sequencer.transitions:
         assert transition.source is previous and transition.target in TRANSITIONS[previous]
         previous = transition.target
-    logged = [detail.split()[0] for _, kind, detail in sequencer.log.records if kind == "phase"]
+    logged = [fields["phase"] for fields in sequencer.log.fields if fields["kind"] == "phase"]
     assert logged == [phase.value for phase in _phases(sequencer)]
 
 
