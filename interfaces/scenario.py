@@ -31,28 +31,53 @@ Positive = Annotated[float, Field(gt=0.0)]
 NonNegative = Annotated[float, Field(ge=0.0)]
 
 
+#: The repository's config folder: airframes in vehicles/, flights in scenarios/.
+CONFIG_DIR = Path(__file__).resolve().parent.parent / "config"
+SCENARIOS_DIR = CONFIG_DIR / "scenarios"
+VEHICLES_DIR = CONFIG_DIR / "vehicles"
+#: The paper's section VIII-A1 constant-velocity flight, every command's default.
+DEFAULT_SCENARIO = SCENARIOS_DIR / "constant_velocity.toml"
+
+
+def _read_toml(path: Path) -> dict:
+    try:
+        with path.open("rb") as handle:
+            return tomllib.load(handle)
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: file not found") from None
+    except tomllib.TOMLDecodeError as error:
+        raise ConfigError(f"{path}: not valid TOML: {error}") from None
+
+
+#: The paper's Table I airframe. Its numbers live in this file only: VehicleConfig's defaults
+#: are read from it, and the plant builds its parameters from a VehicleConfig.
+PAPER_TABLE1 = VEHICLES_DIR / "paper_table1.toml"
+_TABLE1 = _read_toml(PAPER_TABLE1)
+
+
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, strict=False)
 
 
 class VehicleConfig(_Strict):
-    """Airframe (paper Table I) and the autopilot-side limits; SI units."""
+    """Airframe and the autopilot-side limits; SI units. A key a vehicle file leaves out takes
+    the paper's Table I value from config/vehicles/paper_table1.toml (PAPER_TABLE1)."""
 
     name: str = "quadrotor"
-    mass: Positive = 1.5
-    gravity: Positive = 9.81
-    inertia: Vector3 = (1.745e-2, 1.745e-2, 3.175e-2)
-    arm_length: Positive = 0.225
-    thrust_coefficient: Positive = 1.105e-5
-    moment_coefficient: Positive = 1.489e-7
-    motor_time_constant: Positive = 0.0136
-    drag_coefficient: NonNegative = 6.579e-2
-    max_thrust_to_weight: Annotated[float, Field(gt=1.0, le=5.0)] = 1.5
-    attitude_kp: Positive = 2.0
-    attitude_kd: Positive = 0.5
-    position_noise_std: NonNegative = 0.1
-    velocity_noise_std: NonNegative = 0.05
-    max_tilt_deg: Annotated[float, Field(gt=0.0, lt=80.0)] = 35.0
+    mass: Positive = _TABLE1["mass"]
+    gravity: Positive = _TABLE1["gravity"]
+    inertia: Vector3 = tuple(_TABLE1["inertia"])
+    arm_length: Positive = _TABLE1["arm_length"]
+    thrust_coefficient: Positive = _TABLE1["thrust_coefficient"]
+    moment_coefficient: Positive = _TABLE1["moment_coefficient"]
+    motor_time_constant: Positive = _TABLE1["motor_time_constant"]
+    drag_coefficient: NonNegative = _TABLE1["drag_coefficient"]
+    max_thrust_to_weight: Annotated[float, Field(gt=1.0, le=5.0)] = _TABLE1["max_thrust_to_weight"]
+    attitude_kp: Positive = _TABLE1["attitude_kp"]
+    attitude_kd: Positive = _TABLE1["attitude_kd"]
+    position_noise_std: NonNegative = _TABLE1["position_noise_std"]
+    velocity_noise_std: NonNegative = _TABLE1["velocity_noise_std"]
+    max_tilt_deg: Annotated[float, Field(gt=0.0, lt=80.0)] = _TABLE1["max_tilt_deg"]
 
     @model_validator(mode="after")
     def _inertia_positive(self) -> "VehicleConfig":
@@ -461,22 +486,6 @@ class Scenario(_Strict):
         return self
 
 
-#: The repository's config folder: airframes in vehicles/, flights in scenarios/.
-CONFIG_DIR = Path(__file__).resolve().parent.parent / "config"
-SCENARIOS_DIR = CONFIG_DIR / "scenarios"
-VEHICLES_DIR = CONFIG_DIR / "vehicles"
-#: The paper's section VIII-A1 constant-velocity flight, every command's default.
-DEFAULT_SCENARIO = SCENARIOS_DIR / "constant_velocity.toml"
-
-
-def _read_toml(path: Path) -> dict:
-    try:
-        with path.open("rb") as handle:
-            return tomllib.load(handle)
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: file not found") from None
-    except tomllib.TOMLDecodeError as error:
-        raise ConfigError(f"{path}: not valid TOML: {error}") from None
 
 
 def _format(path: Path, error: ValidationError) -> str:
@@ -495,6 +504,11 @@ def load_vehicle(path: str | Path) -> VehicleConfig:
         return VehicleConfig.model_validate(_read_toml(path))
     except ValidationError as error:
         raise ConfigError(_format(path, error)) from None
+
+
+def table1_vehicle() -> VehicleConfig:
+    """The paper's Table I airframe, read and validated from PAPER_TABLE1."""
+    return load_vehicle(PAPER_TABLE1)
 
 
 def load_scenario(path: str | Path) -> tuple[Scenario, VehicleConfig]:

@@ -28,7 +28,9 @@ from sitl_plant.vehicle.mavlink_vehicle import (  # noqa: E402
     LinkSpec,
     MavlinkVehicle,
 )
-from sitl_plant.vehicle.params import QuadrotorParams  # noqa: E402
+from dataclasses import replace  # noqa: E402
+
+from sitl_plant.vehicle.params import QuadrotorParams, table1_params  # noqa: E402
 from sitl_plant.vehicle.px4_modes import (  # noqa: E402
     HOLD,
     OFFBOARD,
@@ -43,8 +45,8 @@ from sitl_plant.vehicle.quadrotor import quaternion_to_rotation  # noqa: E402
 
 HOME = Home(47.397742, 8.545594, 488.0)
 CLIENT_SYSTEM, CLIENT_COMPONENT = 245, 190
-PARAMS = QuadrotorParams()
-NOISE_FREE = QuadrotorParams(position_noise_std=0.0, velocity_noise_std=0.0)
+PARAMS = table1_params()
+NOISE_FREE = replace(PARAMS, position_noise_std=0.0, velocity_noise_std=0.0)
 HOVER = PARAMS.hover_thrust_normalized
 LEVEL = (1.0, 0.0, 0.0, 0.0)
 RATES_IGNORED = 7  # body roll/pitch/yaw rate ignore bits of SET_ATTITUDE_TARGET.type_mask

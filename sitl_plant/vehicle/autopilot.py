@@ -32,6 +32,7 @@ from sitl_plant.vehicle.position_control import (
     PositionControlGains,
     PositionController,
     TrajectorySetpoint,
+    trapezoidal_profile,
 )
 from sitl_plant.vehicle.px4_modes import (
     HOLD,
@@ -54,6 +55,10 @@ LAND_DETECT_TIME = 0.3
 LIFTOFF_HEIGHT = 0.05
 #: Takeoff ends when the vehicle is within this distance (m) of the takeoff altitude.
 TAKEOFF_ALTITUDE_TOLERANCE = 0.1
+#: Vertical acceleration of the takeoff climb and of the start of the landing descent, m/s^2
+#: (about 0.8 normalised thrust on Table I). Smooth setpoints, as PX4's trajectory generator
+#: gives, keep the velocity integrators from charging on setpoint steps.
+VERTICAL_ACCELERATION = 2.0
 #: Rate of the position controller in Hold/Takeoff/Land/Position, Hz.
 POSITION_CONTROL_RATE_HZ = 50.0
 #: PX4's magic number in param2 of MAV_CMD_COMPONENT_ARM_DISARM that forces (dis)arming.
@@ -152,6 +157,8 @@ class Autopilot:
         self._takeoff_altitude = 0.0  # NED z of the takeoff target
         self._takeoff_started = 0.0
         self._takeoff_start_z = 0.0
+        self._land_started = 0.0
+        self._land_start_speed = 0.0  # m/s NED, vertical speed when Land began
         self._offboard_quaternion: tuple[float, float, float, float] | None = None
         self._offboard_thrust: float | None = None
         self._offboard_trajectory: OffboardTrajectory | None = None
@@ -344,6 +351,9 @@ class Autopilot:
 
     def _set_mode(self, mode: FlightMode) -> None:
         if mode != self.mode:
+            if mode == LAND:
+                self._land_started = self.time
+                self._land_start_speed = float(self.vehicle.quadrotor._s[5])
             self.mode = mode
             self._say(Severity.INFO, f"Flight mode: {mode.name}")
         if mode == OFFBOARD:
@@ -433,29 +443,42 @@ class Autopilot:
             return _level_quaternion(self._yaw()), 0.0
         if self.mode == OFFBOARD and self._offboard_trajectory is not None:
             return self._fly(self._trajectory_setpoint(self._offboard_trajectory))
-        self.position_controller.reset()  # below, the position loop is either idle or about to restart
         if self.mode == OFFBOARD:
+            self.position_controller.reset()  # restarts empty when position control comes back
             quaternion = self._offboard_quaternion if self._offboard_quaternion is not None else (s[6], s[7], s[8], s[9])
             thrust = self._offboard_thrust if self._offboard_thrust is not None else 0.0
             return quaternion, thrust
         idle = self.on_ground and (self._landed or self.mode == LAND)
         if idle and self.mode != TAKEOFF:
+            self.position_controller.reset()
             return _level_quaternion(self._yaw()), 0.0
+        if self.on_ground:
+            self.position_controller.reset()  # no integrating against the ground while taking off
         return self._fly(self._automatic_setpoint(now))
 
     def _automatic_setpoint(self, now: float) -> TrajectorySetpoint:
-        """The setpoint of Takeoff (climb ramp at MPC_TKO_SPEED), Land (MPC_LAND_SPEED down over
+        """The setpoint of Takeoff (a trapezoidal climb at MPC_TKO_SPEED), Land (MPC_LAND_SPEED down over
         the held point) and Hold/Position (the held point)."""
         position = self._hold_position.copy()
         velocity = np.full(3, np.nan)
+        acceleration = np.full(3, np.nan)
         if self.mode == TAKEOFF:
-            speed = self.parameters.value("MPC_TKO_SPEED")
-            position[2] = max(self._takeoff_altitude, self._takeoff_start_z - speed * (now - self._takeoff_started))
-            velocity[2] = -speed if position[2] > self._takeoff_altitude else 0.0
+            climbed, speed, accel = trapezoidal_profile(
+                self._takeoff_start_z - self._takeoff_altitude, self.parameters.value("MPC_TKO_SPEED"),
+                VERTICAL_ACCELERATION, now - self._takeoff_started)
+            position[2], velocity[2], acceleration[2] = self._takeoff_start_z - climbed, -speed, -accel
         elif self.mode == LAND:
+            # From the vertical speed Land started with to MPC_LAND_SPEED at VERTICAL_ACCELERATION.
             position[2] = np.nan
-            velocity[2] = self.parameters.value("MPC_LAND_SPEED")
-        return TrajectorySetpoint(position=position, velocity=velocity, yaw=self._hold_yaw)
+            land_speed = self.parameters.value("MPC_LAND_SPEED")
+            change = VERTICAL_ACCELERATION * (now - self._land_started)
+            gap = land_speed - self._land_start_speed
+            if abs(gap) <= change:
+                velocity[2] = land_speed
+            else:
+                velocity[2] = self._land_start_speed + math.copysign(change, gap)
+                acceleration[2] = math.copysign(VERTICAL_ACCELERATION, gap)
+        return TrajectorySetpoint(position, velocity, acceleration, self._hold_yaw)
 
     def _trajectory_setpoint(self, setpoint: OffboardTrajectory) -> TrajectorySetpoint:
         """An offboard position/velocity/acceleration setpoint; yaw held when not given."""

@@ -108,6 +108,32 @@ class AttitudeThrustSetpoint:
     acceleration: np.ndarray
 
 
+def trapezoidal_profile(distance: float, max_speed: float, acceleration: float, t: float) -> tuple[float, float, float]:
+    """A rest-to-rest move over `distance` (m, >= 0) with speed <= max_speed (m/s) and
+    |acceleration| <= acceleration (m/s^2): (travelled m, speed m/s, acceleration m/s^2) at
+    time t (s) since its start. Constant acceleration, cruise, constant deceleration; the
+    cruise is skipped (a triangle) when the distance is too short to reach max_speed.
+    Gives the takeoff climb its position, velocity and acceleration feed-forward, so the
+    velocity loop (and its integrator) only sees the vehicle's own tracking error.
+    """
+    if distance <= 0.0:
+        return 0.0, 0.0, 0.0
+    peak = min(max_speed, math.sqrt(distance * acceleration))
+    ramp = peak / acceleration
+    ramp_distance = 0.5 * peak * ramp
+    cruise = (distance - 2.0 * ramp_distance) / peak
+    if t <= 0.0:
+        return 0.0, 0.0, acceleration
+    if t < ramp:
+        return 0.5 * acceleration * t * t, acceleration * t, acceleration
+    if t < ramp + cruise:
+        return ramp_distance + peak * (t - ramp), peak, 0.0
+    left = 2.0 * ramp + cruise - t
+    if left > 0.0:
+        return distance - 0.5 * acceleration * left * left, acceleration * left, -acceleration
+    return distance, 0.0, 0.0
+
+
 def limit_horizontal_speed(position_part: np.ndarray, feedforward: np.ndarray, max_speed: float) -> np.ndarray:
     """Horizontal velocity setpoint feedforward + s * position_part with the largest s in [0, 1]
     whose norm stays within max_speed; the feed-forward alone is scaled down if it is too fast.
@@ -160,22 +186,25 @@ def thrust_to_attitude(thrust: np.ndarray, yaw: float) -> tuple[tuple[float, flo
     body y completes the right-handed frame. Returns ((w, x, y, z) body FRD -> NED, |thrust|).
     A zero thrust vector gives a level attitude.
     """
-    magnitude = float(np.linalg.norm(thrust))
-    body_z = -np.asarray(thrust, dtype=float) / magnitude if magnitude > 1e-9 else np.array([0.0, 0.0, 1.0])
-    # y_C is horizontal and perpendicular to the heading; y_C x body_z lies in the heading's
-    # vertical plane and is never zero while body_z is not horizontal (tilt < 90 deg).
-    y_c = np.array([-math.sin(yaw), math.cos(yaw), 0.0])
-    body_x = np.cross(y_c, body_z)
-    norm = float(np.linalg.norm(body_x))
+    tx, ty, tz = (float(c) for c in thrust)
+    magnitude = math.sqrt(tx * tx + ty * ty + tz * tz)
+    zx, zy, zz = (-tx / magnitude, -ty / magnitude, -tz / magnitude) if magnitude > 1e-9 else (0.0, 0.0, 1.0)
+    # y_C = (-sin yaw, cos yaw, 0) is horizontal and perpendicular to the heading; y_C x body_z
+    # lies in the heading's vertical plane and is never zero while body_z is not horizontal
+    # (tilt < 90 deg). Written on floats: numpy's cross costs more than the rest of the step.
+    yx, yy = -math.sin(yaw), math.cos(yaw)
+    xx, xy, xz = yy * zz, -yx * zz, yx * zy - yy * zx
+    norm = math.sqrt(xx * xx + xy * xy + xz * xz)
     if norm < 1e-9:  # thrust horizontal along y_C: any nose direction across it will do
-        body_x = np.array([0.0, 0.0, -1.0]) if body_z[2] >= 0.0 else np.array([0.0, 0.0, 1.0])
-        norm = 1.0
-    body_x /= norm
-    body_y = np.cross(body_z, body_x)
-    w_last = Rotation.from_matrix(np.column_stack([body_x, body_y, body_z])).as_quat(scalar_first=True)
-    if w_last[0] < 0.0:
-        w_last = -w_last
-    return (float(w_last[0]), float(w_last[1]), float(w_last[2]), float(w_last[3])), magnitude
+        xx, xy, xz, norm = 0.0, 0.0, (-1.0 if zz >= 0.0 else 1.0), 1.0
+    xx, xy, xz = xx / norm, xy / norm, xz / norm
+    body = np.array([[xx, zy * xz - zz * xy, zx],
+                     [xy, zz * xx - zx * xz, zy],
+                     [xz, zx * xy - zy * xx, zz]])  # columns body x, body z x body x, body z
+    q = Rotation.from_matrix(body).as_quat(scalar_first=True)
+    if q[0] < 0.0:
+        q = -q
+    return (float(q[0]), float(q[1]), float(q[2]), float(q[3])), magnitude
 
 
 class PositionController:
