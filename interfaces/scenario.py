@@ -488,6 +488,42 @@ class Scenario(_Strict):
 
 
 
+#: The companion's own sections: the plant and the target simulator never read them, so a
+#: scenario whose [estimator] or [guidance] is broken or missing still flies the plant.
+COMPANION_SECTIONS = ("estimator", "guidance", "companion", "dropout")
+
+
+class PlantSensorConfig(_Strict):
+    """The one key of [sensor] the plant's side reads: the target publishes a fix per bearing."""
+
+    rate_hz: Positive = SensorConfig.model_fields["rate_hz"].default
+
+
+class PlantScenario(_Strict):
+    """What sitl-plant and sitl-target read of a scenario, validated as strictly as Scenario
+    (same section models); COMPANION_SECTIONS and the rest of [sensor] are not looked at."""
+
+    name: str
+    description: str = ""
+    vehicle: str = Scenario.model_fields["vehicle"].default
+    pursuer: PursuerConfig = PursuerConfig()
+    target: TargetConfig
+    sensor: PlantSensorConfig = PlantSensorConfig()
+    simulation: SimulationConfig = SimulationConfig()
+    sitl: SitlConfig = SitlConfig()
+    link: LinkConfig = LinkConfig()
+    faults: FaultsConfig = FaultsConfig()
+
+    @model_validator(mode="after")
+    def _rates_fit_physics(self) -> "PlantScenario":
+        physics = self.simulation.physics_rate_hz
+        for key, rate in (("sensor.rate_hz", self.sensor.rate_hz), ("sitl.tick_rate_hz", self.sitl.tick_rate_hz)):
+            ratio = physics / rate
+            if rate > physics or abs(ratio - round(ratio)) > 1e-9:
+                raise ValueError(f"{key} = {rate} must divide simulation.physics_rate_hz = {physics} into whole steps")
+        return self
+
+
 def _format(path: Path, error: ValidationError) -> str:
     lines = [f"{path}: invalid configuration"]
     for item in error.errors():
@@ -509,6 +545,22 @@ def load_vehicle(path: str | Path) -> VehicleConfig:
 def table1_vehicle() -> VehicleConfig:
     """The paper's Table I airframe, read and validated from PAPER_TABLE1."""
     return load_vehicle(PAPER_TABLE1)
+
+
+def load_plant_scenario(path: str | Path) -> tuple[PlantScenario, VehicleConfig]:
+    """Read and validate what the plant's side needs of a scenario file (PlantScenario) and the
+    vehicle file it names; the companion's sections may be broken or absent."""
+    path = Path(path)
+    document = {key: value for key, value in _read_toml(path).items() if key not in COMPANION_SECTIONS}
+    sensor = document.get("sensor")
+    if isinstance(sensor, dict):
+        document["sensor"] = {key: value for key, value in sensor.items() if key in PlantSensorConfig.model_fields}
+    try:
+        scenario = PlantScenario.model_validate(document)
+    except ValidationError as error:
+        raise ConfigError(_format(path, error)) from None
+    vehicle = load_vehicle((path.parent / scenario.vehicle).resolve())
+    return scenario, vehicle
 
 
 def load_scenario(path: str | Path) -> tuple[Scenario, VehicleConfig]:

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, VehicleConfig, load_scenario
+from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, PlantScenario, VehicleConfig, load_plant_scenario
 from interfaces.link_schema import CLOCK_KEY, ClockTick, encode_clock
 from interfaces.zenoh_transport import LinkError, open_session, publisher, zenoh_config
 from sitl_plant.vehicle.autopilot import Autopilot
@@ -43,7 +43,7 @@ MAX_LAG = 0.25
 
 
 def build_vehicle(
-    scenario: Scenario,
+    scenario: PlantScenario,
     vehicle: VehicleConfig,
     speed_factor: float | None = None,
     companion_port: int | None = None,
@@ -274,7 +274,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     try:
-        scenario, vehicle_config = load_scenario(args.config)
+        scenario, vehicle_config = load_plant_scenario(args.config)
         for name, port in (("--companion-port", args.companion_port), ("--gcs-port", args.gcs_port)):
             if port is not None and not 1 <= port <= 65535:
                 raise ConfigError(f"{name}: {port} is not a UDP port")
