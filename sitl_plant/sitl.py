@@ -51,7 +51,8 @@ def build_vehicle(
     seed: int | None = None,
     on_event=None,
 ) -> MavlinkVehicle:
-    """Autopilot + MAVLink links from a scenario; keyword overrides take precedence over [sitl]."""
+    """Autopilot + MAVLink links from a scenario (the plant's sections, load_plant_scenario; a full
+    Scenario has them too); keyword overrides take precedence over [sitl]."""
     sitl = scenario.sitl
     speed = sitl.speed_factor if speed_factor is None else speed_factor
     autopilot = Autopilot(

@@ -27,6 +27,7 @@ from sitl_plant.vehicle.position_control import (
     limit_horizontal_speed,
     thrust_to_attitude,
     thrust_vector,
+    trapezoidal_profile,
 )
 from sitl_plant.vehicle.px4_modes import HOLD, CommandResult
 
@@ -166,3 +167,20 @@ def test_acceleration_only_is_flown_open_loop() -> None:
     out = controller.update(DT, np.zeros(3), np.array([5.0, 5.0, 5.0]), np.zeros(3),
                             TrajectorySetpoint(acceleration=command), LIMITS)
     np.testing.assert_allclose(out.acceleration, command, atol=1e-12)  # the velocity is not fed back
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.floats(0.05, 100.0), st.floats(0.3, 5.0), st.floats(0.5, 5.0))
+def test_takeoff_profile_is_a_rest_to_rest_move_within_its_limits(distance, max_speed, acceleration) -> None:
+    """Integrating the profile's acceleration gives its speed, and its speed its position
+    (trapezoidal rule); it ends at rest on the distance and never exceeds its limits."""
+    peak = min(max_speed, math.sqrt(distance * acceleration))
+    duration = distance / peak + peak / acceleration  # closed form of a trapezoid / triangle
+    times = np.linspace(0.0, duration + 1.0, 20001)
+    s, v, a = np.array([trapezoidal_profile(distance, max_speed, acceleration, t) for t in times]).T
+    step = times[1] - times[0]
+    assert np.all(v <= max_speed + 1e-12) and np.all(np.abs(a) <= acceleration + 1e-12) and np.all(v >= -1e-12)
+    np.testing.assert_allclose(np.cumsum((v[1:] + v[:-1]) / 2) * step, s[1:], atol=1e-3 * max(distance, 1.0))
+    np.testing.assert_allclose(np.cumsum((a[1:] + a[:-1]) / 2) * step, v[1:], atol=2 * acceleration * step)
+    assert s[-1] == distance and v[-1] == 0.0
+    assert s[np.searchsorted(times, duration * 0.999)] < distance
