@@ -18,7 +18,7 @@ import time
 import numpy as np
 
 from sitl_plant.vehicle.attitude_control import AttitudeThrustVehicle
-from sitl_plant.vehicle.params import QuadrotorParams
+from sitl_plant.vehicle.params import QuadrotorParams, table1_params
 
 SETPOINT_RATE_HZ = 50.0
 
@@ -43,7 +43,7 @@ def setpoint(t: float, params: QuadrotorParams) -> tuple[np.ndarray, float]:
 
 def run_once(sim_seconds: float, rate_hz: float) -> tuple[float, float]:
     """(wall time, process CPU time) in s to simulate sim_seconds, setpoints included."""
-    params = QuadrotorParams()
+    params = table1_params()
     vehicle = AttitudeThrustVehicle(params, rate_hz=rate_hz, rng=0)
     period = 1.0 / SETPOINT_RATE_HZ
     n = round(sim_seconds * SETPOINT_RATE_HZ)

@@ -34,7 +34,7 @@ from companion.core.attitude import attitude_setpoint  # noqa: E402
 from companion.adapters.mavsdk_vehicle import MavsdkVehicle  # noqa: E402
 from sitl_plant.vehicle.autopilot import Autopilot, OffboardAttitude  # noqa: E402
 from sitl_plant.vehicle.mavlink_vehicle import COMPANION_STREAMS, GCS_STREAMS, Home, LinkSpec, MavlinkVehicle  # noqa: E402
-from sitl_plant.vehicle.params import QuadrotorParams  # noqa: E402
+from sitl_plant.vehicle.params import table1_params  # noqa: E402
 from studies.processes import free_port, start_plant  # noqa: E402
 from sitl_plant.vehicle.px4_modes import OFFBOARD  # noqa: E402
 
@@ -45,7 +45,7 @@ def tick_cost(repeats: int = 5, ticks: int = 1000) -> dict[str, float]:
     """Median wall time per tick, microseconds."""
     results: dict[str, list[float]] = {"hold": [], "offboard": [], "offboard+mavlink": []}
     for _ in range(repeats):
-        ap = Autopilot(QuadrotorParams(), seed=1)
+        ap = Autopilot(table1_params(), seed=1)
         ap.run(1.1)
         ap.arm()
         ap.takeoff(3.0)

@@ -33,6 +33,30 @@ Positive = Annotated[float, Field(gt=0.0)]
 NonNegative = Annotated[float, Field(ge=0.0)]
 
 
+#: The repository's config folder: airframes in vehicles/, flights in scenarios/.
+CONFIG_DIR = Path(__file__).resolve().parent.parent / "config"
+SCENARIOS_DIR = CONFIG_DIR / "scenarios"
+VEHICLES_DIR = CONFIG_DIR / "vehicles"
+#: The paper's section VIII-A1 constant-velocity flight, every command's default.
+DEFAULT_SCENARIO = SCENARIOS_DIR / "constant_velocity.toml"
+
+
+def _read_toml(path: Path) -> dict:
+    try:
+        with path.open("rb") as handle:
+            return tomllib.load(handle)
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: file not found") from None
+    except tomllib.TOMLDecodeError as error:
+        raise ConfigError(f"{path}: not valid TOML: {error}") from None
+
+
+#: The paper's Table I airframe. Its numbers live in this file only: VehicleConfig's defaults
+#: are read from it, and the plant builds its parameters from a VehicleConfig.
+PAPER_TABLE1 = VEHICLES_DIR / "paper_table1.toml"
+_TABLE1 = _read_toml(PAPER_TABLE1)
+
+
 class _Strict(BaseModel):
     """Every section: unknown keys refused, no NaN/inf, no coercion (the string "12" is not the
     number 12; an integer is accepted where a float is expected, as TOML writes `8` for 8.0)."""
@@ -41,23 +65,24 @@ class _Strict(BaseModel):
 
 
 class VehicleConfig(_Strict):
-    """Airframe (paper Table I) and the autopilot-side limits; SI units."""
+    """Airframe and the autopilot-side limits; SI units. A key a vehicle file leaves out takes
+    the paper's Table I value from config/vehicles/paper_table1.toml (PAPER_TABLE1)."""
 
     name: str = "quadrotor"
-    mass: Positive = 1.5
-    gravity: Positive = 9.81
-    inertia: Vector3 = (1.745e-2, 1.745e-2, 3.175e-2)
-    arm_length: Positive = 0.225
-    thrust_coefficient: Positive = 1.105e-5
-    moment_coefficient: Positive = 1.489e-7
-    motor_time_constant: Positive = 0.0136
-    drag_coefficient: NonNegative = 6.579e-2
-    max_thrust_to_weight: Annotated[float, Field(gt=1.0, le=5.0)] = 1.5
-    attitude_kp: Positive = 2.0
-    attitude_kd: Positive = 0.5
-    position_noise_std: NonNegative = 0.1
-    velocity_noise_std: NonNegative = 0.05
-    max_tilt_deg: Annotated[float, Field(gt=0.0, lt=80.0)] = 35.0
+    mass: Positive = _TABLE1["mass"]
+    gravity: Positive = _TABLE1["gravity"]
+    inertia: Vector3 = tuple(_TABLE1["inertia"])
+    arm_length: Positive = _TABLE1["arm_length"]
+    thrust_coefficient: Positive = _TABLE1["thrust_coefficient"]
+    moment_coefficient: Positive = _TABLE1["moment_coefficient"]
+    motor_time_constant: Positive = _TABLE1["motor_time_constant"]
+    drag_coefficient: NonNegative = _TABLE1["drag_coefficient"]
+    max_thrust_to_weight: Annotated[float, Field(gt=1.0, le=5.0)] = _TABLE1["max_thrust_to_weight"]
+    attitude_kp: Positive = _TABLE1["attitude_kp"]
+    attitude_kd: Positive = _TABLE1["attitude_kd"]
+    position_noise_std: NonNegative = _TABLE1["position_noise_std"]
+    velocity_noise_std: NonNegative = _TABLE1["velocity_noise_std"]
+    max_tilt_deg: Annotated[float, Field(gt=0.0, lt=80.0)] = _TABLE1["max_tilt_deg"]
 
     @model_validator(mode="after")
     def _inertia_positive(self) -> "VehicleConfig":
@@ -466,22 +491,42 @@ class Scenario(_Strict):
         return self
 
 
-#: The repository's config folder: airframes in vehicles/, flights in scenarios/.
-CONFIG_DIR = Path(__file__).resolve().parent.parent / "config"
-SCENARIOS_DIR = CONFIG_DIR / "scenarios"
-VEHICLES_DIR = CONFIG_DIR / "vehicles"
-#: The paper's section VIII-A1 constant-velocity flight, every command's default.
-DEFAULT_SCENARIO = SCENARIOS_DIR / "constant_velocity.toml"
 
 
-def _read_toml(path: Path) -> dict:
-    try:
-        with path.open("rb") as handle:
-            return tomllib.load(handle)
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: file not found") from None
-    except tomllib.TOMLDecodeError as error:
-        raise ConfigError(f"{path}: not valid TOML: {error}") from None
+#: The companion's own sections: the plant and the target simulator never read them, so a
+#: scenario whose [estimator] or [guidance] is broken or missing still flies the plant.
+COMPANION_SECTIONS = ("estimator", "guidance", "companion", "dropout")
+
+
+class PlantSensorConfig(_Strict):
+    """The one key of [sensor] the plant's side reads: the target publishes a fix per bearing."""
+
+    rate_hz: Positive = SensorConfig.model_fields["rate_hz"].default
+
+
+class PlantScenario(_Strict):
+    """What sitl-plant and sitl-target read of a scenario, validated as strictly as Scenario
+    (same section models); COMPANION_SECTIONS and the rest of [sensor] are not looked at."""
+
+    name: str
+    description: str = ""
+    vehicle: str = Scenario.model_fields["vehicle"].default
+    pursuer: PursuerConfig = PursuerConfig()
+    target: TargetConfig
+    sensor: PlantSensorConfig = PlantSensorConfig()
+    simulation: SimulationConfig = SimulationConfig()
+    sitl: SitlConfig = SitlConfig()
+    link: LinkConfig = LinkConfig()
+    faults: FaultsConfig = FaultsConfig()
+
+    @model_validator(mode="after")
+    def _rates_fit_physics(self) -> "PlantScenario":
+        physics = self.simulation.physics_rate_hz
+        for key, rate in (("sensor.rate_hz", self.sensor.rate_hz), ("sitl.tick_rate_hz", self.sitl.tick_rate_hz)):
+            ratio = physics / rate
+            if rate > physics or abs(ratio - round(ratio)) > 1e-9:
+                raise ValueError(f"{key} = {rate} must divide simulation.physics_rate_hz = {physics} into whole steps")
+        return self
 
 
 def _format(path: Path, error: ValidationError) -> str:
@@ -500,6 +545,27 @@ def load_vehicle(path: str | Path) -> VehicleConfig:
         return VehicleConfig.model_validate(_read_toml(path))
     except ValidationError as error:
         raise ConfigError(_format(path, error)) from None
+
+
+def table1_vehicle() -> VehicleConfig:
+    """The paper's Table I airframe, read and validated from PAPER_TABLE1."""
+    return load_vehicle(PAPER_TABLE1)
+
+
+def load_plant_scenario(path: str | Path) -> tuple[PlantScenario, VehicleConfig]:
+    """Read and validate what the plant's side needs of a scenario file (PlantScenario) and the
+    vehicle file it names; the companion's sections may be broken or absent."""
+    path = Path(path)
+    document = {key: value for key, value in _read_toml(path).items() if key not in COMPANION_SECTIONS}
+    sensor = document.get("sensor")
+    if isinstance(sensor, dict):
+        document["sensor"] = {key: value for key, value in sensor.items() if key in PlantSensorConfig.model_fields}
+    try:
+        scenario = PlantScenario.model_validate(document)
+    except ValidationError as error:
+        raise ConfigError(_format(path, error)) from None
+    vehicle = load_vehicle((path.parent / scenario.vehicle).resolve())
+    return scenario, vehicle
 
 
 def load_scenario(path: str | Path) -> tuple[Scenario, VehicleConfig]:

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, VehicleConfig, load_scenario
+from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, PlantScenario, VehicleConfig, load_plant_scenario
 from interfaces.records import CsvLog, JsonLinesLog, write_json
 from interfaces.link_schema import CLOCK_KEY, ClockTick, encode_clock
 from interfaces.zenoh_transport import LinkError, open_session, publisher, zenoh_config
@@ -42,7 +42,7 @@ MAX_LAG = 0.25
 
 
 def build_vehicle(
-    scenario: Scenario,
+    scenario: PlantScenario,
     vehicle: VehicleConfig,
     speed_factor: float | None = None,
     companion_port: int | None = None,
@@ -50,7 +50,8 @@ def build_vehicle(
     seed: int | None = None,
     on_event=None,
 ) -> MavlinkVehicle:
-    """Autopilot + MAVLink links from a scenario; keyword overrides take precedence over [sitl]."""
+    """Autopilot + MAVLink links from a scenario (the plant's sections, load_plant_scenario; a full
+    Scenario has them too); keyword overrides take precedence over [sitl]."""
     sitl = scenario.sitl
     speed = sitl.speed_factor if speed_factor is None else speed_factor
     autopilot = Autopilot(
@@ -268,7 +269,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     try:
-        scenario, vehicle_config = load_scenario(args.config)
+        scenario, vehicle_config = load_plant_scenario(args.config)
         for name, port in (("--companion-port", args.companion_port), ("--gcs-port", args.gcs_port)):
             if port is not None and not 1 <= port <= 65535:
                 raise ConfigError(f"{name}: {port} is not a UDP port")

@@ -19,7 +19,7 @@ from sitl_plant.vehicle.autopilot import (
     OffboardAttitude,
 )
 from sitl_plant.vehicle.parameters import ParameterError
-from sitl_plant.vehicle.params import QuadrotorParams
+from sitl_plant.vehicle.params import QuadrotorParams, table1_params
 from sitl_plant.vehicle.px4_modes import (
     HOLD,
     LAND,
@@ -31,7 +31,7 @@ from sitl_plant.vehicle.px4_modes import (
     Severity,
 )
 
-PARAMS = QuadrotorParams()
+PARAMS = table1_params()
 G = PARAMS.gravity
 DRAG_PER_MASS = PARAMS.drag_coefficient / PARAMS.mass  # 1/s, horizontal body drag at small tilt
 HOVER = PARAMS.hover_thrust_normalized
@@ -532,7 +532,7 @@ def test_telemetry_noise_std_matches_the_airframe_and_is_seeded() -> None:
 
 @pytest.mark.parametrize("value", ["1.0", None, True, [1.0]])
 def test_parameter_set_with_a_non_number_is_a_parameter_error(value) -> None:
-    ap = Autopilot(QuadrotorParams(), seed=0)
+    ap = Autopilot(PARAMS, seed=0)
     before = ap.parameters.value("COM_OF_LOSS_T")
     with pytest.raises(ParameterError):
         ap.parameters.set("COM_OF_LOSS_T", value)

@@ -158,3 +158,37 @@ def test_every_shipped_scenario_keeps_its_arrays(path):
         for key, value in body.items():
             if isinstance(value, list) and all(isinstance(item, (int, float)) for item in value):
                 assert getattr(getattr(scenario, section), key) == tuple(value), f"{section}.{key}"
+
+
+def test_table1_defaults_come_from_the_vehicle_file():
+    """A vehicle file that gives only a name flies Table I; the values come from paper_table1.toml."""
+    from interfaces.scenario import PAPER_TABLE1, VehicleConfig, table1_vehicle
+    from sitl_plant.vehicle.params import quadrotor_params, table1_params
+
+    assert PAPER_TABLE1 == SCENARIOS.parent / "vehicles" / "paper_table1.toml"
+    table1 = table1_vehicle()
+    assert VehicleConfig().model_dump(exclude={"name"}) == table1.model_dump(exclude={"name"})
+    assert table1_params() == quadrotor_params(table1)
+    # The paper's numbers (Table I), as printed there.
+    assert table1.inertia == (1.745e-2, 1.745e-2, 3.175e-2) and table1.thrust_coefficient == 1.105e-5
+
+
+def test_no_copy_of_table1_in_the_code():
+    """Table I is written once, in config/vehicles/paper_table1.toml: no package source spells
+    one of its distinctive numbers (mass 1.5 and g 9.81 are too common to tell)."""
+    import ast
+    import io
+    import tokenize
+
+    from interfaces.scenario import table1_vehicle
+
+    table1 = table1_vehicle()
+    distinctive = {*table1.inertia, table1.arm_length, table1.thrust_coefficient, table1.moment_coefficient,
+                   table1.motor_time_constant, table1.drag_coefficient}
+    copies = []
+    for package in ("interfaces", "companion", "sitl_plant", "studies"):
+        for source in sorted((SCENARIOS.parent.parent / package).rglob("*.py")):
+            for token in tokenize.generate_tokens(io.StringIO(source.read_text()).readline):
+                if token.type == tokenize.NUMBER and ast.literal_eval(token.string) in distinctive:
+                    copies.append(f"{source.name}:{token.start[0]}: {token.string}")
+    assert copies == []

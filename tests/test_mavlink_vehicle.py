@@ -16,6 +16,7 @@ import struct
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 os.environ["MAVLINK20"] = "1"
 from pymavlink.dialects.v20 import common as mavlink  # noqa: E402
@@ -28,7 +29,9 @@ from sitl_plant.vehicle.mavlink_vehicle import (  # noqa: E402
     LinkSpec,
     MavlinkVehicle,
 )
-from sitl_plant.vehicle.params import QuadrotorParams  # noqa: E402
+from dataclasses import replace  # noqa: E402
+
+from sitl_plant.vehicle.params import QuadrotorParams, table1_params  # noqa: E402
 from sitl_plant.vehicle.px4_modes import (  # noqa: E402
     HOLD,
     OFFBOARD,
@@ -39,12 +42,11 @@ from sitl_plant.vehicle.px4_modes import (  # noqa: E402
     Severity,
     decode_custom_mode,
 )
-from sitl_plant.vehicle.quadrotor import quaternion_to_rotation  # noqa: E402
 
 HOME = Home(47.397742, 8.545594, 488.0)
 CLIENT_SYSTEM, CLIENT_COMPONENT = 245, 190
-PARAMS = QuadrotorParams()
-NOISE_FREE = QuadrotorParams(position_noise_std=0.0, velocity_noise_std=0.0)
+PARAMS = table1_params()
+NOISE_FREE = replace(PARAMS, position_noise_std=0.0, velocity_noise_std=0.0)
 HOVER = PARAMS.hover_thrust_normalized
 LEVEL = (1.0, 0.0, 0.0, 0.0)
 RATES_IGNORED = 7  # body roll/pitch/yaw rate ignore bits of SET_ATTITUDE_TARGET.type_mask
@@ -735,7 +737,7 @@ def test_odometry_twist_is_in_body_frd(harness) -> None:
         assert m.frame_id == mavlink.MAV_FRAME_LOCAL_NED and m.child_frame_id == mavlink.MAV_FRAME_BODY_FRD
         np.testing.assert_allclose([m.x, m.y, m.z], tel.position, atol=1e-5)
         np.testing.assert_allclose(m.q, tel.quaternion, atol=1e-6)
-        r = np.array(quaternion_to_rotation(*m.q)).reshape(3, 3)
+        r = Rotation.from_quat(m.q, scalar_first=True).as_matrix()
         v_body = np.array([m.vx, m.vy, m.vz])
         np.testing.assert_allclose(r @ v_body, tel.velocity, atol=1e-4)
     v_body = np.array([last.vx, last.vy, last.vz])
@@ -882,7 +884,7 @@ def test_type_mask_keeps_the_ignored_part(harness) -> None:
     h.setpoint(roll_quaternion(5.0), 0.2, RATES_IGNORED | THROTTLE_IGNORE)
     h.step(0.02)
     target, thrust_newton = ap.vehicle.attitude_target
-    np.testing.assert_allclose(target, np.array(quaternion_to_rotation(*roll_quaternion(5.0))).reshape(3, 3), atol=1e-6)
+    np.testing.assert_allclose(target, Rotation.from_euler("x", 5.0, degrees=True).as_matrix(), atol=1e-6)
     assert ap.thrust_command == pytest.approx(0.7)
     assert thrust_newton == pytest.approx(0.7 * PARAMS.max_total_thrust)
 
@@ -890,7 +892,7 @@ def test_type_mask_keeps_the_ignored_part(harness) -> None:
     h.setpoint(roll_quaternion(25.0), 0.6, RATES_IGNORED | ATTITUDE_IGNORE)
     h.step(0.02)
     target, thrust_newton = ap.vehicle.attitude_target
-    np.testing.assert_allclose(target, np.array(quaternion_to_rotation(*roll_quaternion(5.0))).reshape(3, 3), atol=1e-6)
+    np.testing.assert_allclose(target, Rotation.from_euler("x", 5.0, degrees=True).as_matrix(), atol=1e-6)
     assert ap.thrust_command == pytest.approx(0.6)
     assert sum(h.vehicle.stats.rejected.values()) == 0
     assert ap.setpoints_received >= 3

@@ -12,10 +12,10 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from sitl_plant.vehicle.attitude_control import AttitudeThrustVehicle, GeometricAttitudeController, Mixer
-from sitl_plant.vehicle.params import QuadrotorParams
+from sitl_plant.vehicle.params import table1_params
 from sitl_plant.vehicle.quadrotor import ROTOR_LAYOUT, Quadrotor, RigidBodyState, hover_rotor_speed, rotor_wrench
 
-PARAMS = QuadrotorParams()
+PARAMS = table1_params()
 M, G = PARAMS.mass, PARAMS.gravity
 DT = 1.0 / 500.0
 E_Z = np.array([0.0, 0.0, 1.0])

@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from interfaces.scenario import ConfigError, load_scenario
+from interfaces.scenario import ConfigError, load_plant_scenario, load_scenario
 from sitl_plant import sitl
 from studies.processes import free_port
 
@@ -84,3 +84,57 @@ def test_main_runs_for_a_duration_and_leaves_complete_logs(tmp_path, capsys):
     assert all(b > a for a, b in zip(times, times[1:]))
     # At rest on the ground, disarmed, for the whole run.
     assert all(math.isclose(float(row.split(",")[3]), 0.0, abs_tol=1e-9) for row in rows[1:])
+
+
+def _without_the_companion_sections(tmp_path, scenario_path, broken: str):
+    """constant_velocity with its [estimator] and [guidance] replaced by `broken`."""
+    text = scenario_path("constant_velocity").read_text()
+    kept = text[: text.index("[estimator]")] + broken + "\n" + text[text.index("[simulation]"):]
+    vehicle = scenario_path("constant_velocity").parent.parent / "vehicles" / "paper_table1.toml"
+    path = tmp_path / "plant_only.toml"
+    path.write_text(kept.replace('vehicle = "../vehicles/paper_table1.toml"', f'vehicle = "{vehicle}"'))
+    return path
+
+
+BROKEN_COMPANION_SECTIONS = {
+    "missing": "",  # no [estimator] at all: the companion's schema requires one
+    "broken": '[estimator]\nkind = "bogus"\nrate_hz = -1\n\n[guidance]\nlaw = "none"\n\n[dropout]\ncoast_after = "x"\n',
+}
+
+
+@pytest.mark.parametrize("broken", BROKEN_COMPANION_SECTIONS.values(), ids=BROKEN_COMPANION_SECTIONS.keys())
+def test_the_plant_starts_without_the_companions_sections_and_the_companion_refuses_them(tmp_path, scenario_path,
+                                                                                        capsys, broken):
+    from companion import app
+    from sitl_plant.target import publisher
+    from studies import run_scenario
+
+    path = _without_the_companion_sections(tmp_path, scenario_path, broken)
+    code = sitl.main(["--config", str(path), "--duration", "0.5", "--speed-factor", "50", "--quiet",
+                      "--companion-port", str(free_port()), "--gcs-port", str(free_port())])
+    out = capsys.readouterr()
+    assert code == 0, out.err
+    assert "sitl-plant ready: constant_velocity" in out.out
+    # sitl-target reads the scenario too: it gets past it and stops at the first bad argument.
+    assert publisher.main(["--config", str(path), "--rate", "-1"]) == 2
+    assert "--rate" in capsys.readouterr().err
+    # bof-sim and the companion need those sections and say which one is wrong.
+    assert run_scenario.main([str(path), "--out", str(tmp_path / "runs")]) == 2
+    assert "estimator" in capsys.readouterr().err
+    assert app.main(["--config", str(path)]) == 2
+    assert "estimator" in capsys.readouterr().err
+
+
+def test_the_plant_still_checks_its_own_sections(tmp_path, scenario_path):
+    path = _without_the_companion_sections(tmp_path, scenario_path, "")
+    path.write_text(path.read_text() + "\n[sitl]\nspeed_factor = 0\n")
+    with pytest.raises(ConfigError, match="sitl.speed_factor"):
+        load_plant_scenario(path)
+    path.write_text(path.read_text().replace("[sitl]\nspeed_factor = 0", "[sensor.camera]\nfocal_length = -1\nbogus = 2"))
+    load_plant_scenario(path)  # the camera is the companion's business
+    path.write_text(path.read_text() + "\n[faults]\nloss_probability = 2.0\n")
+    with pytest.raises(ConfigError, match="faults.loss_probability"):
+        load_plant_scenario(path)
+    path.write_text(path.read_text().replace("[faults]", "[fautls]"))
+    with pytest.raises(ConfigError, match="fautls"):
+        load_plant_scenario(path)

@@ -23,10 +23,11 @@ from companion.core.attitude import attitude_setpoint  # noqa: E402
 from companion.adapters.mavsdk_vehicle import MavsdkVehicle  # noqa: E402
 from mavsdk.plugins.offboard import PositionNedYaw  # noqa: E402
 from studies.processes import start_plant  # noqa: E402
+from sitl_plant.vehicle.params import table1_params  # noqa: E402
 from sitl_plant.vehicle.px4_modes import OFFBOARD, POSITION, decode_custom_mode  # noqa: E402
 
 SPEED = 2.0  # simulated seconds per wall second in these tests
-DRAG_PER_MASS = 6.579e-2 / 1.5  # 1/s, Table I C_d / m (horizontal body drag at small tilt)
+DRAG_PER_MASS = table1_params().drag_coefficient / table1_params().mass  # 1/s, Table I C_d / m (horizontal body drag at small tilt)
 
 
 @pytest.fixture

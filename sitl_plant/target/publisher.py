@@ -46,7 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
-from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, FaultsConfig, TargetConfig, load_scenario
+from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, FaultsConfig, TargetConfig, load_plant_scenario
 from interfaces.link_schema import CLOCK_KEY, PayloadError, TargetFix, decode_clock, decode_command, encode_target_fix, target_command_key, target_fix_key
 from interfaces.records import CsvLog, JsonLinesLog
 from interfaces.zenoh_transport import LinkError, open_session, publisher, zenoh_config
@@ -333,7 +333,7 @@ def _check_args(args: argparse.Namespace) -> None:
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     try:
-        scenario, _ = load_scenario(args.config)
+        scenario, _ = load_plant_scenario(args.config)
         args.rate = scenario.sensor.rate_hz if args.rate is None else args.rate
         args.frame = scenario.link.fix_frame if args.frame is None else args.frame
         args.noise_std = scenario.link.fix_noise_std if args.noise_std is None else args.noise_std

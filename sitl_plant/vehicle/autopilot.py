@@ -1,8 +1,9 @@
 """The plant's flight stack: what PX4 does between the MAVLink link and the motors.
 
 Arming, flight modes (Hold, Takeoff, Land, Position, Offboard), the offboard
-attitude/thrust setpoint with its loss failsafe, a simple position controller for
-the automatic modes, land/takeoff detection with auto-disarm, and a flat ground.
+attitude/thrust setpoint with its loss failsafe, the plant's own PX4-like position
+controller (sitl_plant.vehicle.position_control) for the automatic modes and position/velocity
+offboard, land/takeoff detection with auto-disarm, and a flat ground.
 No sockets and no clock of its own: the caller ticks it (sitl_plant.vehicle.mavlink_vehicle
 puts MAVLink around it, sitl_plant.sitl paces it against the wall clock), so tests
 can drive it directly and deterministically.
@@ -18,7 +19,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.core.attitude import VehicleLimits, attitude_setpoint
 from sitl_plant.vehicle.attitude_control import AttitudeThrustVehicle
 from sitl_plant.vehicle.parameters import (
     OFFBOARD_LOSS_HOLD,
@@ -27,6 +27,13 @@ from sitl_plant.vehicle.parameters import (
     default_parameters,
 )
 from sitl_plant.vehicle.params import QuadrotorParams
+from sitl_plant.vehicle.position_control import (
+    ControlLimits,
+    PositionControlGains,
+    PositionController,
+    TrajectorySetpoint,
+    trapezoidal_profile,
+)
 from sitl_plant.vehicle.px4_modes import (
     HOLD,
     LAND,
@@ -38,7 +45,7 @@ from sitl_plant.vehicle.px4_modes import (
     LandedState,
     Severity,
 )
-from sitl_plant.vehicle.quadrotor import RigidBodyState, quaternion_to_rotation, rotation_to_quaternion
+from sitl_plant.vehicle.quadrotor import RigidBodyState
 
 #: Seconds of simulated time before the vehicle is ready to arm (sensors and estimator settle).
 ARMING_READY_AFTER = 1.0
@@ -48,23 +55,14 @@ LAND_DETECT_TIME = 0.3
 LIFTOFF_HEIGHT = 0.05
 #: Takeoff ends when the vehicle is within this distance (m) of the takeoff altitude.
 TAKEOFF_ALTITUDE_TOLERANCE = 0.1
+#: Vertical acceleration of the takeoff climb and of the start of the landing descent, m/s^2
+#: (about 0.8 normalised thrust on Table I). Smooth setpoints, as PX4's trajectory generator
+#: gives, keep the velocity integrators from charging on setpoint steps.
+VERTICAL_ACCELERATION = 2.0
 #: Rate of the position controller in Hold/Takeoff/Land/Position, Hz.
 POSITION_CONTROL_RATE_HZ = 50.0
 #: PX4's magic number in param2 of MAV_CMD_COMPONENT_ARM_DISARM that forces (dis)arming.
 FORCE_ARM_MAGIC = 21196.0
-
-
-@dataclass(frozen=True)
-class PositionGains:
-    """Cascaded P (position) -> P (velocity) gains, PX4's defaults (MPC_XY_P, MPC_Z_P,
-    MPC_XY_VEL_P_ACC, MPC_Z_VEL_P_ACC); climb/descent limits in m/s."""
-
-    position_xy: float = 0.95
-    position_z: float = 1.0
-    velocity_xy: float = 1.8
-    velocity_z: float = 4.0
-    max_climb_rate: float = 3.0
-    max_descent_rate: float = 1.5
 
 
 @dataclass(frozen=True)
@@ -111,7 +109,7 @@ class Autopilot:
     params: airframe. start_position: (x, y) m local NED; the vehicle starts at rest on
     the ground there, heading `yaw` (rad). tick_rate_hz: rate of the mode logic and
     position controller; physics_rate_hz must be a whole multiple of it.
-    max_tilt_deg: MPC_TILTMAX_AIR. seed: telemetry noise.
+    max_tilt_deg: MPC_TILTMAX_AIR. seed: telemetry noise. gains: the position controller's.
     """
 
     def __init__(
@@ -124,16 +122,16 @@ class Autopilot:
         max_tilt_deg: float = 35.0,
         speed_factor: float = 1.0,
         seed: int | None = 0,
-        gains: PositionGains = PositionGains(),
+        gains: PositionControlGains = PositionControlGains(),
     ) -> None:
         ratio = physics_rate_hz / tick_rate_hz
         if not (tick_rate_hz > 0 and ratio >= 1.0 and abs(ratio - round(ratio)) < 1e-9):
             raise ValueError(f"physics_rate_hz {physics_rate_hz} must be a whole multiple of tick_rate_hz {tick_rate_hz}")
         self.params = params
-        self.gains = gains
         self.tick_period = 1.0 / tick_rate_hz
         # The position controller of the automatic modes runs at ~50 Hz, as PX4's does.
         self._control_divider = max(1, round(tick_rate_hz / POSITION_CONTROL_RATE_HZ))
+        self.position_controller = PositionController(gains)
         self.parameters: ParameterTable = default_parameters(params, max_tilt_deg, speed_factor)
         self.ground_z = 0.0
         start = np.array([float(start_position[0]), float(start_position[1]), self.ground_z])
@@ -159,6 +157,8 @@ class Autopilot:
         self._takeoff_altitude = 0.0  # NED z of the takeoff target
         self._takeoff_started = 0.0
         self._takeoff_start_z = 0.0
+        self._land_started = 0.0
+        self._land_start_speed = 0.0  # m/s NED, vertical speed when Land began
         self._offboard_quaternion: tuple[float, float, float, float] | None = None
         self._offboard_thrust: float | None = None
         self._offboard_trajectory: OffboardTrajectory | None = None
@@ -351,6 +351,9 @@ class Autopilot:
 
     def _set_mode(self, mode: FlightMode) -> None:
         if mode != self.mode:
+            if mode == LAND:
+                self._land_started = self.time
+                self._land_start_speed = float(self.vehicle.quadrotor._s[5])
             self.mode = mode
             self._say(Severity.INFO, f"Flight mode: {mode.name}")
         if mode == OFFBOARD:
@@ -364,8 +367,10 @@ class Autopilot:
         self._hold_yaw = self._yaw()
 
     def _yaw(self) -> float:
-        r = quaternion_to_rotation(*self.vehicle.quadrotor._s[6:10])
-        return math.atan2(r[3], r[0])
+        """Heading of the true attitude, rad (ZYX yaw). Read on every tick (ground contact,
+        control output), so written out on the quaternion instead of going through scipy."""
+        w, x, y, z = self.vehicle.quadrotor._s[6:10]
+        return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
     # ------------------------------------------------------------ the loop
     def tick(self) -> None:
@@ -422,90 +427,74 @@ class Autopilot:
                 if limit > 0.0 and now - since >= limit:
                     self._disarm(reason)
 
-    def _limits(self) -> VehicleLimits:
-        return VehicleLimits(
-            hover_thrust_normalized=self.parameters.value("MPC_THR_HOVER"),
+    def _limits(self) -> ControlLimits:
+        return ControlLimits(
+            hover_thrust=self.parameters.value("MPC_THR_HOVER"),
             max_tilt=math.radians(self.parameters.value("MPC_TILTMAX_AIR")),
+            max_speed_xy=self.parameters.value("MPC_XY_VEL_MAX"),
             gravity=self.params.gravity,
-            mass=self.params.mass,
         )
 
     def _control_output(self, now: float) -> tuple[tuple[float, float, float, float], float]:
         """(attitude quaternion w,x,y,z, normalised thrust) for the attitude controller."""
         s = self.vehicle.quadrotor._s
-        level = _level_quaternion(self._yaw())
         if not self.armed:
-            return level, 0.0
+            self.position_controller.reset()
+            return _level_quaternion(self._yaw()), 0.0
         if self.mode == OFFBOARD and self._offboard_trajectory is not None:
-            return self._trajectory_output(now, self._offboard_trajectory)
+            return self._fly(self._trajectory_setpoint(self._offboard_trajectory))
         if self.mode == OFFBOARD:
+            self.position_controller.reset()  # restarts empty when position control comes back
             quaternion = self._offboard_quaternion if self._offboard_quaternion is not None else (s[6], s[7], s[8], s[9])
             thrust = self._offboard_thrust if self._offboard_thrust is not None else 0.0
             return quaternion, thrust
         idle = self.on_ground and (self._landed or self.mode == LAND)
         if idle and self.mode != TAKEOFF:
-            return level, 0.0
-        position = np.array(s[0:3])
-        velocity = np.array(s[3:6])
-        target = self._hold_position.copy()
-        feedforward = np.zeros(3)
-        z_velocity = None
+            self.position_controller.reset()
+            return _level_quaternion(self._yaw()), 0.0
+        if self.on_ground:
+            self.position_controller.reset()  # no integrating against the ground while taking off
+        return self._fly(self._automatic_setpoint(now))
+
+    def _automatic_setpoint(self, now: float) -> TrajectorySetpoint:
+        """The setpoint of Takeoff (a trapezoidal climb at MPC_TKO_SPEED), Land (MPC_LAND_SPEED down over
+        the held point) and Hold/Position (the held point)."""
+        position = self._hold_position.copy()
+        velocity = np.full(3, np.nan)
+        acceleration = np.full(3, np.nan)
         if self.mode == TAKEOFF:
-            speed = self.parameters.value("MPC_TKO_SPEED")
-            target[2] = max(self._takeoff_altitude, self._takeoff_start_z - speed * (now - self._takeoff_started))
-            if target[2] > self._takeoff_altitude:
-                feedforward[2] = -speed
+            climbed, speed, accel = trapezoidal_profile(
+                self._takeoff_start_z - self._takeoff_altitude, self.parameters.value("MPC_TKO_SPEED"),
+                VERTICAL_ACCELERATION, now - self._takeoff_started)
+            position[2], velocity[2], acceleration[2] = self._takeoff_start_z - climbed, -speed, -accel
         elif self.mode == LAND:
-            z_velocity = self.parameters.value("MPC_LAND_SPEED")
-        acceleration = self._position_control(position, velocity, target, feedforward, z_velocity)
-        heading = np.array([math.cos(self._hold_yaw), math.sin(self._hold_yaw), 0.0])
-        setpoint = attitude_setpoint(now, acceleration, heading, self._limits())
-        return rotation_to_quaternion(setpoint.rotation), setpoint.thrust_normalized
+            # From the vertical speed Land started with to MPC_LAND_SPEED at VERTICAL_ACCELERATION.
+            position[2] = np.nan
+            land_speed = self.parameters.value("MPC_LAND_SPEED")
+            change = VERTICAL_ACCELERATION * (now - self._land_started)
+            gap = land_speed - self._land_start_speed
+            if abs(gap) <= change:
+                velocity[2] = land_speed
+            else:
+                velocity[2] = self._land_start_speed + math.copysign(change, gap)
+                acceleration[2] = math.copysign(VERTICAL_ACCELERATION, gap)
+        return TrajectorySetpoint(position, velocity, acceleration, self._hold_yaw)
 
-    def _trajectory_output(self, now: float, setpoint: OffboardTrajectory) -> tuple[tuple[float, float, float, float], float]:
+    def _trajectory_setpoint(self, setpoint: OffboardTrajectory) -> TrajectorySetpoint:
+        """An offboard position/velocity/acceleration setpoint; yaw held when not given."""
+        def given(part):
+            return np.full(3, np.nan) if part is None else np.array(part, dtype=float)
+
+        return TrajectorySetpoint(given(setpoint.position), given(setpoint.velocity), given(setpoint.acceleration),
+                                  self._hold_yaw if setpoint.yaw is None else setpoint.yaw)
+
+    def _fly(self, setpoint: TrajectorySetpoint) -> tuple[tuple[float, float, float, float], float]:
+        """One step of the position controller on the true state (the estimate is assumed perfect)."""
         s = self.vehicle.quadrotor._s
-        position = np.array(s[0:3])
-        velocity = np.array(s[3:6])
-        if setpoint.position is not None or setpoint.velocity is not None:
-            target = np.array(setpoint.position) if setpoint.position is not None else position
-            feedforward = np.array(setpoint.velocity) if setpoint.velocity is not None else np.zeros(3)
-            acceleration = self._position_control(position, velocity, target, feedforward, None)
-        else:
-            acceleration = np.zeros(3)
-        if setpoint.acceleration is not None:
-            acceleration = acceleration + np.array(setpoint.acceleration)
-        yaw = self._hold_yaw if setpoint.yaw is None else setpoint.yaw
-        heading = np.array([math.cos(yaw), math.sin(yaw), 0.0])
-        output = attitude_setpoint(now, acceleration, heading, self._limits())
-        return rotation_to_quaternion(output.rotation), output.thrust_normalized
-
-    def _position_control(
-        self,
-        position: np.ndarray,
-        velocity: np.ndarray,
-        target: np.ndarray,
-        feedforward: np.ndarray,
-        z_velocity: float | None,
-    ) -> np.ndarray:
-        """Cascaded P-P position controller: desired acceleration, m/s^2 NED."""
-        g = self.gains
-        error = target - position
-        velocity_sp = np.empty(3)
-        velocity_sp[:2] = g.position_xy * error[:2]
-        horizontal = float(np.hypot(*velocity_sp[:2]))
-        max_xy = self.parameters.value("MPC_XY_VEL_MAX")
-        if horizontal > max_xy:
-            velocity_sp[:2] *= max_xy / horizontal
-        velocity_sp[:2] += feedforward[:2]
-        if z_velocity is None:
-            velocity_sp[2] = g.position_z * error[2] + feedforward[2]
-        else:
-            velocity_sp[2] = z_velocity
-        velocity_sp[2] = min(max(velocity_sp[2], -g.max_climb_rate), g.max_descent_rate)
-        acceleration = np.empty(3)
-        acceleration[:2] = g.velocity_xy * (velocity_sp[:2] - velocity[:2])
-        acceleration[2] = g.velocity_z * (velocity_sp[2] - velocity[2])
-        return acceleration
+        output = self.position_controller.update(
+            self._control_divider * self.tick_period, np.array(s[0:3]), np.array(s[3:6]),
+            self.vehicle.quadrotor.acceleration, setpoint, self._limits())
+        return output.quaternion, output.thrust
 
     def _ground_contact(self) -> None:
         """Flat ground at z = ground_z: no penetration; touching down stops the vehicle level."""

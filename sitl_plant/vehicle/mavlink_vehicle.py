@@ -28,6 +28,7 @@ from pymavlink.dialects.v20 import common as mavlink  # noqa: E402
 
 import numpy as np  # noqa: E402
 import pymap3d  # noqa: E402
+from scipy.spatial.transform import Rotation  # noqa: E402
 
 from sitl_plant.vehicle.autopilot import Autopilot, OffboardAttitude, OffboardTrajectory  # noqa: E402
 from sitl_plant.vehicle.parameters import Parameter, ParameterError  # noqa: E402
@@ -42,7 +43,6 @@ from sitl_plant.vehicle.px4_modes import (  # noqa: E402
     Severity,
     mode_from_main_sub,
 )
-from sitl_plant.vehicle.quadrotor import quaternion_to_rotation  # noqa: E402
 
 THRUST_BODY_SET = 32  # ATTITUDE_TARGET_TYPEMASK_THRUST_BODY_SET (not in every pymavlink's enum)
 #: A setpoint quaternion whose norm is further than this from 1 is rejected, not renormalised.
@@ -767,8 +767,7 @@ class MavlinkVehicle:
         """ODOMETRY as PX4 sends it: pose in local NED, twist in body FRD (the child frame)."""
         ap = self.autopilot
         t = ap.telemetry()
-        r = np.array(quaternion_to_rotation(*t.quaternion)).reshape(3, 3)
-        v_body = r.T @ t.velocity
+        v_body = _attitude_of(t.quaternion).apply(t.velocity, inverse=True)
         w = t.angular_velocity
         sp = ap.params.position_noise_std**2
         sv = ap.params.velocity_noise_std**2
@@ -823,13 +822,15 @@ def _i16(value: float) -> int:
     return int(max(-32768, min(32767, round(value))))
 
 
+def _attitude_of(quaternion: tuple[float, float, float, float]) -> Rotation:
+    """The body FRD -> NED rotation of a unit quaternion (w, x, y, z)."""
+    return Rotation.from_quat(quaternion, scalar_first=True)
+
+
 def _euler(quaternion: tuple[float, float, float, float]) -> tuple[float, float, float]:
     """(roll, pitch, yaw) rad, ZYX convention as MAVLink ATTITUDE uses."""
-    r = quaternion_to_rotation(*quaternion)
-    roll = math.atan2(r[7], r[8])
-    pitch = -math.asin(max(-1.0, min(1.0, r[6])))
-    yaw = math.atan2(r[3], r[0])
-    return roll, pitch, yaw
+    yaw, pitch, roll = _attitude_of(quaternion).as_euler("ZYX")
+    return float(roll), float(pitch), float(yaw)
 
 
 __all__ = ["Home", "Link", "LinkSpec", "MavlinkVehicle", "MavlinkStats", "Rejected", "validate_attitude_target",

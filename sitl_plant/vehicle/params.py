@@ -1,41 +1,44 @@
-"""Physical parameters of the simulated quadrotor (paper Table I).
+"""Physical parameters of the simulated quadrotor.
 
-The plant only knows these numbers; where they come from (a TOML vehicle file)
-is the config module's business.
+The plant only knows these numbers; where they come from (a TOML vehicle file, the
+paper's Table I in config/vehicles/paper_table1.toml by default) is the scenario
+schema's business (interfaces.scenario). No number of Table I is written here.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cache
 
 import numpy as np
 
-from interfaces.scenario import VehicleConfig
+from interfaces.scenario import VehicleConfig, table1_vehicle
 
 
 @dataclass(frozen=True)
 class QuadrotorParams:
-    """Quadrotor airframe, motors and low-level attitude-controller gains.
+    """Quadrotor airframe, motors and low-level attitude-controller gains; SI units.
 
-    Defaults are the paper's Table I. Units are SI throughout.
+    Every value is given explicitly: quadrotor_params(vehicle) builds it from a vehicle
+    file, table1_params() from the paper's Table I.
     """
 
-    mass: float = 1.5  # kg
-    gravity: float = 9.81  # m/s^2
-    inertia: tuple[float, float, float] = (1.745e-2, 1.745e-2, 3.175e-2)  # kg m^2, body principal axes
-    arm_length: float = 0.225  # m, rotor hub to centre of mass
-    thrust_coefficient: float = 1.105e-5  # N / (rad/s)^2
-    moment_coefficient: float = 1.489e-7  # N m / (rad/s)^2
-    motor_time_constant: float = 0.0136  # s, first-order motor lag 1/(T_m s + 1)
-    drag_coefficient: float = 6.579e-2  # N / (m/s), linear body-frame drag, K_r = diag(C_d, C_d, 0)
-    max_thrust_to_weight: float = 1.5  # total thrust <= this * m g
-    attitude_kp: float = 2.0  # N m / rad, geometric attitude controller, eq. (24)
-    # kd/kp = 0.25 s: roll/pitch overdamped (zeta 1.34, 30 deg settles to 1 deg in ~0.8 s) and yaw
-    # critically damped; a smaller ratio makes large yaw steps, which saturate the weak
+    mass: float  # kg
+    gravity: float  # m/s^2
+    inertia: tuple[float, float, float]  # kg m^2, body principal axes
+    arm_length: float  # m, rotor hub to centre of mass
+    thrust_coefficient: float  # N / (rad/s)^2
+    moment_coefficient: float  # N m / (rad/s)^2
+    motor_time_constant: float  # s, first-order motor lag 1/(T_m s + 1)
+    drag_coefficient: float  # N / (m/s), linear body-frame drag, K_r = diag(C_d, C_d, 0)
+    max_thrust_to_weight: float  # total thrust <= this * m g
+    attitude_kp: float  # N m / rad, geometric attitude controller, eq. (24)
+    # Table I's kd/kp = 0.25 s: roll/pitch overdamped (zeta 1.34, 30 deg settles to 1 deg in ~0.8 s)
+    # and yaw critically damped; a smaller ratio makes large yaw steps, which saturate the weak
     # C_m yaw authority (~0.1 N m at hover), overshoot by tens of degrees.
-    attitude_kd: float = 0.5  # N m s / rad, eq. (24)
-    position_noise_std: float = 0.1  # m, feedback noise sigma_p (section VIII)
-    velocity_noise_std: float = 0.05  # m/s, feedback noise sigma_v (section VIII)
+    attitude_kd: float  # N m s / rad, eq. (24)
+    position_noise_std: float  # m, feedback noise sigma_p (section VIII)
+    velocity_noise_std: float  # m/s, feedback noise sigma_v (section VIII)
 
     @property
     def inertia_matrix(self) -> np.ndarray:
@@ -80,3 +83,9 @@ def quadrotor_params(vehicle: VehicleConfig) -> QuadrotorParams:
         position_noise_std=vehicle.position_noise_std,
         velocity_noise_std=vehicle.velocity_noise_std,
     )
+
+
+@cache
+def table1_params() -> QuadrotorParams:
+    """The paper's Table I airframe (config/vehicles/paper_table1.toml) as plant parameters."""
+    return quadrotor_params(table1_vehicle())

@@ -63,7 +63,13 @@ Wrench = tuple[float, float, float, float]
 
 
 def quaternion_to_rotation(qw: float, qx: float, qy: float, qz: float) -> Mat3:
-    """Rotation matrix of a unit quaternion, row-major 9-tuple (body FRD -> NED)."""
+    """Rotation matrix of a unit quaternion, row-major 9-tuple (body FRD -> NED).
+
+    Kept by hand (not scipy's Rotation) for the per-tick paths only: the state read-out
+    that the autopilot and the in-process simulator poll every step, and the attitude
+    controller's feed-forward at 500 Hz, where a Rotation object costs more than the step.
+    Anything slower uses scipy.spatial.transform.Rotation.
+    """
     xx, yy, zz = qx * qx, qy * qy, qz * qz
     xy, xz, yz = qx * qy, qx * qz, qy * qz
     wx, wy, wz = qw * qx, qw * qy, qw * qz
@@ -78,7 +84,8 @@ def rotation_to_quaternion(rotation: np.ndarray) -> tuple[float, float, float, f
     """Unit quaternion (w, x, y, z) with w >= 0 of a rotation matrix, shape (3, 3).
 
     Shepperd's method: pivot on the largest of trace and diagonal to stay accurate
-    near half turns.
+    near half turns. Per-tick only (the state write of every ground-contact tick, attitude
+    setpoints of the in-process simulator); elsewhere scipy's Rotation is used.
     """
     (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = np.asarray(rotation, dtype=float).tolist()
     trace = m00 + m11 + m22

@@ -1,0 +1,143 @@
+"""sitl-plant stands alone: it flies with the companion and the studies absent from its interpreter.
+
+The plant runs as a child process whose interpreter refuses to import `companion` and
+`studies` (a meta-path finder installed before anything else raises ImportError for
+them and their submodules). A pymavlink client on free loopback ports arms it, takes
+off, holds and lands; the child reports that it never had either package loaded.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+import time
+
+import pytest
+
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink import mavutil  # noqa: E402
+
+from sitl_plant.vehicle.px4_modes import HOLD, LAND, TAKEOFF, decode_custom_mode  # noqa: E402
+from studies.processes import ChildProcess, free_port  # noqa: E402
+
+mavlink = mavutil.mavlink
+SPEED = 4.0  # simulated seconds per wall second
+BLOCKED = ("companion", "studies")
+
+#: Run as `python -c WRAPPER <sitl-plant arguments>`.
+WRAPPER = f"""
+import importlib.abc, runpy, sys
+
+BLOCKED = {BLOCKED!r}
+
+class Blocker(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] in BLOCKED:
+            raise ImportError(f"{{name}} is blocked in this interpreter", name=name)
+        return None
+
+sys.meta_path.insert(0, Blocker())
+for name in BLOCKED:
+    try:
+        __import__(name)
+    except ImportError:
+        print(f"standalone: {{name}} cannot be imported", flush=True)
+    else:
+        raise SystemExit(f"{{name}} was importable")
+try:
+    runpy.run_module("sitl_plant.sitl", run_name="__main__", alter_sys=True)
+finally:
+    loaded = sorted(m for m in sys.modules if m.split(".")[0] in BLOCKED)
+    print(f"standalone: loaded from the blocked packages: {{loaded or 'none'}}", flush=True)
+"""
+
+
+class Client:
+    """A pymavlink ground station on the plant's companion port, keeping the latest state."""
+
+    def __init__(self, port: int) -> None:
+        self.connection = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=245,
+                                                     source_component=190)
+        self.time = 0.0
+        self.z = 0.0
+        self.mode = None
+        self.armed = False
+        self.acks: list = []
+
+    def pump(self, duration: float) -> None:
+        end = time.monotonic() + duration
+        while time.monotonic() < end:
+            msg = self.connection.recv_match(blocking=True, timeout=0.02)
+            if msg is None:
+                continue
+            kind = msg.get_type()
+            if kind == "ODOMETRY":
+                self.time = msg.time_usec * 1e-6
+            elif kind == "LOCAL_POSITION_NED":
+                self.z = msg.z
+            elif kind == "HEARTBEAT":
+                self.mode = decode_custom_mode(msg.custom_mode)
+                self.armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+            elif kind == "COMMAND_ACK":
+                self.acks.append(msg)
+
+    def until(self, condition, timeout: float, what: str) -> None:
+        end = time.monotonic() + timeout
+        while not condition():
+            if time.monotonic() > end:
+                raise AssertionError(f"timed out waiting for {what} (t={self.time:.2f}, z={self.z:.2f}, mode={self.mode})")
+            self.pump(0.05)
+
+    def command(self, command: int, *params: float) -> int:
+        params = list(params) + [math.nan] * (7 - len(params))
+        before = len(self.acks)
+        self.connection.mav.command_long_send(1, 1, command, 0, *params)
+        self.until(lambda: any(a.command == command for a in self.acks[before:]), 5.0, f"ack of {command}")
+        return next(a.result for a in self.acks[before:] if a.command == command)
+
+    def close(self) -> None:
+        self.connection.close()
+
+
+@pytest.fixture
+def standalone_plant(tmp_path):
+    companion_port, gcs_port = free_port(), free_port()
+    command = [sys.executable, "-c", WRAPPER, "--quiet", "--speed-factor", str(SPEED), "--companion-port",
+               str(companion_port), "--gcs-port", str(gcs_port), "--log-dir", str(tmp_path)]
+    child = ChildProcess(command, tmp_path / "plant.out", ready="sitl-plant ready")
+    try:
+        child.start(timeout=30.0)
+        yield child, companion_port
+    finally:
+        child.stop()
+
+
+def test_sitl_plant_flies_takeoff_hold_land_without_the_companion_package(standalone_plant):
+    child, port = standalone_plant
+    client = Client(port)
+    try:
+        client.until(lambda: client.time > 1.2, 15.0, "arming readiness")
+        assert client.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1.0) == mavlink.MAV_RESULT_ACCEPTED
+        assert client.command(mavlink.MAV_CMD_NAV_TAKEOFF) == mavlink.MAV_RESULT_ACCEPTED  # MIS_TAKEOFF_ALT, 2.5 m
+        client.until(lambda: client.mode == (TAKEOFF.main, TAKEOFF.sub), 5.0, "Takeoff mode")
+        client.until(lambda: client.mode == (HOLD.main, HOLD.sub), 30.0 / SPEED + 10.0, "takeoff complete")
+        held_from = client.time
+        heights = []
+        while client.time < held_from + 3.0:
+            client.pump(0.05)
+            heights.append(client.z)
+        assert client.mode == (HOLD.main, HOLD.sub) and client.armed
+        assert all(-2.5 - 0.5 < z < -2.5 + 0.5 for z in heights), heights  # telemetry noise sigma 0.1 m
+        assert client.command(mavlink.MAV_CMD_NAV_LAND) == mavlink.MAV_RESULT_ACCEPTED
+        client.until(lambda: client.mode == (LAND.main, LAND.sub), 5.0, "Land mode")
+        client.until(lambda: not client.armed, 60.0 / SPEED + 10.0, "landed and disarmed")
+    finally:
+        client.close()
+        code = child.stop()
+    output = child.output()
+    assert code == 0, output
+    assert "standalone: companion cannot be imported" in output
+    assert "standalone: studies cannot be imported" in output
+    assert "standalone: loaded from the blocked packages: none" in output
+    assert "sitl-plant stopped" in output
