@@ -82,7 +82,7 @@ async def fly_companion(port: int, duration: float, speed: float) -> dict:
     received: list[tuple[int, int]] = []  # (time_usec, wall ns at receipt)
     lateness: list[float] = []
     async with MavsdkVehicle(f"udpin://127.0.0.1:{port}", connect_timeout=20) as vehicle:
-        limits = await vehicle.vehicle_limits()
+        limits = await vehicle.vehicle_limits(table1_params().mass, table1_params().gravity)
         await vehicle.wait_for(lambda s: s.state.time > 1.2, 20, "arming readiness")
         await vehicle.arm()
         hover = await vehicle.takeoff(3.0, timeout=60)

@@ -87,13 +87,27 @@ class JsonLinesLog:
             self._handle.close()
 
 
+def json_ready(value: Any) -> Any:
+    """`value` with numpy scalars/arrays as Python numbers/lists, tuples as lists and every NaN or
+    infinity as None (JSON null: "not applicable"), recursively through dicts and lists."""
+    if isinstance(value, dict):
+        return {str(key): json_ready(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_ready(item) for item in value]
+    if hasattr(value, "tolist"):  # numpy arrays and scalars
+        return json_ready(value.tolist())
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
 def write_json(path: Path, document: Any, **dumps: Any) -> None:
     """`document` as a JSON file that readers never see half written (a temporary file, then os.replace).
 
-    dumps: keyword arguments of json.dumps (indent, sort_keys, default; default `plain` unless given).
+    Non-finite numbers are written as null (see json_ready), so the file is always valid JSON;
+    anything else not representable raises. dumps: keyword arguments of json.dumps (indent, sort_keys).
     """
     path = Path(path)
-    dumps.setdefault("default", plain)
     tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(document, **dumps))
+    tmp.write_text(json.dumps(json_ready(document), allow_nan=False, **dumps) + "\n")
     os.replace(tmp, path)

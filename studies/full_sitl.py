@@ -206,12 +206,17 @@ class GroundStation:
         self.session.close()
 
 
+def _figure(value: float | None, spec: str) -> str:
+    """A figure of the state for people: '-' where the companion had none (null in the payload)."""
+    return "-" if value is None else format(value, spec)
+
+
 def _progress(state: link.CompanionState | None) -> str:
     if state is None:
         return "waiting for the companion"
     text = f"t={state.stamp:6.1f}s phase={state.phase:10s}"
     if state.estimate is not None:
-        text += f" range^={state.estimate.range:6.1f} m  sigma_p={state.estimate.position_std:5.2f} m"
+        text += f" range^={_figure(state.estimate.range, '6.1f')} m  sigma_p={_figure(state.estimate.position_std, '5.2f')} m"
     text += f"  fixes {state.link.accepted} ok / {sum(state.link.rejected.values())} rejected"
     return text
 

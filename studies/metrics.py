@@ -11,13 +11,12 @@ not JSON.
 from __future__ import annotations
 
 import enum
-import json
 import math
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
+from interfaces.records import write_json
 from interfaces.scenario import Scenario
 
 
@@ -102,23 +101,7 @@ def convergence_text(summary: dict, after: str = "") -> str:
     return f"converged ({condition}) at t = {time:.2f} s{after}"
 
 
-def json_ready(value: Any) -> Any:
-    """`value` with numpy scalars/arrays as Python numbers/lists, tuples as lists and every NaN or
-    infinity as None (JSON null: "not applicable"), recursively through dicts and lists."""
-    if isinstance(value, dict):
-        return {str(key): json_ready(item) for key, item in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [json_ready(item) for item in value]
-    if isinstance(value, np.ndarray):
-        return json_ready(value.tolist())
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
 def write_summary(path: Path, document: dict, sort_keys: bool = False) -> None:
-    """Write `document` as indented JSON to `path`, non-finite numbers as null (see json_ready);
+    """Write a summary as indented JSON to `path`, non-finite numbers as null (interfaces.records.write_json);
     anything not representable raises instead of producing invalid JSON."""
-    path.write_text(json.dumps(json_ready(document), indent=2, sort_keys=sort_keys, allow_nan=False) + "\n")
+    write_json(path, document, indent=2, sort_keys=sort_keys)

@@ -538,3 +538,16 @@ def test_fixes_cross_a_real_loopback_session_in_order():
         if talker is not None:
             talker.close()
         listener.close()
+
+
+def test_ground_station_progress_line_shows_missing_figures_as_dashes():
+    """bof-sitl's progress line reads the decoded state; a null range or std (no estimate yet: the
+    encoder nulls NaN) prints '-' instead of failing on None."""
+    from studies.full_sitl import _progress
+
+    full = _progress(link.decode_state(encode_state(_state())))
+    assert "range^=  59.0 m" in full and "sigma_p= 0.80 m" in full and "fixes 10 ok / 2 rejected" in full
+    estimate = dict(_state()["estimate"], range=float("nan"), position_std=float("inf"))
+    line = _progress(link.decode_state(encode_state(_state(estimate=estimate))))
+    assert "range^=- m" in line and "sigma_p=- m" in line
+    assert _progress(None) == "waiting for the companion"

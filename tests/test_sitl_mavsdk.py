@@ -81,7 +81,7 @@ def test_mavsdk_flies_the_plant_and_a_ground_station_watches(plant):
         watcher = asyncio.create_task(_pump_in_background(gcs, stop))
         try:
             async with MavsdkVehicle(f"udpin://127.0.0.1:{companion_port}", connect_timeout=15) as vehicle:
-                limits = await vehicle.vehicle_limits()
+                limits = await vehicle.vehicle_limits(table1_params().mass, table1_params().gravity)
                 first = await vehicle.next_sample()
                 await vehicle.wait_for(lambda s: s.state.time > 1.2, 10, "arming readiness")
                 await vehicle.arm()
@@ -159,7 +159,7 @@ def test_offboard_loss_failsafe_holds_and_reports(plant):
 
     async def fly_then_vanish():
         async with MavsdkVehicle(f"udpin://127.0.0.1:{companion_port}", connect_timeout=15) as vehicle:
-            limits = await vehicle.vehicle_limits()
+            limits = await vehicle.vehicle_limits(table1_params().mass, table1_params().gravity)
             await vehicle.wait_for(lambda s: s.state.time > 1.2, 10, "arming readiness")
             await vehicle.arm()
             hovering = await vehicle.takeoff(3.0, timeout=30)

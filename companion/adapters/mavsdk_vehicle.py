@@ -232,7 +232,7 @@ class MavsdkVehicle:
             raise VehicleError(f"MPC_THR_HOVER = {value} is not a normalised hover thrust")
         return value
 
-    async def vehicle_limits(self, mass: float = 1.5, gravity: float = 9.81) -> VehicleLimits:
+    async def vehicle_limits(self, mass: float, gravity: float) -> VehicleLimits:
         """What the attitude mapping needs, read from the autopilot: hover thrust and tilt limit."""
         hover = await self.hover_thrust()
         tilt = await self._param_float("MPC_TILTMAX_AIR")
