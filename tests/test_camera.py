@@ -9,9 +9,8 @@ from scipy.spatial.transform import Rotation
 
 from companion.assembly import build_sensor
 from companion.core.bearing_sensor import BearingSensor, CameraModel, measure_bearing
-from interfaces.scenario import ConfigError, SensorConfig, load_scenario
+from interfaces.scenario import SCENARIOS_DIR, VEHICLES_DIR, ConfigError, SensorConfig, load_scenario
 from studies.closed_loop import Termination, simulate
-from tests.conftest import SCENARIOS
 
 CAMERA = CameraModel()
 LEVEL = np.eye(3)
@@ -234,12 +233,12 @@ def test_sensor_config_defaults_and_mount():
     assert build_sensor(SensorConfig()).camera is None
 
 
-CAMERA_SCENARIO = (SCENARIOS / "constant_velocity_camera.toml").read_text()
+CAMERA_SCENARIO = (SCENARIOS_DIR / "constant_velocity_camera.toml").read_text()
 
 
 def _write(tmp_path: Path, text: str) -> Path:
     (tmp_path / "vehicles").mkdir(exist_ok=True)
-    (tmp_path / "vehicles" / "paper_table1.toml").write_text((SCENARIOS.parent / "vehicles" / "paper_table1.toml").read_text())
+    (tmp_path / "vehicles" / "paper_table1.toml").write_text((VEHICLES_DIR / "paper_table1.toml").read_text())
     (tmp_path / "scenarios").mkdir(exist_ok=True)
     path = tmp_path / "scenarios" / "case.toml"
     path.write_text(text)

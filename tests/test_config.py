@@ -4,16 +4,15 @@ from pathlib import Path
 
 import pytest
 
-from interfaces.scenario import ConfigError, load_scenario
-from tests.conftest import SCENARIOS
+from interfaces.scenario import SCENARIOS_DIR, VEHICLES_DIR, ConfigError, load_scenario
 
-VALID = (SCENARIOS / "constant_velocity.toml").read_text()
+VALID = (SCENARIOS_DIR / "constant_velocity.toml").read_text()
 
 
 def _write(tmp_path: Path, text: str) -> Path:
     vehicles = tmp_path / "vehicles"
     vehicles.mkdir(exist_ok=True)
-    (vehicles / "paper_table1.toml").write_text((SCENARIOS.parent / "vehicles" / "paper_table1.toml").read_text())
+    (vehicles / "paper_table1.toml").write_text((VEHICLES_DIR / "paper_table1.toml").read_text())
     scenarios = tmp_path / "scenarios"
     scenarios.mkdir(exist_ok=True)
     path = scenarios / "case.toml"
@@ -21,7 +20,7 @@ def _write(tmp_path: Path, text: str) -> Path:
     return path
 
 
-@pytest.mark.parametrize("path", sorted(SCENARIOS.glob("*.toml")), ids=lambda p: p.stem)
+@pytest.mark.parametrize("path", sorted(SCENARIOS_DIR.glob("*.toml")), ids=lambda p: p.stem)
 def test_every_shipped_scenario_loads(path):
     scenario, vehicle = load_scenario(path)
     assert scenario.name == path.stem
