@@ -110,8 +110,9 @@ def test_angle_jacobians_match_central_differences(d: np.ndarray) -> None:
     # The angles themselves, NED: azimuth from north towards east, elevation up (-z).
     np.testing.assert_allclose(azimuth_elevation(d), [math.atan2(d[1], d[0]), math.atan2(-d[2], math.hypot(d[0], d[1]))], atol=1e-12)
     np.testing.assert_allclose(range_azimuth_elevation(d)[0], np.linalg.norm(d), rtol=1e-12)
-    np.testing.assert_allclose(azimuth_elevation_jacobian(d), central_difference(azimuth_elevation, d), rtol=1e-6, atol=1e-9)
-    numeric = central_difference(range_azimuth_elevation, d)
+    step = 1e-6 * np.linalg.norm(d)  # relative step: round-off ~1e-16 |f| / step stays small at 100 m
+    np.testing.assert_allclose(azimuth_elevation_jacobian(d), central_difference(azimuth_elevation, d, step), rtol=1e-6, atol=1e-9)
+    numeric = central_difference(range_azimuth_elevation, d, step)
     analytic = range_azimuth_elevation_jacobian(d)
     np.testing.assert_allclose(analytic, numeric, rtol=1e-6, atol=1e-9)
     # The seed-003 erratum: the azimuth row is -y/rho^2, x/rho^2 (not divided by rho only).
@@ -124,7 +125,9 @@ def test_angle_jacobians_match_central_differences(d: np.ndarray) -> None:
 def test_flight_path_step_and_jacobian(position: np.ndarray, speed: float, gamma: float, chi: float) -> None:
     state = np.concatenate([position, [speed, gamma, chi]])
     dt = 0.05
-    np.testing.assert_allclose(flight_path_step_jacobian(state, dt), central_difference(lambda x: flight_path_step(x, dt), state), rtol=1e-6, atol=1e-9)
+    # Central differences with a 1e-6 step lose ~1e-16 |x| / 1e-6 to round-off on the position rows.
+    np.testing.assert_allclose(flight_path_step_jacobian(state, dt), central_difference(lambda x: flight_path_step(x, dt), state),
+                               rtol=1e-6, atol=1e-9 * max(1.0, float(np.abs(state).max())))
     # NED: a climbing target (gamma > 0) moves to negative z.
     climbing = np.array([0.0, 0.0, 0.0, 10.0, 0.3, 0.0])
     assert flight_path_step(climbing, 1.0)[2] == pytest.approx(-10.0 * math.sin(0.3))
