@@ -59,7 +59,7 @@ def test_desired_rotation_columns(command: tuple[np.ndarray, np.ndarray]) -> Non
     assert r2 @ los == pytest.approx(0.0, abs=1e-12)
     assert r2 @ r3 == pytest.approx(0.0, abs=1e-12)
     # r1 (camera) lies in the plane of lambda and r3, facing the target.
-    assert np.linalg.det(np.column_stack([r1, los, r3])) == pytest.approx(0.0, abs=1e-12)
+    assert r1 @ np.cross(los, r3) == pytest.approx(0.0, abs=1e-12)  # triple product: coplanar
     assert r1 @ los > 0.0
     # It is the paper's R_d = [r3 x lambda x r3, r3 x lambda, r3] up to normalisation of r2.
     right = np.cross(thrust_direction, los)
