@@ -11,7 +11,7 @@ from paper_reference import floats, nonzero_vectors
 from scipy.spatial.transform import Rotation
 
 from companion.assembly import build_sensor
-from companion.core.bearing_sensor import BearingSensor, CameraModel, measure_bearing
+from companion.core.bearing_sensor import CameraModel, measure_bearing
 from interfaces.scenario import SCENARIOS_DIR, VEHICLES_DIR, ConfigError, SensorConfig, load_scenario
 from studies.closed_loop import Termination, simulate
 
