@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from interfaces.scenario import Scenario, load_scenario
+from interfaces.scenario import SCENARIOS_DIR, Scenario, load_scenario
 from studies.closed_loop import Termination, simulate
 from studies.run_scenario import main as bof_sim
 
@@ -16,7 +16,7 @@ def _with(scenario: Scenario, section: str, **changes) -> Scenario:
 
 @pytest.fixture(scope="module")
 def constant_velocity():
-    return load_scenario(__import__("tests.conftest").conftest.SCENARIOS / "constant_velocity.toml")
+    return load_scenario(SCENARIOS_DIR / "constant_velocity.toml")
 
 
 @pytest.fixture(scope="module")
