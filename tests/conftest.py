@@ -1,14 +1,81 @@
+"""Shared fixtures: scenario files by name, and the test's end of a Zenoh link to sitl-target."""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parent.parent
-SCENARIOS = ROOT / "config" / "scenarios"
+from interfaces.link_schema import CLOCK_KEY, ClockTick, TargetFix, decode_target_fix, encode_clock, target_fix_key
+from interfaces.scenario import SCENARIOS_DIR
+from interfaces.zenoh_transport import open_session, publisher, zenoh_config
+from studies.processes import free_port
 
 
 @pytest.fixture
-def scenario_path():
+def scenario_path() -> Callable[[str], Path]:
+    """name -> path of the shipped scenario file config/scenarios/<name>.toml."""
+
     def _path(name: str) -> Path:
-        return SCENARIOS / f"{name}.toml"
+        return SCENARIOS_DIR / f"{name}.toml"
 
     return _path
+
+
+class ClockAndFixes:
+    """The test's end of the link: a listening session (127.0.0.1, free port) that publishes
+    the simulation clock and collects the fixes of one sender."""
+
+    def __init__(self, sender: str) -> None:
+        self.endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+        self.session = open_session(zenoh_config(listen=[self.endpoint]))
+        self.clock = publisher(self.session, CLOCK_KEY)
+        self.fixes: list[TargetFix] = []
+        self._lock = threading.Lock()
+        self._closed = False
+        self.session.declare_subscriber(target_fix_key(sender), self._on_fix)
+        self.seq = 0
+
+    def _on_fix(self, sample) -> None:
+        fix = decode_target_fix(sample.payload)
+        with self._lock:
+            self.fixes.append(fix)
+
+    def received(self) -> list[TargetFix]:
+        with self._lock:
+            return list(self.fixes)
+
+    def run_clock(self, until_sim: float, step: float, period: float, timeout: float, done=lambda: False) -> float:
+        """Tick simulated time by `step` every `period` wall seconds up to `until_sim`; returns the last stamp."""
+        stamp = self.seq * step
+        deadline = time.monotonic() + timeout
+        while stamp < until_sim - 1e-9 and time.monotonic() < deadline and not done():
+            self.seq += 1
+            stamp = self.seq * step
+            self.clock.put(encode_clock(ClockTick("plant", self.seq, stamp)))
+            time.sleep(period)
+        return stamp
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self.session.close()
+
+
+@pytest.fixture
+def clock_and_fixes() -> Iterator[Callable[[str], ClockAndFixes]]:
+    """sender -> an open ClockAndFixes link; every link opened is closed at teardown."""
+    links: list[ClockAndFixes] = []
+
+    def _open(sender: str) -> ClockAndFixes:
+        link = ClockAndFixes(sender)
+        links.append(link)
+        return link
+
+    yield _open
+    for link in links:
+        link.close()

@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from paper_reference import desired_attitude, floats, unit_vectors, vectors
 from scipy.spatial.transform import Rotation
 
 from companion.core.attitude import (
@@ -18,21 +21,20 @@ from companion.core.geometry import E_X, E_Y, E_Z, orthogonal_projection, unit
 
 G = 9.81
 LIMITS = VehicleLimits(hover_thrust_normalized=2.0 / 3.0)  # paper's vehicle: full thrust = 1.5 g
+PROPERTY = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.filter_too_much])
 
 
-def random_commands(count: int, seed: int, scale: float = 4.0) -> list[tuple[np.ndarray, np.ndarray]]:
-    """(a_d, lambda) pairs; a_d keeps g e_Z - a_d pointing up (flyable thrust direction)."""
-    rng = np.random.default_rng(seed)
-    cases = []
-    while len(cases) < count:
-        acceleration = rng.normal(0.0, scale, 3)
-        los = rng.normal(size=3)
-        if (G - acceleration[2]) > 1.0:
-            cases.append((acceleration, los))
-    return cases
+def _flyable(acceleration: np.ndarray) -> bool:
+    """g e_Z - a_d points up by more than 1 m/s^2 (a thrust direction a quadrotor can hold)."""
+    return bool(G - acceleration[2] > 1.0)
 
 
-COMMANDS = random_commands(40, seed=21)
+# (a_d, lambda): a_d keeps g e_Z - a_d pointing up; lambda not parallel to the thrust axis.
+commands = st.tuples(vectors(12.0).filter(_flyable), unit_vectors()).filter(
+    lambda pair: np.linalg.norm(np.cross(G * E_Z - pair[0], pair[1])) > 1e-3 * np.linalg.norm(G * E_Z - pair[0])
+)
+# Any command, also far beyond what the airframe can fly (the setpoint limits it).
+wild_commands = st.tuples(vectors(60.0), unit_vectors())
 
 
 def assert_proper_rotation(rotation: np.ndarray) -> None:
@@ -43,22 +45,29 @@ def assert_proper_rotation(rotation: np.ndarray) -> None:
 # --------------------------------------------------------------------------- R_d
 
 
-@pytest.mark.parametrize(("acceleration", "los"), COMMANDS)
-def test_desired_rotation_columns(acceleration: np.ndarray, los: np.ndarray) -> None:
+@PROPERTY
+@given(commands)
+def test_desired_rotation_columns(command: tuple[np.ndarray, np.ndarray]) -> None:
+    acceleration, los = command
     rotation = desired_rotation(acceleration, los, G)
     assert_proper_rotation(rotation)
     r1, r2, r3 = rotation.T
     # r3: thrust direction (FRD z points down, so the rotors push along -r3 and a = g e_Z - T/m r3).
-    np.testing.assert_allclose(r3, unit(G * E_Z - acceleration), atol=1e-12)
+    thrust_direction = (G * E_Z - acceleration) / np.linalg.norm(G * E_Z - acceleration)
+    np.testing.assert_allclose(r3, thrust_direction, atol=1e-12)
     # r2 = r3 x lambda / |.|: perpendicular to lambda and to r3.
     assert r2 @ los == pytest.approx(0.0, abs=1e-12)
-    np.testing.assert_allclose(r2, unit(np.cross(r3, los)), atol=1e-12)
+    assert r2 @ r3 == pytest.approx(0.0, abs=1e-12)
     # r1 (camera) lies in the plane of lambda and r3, facing the target.
-    assert np.linalg.det(np.column_stack([r1, unit(los), r3])) == pytest.approx(0.0, abs=1e-12)
+    assert r1 @ np.cross(los, r3) == pytest.approx(0.0, abs=1e-12)  # triple product: coplanar
     assert r1 @ los > 0.0
-    np.testing.assert_allclose(r1, unit(orthogonal_projection(r3) @ los), atol=1e-12)
     # It is the paper's R_d = [r3 x lambda x r3, r3 x lambda, r3] up to normalisation of r2.
-    np.testing.assert_allclose(r1, unit(np.cross(np.cross(r3, los), r3)), atol=1e-12)
+    right = np.cross(thrust_direction, los)
+    np.testing.assert_allclose(r2, right / np.linalg.norm(right), atol=1e-10)
+    forward = np.cross(right, thrust_direction)
+    np.testing.assert_allclose(r1, forward / np.linalg.norm(forward), atol=1e-10)
+    # Independent construction: scipy's Wahba solution (z on the thrust axis, x nearest lambda).
+    np.testing.assert_allclose(rotation, desired_attitude(acceleration, los, G).as_matrix(), atol=1e-9)
 
 
 def test_hover_facing_north_is_the_identity() -> None:
@@ -66,7 +75,8 @@ def test_hover_facing_north_is_the_identity() -> None:
     np.testing.assert_allclose(desired_rotation(np.zeros(3), 5.0 * E_X, G), np.eye(3), atol=1e-15)
 
 
-@pytest.mark.parametrize("yaw", [0.3, np.pi / 2, -2.0, np.pi])
+@PROPERTY
+@given(floats(-np.pi, np.pi))
 def test_hover_heading_follows_a_horizontal_los(yaw: float) -> None:
     los = np.array([np.cos(yaw), np.sin(yaw), 0.0])
     np.testing.assert_allclose(desired_rotation(np.zeros(3), los, G), Rotation.from_euler("z", yaw).as_matrix(), atol=1e-12)
@@ -110,9 +120,10 @@ def test_hover_target_straight_below_with_fallback_keeps_the_previous_heading() 
 # --------------------------------------------------------------------------- T, eq. (22)
 
 
-@pytest.mark.parametrize(("acceleration", "los"), COMMANDS[:20])
-def test_collective_thrust_is_mass_times_specific_force(acceleration: np.ndarray, los: np.ndarray) -> None:
-    mass = 1.7
+@PROPERTY
+@given(commands, floats(0.2, 20.0))
+def test_collective_thrust_is_mass_times_specific_force(command: tuple[np.ndarray, np.ndarray], mass: float) -> None:
+    acceleration, los = command
     rotation = desired_rotation(acceleration, los, G)
     thrust = collective_thrust(acceleration, rotation, mass, G)
     assert thrust == pytest.approx(mass * np.linalg.norm(G * E_Z - acceleration), rel=1e-12)
@@ -138,48 +149,50 @@ def test_vehicle_limits_maximum_specific_force() -> None:
     assert LIMITS.max_specific_force == pytest.approx(0.9 * 1.5 * 9.81)
 
 
-@pytest.mark.parametrize("seed", range(5))
-def test_limited_command_is_flyable(seed: int) -> None:
-    rng = np.random.default_rng(seed)
-    tan_tilt = np.tan(LIMITS.max_tilt)
-    for _ in range(200):
-        command = rng.normal(0.0, 15.0, 3)
-        flown = limit_specific_force(command, LIMITS)
-        force, wanted = specific_force(flown), specific_force(command)
-        horizontal, wanted_horizontal = force[:2], wanted[:2]
-        # Tilt limit, total thrust limit, minimum upward force.
-        assert np.linalg.norm(horizontal) <= force[2] * tan_tilt + 1e-9
-        assert np.linalg.norm(force) <= LIMITS.max_specific_force + 1e-9
-        assert force[2] >= LIMITS.min_vertical_specific_force - 1e-12
-        # Vertical first: f_z is the commanded one clipped to its range.
-        assert force[2] == pytest.approx(
-            np.clip(wanted[2], LIMITS.min_vertical_specific_force, LIMITS.max_specific_force), abs=1e-12
-        )
-        # The horizontal direction is kept; it is only scaled down.
-        assert np.linalg.norm(horizontal) <= np.linalg.norm(wanted_horizontal) + 1e-12
-        assert horizontal[0] * wanted_horizontal[1] - horizontal[1] * wanted_horizontal[0] == pytest.approx(0.0, abs=1e-9)
-        assert horizontal @ wanted_horizontal >= 0.0
-        # Limiting twice changes nothing.
-        np.testing.assert_allclose(limit_specific_force(flown, LIMITS), flown, atol=1e-12)
+def assert_within_limits(force: np.ndarray, limits: VehicleLimits = LIMITS) -> None:
+    """Tilt limit, total thrust limit, minimum upward force."""
+    assert np.linalg.norm(force[:2]) <= force[2] * np.tan(limits.max_tilt) + 1e-9
+    assert np.linalg.norm(force) <= limits.max_specific_force + 1e-9
+    assert force[2] >= limits.min_vertical_specific_force - 1e-12
 
 
-@pytest.mark.parametrize("seed", range(5))
-def test_feasible_commands_are_untouched(seed: int) -> None:
-    rng = np.random.default_rng(50 + seed)
-    tan_tilt = np.tan(LIMITS.max_tilt)
-    checked = 0
-    while checked < 100:
-        command = rng.normal(0.0, 5.0, 3)
-        force = specific_force(command)
-        feasible = (
-            LIMITS.min_vertical_specific_force <= force[2] <= LIMITS.max_specific_force
-            and np.linalg.norm(force[:2]) <= force[2] * tan_tilt
-            and np.linalg.norm(force) <= LIMITS.max_specific_force
-        )
-        if not feasible:
-            continue
-        checked += 1
-        np.testing.assert_allclose(limit_specific_force(command, LIMITS), command, rtol=0.0, atol=1e-12)
+@PROPERTY
+@given(vectors(60.0))
+def test_limited_command_is_flyable(command: np.ndarray) -> None:
+    flown = limit_specific_force(command, LIMITS)
+    force, wanted = specific_force(flown), specific_force(command)
+    horizontal, wanted_horizontal = force[:2], wanted[:2]
+    assert_within_limits(force)
+    # Vertical first: f_z is the commanded one clipped to its range.
+    assert force[2] == pytest.approx(
+        np.clip(wanted[2], LIMITS.min_vertical_specific_force, LIMITS.max_specific_force), abs=1e-12
+    )
+    # The horizontal direction is kept; it is only scaled down.
+    assert np.linalg.norm(horizontal) <= np.linalg.norm(wanted_horizontal) + 1e-12
+    assert horizontal[0] * wanted_horizontal[1] - horizontal[1] * wanted_horizontal[0] == pytest.approx(0.0, abs=1e-9)
+    assert horizontal @ wanted_horizontal >= 0.0
+    # Limiting twice changes nothing.
+    np.testing.assert_allclose(limit_specific_force(flown, LIMITS), flown, atol=1e-12)
+
+
+# A flyable specific force by construction: f_z in its range, then a horizontal part inside
+# both the tilt cone and the total-thrust sphere (fraction < 1 of the tighter bound).
+feasible_forces = st.tuples(
+    floats(LIMITS.min_vertical_specific_force, LIMITS.max_specific_force), floats(0.0, 0.999), floats(-np.pi, np.pi)
+).map(
+    lambda drawn: np.array([
+        *(drawn[1] * min(drawn[0] * np.tan(LIMITS.max_tilt), np.sqrt(LIMITS.max_specific_force**2 - drawn[0] ** 2))
+          * np.array([np.cos(drawn[2]), np.sin(drawn[2])])),
+        drawn[0],
+    ])
+)
+
+
+@PROPERTY
+@given(feasible_forces)
+def test_feasible_commands_are_untouched(force: np.ndarray) -> None:
+    command = LIMITS.gravity * E_Z - force
+    np.testing.assert_allclose(limit_specific_force(command, LIMITS), command, rtol=0.0, atol=1e-12)
 
 
 def test_limits_on_named_cases() -> None:
@@ -201,13 +214,50 @@ def test_limits_on_named_cases() -> None:
 # --------------------------------------------------------------------------- setpoint
 
 
-@pytest.mark.parametrize(("acceleration", "los"), COMMANDS + random_commands(20, seed=99, scale=20.0))
-def test_attitude_setpoint_is_consistent(acceleration: np.ndarray, los: np.ndarray) -> None:
-    setpoint = attitude_setpoint(3.5, acceleration, los, LIMITS)
-    flown = limit_specific_force(acceleration, LIMITS)
-    assert setpoint.time == 3.5
-    np.testing.assert_allclose(setpoint.acceleration, flown, atol=0.0)
-    np.testing.assert_allclose(setpoint.rotation, desired_rotation(flown, los, LIMITS.gravity), atol=1e-12)
+def _heading_defined(command: tuple[np.ndarray, np.ndarray]) -> bool:
+    """lambda is not (nearly) along the thrust axis of the flown command, so eq. (21)'s yaw is defined."""
+    acceleration, los = command
+    axis = specific_force(limit_specific_force(acceleration, LIMITS))
+    return bool(np.linalg.norm(np.cross(axis, los)) > 1e-3 * np.linalg.norm(axis))
+
+
+@PROPERTY
+@given(st.one_of(commands, wild_commands).filter(_heading_defined), floats(0.0, 1e4))
+def test_attitude_setpoint_obeys_eq_21_22_within_the_limits(command: tuple[np.ndarray, np.ndarray], time: float) -> None:
+    """Physics, not the module's own helpers: body z anti-parallel to a_d - g e_Z, T = m |a_d - g e_Z|
+    (eq. 22), T normalised by the full thrust m g / hover, camera yaw on the target (eq. 21 and
+    R_d), the tilt limit respected; scipy's Rotation is the independent rotation library."""
+    acceleration, los = command
+    setpoint = attitude_setpoint(time, acceleration, los, LIMITS)
+    flown = setpoint.acceleration
+    assert setpoint.time == time
+    assert_proper_rotation(setpoint.rotation)
+    # The flown command is flyable, and is the command itself whenever that was flyable.
+    force = specific_force(flown)
+    assert_within_limits(force)
+    wanted = specific_force(acceleration)
+    feasible = (LIMITS.min_vertical_specific_force <= wanted[2] <= LIMITS.max_specific_force
+                and np.linalg.norm(wanted[:2]) <= wanted[2] * np.tan(LIMITS.max_tilt)
+                and np.linalg.norm(wanted) <= LIMITS.max_specific_force)
+    if feasible:
+        np.testing.assert_allclose(flown, acceleration, atol=1e-12)
+    # Body z (FRD, down) is anti-parallel to a_d - g e_Z; the tilt from vertical is within the limit.
+    body_z = Rotation.from_matrix(setpoint.rotation).apply(E_Z)
+    np.testing.assert_allclose(body_z, -(flown - G * E_Z) / np.linalg.norm(flown - G * E_Z), atol=1e-12)
+    assert np.arccos(np.clip(body_z @ E_Z, -1.0, 1.0)) <= LIMITS.max_tilt + 1e-9
+    # Eq. (21): g e_Z - T/m R e_Z = a_d, and eq. (22): T = m |a_d - g e_Z|.
+    assert setpoint.thrust == pytest.approx(LIMITS.mass * np.linalg.norm(flown - G * E_Z), rel=1e-12)
+    np.testing.assert_allclose(G * E_Z - setpoint.thrust / LIMITS.mass * body_z, flown, atol=1e-10)
+    full_thrust = LIMITS.mass * G / LIMITS.hover_thrust_normalized  # linear thrust curve through the hover point
+    assert setpoint.thrust_normalized == pytest.approx(setpoint.thrust / full_thrust, rel=1e-12)
+    assert 0.0 <= setpoint.thrust_normalized <= LIMITS.thrust_headroom + 1e-12
+    # Yaw: the camera (body x) is the part of lambda across the thrust axis; the whole attitude
+    # is scipy's Wahba solution for (z -> thrust axis exactly, x -> lambda).
+    camera = Rotation.from_matrix(setpoint.rotation).apply(E_X)
+    across = los - (los @ body_z) * body_z
+    np.testing.assert_allclose(camera, across / np.linalg.norm(across), atol=1e-9)
+    reference = desired_attitude(flown, los, G)
+    assert (reference.inv() * Rotation.from_matrix(setpoint.rotation)).magnitude() < 1e-8
     # Quaternion [w, x, y, z] of the same rotation, canonical sign w >= 0.
     quaternion = setpoint.quaternion
     assert quaternion.shape == (4,)
@@ -215,11 +265,6 @@ def test_attitude_setpoint_is_consistent(acceleration: np.ndarray, los: np.ndarr
     assert quaternion[0] >= 0.0
     np.testing.assert_allclose(Rotation.from_quat(quaternion, scalar_first=True).as_matrix(), setpoint.rotation, atol=1e-12)
     np.testing.assert_allclose(Rotation.from_quat(np.roll(quaternion, -1)).as_matrix(), setpoint.rotation, atol=1e-12)
-    # Thrust: T = m |f| (eq. 22) and its normalised form with a linear thrust curve.
-    force = np.linalg.norm(specific_force(flown))
-    assert setpoint.thrust == pytest.approx(LIMITS.mass * force, rel=1e-12)
-    assert setpoint.thrust_normalized == pytest.approx(LIMITS.hover_thrust_normalized * force / LIMITS.gravity, rel=1e-12)
-    assert 0.0 <= setpoint.thrust_normalized <= LIMITS.thrust_headroom + 1e-12
 
 
 def test_hover_setpoint_is_level_at_hover_thrust() -> None:

@@ -10,6 +10,9 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from paper_reference import floats, vectors
 
 from companion.core.baseline_estimators import (
     MAX_ELEVATION,
@@ -61,12 +64,13 @@ def central_difference(function, x: np.ndarray, step: float = 1e-6) -> np.ndarra
     return np.column_stack(columns)
 
 
-def random_relative(rng: np.random.Generator) -> np.ndarray:
-    """A relative position 5-100 m away, elevation within +-60 deg, azimuth away from +-pi."""
-    r = rng.uniform(5.0, 100.0)
-    beta = rng.uniform(-2.8, 2.8)
-    eps = rng.uniform(-1.0, 1.0)
-    return r * np.array([math.cos(eps) * math.cos(beta), math.cos(eps) * math.sin(beta), -math.sin(eps)])
+PROPERTY = settings(max_examples=80, deadline=None)
+
+# A relative position 5-100 m away, elevation within +-60 deg, azimuth away from +-pi.
+relative_positions = st.tuples(floats(5.0, 100.0), floats(-2.8, 2.8), floats(-1.0, 1.0)).map(
+    lambda drawn: drawn[0] * np.array([math.cos(drawn[2]) * math.cos(drawn[1]), math.cos(drawn[2]) * math.sin(drawn[1]),
+                                       -math.sin(drawn[2])])
+)
 
 
 def assert_covariance_ok(covariance: np.ndarray) -> None:
@@ -79,16 +83,17 @@ def assert_covariance_ok(covariance: np.ndarray) -> None:
 # --------------------------------------------------------------------------- helpers and Jacobians
 
 
-def test_wrap_angle_range() -> None:
+@PROPERTY
+@given(floats(-50.0, 50.0))
+def test_wrap_angle_range(angle: float) -> None:
     assert wrap_angle(math.pi) == pytest.approx(math.pi)
     assert wrap_angle(-math.pi) == pytest.approx(math.pi)
     assert wrap_angle(3.0 * math.pi / 2.0) == pytest.approx(-math.pi / 2.0)
     assert wrap_angle(-7.0) == pytest.approx(-7.0 + 2.0 * math.pi)
-    for angle in np.linspace(-20.0, 20.0, 81):
-        wrapped = wrap_angle(angle)
-        assert -math.pi < wrapped <= math.pi
-        assert math.isclose(math.cos(wrapped), math.cos(angle), abs_tol=1e-12)
-        assert math.isclose(math.sin(wrapped), math.sin(angle), abs_tol=1e-12)
+    wrapped = wrap_angle(angle)
+    assert -math.pi < wrapped <= math.pi
+    assert math.isclose(math.cos(wrapped), math.cos(angle), abs_tol=1e-12)
+    assert math.isclose(math.sin(wrapped), math.sin(angle), abs_tol=1e-12)
 
 
 def test_angle_conventions_in_ned() -> None:
@@ -99,12 +104,15 @@ def test_angle_conventions_in_ned() -> None:
     np.testing.assert_allclose(range_azimuth_elevation(np.array([3.0, 0.0, 4.0])), [5.0, 0.0, -math.atan2(4, 3)], atol=1e-15)
 
 
-@pytest.mark.parametrize("seed", range(6))
-def test_angle_jacobians_match_central_differences(seed: int) -> None:
-    rng = np.random.default_rng(seed)
-    d = random_relative(rng)
-    np.testing.assert_allclose(azimuth_elevation_jacobian(d), central_difference(azimuth_elevation, d), rtol=1e-6, atol=1e-9)
-    numeric = central_difference(range_azimuth_elevation, d)
+@PROPERTY
+@given(relative_positions)
+def test_angle_jacobians_match_central_differences(d: np.ndarray) -> None:
+    # The angles themselves, NED: azimuth from north towards east, elevation up (-z).
+    np.testing.assert_allclose(azimuth_elevation(d), [math.atan2(d[1], d[0]), math.atan2(-d[2], math.hypot(d[0], d[1]))], atol=1e-12)
+    np.testing.assert_allclose(range_azimuth_elevation(d)[0], np.linalg.norm(d), rtol=1e-12)
+    step = 1e-6 * np.linalg.norm(d)  # relative step: round-off ~1e-16 |f| / step stays small at 100 m
+    np.testing.assert_allclose(azimuth_elevation_jacobian(d), central_difference(azimuth_elevation, d, step), rtol=1e-6, atol=1e-9)
+    numeric = central_difference(range_azimuth_elevation, d, step)
     analytic = range_azimuth_elevation_jacobian(d)
     np.testing.assert_allclose(analytic, numeric, rtol=1e-6, atol=1e-9)
     # The seed-003 erratum: the azimuth row is -y/rho^2, x/rho^2 (not divided by rho only).
@@ -112,25 +120,30 @@ def test_angle_jacobians_match_central_differences(seed: int) -> None:
     np.testing.assert_allclose(analytic[1, :2], [-d[1] / rho**2, d[0] / rho**2], rtol=1e-12)
 
 
-@pytest.mark.parametrize("seed", range(6))
-def test_flight_path_step_and_jacobian(seed: int) -> None:
-    rng = np.random.default_rng(seed)
-    state = np.concatenate([rng.normal(0.0, 30.0, 3), [rng.uniform(0.5, 15.0), rng.uniform(-1.2, 1.2), rng.uniform(-3.0, 3.0)]])
+@PROPERTY
+@given(vectors(60.0), floats(0.5, 15.0), floats(-1.2, 1.2), floats(-3.0, 3.0))
+def test_flight_path_step_and_jacobian(position: np.ndarray, speed: float, gamma: float, chi: float) -> None:
+    state = np.concatenate([position, [speed, gamma, chi]])
     dt = 0.05
-    np.testing.assert_allclose(flight_path_step_jacobian(state, dt), central_difference(lambda x: flight_path_step(x, dt), state), rtol=1e-6, atol=1e-9)
+    # Central differences with a 1e-6 step lose ~1e-16 |x| / 1e-6 to round-off on the position rows.
+    np.testing.assert_allclose(flight_path_step_jacobian(state, dt), central_difference(lambda x: flight_path_step(x, dt), state),
+                               rtol=1e-6, atol=1e-9 * max(1.0, float(np.abs(state).max())))
     # NED: a climbing target (gamma > 0) moves to negative z.
     climbing = np.array([0.0, 0.0, 0.0, 10.0, 0.3, 0.0])
     assert flight_path_step(climbing, 1.0)[2] == pytest.approx(-10.0 * math.sin(0.3))
     # Speed and flight-path angles give the Cartesian velocity of eq. (10).
     velocity = flight_path_velocity(state[3], state[4], state[5])
     assert np.linalg.norm(velocity) == pytest.approx(state[3])
+    # v (cos gamma cos chi, cos gamma sin chi, -sin gamma): NED, gamma up, chi from north.
+    np.testing.assert_allclose(velocity, speed * np.array([math.cos(gamma) * math.cos(chi), math.cos(gamma) * math.sin(chi), -math.sin(gamma)]),
+                               atol=1e-12 * speed)
     np.testing.assert_allclose(flight_path_step(state, dt)[:3], state[:3] + dt * velocity, atol=1e-12)
 
 
-@pytest.mark.parametrize("seed", range(8))
-def test_msc_round_trip_and_jacobians(seed: int) -> None:
-    rng = np.random.default_rng(seed)
-    relative_state = np.concatenate([random_relative(rng), rng.normal(0.0, 5.0, 3)])
+@PROPERTY
+@given(relative_positions, vectors(15.0))
+def test_msc_round_trip_and_jacobians(relative_position: np.ndarray, relative_velocity: np.ndarray) -> None:
+    relative_state = np.concatenate([relative_position, relative_velocity])
     y = msc_from_cartesian(relative_state)
     np.testing.assert_allclose(cartesian_from_msc(y), relative_state, rtol=1e-10, atol=1e-10)
     np.testing.assert_allclose(msc_from_cartesian(cartesian_from_msc(y)), y, rtol=1e-10, atol=1e-12)
@@ -483,14 +496,16 @@ def test_msc_prediction_is_the_cartesian_constant_velocity_prediction() -> None:
     covariance = np.diag([9.0, 4.0, 6.0, 1.0, 2.0, 0.5])
     covariance[1, 3] = covariance[3, 1] = 0.4
     msc.initialize(0.0, P_T0, V_T, covariance, reference=np.array([5.0, 3.0, -1.0]))
-    cartesian = AzElEKF(PERIOD, Q_TARGET, SIGMA**2 * np.eye(3))
-    cartesian.initialize(0.0, P_T0, V_T, covariance)
+    # The Cartesian constant-velocity model written out (not another estimator of the module).
+    a = np.block([[np.eye(3), PERIOD * np.eye(3)], [np.zeros((3, 3)), np.eye(3)]])
+    b = np.vstack([0.5 * PERIOD**2 * np.eye(3), PERIOD * np.eye(3)])
+    state, expected = np.concatenate([P_T0, V_T]), covariance.copy()
     for _ in range(25):
         msc.predict()
-        cartesian.predict()
-    np.testing.assert_allclose(msc.estimate.position, cartesian.estimate.position, atol=1e-9)
-    np.testing.assert_allclose(msc.estimate.velocity, cartesian.estimate.velocity, atol=1e-9)
-    np.testing.assert_allclose(msc.estimate.covariance, cartesian.estimate.covariance, rtol=1e-7, atol=1e-9)
+        state, expected = a @ state, a @ expected @ a.T + b @ Q_TARGET @ b.T
+    np.testing.assert_allclose(msc.estimate.position, state[:3], atol=1e-9)
+    np.testing.assert_allclose(msc.estimate.velocity, state[3:], atol=1e-9)
+    np.testing.assert_allclose(msc.estimate.covariance, expected, rtol=1e-7, atol=1e-9)
 
 
 def test_msc_update_matches_the_cartesian_ekf_to_first_order() -> None:

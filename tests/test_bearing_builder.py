@@ -5,6 +5,9 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from paper_reference import floats, nonzero_vectors
 from scipy.spatial.transform import Rotation
 
 from companion.assembly import build_sensor
@@ -50,15 +53,23 @@ def _angle(a: np.ndarray, b: np.ndarray) -> float:
 TARGET = _position(STAMP) + np.array([8.0, 0.0, 0.0])  # 8 m north of where the pursuer was at the stamp
 
 
-@pytest.mark.parametrize("model", ["additive", "rotation"])
-def test_noise_free_bearing_is_the_line_of_sight_at_the_fix_stamp(model):
-    result = _builder(model=model, noise_std=0.0).build(TARGET, STAMP)
+@settings(max_examples=60, deadline=None)
+@given(st.sampled_from(["additive", "rotation"]), floats(1.05, NEWEST + 0.1), nonzero_vectors(50.0, min_norm=1.0))
+def test_noise_free_bearing_is_the_line_of_sight_at_any_fix_stamp(model, stamp, offset):
+    """Any stamp inside the kept second of history (or up to the 0.1 s extrapolation), any target
+    at least 1 m away: the bearing is the line of sight from where the pursuer was at that stamp."""
+    target = _position(stamp) + offset
+    result = _builder(model=model, noise_std=0.0).build(target, stamp)
     assert result.reason is None
-    true_los = (TARGET - _position(STAMP)) / np.linalg.norm(TARGET - _position(STAMP))
-    np.testing.assert_allclose(result.bearing.direction, true_los, atol=1e-12)
-    np.testing.assert_allclose(result.true_line_of_sight, true_los, atol=1e-12)
-    np.testing.assert_allclose(result.bearing.pursuer_position, _position(STAMP), atol=1e-12)
-    assert result.bearing.time == STAMP
+    true_los = offset / np.linalg.norm(offset)
+    np.testing.assert_allclose(result.bearing.direction, true_los, atol=1e-9)
+    np.testing.assert_allclose(result.true_line_of_sight, true_los, atol=1e-9)
+    np.testing.assert_allclose(result.bearing.pursuer_position, _position(stamp), atol=1e-9)
+    assert result.bearing.time == stamp
+
+
+def test_the_bearing_is_not_taken_from_the_latest_odometry():
+    result = _builder(model="additive", noise_std=0.0).build(TARGET, STAMP)
     # Using the latest odometry instead (1.95 m further east) would be off by ~14 deg.
     stale = (TARGET - _position(NEWEST)) / np.linalg.norm(TARGET - _position(NEWEST))
     assert math.degrees(_angle(result.bearing.direction, stale)) == pytest.approx(math.degrees(math.atan2(SPEED * (NEWEST - STAMP), 8.0)), abs=1e-6)

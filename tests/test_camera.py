@@ -5,13 +5,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from paper_reference import floats, nonzero_vectors
 from scipy.spatial.transform import Rotation
 
 from companion.assembly import build_sensor
-from companion.core.bearing_sensor import BearingSensor, CameraModel, measure_bearing
-from interfaces.scenario import ConfigError, SensorConfig, load_scenario
+from companion.core.bearing_sensor import CameraModel, measure_bearing
+from interfaces.scenario import SCENARIOS_DIR, VEHICLES_DIR, ConfigError, SensorConfig, load_scenario
 from studies.closed_loop import Termination, simulate
-from tests.conftest import SCENARIOS
 
 CAMERA = CameraModel()
 LEVEL = np.eye(3)
@@ -22,8 +24,22 @@ def _angle(a: np.ndarray, b: np.ndarray) -> float:
     return math.atan2(np.linalg.norm(np.cross(a, b)), float(a @ b))
 
 
-def _random_attitudes(rng: np.random.Generator, count: int) -> list[np.ndarray]:
-    return list(Rotation.random(count, random_state=rng).as_matrix())
+# Any attitude: a scipy rotation from a non-degenerate quaternion.
+attitudes = st.tuples(nonzero_vectors(1.0, min_norm=0.1), floats(-1.0, 1.0)).map(
+    lambda drawn: Rotation.from_quat([*drawn[0], drawn[1]]).as_matrix()
+)
+# A continuous image point anywhere on the 1024 x 1024 sensor (pixel centres at integers), not within
+# 1e-6 px of a cell border, where rounding the re-projected point may go either way.
+image_points = st.tuples(floats(-0.5, 1023.5), floats(-0.5, 1023.5)).filter(
+    lambda point: all(min((c + 0.5) % 1.0, 1.0 - (c + 0.5) % 1.0) > 1e-6 for c in point)
+)
+
+
+def _pinhole_direction(point: tuple[float, float], rotation: np.ndarray) -> np.ndarray:
+    """The NED unit ray through a continuous image point of the Table I pin-hole camera, written out:
+    camera = FRD body (identity mount), x_c = [1, (u - u0) rho_w / f, (v - v0) rho_h / f]."""
+    ray = np.array([1.0, (point[0] - 512.0) * 1e-5 / 0.008, (point[1] - 512.0) * 1e-5 / 0.008])
+    return rotation @ (ray / np.linalg.norm(ray))
 
 
 def _directions_through(camera: CameraModel, points: np.ndarray, rotation: np.ndarray) -> np.ndarray:
@@ -48,18 +64,20 @@ def test_forward_target_lands_on_the_principal_point_and_axes_follow_frd():
     assert CAMERA.project(np.array([1.0, -0.1, -0.1]), LEVEL) == (432, 432)
 
 
-def test_project_back_project_round_trip_within_half_a_pixel():
-    rng = np.random.default_rng(11)
-    for rotation in _random_attitudes(rng, 20):
-        points = rng.uniform(-0.5, 1023.5, size=(50, 2))
-        for true_bearing in _directions_through(CAMERA, points, rotation):
-            pixel = CAMERA.project(true_bearing, rotation)
-            assert pixel is not None
-            back = CAMERA.bearing(pixel, rotation)
-            assert np.linalg.norm(back) == pytest.approx(1.0)
-            assert _angle(back, true_bearing) <= HALF_PIXEL_DIAGONAL * (1 + 1e-9)
-            # The back-projected ray passes exactly through the pixel centre.
-            np.testing.assert_allclose(CAMERA.image_point(back, rotation), pixel, atol=1e-8)
+@settings(max_examples=200, deadline=None)
+@given(attitudes, image_points)
+def test_project_back_project_round_trip_within_half_a_pixel(rotation: np.ndarray, point: tuple[float, float]):
+    true_bearing = _pinhole_direction(point, rotation)
+    pixel = CAMERA.project(true_bearing, rotation)
+    # The pixel whose cell holds the point (rounding half up, as floor(c + 1/2)).
+    assert pixel == tuple(math.floor(c + 0.5) for c in point)
+    np.testing.assert_allclose(CAMERA.image_point(true_bearing, rotation), point, atol=1e-7)
+    back = CAMERA.bearing(pixel, rotation)
+    assert np.linalg.norm(back) == pytest.approx(1.0)
+    assert _angle(back, true_bearing) <= HALF_PIXEL_DIAGONAL * (1 + 1e-9)
+    # The back-projected ray is the pin-hole ray through the pixel centre.
+    np.testing.assert_allclose(back, _pinhole_direction(pixel, rotation), atol=1e-12)
+    np.testing.assert_allclose(CAMERA.image_point(back, rotation), pixel, atol=1e-8)
 
 
 def test_quantisation_error_is_uniform_over_a_pixel():
@@ -234,12 +252,12 @@ def test_sensor_config_defaults_and_mount():
     assert build_sensor(SensorConfig()).camera is None
 
 
-CAMERA_SCENARIO = (SCENARIOS / "constant_velocity_camera.toml").read_text()
+CAMERA_SCENARIO = (SCENARIOS_DIR / "constant_velocity_camera.toml").read_text()
 
 
 def _write(tmp_path: Path, text: str) -> Path:
     (tmp_path / "vehicles").mkdir(exist_ok=True)
-    (tmp_path / "vehicles" / "paper_table1.toml").write_text((SCENARIOS.parent / "vehicles" / "paper_table1.toml").read_text())
+    (tmp_path / "vehicles" / "paper_table1.toml").write_text((VEHICLES_DIR / "paper_table1.toml").read_text())
     (tmp_path / "scenarios").mkdir(exist_ok=True)
     path = tmp_path / "scenarios" / "case.toml"
     path.write_text(text)

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from interfaces.scenario import Scenario, load_scenario
+from interfaces.scenario import SCENARIOS_DIR, Scenario, load_scenario
 from studies.closed_loop import Termination, simulate
 from studies.metrics import convergence_text, median_finite, summarize, write_summary
 from studies.plots import MIN_VERTICAL_SHARE, vertical_exaggeration
@@ -24,7 +24,7 @@ def _with(scenario: Scenario, section: str, **changes) -> Scenario:
 
 @pytest.fixture(scope="module")
 def constant_velocity():
-    return load_scenario(__import__("tests.conftest").conftest.SCENARIOS / "constant_velocity.toml")
+    return load_scenario(SCENARIOS_DIR / "constant_velocity.toml")
 
 
 @pytest.fixture(scope="module")

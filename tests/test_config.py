@@ -8,16 +8,15 @@ from hypothesis import given
 from hypothesis import strategies as st
 from pydantic import ValidationError
 
-from interfaces.scenario import VEHICLES_DIR, ConfigError, Scenario, load_scenario, load_vehicle
-from tests.conftest import SCENARIOS
+from interfaces.scenario import SCENARIOS_DIR, VEHICLES_DIR, ConfigError, Scenario, load_scenario, load_vehicle
 
-VALID = (SCENARIOS / "constant_velocity.toml").read_text()
+VALID = (SCENARIOS_DIR / "constant_velocity.toml").read_text()
 
 
 def _write(tmp_path: Path, text: str) -> Path:
     vehicles = tmp_path / "vehicles"
     vehicles.mkdir(exist_ok=True)
-    (vehicles / "paper_table1.toml").write_text((SCENARIOS.parent / "vehicles" / "paper_table1.toml").read_text())
+    (vehicles / "paper_table1.toml").write_text((VEHICLES_DIR / "paper_table1.toml").read_text())
     scenarios = tmp_path / "scenarios"
     scenarios.mkdir(exist_ok=True)
     path = scenarios / "case.toml"
@@ -25,7 +24,7 @@ def _write(tmp_path: Path, text: str) -> Path:
     return path
 
 
-@pytest.mark.parametrize("path", sorted(SCENARIOS.glob("*.toml")), ids=lambda p: p.stem)
+@pytest.mark.parametrize("path", sorted(SCENARIOS_DIR.glob("*.toml")), ids=lambda p: p.stem)
 def test_every_shipped_scenario_loads(path):
     scenario, vehicle = load_scenario(path)
     assert scenario.name == path.stem
@@ -146,7 +145,7 @@ def test_every_shipped_vehicle_loads(path):
     assert vehicle.mass > 0 and len(vehicle.inertia) == 3
 
 
-@pytest.mark.parametrize("path", sorted(SCENARIOS.glob("*.toml")), ids=lambda p: p.stem)
+@pytest.mark.parametrize("path", sorted(SCENARIOS_DIR.glob("*.toml")), ids=lambda p: p.stem)
 def test_every_shipped_scenario_keeps_its_arrays(path):
     """Each TOML array of the file arrives as a tuple with the same numbers (the container is the
     only thing converted)."""
@@ -165,7 +164,7 @@ def test_table1_defaults_come_from_the_vehicle_file():
     from interfaces.scenario import PAPER_TABLE1, VehicleConfig, table1_vehicle
     from sitl_plant.vehicle.params import quadrotor_params, table1_params
 
-    assert PAPER_TABLE1 == SCENARIOS.parent / "vehicles" / "paper_table1.toml"
+    assert PAPER_TABLE1 == SCENARIOS_DIR.parent / "vehicles" / "paper_table1.toml"
     table1 = table1_vehicle()
     assert VehicleConfig().model_dump(exclude={"name"}) == table1.model_dump(exclude={"name"})
     assert table1_params() == quadrotor_params(table1)
@@ -187,7 +186,7 @@ def test_no_copy_of_table1_in_the_code():
                    table1.motor_time_constant, table1.drag_coefficient}
     copies = []
     for package in ("interfaces", "companion", "sitl_plant", "studies"):
-        for source in sorted((SCENARIOS.parent.parent / package).rglob("*.py")):
+        for source in sorted((SCENARIOS_DIR.parent.parent / package).rglob("*.py")):
             for token in tokenize.generate_tokens(io.StringIO(source.read_text()).readline):
                 if token.type == tokenize.NUMBER and ast.literal_eval(token.string) in distinctive:
                     copies.append(f"{source.name}:{token.start[0]}: {token.string}")

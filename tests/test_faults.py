@@ -11,14 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from interfaces.scenario import CORRUPT_KINDS, ConfigError, FaultsConfig, load_scenario
+from interfaces.scenario import CORRUPT_KINDS, SCENARIOS_DIR, VEHICLES_DIR, ConfigError, FaultsConfig, load_scenario
 from interfaces.link_schema import ClockTick, PayloadError, TargetFix, decode_target_fix, encode_clock, encode_target_fix, fix_to_ned
 from interfaces.geodesy import ned_to_geodetic
 from sitl_plant.target.link_faults import CORRUPTION_REASONS, LinkFaults, corrupt_payload, fault_rng, override_faults
 from studies.processes import ChildProcess
 from sitl_plant.target.publisher import FaultLog, FixSchedule, TargetLog, TargetPublisher, TargetTruth
-from tests.conftest import SCENARIOS
-from tests.test_target_sim import ClockAndFixes
 
 RATE = 5.0  # Hz, the flight experiment's fix rate
 HOME = (47.397742, 8.545594, 488.0)
@@ -298,16 +296,16 @@ def test_restart_discards_what_is_in_flight():
 # --- configuration --------------------------------------------------------------------
 
 def test_dropout_scenario_has_a_5_s_blackout_at_30_s():
-    scenario, _ = load_scenario(SCENARIOS / "constant_velocity_dropout.toml")
+    scenario, _ = load_scenario(SCENARIOS_DIR / "constant_velocity_dropout.toml")
     assert [(w.start, w.duration) for w in scenario.faults.blackouts] == [(30.0, 5.0)]
     assert scenario.faults.loss_probability == 0.0 and scenario.faults.seed is None
-    assert load_scenario(SCENARIOS / "constant_velocity.toml")[0].faults == FaultsConfig()
+    assert load_scenario(SCENARIOS_DIR / "constant_velocity.toml")[0].faults == FaultsConfig()
 
 
 def _scenario_with(tmp_path: Path, faults_toml: str) -> Path:
-    text = (SCENARIOS / "constant_velocity.toml").read_text()
+    text = (SCENARIOS_DIR / "constant_velocity.toml").read_text()
     text = text.replace('vehicle = "../vehicles/paper_table1.toml"',
-                        f'vehicle = "{SCENARIOS.parent / "vehicles" / "paper_table1.toml"}"')
+                        f'vehicle = "{VEHICLES_DIR / "paper_table1.toml"}"')
     path = tmp_path / "case.toml"
     path.write_text(text + "\n[faults]\n" + faults_toml + "\n")
     return path
@@ -376,7 +374,7 @@ def test_sitl_target_refuses_a_bad_fault_override(capsys):
 # --- sitl-target ----------------------------------------------------------------------
 
 def test_target_publisher_applies_the_dropout_scenario_on_the_clock(tmp_path):
-    scenario, _ = load_scenario(SCENARIOS / "constant_velocity_dropout.toml")
+    scenario, _ = load_scenario(SCENARIOS_DIR / "constant_velocity_dropout.toml")
     sent: list[bytes] = []
     fault_log = FaultLog(tmp_path)
     target = TargetPublisher(TargetTruth(scenario.target), FixSchedule(RATE), sent.append, TargetLog(None, "ned"),
@@ -393,11 +391,11 @@ def test_target_publisher_applies_the_dropout_scenario_on_the_clock(tmp_path):
     assert lines[1]["dropped"] == 25 and (lines[1]["window_start"], lines[1]["window_end"]) == (30.0, 35.0)
 
 
-def test_target_process_with_a_blackout_loss_and_an_impostor_end_to_end(tmp_path):
-    link = ClockAndFixes("target-1")
+def test_target_process_with_a_blackout_loss_and_an_impostor_end_to_end(tmp_path, clock_and_fixes):
+    link = clock_and_fixes("target-1")
     child = None
     try:
-        command = [sys.executable, "-m", "sitl_plant.target.publisher", "--config", str(SCENARIOS / "constant_velocity.toml"),
+        command = [sys.executable, "-m", "sitl_plant.target.publisher", "--config", str(SCENARIOS_DIR / "constant_velocity.toml"),
                    "--zenoh-connect", link.endpoint, "--frame", "ned", "--log-dir", str(tmp_path / "logs"),
                    "--fault", "blackouts=[{start=6,duration=2}]", "--fault", "loss_probability=0.2",
                    "--fault", "impostor_rate_hz=1", "--fault", "seed=3"]

@@ -5,8 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from paper_reference import floats, helical_navigation, r_eta, range_control, unit_vectors, vectors
 
-from companion.core.geometry import orthogonal_projection, rotation_from_x_axis_to, unit
+from companion.core.geometry import E_X, orthogonal_projection, unit
 from companion.core.guidance import (
     HelicalNavigationGuidance,
     PurePursuitGuidance,
@@ -18,64 +21,84 @@ from companion.core.guidance import (
 
 N_GAIN = 1.0  # section IX: N = 1, c_Z = c_Y = 3.5
 C_WEAVE = 3.5
+PROPERTY = settings(max_examples=100, deadline=None)
 
-
-def random_cases(count: int, seed: int) -> list[tuple[float, np.ndarray, np.ndarray, float]]:
-    """(t, v, lambda, r) with lambda unit."""
-    rng = np.random.default_rng(seed)
-    return [
-        (float(rng.uniform(0.0, 60.0)), rng.normal(0.0, 4.0, 3), unit(rng.normal(size=3)), float(rng.uniform(0.5, 80.0)))
-        for _ in range(count)
-    ]
-
-
-CASES = random_cases(30, seed=14)
+# (t, v, lambda, r): engaged time s, pursuer velocity m/s, unit line of sight, range estimate m.
+cases = st.tuples(floats(0.0, 60.0), vectors(12.0), unit_vectors(), floats(0.5, 80.0))
+# lambda kept off +-e_X, where R_eta's axis e_X x lambda (and the scipy reference) is undefined.
+cases_off_x = cases.filter(lambda case: np.linalg.norm(np.cross(E_X, case[2])) > 1e-3)
 
 
 # --------------------------------------------------------------------------- PPG and HNG
 
 
-@pytest.mark.parametrize(("t", "v", "los", "r"), CASES)
-def test_ppg_is_minus_n_times_the_velocity_across_the_los(t: float, v: np.ndarray, los: np.ndarray, r: float) -> None:
-    ppg = PurePursuitGuidance(navigation_gain=1.7)
-    np.testing.assert_allclose(ppg.acceleration(t, v, los, r), -1.7 * orthogonal_projection(los) @ v, atol=1e-12)
+@PROPERTY
+@given(cases, floats(0.1, 5.0))
+def test_ppg_is_minus_n_times_the_velocity_across_the_los(case, gain: float) -> None:
+    """Section VIII-C1: a = N (v x lambda) x lambda = -N P_lambda v."""
+    t, v, los, r = case
+    ppg = PurePursuitGuidance(navigation_gain=gain)
+    expected = gain * np.cross(np.cross(v, los), los)
+    np.testing.assert_allclose(ppg.acceleration(t, v, los, r), expected, atol=1e-12 * max(1.0, gain * np.linalg.norm(v)))
+    np.testing.assert_allclose(expected, -gain * (v - (v @ los) * los), atol=1e-12 * max(1.0, gain * np.linalg.norm(v)))
+    np.testing.assert_allclose(ppg.acceleration(t, v, los, r), -gain * orthogonal_projection(los) @ v, atol=1e-11)
 
 
-@pytest.mark.parametrize(("t", "v", "los", "r"), CASES)
-def test_hng_without_weave_is_exactly_ppg(t: float, v: np.ndarray, los: np.ndarray, r: float) -> None:
+@PROPERTY
+@given(cases)
+def test_hng_without_weave_is_exactly_ppg(case) -> None:
+    t, v, los, r = case
+    """Property 3 of section VI-A: c_Z = c_Y = 0 is pure PPG, a = N (v x lambda) x lambda."""
     hng = HelicalNavigationGuidance(navigation_gain=1.7, c_z=0.0, c_y=0.0, weave_frequency=1.3)
-    ppg = PurePursuitGuidance(navigation_gain=1.7)
     np.testing.assert_allclose(hng.virtual_los(t, los, r), los, atol=1e-14)
-    np.testing.assert_allclose(hng.acceleration(t, v, los, r), ppg.acceleration(t, v, los, r), atol=1e-12)
+    np.testing.assert_allclose(hng.acceleration(t, v, los, r), 1.7 * np.cross(np.cross(v, los), los),
+                               atol=1e-12 * max(1.0, np.linalg.norm(v)))
 
 
-@pytest.mark.parametrize(("t", "v", "los", "r"), CASES)
-def test_hng_is_perpendicular_to_the_los(t: float, v: np.ndarray, los: np.ndarray, r: float) -> None:
+@PROPERTY
+@given(cases)
+def test_hng_is_perpendicular_to_the_los(case) -> None:
     """a_HN = N (v x lambda_v) x lambda is always perpendicular to lambda, so it never fights a_RC."""
+    t, v, los, r = case
     hng = HelicalNavigationGuidance(N_GAIN, C_WEAVE, 2.0 * C_WEAVE)
     for range_estimate in (r, 0.2, 1e-6):  # also where the weave angles are large
         acceleration = hng.acceleration(t, v, los, range_estimate)
         assert acceleration @ los == pytest.approx(0.0, abs=1e-12 * max(1.0, np.linalg.norm(acceleration)))
 
 
-@pytest.mark.parametrize(("t", "v", "los", "r"), CASES)
-def test_hng_accepts_a_non_unit_los(t: float, v: np.ndarray, los: np.ndarray, r: float) -> None:
+@PROPERTY
+@given(cases, floats(1e-3, 1e3))
+def test_hng_accepts_a_non_unit_los(case, scale: float) -> None:
+    t, v, los, r = case
     hng = HelicalNavigationGuidance(N_GAIN, C_WEAVE, C_WEAVE)
-    np.testing.assert_allclose(hng.acceleration(t, v, 3.0 * los, r), hng.acceleration(t, v, los, r), atol=1e-12)
+    np.testing.assert_allclose(hng.acceleration(t, v, scale * los, r), hng.acceleration(t, v, los, r),
+                               atol=1e-12 * max(1.0, np.linalg.norm(v)))
 
 
-@pytest.mark.parametrize(("t", "v", "los", "r"), CASES)
-def test_virtual_los_is_lambda_rotated_by_the_weave_angles(t: float, v: np.ndarray, los: np.ndarray, r: float) -> None:
+@PROPERTY
+@given(cases_off_x, floats(0.1, 5.0), floats(0.0, 10.0), floats(0.0, 10.0), floats(0.1, 3.0))
+def test_hng_is_eq_14(case, gain: float, c_z: float, c_y: float, omega: float) -> None:
+    """The module against eq. (14) written out with scipy's rotations (tests/paper_reference.py)."""
+    t, v, los, r = case
+    hng = HelicalNavigationGuidance(gain, c_z, c_y, weave_frequency=omega)
+    expected = helical_navigation(t, v, los, r, gain, c_z, c_y, omega)
+    np.testing.assert_allclose(hng.acceleration(t, v, los, r), expected, atol=1e-9 * max(1.0, gain * np.linalg.norm(v)))
+
+
+@PROPERTY
+@given(cases_off_x)
+def test_virtual_los_is_lambda_rotated_by_the_weave_angles(case) -> None:
     """R_eta R_Z(alpha) R_Y(beta) e_X with alpha = c_Z sin(w t)/r, beta = c_Y cos(w t)/r:
     in the frame where lambda is e_X it is (cos a cos b, sin a cos b, -sin b), so its angle
     from lambda is acos(cos a cos b) ~ sqrt(a^2 + b^2)."""
+    t, v, los, r = case
     omega, c_z, c_y = 0.8, 2.0, 3.0
     hng = HelicalNavigationGuidance(N_GAIN, c_z, c_y, weave_frequency=omega)
     alpha = c_z * np.sin(omega * t) / r
     beta = c_y * np.cos(omega * t) / r
     virtual = hng.virtual_los(t, los, r)
     assert np.linalg.norm(virtual) == pytest.approx(1.0, abs=1e-12)
-    in_los_frame = rotation_from_x_axis_to(los).T @ virtual
+    in_los_frame = r_eta(los).inv().apply(virtual)  # scipy's R_eta, not the module's
     expected = np.array([np.cos(alpha) * np.cos(beta), np.sin(alpha) * np.cos(beta), -np.sin(beta)])
     np.testing.assert_allclose(in_los_frame, expected, atol=1e-12)
     angle = np.arccos(np.clip(virtual @ los, -1.0, 1.0))
@@ -93,20 +116,27 @@ def test_weave_is_larger_at_short_range() -> None:
     assert angles[0] < 0.03
 
 
-@pytest.mark.parametrize("omega", [0.5, 1.0, 2.5])
-def test_weave_frequency_sets_the_period(omega: float) -> None:
+@PROPERTY
+@given(cases_off_x, floats(0.2, 3.0))
+def test_weave_frequency_sets_the_period(case, omega: float) -> None:
+    t, v, los, r = case
     hng = HelicalNavigationGuidance(N_GAIN, C_WEAVE, 2.0, weave_frequency=omega)
     period = 2.0 * np.pi / omega
-    for t, v, los, r in CASES[:10]:
-        np.testing.assert_allclose(hng.virtual_los(t + period, los, r), hng.virtual_los(t, los, r), atol=1e-10)
-        np.testing.assert_allclose(hng.acceleration(t + 3 * period, v, los, r), hng.acceleration(t, v, los, r), atol=1e-9)
-        # Half a period flips the weave angles: alpha, beta -> -alpha, -beta.
-        half = rotation_from_x_axis_to(los).T @ hng.virtual_los(t + period / 2.0, los, r)
-        now = rotation_from_x_axis_to(los).T @ hng.virtual_los(t, los, r)
-        np.testing.assert_allclose(half, [now[0], -now[1], -now[2]], atol=1e-10)
-    # With another frequency, that time shift is not a period.
+    np.testing.assert_allclose(hng.virtual_los(t + period, los, r), hng.virtual_los(t, los, r), atol=1e-10)
+    np.testing.assert_allclose(hng.acceleration(t + 3 * period, v, los, r), hng.acceleration(t, v, los, r),
+                               atol=1e-9 * max(1.0, np.linalg.norm(v)))
+    # Half a period flips the weave angles: alpha, beta -> -alpha, -beta (in the frame where lambda is e_X).
+    to_los_frame = r_eta(los).inv()
+    half = to_los_frame.apply(hng.virtual_los(t + period / 2.0, los, r))
+    now = to_los_frame.apply(hng.virtual_los(t, los, r))
+    np.testing.assert_allclose(half, [now[0], -now[1], -now[2]], atol=1e-9)
+
+
+def test_another_weave_frequency_has_another_period() -> None:
+    omega = 1.0
+    period = 2.0 * np.pi / omega
     other = HelicalNavigationGuidance(N_GAIN, C_WEAVE, 2.0, weave_frequency=1.7 * omega)
-    t, _, los, r = CASES[0]
+    t, los, r = 4.0, unit(np.array([0.3, -1.0, 0.2])), 10.0
     assert np.linalg.norm(other.virtual_los(t + period, los, r) - other.virtual_los(t, los, r)) > 1e-3
 
 
@@ -117,16 +147,19 @@ def test_default_weave_frequency_is_the_papers_sin_t() -> None:
     np.testing.assert_allclose(hng.virtual_los(1.0, los, 8.0), hng.virtual_los(1.0 + 2.0 * np.pi, los, 8.0), atol=1e-12)
 
 
-def test_scale_with_range_false_ignores_the_range() -> None:
+@PROPERTY
+@given(cases)
+def test_scale_with_range_false_ignores_the_range(case) -> None:
     """Property 2 of section VI-A: removing the division by r_hat is r_hat = 1."""
+    t, v, los, _ = case
     unscaled = HelicalNavigationGuidance(N_GAIN, 0.3, 0.2, scale_with_range=False)
     scaled = HelicalNavigationGuidance(N_GAIN, 0.3, 0.2, scale_with_range=True)
-    for t, v, los, _ in CASES[:10]:
-        reference = unscaled.acceleration(t, v, los, 1.0)
-        for r in (0.01, 3.0, 50.0, 1e4):
-            np.testing.assert_array_equal(unscaled.acceleration(t, v, los, r), reference)
-        np.testing.assert_allclose(scaled.acceleration(t, v, los, 1.0), reference, atol=1e-12)
-        assert np.linalg.norm(scaled.acceleration(t, v, los, 10.0) - reference) > 1e-6
+    reference = unscaled.acceleration(t, v, los, 1.0)
+    for r in (0.01, 3.0, 50.0, 1e4):
+        np.testing.assert_array_equal(unscaled.acceleration(t, v, los, r), reference)
+    np.testing.assert_allclose(scaled.acceleration(t, v, los, 1.0), reference, atol=1e-12 * max(1.0, np.linalg.norm(v)))
+    # alpha = 0.3 sin(t)/r and beta = 0.2 cos(t)/r are never both zero: the range changes the weave.
+    assert np.linalg.norm(scaled.virtual_los(t, los, 10.0) - unscaled.virtual_los(t, los, 10.0)) > 1e-3
 
 
 # --------------------------------------------------------------------------- sigma
@@ -148,12 +181,14 @@ def test_saturation_is_odd_bounded_and_zero_at_zero() -> None:
     assert all(a < b for a, b in zip(values, values[1:]))
 
 
-@pytest.mark.parametrize("x", [-40.0, -3.0, -0.7, 0.0, 0.2, 1.0, 3.0, 9.0, 100.0])
+@PROPERTY
+@given(floats(-100.0, 100.0))
 def test_saturation_slope_matches_finite_difference(x: float) -> None:
     h = 1e-5
     numeric = (saturation(x + h) - saturation(x - h)) / (2.0 * h)
     assert saturation_slope(x) == pytest.approx(numeric, rel=1e-7, abs=1e-10)
     assert 0.0 < saturation_slope(x) <= 1.0
+    assert saturation(x) == pytest.approx(3.0 * np.arctan(x / 3.0), rel=1e-15, abs=1e-300)  # section VI-B
 
 
 # --------------------------------------------------------------------------- range controller, algebra
@@ -167,19 +202,21 @@ def test_error_state_is_eq_15_16() -> None:
     assert error.range_rate == pytest.approx(dp @ dv / 7.0)
 
 
-@pytest.mark.parametrize("seed", range(8))
-def test_virtual_control_makes_the_lyapunov_function_decrease(seed: int) -> None:
+@PROPERTY
+@given(floats(0.5, 5.0), floats(-40.0, 40.0), floats(-40.0, 40.0))
+def test_virtual_control_makes_the_lyapunov_function_decrease(gain: float, xi1: float, xi2: float) -> None:
     """V = int_0^xi1 sigma + (sigma(xi1) + xi2)^2 / 2 with xi1' = xi2, xi2' = v* gives
     V' = sigma xi2 + (sigma + xi2)(sigma' xi2 + v*) = -sigma^2 - k (sigma + xi2)^2."""
-    rng = np.random.default_rng(seed)
-    controller = RangeController(desired_range=8.0, gain=float(rng.uniform(0.5, 5.0)))
-    for _ in range(20):
-        xi1, xi2 = rng.normal(0.0, 10.0, 2)
-        v_star = controller.virtual_control(RangeErrorState(xi1, xi2))
-        sigma, slope = saturation(xi1), saturation_slope(xi1)
-        v_dot = sigma * xi2 + (sigma + xi2) * (slope * xi2 + v_star)
-        assert v_dot == pytest.approx(-(sigma**2) - controller.gain * (sigma + xi2) ** 2, rel=1e-10, abs=1e-10)
-        assert v_dot < 0.0
+    controller = RangeController(desired_range=8.0, gain=gain)
+    v_star = controller.virtual_control(RangeErrorState(xi1, xi2))
+    sigma = 3.0 * np.arctan(xi1 / 3.0)
+    slope = 1.0 / (1.0 + (xi1 / 3.0) ** 2)
+    assert v_star == pytest.approx(-gain * (sigma + xi2) - sigma - slope * xi2, rel=1e-12, abs=1e-12)  # eq. (17)
+    v_dot = sigma * xi2 + (sigma + xi2) * (slope * xi2 + v_star)
+    expected = -(sigma**2) - gain * (sigma + xi2) ** 2
+    assert v_dot == pytest.approx(expected, rel=1e-9, abs=1e-9)
+    if abs(xi1) > 1e-6 or abs(xi2) > 1e-6:
+        assert expected < 0.0
 
 
 def test_virtual_control_near_zero_is_a_damped_linear_loop() -> None:
@@ -195,37 +232,37 @@ def relative_motion(dp0: np.ndarray, dv0: np.ndarray, pursuer_acceleration: np.n
     return dp0 + dv0 * t - 0.5 * pursuer_acceleration * t**2, dv0 - pursuer_acceleration * t
 
 
-@pytest.mark.parametrize("seed", range(10))
-@pytest.mark.parametrize("lateral", ["hng", "random", "zero"])
-def test_range_control_closes_the_loop_xi2_dot_equals_v_star(seed: int, lateral: str) -> None:
+@PROPERTY
+@given(vectors(30.0).filter(lambda dp: np.linalg.norm(dp) > 1.0), vectors(6.0), vectors(6.0), vectors(0.3),
+       st.sampled_from(["hng", "random", "zero"]), vectors(6.0))
+def test_range_control_closes_the_loop_xi2_dot_equals_v_star(dp0, dv0, velocity, bearing_error, lateral: str, random_lateral) -> None:
     """Substituting (18)-(19) into xi2' = (|dv|^2 - xi2^2 - dp^T a)/|dp| gives xi2' = v*
     exactly, for any lateral term and any lambda with lambda^T dp > 0 (eq. 17-19)."""
-    rng = np.random.default_rng(seed)
     controller = RangeController(desired_range=8.0, gain=3.0)
-    dp0 = rng.normal(0.0, 15.0, 3)
-    dv0 = rng.normal(0.0, 3.0, 3)
-    velocity = rng.normal(0.0, 3.0, 3)
-    # A line of sight that disagrees with the estimate (noisy bearing), still in front.
-    los = unit(unit(dp0) + rng.normal(0.0, 0.2, 3))
+    # A line of sight that disagrees with the estimate (noisy bearing), still well in front.
+    los = unit(unit(dp0) + bearing_error)
     assert los @ dp0 > 0.0
     if lateral == "hng":
         a_lateral = HelicalNavigationGuidance(N_GAIN, C_WEAVE, C_WEAVE).acceleration(2.0, velocity, los, np.linalg.norm(dp0))
     elif lateral == "random":
-        a_lateral = rng.normal(0.0, 3.0, 3)
+        a_lateral = random_lateral
     else:
         a_lateral = np.zeros(3)
     a_rc = controller.acceleration(dp0, dv0, los, a_lateral)
     np.testing.assert_allclose(np.cross(a_rc, los), np.zeros(3), atol=1e-12 * max(1.0, np.linalg.norm(a_rc)))
+    # eq. (15)-(19) written out independently.
+    np.testing.assert_allclose(a_rc, range_control(dp0, dv0, los, a_lateral, 8.0, 3.0), rtol=1e-9, atol=1e-9)
     acceleration = a_lateral + a_rc
 
-    h = 1e-4
+    # Central differences in time: truncation ~h^2 |d3 xi/dt3|, round-off ~1e-16 |xi| / h, both below 1e-6 here.
+    h = 1e-5
     before = controller.error_state(*relative_motion(dp0, dv0, acceleration, -h))
     now = controller.error_state(dp0, dv0)
     after = controller.error_state(*relative_motion(dp0, dv0, acceleration, h))
     xi2_dot = (after.range_rate - before.range_rate) / (2.0 * h)
     xi1_dot = (after.range_error - before.range_error) / (2.0 * h)
-    assert xi1_dot == pytest.approx(now.range_rate, rel=1e-6, abs=1e-8)  # eq. (16)
-    assert xi2_dot == pytest.approx(controller.virtual_control(now), rel=1e-6, abs=1e-7)
+    assert xi1_dot == pytest.approx(now.range_rate, rel=1e-6, abs=1e-6)  # eq. (16)
+    assert xi2_dot == pytest.approx(controller.virtual_control(now), rel=1e-6, abs=1e-6)
 
 
 def test_no_longitudinal_command_when_the_los_disagrees_by_90_degrees_or_more() -> None:

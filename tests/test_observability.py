@@ -5,6 +5,9 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from paper_reference import floats, unit_vectors
 
 from companion.core.observability import (
     Plane,
@@ -27,26 +30,28 @@ def _unit_rows(array):
     return array / np.linalg.norm(array, axis=1, keepdims=True)
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2, 3])
-def test_explicit_forms_match_direct_computation(seed):
-    rng = np.random.default_rng(seed)
-    n = int(rng.integers(2, 15))
-    bearings = random_placement(n, rng)
-    ranges = rng.uniform(0.5, 30.0, n)
-    sigma = rng.uniform(0.01, 0.2)
+@settings(max_examples=100, deadline=None)
+@given(st.lists(st.tuples(unit_vectors(), floats(0.5, 30.0)), min_size=2, max_size=14), floats(0.01, 0.2), floats(1.0, 20.0))
+def test_explicit_forms_match_direct_computation(observations, sigma, r_d):
+    bearings = np.array([bearing for bearing, _ in observations])
+    ranges = np.array([distance for _, distance in observations])
+    n = len(bearings)
     information = fisher_information(bearings, ranges, sigma)
+    # eq. (7): I_n = sum_i P_lambda_i / (sigma^2 r_i^2)
     expected = sum((np.eye(3) - np.outer(b, b)) / (sigma**2 * r**2) for b, r in zip(bearings, ranges))
-    np.testing.assert_allclose(information, expected, rtol=1e-12)
+    np.testing.assert_allclose(information, expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
+    # eq. (9): G = sum_i lambda_i lambda_i^T / (sigma^2 r_i^2)
+    g_expected = sum(np.outer(b, b) / (sigma**2 * r**2) for b, r in zip(bearings, ranges))
+    np.testing.assert_allclose(g_matrix(bearings, ranges, sigma), g_expected, rtol=1e-12, atol=1e-12 * np.abs(g_expected).max())
     # eq. (8) with unequal ranges against the definition of J via the eigenvalues
     eigenvalues = np.linalg.eigvalsh(information)
     spread_eigen = float(np.sum((eigenvalues - eigenvalues.mean()) ** 2))
-    assert eigenvalue_spread(information) == pytest.approx(spread_eigen, rel=1e-9)
     scale = eigenvalues.max() ** 2
+    assert eigenvalue_spread(information) == pytest.approx(spread_eigen, rel=1e-9, abs=1e-12 * scale)
     assert spread_from_g(bearings, ranges, sigma) == pytest.approx(spread_eigen, rel=1e-9, abs=1e-9 * scale)
-    assert fim_determinant(bearings, ranges, sigma) == pytest.approx(np.prod(eigenvalues), rel=1e-9)
-    # eq. (10) with equal ranges against eq. (9)
-    r_d = rng.uniform(1.0, 20.0)
-    g = g_matrix(bearings, np.full(n, r_d), sigma)
+    assert fim_determinant(bearings, ranges, sigma) == pytest.approx(np.prod(eigenvalues), rel=1e-9, abs=1e-9 * eigenvalues.max() ** 3)
+    # eq. (10) with equal ranges against eq. (9) written out
+    g = sum(np.outer(b, b) for b in bearings) / (sigma**2 * r_d**2)
     assert g_norm_squared_equal_range(bearings, sigma, r_d) == pytest.approx(float(np.sum(g**2)), rel=1e-12)
 
 

@@ -7,10 +7,11 @@ import math
 
 import numpy as np
 import pytest
+from paper_reference import helical_navigation, range_control
 
-from companion.core.attitude import VehicleLimits, limit_specific_force
+from companion.core.attitude import VehicleLimits
 from companion.core.estimators import UPLKF, GainProjection, InitialGuess
-from companion.core.geometry import unit
+from companion.core.geometry import E_Z, unit
 from companion.core.guidance import HelicalNavigationGuidance, RangeController
 from companion.core.messages import BearingMeasurement, PursuerState
 from companion.core.pipeline import FollowingPipeline
@@ -21,6 +22,7 @@ STEP = 0.01  # the caller steps at 100 Hz
 ENGAGE_TIME = 3.0
 GUESS = InitialGuess(range=15.0, range_std=10.0, velocity=np.zeros(3), velocity_std=2.0)
 LIMITS = VehicleLimits(hover_thrust_normalized=2.0 / 3.0)
+G = 9.81
 
 TARGET_START = np.array([20.0, 5.0, -12.0])
 TARGET_VELOCITY = np.array([1.0, 0.5, 0.0])
@@ -206,29 +208,46 @@ def test_hng_clock_starts_at_engagement() -> None:
 
 
 def test_command_is_hng_plus_range_control_on_the_estimated_los() -> None:
-    hng = HelicalNavigationGuidance(1.0, 3.5, 3.5)
-    pipeline = make_pipeline(lateral=hng)
-    controller = pipeline.range_controller
+    """The terms against the paper, not against the guidance objects the pipeline holds:
+    a_HN of eq. (14) and a_RC of eq. (15)-(19) written out in tests/paper_reference.py, their
+    geometry (a_HN across the line of sight, a_RC along it), and eq. (13) a_d = a_HN + a_RC."""
+    n, c_weave, desired_range, gain = 1.0, 3.5, 8.0, 3.0
+    pipeline = make_pipeline(lateral=HelicalNavigationGuidance(n, c_weave, c_weave))
+    limited = 0
     for _, t, output in run_engaged(pipeline, 0.6):
         if not output.new_setpoint:
             continue
         pursuer = pursuer_at(t)
         estimate = output.estimate.extrapolated(t)
         dp = estimate.position - pursuer.position
-        los = unit(dp)
+        dv = estimate.velocity - pursuer.velocity
+        los = dp / np.linalg.norm(dp)
         terms = output.guidance
         # los_source="estimate": (p^_T - p)/|.| with the estimate carried to the control time.
         np.testing.assert_allclose(terms.los, los, atol=1e-12)
         assert terms.range_estimate == pytest.approx(np.linalg.norm(dp))
-        lateral = hng.acceleration(t - ENGAGE_TIME, pursuer.velocity, los, np.linalg.norm(dp))
-        np.testing.assert_allclose(terms.lateral, lateral, atol=1e-12)
-        np.testing.assert_allclose(
-            terms.longitudinal, controller.acceleration(dp, estimate.velocity - pursuer.velocity, los, lateral), atol=1e-12
-        )
-        # a_d = a_HN + a_RC, eq. (13), then the vehicle limits.
-        np.testing.assert_allclose(output.setpoint.acceleration, limit_specific_force(lateral + terms.longitudinal, LIMITS), atol=1e-12)
+        # HNG clock: time since engagement, the paper's sin(t) (w = 1 rad/s).
+        lateral = helical_navigation(t - ENGAGE_TIME, pursuer.velocity, los, np.linalg.norm(dp), n, c_weave, c_weave)
+        np.testing.assert_allclose(terms.lateral, lateral, atol=1e-9)
+        assert terms.lateral @ los == pytest.approx(0.0, abs=1e-12 * max(1.0, np.linalg.norm(terms.lateral)))
+        longitudinal = range_control(dp, dv, los, lateral, desired_range, gain)
+        np.testing.assert_allclose(terms.longitudinal, longitudinal, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(np.cross(terms.longitudinal, los), np.zeros(3), atol=1e-12 * max(1.0, np.linalg.norm(longitudinal)))
+        # a_d = a_HN + a_RC, eq. (13), flown as commanded when flyable, else clipped vertical first
+        # with the horizontal direction kept (the limits' own properties are in test_attitude.py).
+        command = lateral + longitudinal
+        wanted, flown = G * E_Z - command, G * E_Z - output.setpoint.acceleration
+        tilt_ok = np.linalg.norm(wanted[:2]) <= wanted[2] * np.tan(LIMITS.max_tilt)
+        if tilt_ok and LIMITS.min_vertical_specific_force <= wanted[2] and np.linalg.norm(wanted) <= LIMITS.max_specific_force:
+            np.testing.assert_allclose(flown, wanted, atol=1e-9)
+        else:
+            assert flown[2] == pytest.approx(np.clip(wanted[2], LIMITS.min_vertical_specific_force, LIMITS.max_specific_force))
+            assert flown[0] * wanted[1] - flown[1] * wanted[0] == pytest.approx(0.0, abs=1e-9) and flown[:2] @ wanted[:2] >= 0.0
+            assert np.linalg.norm(flown[:2]) <= flown[2] * np.tan(LIMITS.max_tilt) + 1e-9
+        limited += not np.allclose(flown, wanted, atol=1e-9)
         # The camera (body x) looks along the line of sight used.
         assert output.setpoint.rotation[:, 0] @ los > 0.0
+    assert 0 < limited  # the far start asks for more than the airframe gives: the limiting branch is exercised
 
 
 def test_measurement_los_source_steers_on_the_latest_bearing() -> None:

@@ -4,6 +4,9 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from paper_reference import floats, unit_vectors
 from scipy.spatial.transform import Rotation
 
 from companion.core.state_history import StateHistory
@@ -31,35 +34,50 @@ def _filled(times, max_age_s: float = 10.0, max_extrapolation: float = 0.1, velo
     return history
 
 
-def _irregular_times(rng: np.random.Generator, count: int = 100) -> np.ndarray:
-    return np.cumsum(rng.uniform(0.01, 0.04, count))  # 25-100 Hz with jitter, as odometry arrives
+PROPERTY = settings(max_examples=40, deadline=None)
+
+# Sample times as odometry arrives: 25-100 Hz with jitter, 2..100 samples.
+sample_times = st.lists(floats(0.01, 0.04), min_size=2, max_size=100).map(np.cumsum)
+# Query instants as fractions of the buffered span.
+query_fractions = st.lists(floats(0.0, 1.0), min_size=1, max_size=30)
 
 
-def test_linear_motion_is_interpolated_exactly():
-    rng = np.random.default_rng(21)
-    times = _irregular_times(rng)
+def _queries(times: np.ndarray, fractions: list[float]) -> np.ndarray:
+    return times[0] + np.asarray(fractions) * (times[-1] - times[0])
+
+
+@PROPERTY
+@given(sample_times, query_fractions)
+def test_linear_motion_is_interpolated_exactly(times: np.ndarray, fractions: list[float]):
     history = _filled(times)
-    for query in rng.uniform(times[0], times[-1], 200):
+    for query in _queries(times, fractions):
         position, velocity, _ = history.at(query)
         np.testing.assert_allclose(position, _position(query), atol=1e-10)
         np.testing.assert_allclose(velocity, VELOCITY_0, atol=1e-12)
 
 
-def test_linearly_changing_velocity_is_interpolated_exactly():
-    rng = np.random.default_rng(22)
-    times = _irregular_times(rng)
+@PROPERTY
+@given(sample_times, query_fractions)
+def test_linearly_changing_velocity_is_interpolated_exactly(times: np.ndarray, fractions: list[float]):
     history = _filled(times, velocity=lambda t: VELOCITY_0 + ACCELERATION * t)
-    for query in rng.uniform(times[0], times[-1], 100):
+    for query in _queries(times, fractions):
         np.testing.assert_allclose(history.at(query).velocity, VELOCITY_0 + ACCELERATION * query, atol=1e-10)
 
 
-def test_constant_rate_rotation_is_recovered_by_slerp():
-    rng = np.random.default_rng(23)
-    times = _irregular_times(rng)
-    history = _filled(times)
-    for query in rng.uniform(times[0], times[-1], 200):
+@PROPERTY
+@given(sample_times, query_fractions, unit_vectors(), floats(0.0, 3.0))
+def test_constant_rate_rotation_is_recovered_by_slerp(times: np.ndarray, fractions: list[float], axis: np.ndarray, rate: float):
+    """R(t) = R0 exp([omega]_x t) for any constant body rate up to 3 rad/s, sampled at >= 25 Hz
+    (under a half turn between samples, so the shortest arc is the true one); scipy is the reference."""
+    def attitude(time: float) -> Rotation:
+        return START_ATTITUDE * Rotation.from_rotvec(rate * axis * time)
+
+    history = StateHistory(10.0, 0.1)
+    for time in times:
+        assert history.append(time, _position(time), VELOCITY_0, attitude(time).as_matrix())
+    for query in _queries(times, fractions):
         rotation = history.at(query).rotation
-        np.testing.assert_allclose(rotation, _attitude(query).as_matrix(), atol=1e-9)
+        np.testing.assert_allclose(rotation, attitude(query).as_matrix(), atol=1e-9)
         np.testing.assert_allclose(rotation.T @ rotation, np.eye(3), atol=1e-12)
 
 

@@ -6,19 +6,15 @@ import csv
 import json
 import math
 import os
-import socket
 import sys
-import threading
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from interfaces.scenario import TargetConfig, load_scenario
-from interfaces.link_schema import CLOCK_KEY, ClockTick, TargetFix, decode_target_fix, encode_clock, fix_to_ned, target_fix_key
-from interfaces.zenoh_transport import open_session, publisher, zenoh_config
-from studies.processes import ChildProcess, free_port
+from interfaces.link_schema import ClockTick, decode_target_fix, encode_clock, fix_to_ned
+from studies.processes import ChildProcess
 from sitl_plant.target.models import Maneuver, TargetModel
 from sitl_plant.target.publisher import FixSchedule, TargetLog, TargetPublisher, TargetTruth
 
@@ -210,52 +206,16 @@ def _listening_addresses(pid: int) -> list[str]:
 LOOPBACK_V4 = "0100007F"  # 127.0.0.1 as /proc/net/tcp writes it
 
 
-class ClockAndFixes:
-    """The test's end of the link: a listening session that publishes the clock and collects fixes."""
-
-    def __init__(self, sender: str) -> None:
-        self.endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
-        self.session = open_session(zenoh_config(listen=[self.endpoint]))
-        self.clock = publisher(self.session, CLOCK_KEY)
-        self.fixes: list[TargetFix] = []
-        self._lock = threading.Lock()
-        self.session.declare_subscriber(target_fix_key(sender), self._on_fix)
-        self.seq = 0
-
-    def _on_fix(self, sample) -> None:
-        fix = decode_target_fix(sample.payload)
-        with self._lock:
-            self.fixes.append(fix)
-
-    def received(self) -> list[TargetFix]:
-        with self._lock:
-            return list(self.fixes)
-
-    def run_clock(self, until_sim: float, step: float, period: float, timeout: float, done=lambda: False) -> float:
-        """Tick simulated time by `step` every `period` wall seconds up to `until_sim`; returns the last stamp."""
-        stamp = self.seq * step
-        deadline = time.monotonic() + timeout
-        while stamp < until_sim - 1e-9 and time.monotonic() < deadline and not done():
-            self.seq += 1
-            stamp = self.seq * step
-            self.clock.put(encode_clock(ClockTick("plant", self.seq, stamp)))
-            time.sleep(period)
-        return stamp
-
-    def close(self) -> None:
-        self.session.close()
-
-
 def _csv_rows(path: Path) -> list[dict]:
     with path.open() as handle:
         return list(csv.DictReader(handle))
 
 
-def test_target_process_follows_the_clock_end_to_end(tmp_path, scenario_path):
+def test_target_process_follows_the_clock_end_to_end(tmp_path, scenario_path, clock_and_fixes):
     scenario = _scenario(tmp_path, scenario_path)
     home = load_scenario(scenario)[0].sitl.home
     rate, start_time = 20.0, 1.0
-    link = ClockAndFixes("target-1")
+    link = clock_and_fixes("target-1")
     child = None
     try:
         command = [sys.executable, "-m", "sitl_plant.target.publisher", "--config", str(scenario), "--zenoh-connect",
@@ -308,10 +268,10 @@ def test_target_process_follows_the_clock_end_to_end(tmp_path, scenario_path):
         assert np.linalg.norm(fix_to_ned(fix, home) - truth) < 1e-3
 
 
-def test_target_process_stops_at_its_duration_with_noisy_ned_fixes(tmp_path, scenario_path):
+def test_target_process_stops_at_its_duration_with_noisy_ned_fixes(tmp_path, scenario_path, clock_and_fixes):
     scenario = _scenario(tmp_path, scenario_path)
     rate, noise = 50.0, 0.5
-    link = ClockAndFixes("target-2")
+    link = clock_and_fixes("target-2")
     child = None
     try:
         command = [sys.executable, "-m", "sitl_plant.target.publisher", "--config", str(scenario), "--zenoh-connect",
