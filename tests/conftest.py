@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import socket
 import threading
 import time
@@ -9,11 +10,18 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
 
 from interfaces.link_schema import CLOCK_KEY, ClockTick, TargetFix, decode_target_fix, encode_clock, target_fix_key
 from interfaces.scenario import SCENARIOS_DIR
 from interfaces.zenoh_transport import open_session, publisher, zenoh_config
 from studies.processes import free_port
+
+# CI (CI=true, as .ci/run is started) runs every property test on hypothesis's fixed derandomised
+# examples, so a CI result can be reproduced exactly; a local run explores new examples each time.
+settings.register_profile("ci", derandomize=True, print_blob=True)
+if os.environ.get("CI", "").lower() in ("1", "true", "yes"):
+    settings.load_profile("ci")
 
 
 @pytest.fixture

@@ -94,11 +94,14 @@ def test_horizontal_speed_limit_keeps_the_feedforward_first(position_part, feedf
     velocity = limit_horizontal_speed(position_part, feedforward, max_speed)
     assert float(np.hypot(*velocity)) <= max_speed * (1 + 1e-9)
     if float(np.hypot(*feedforward)) <= max_speed:
-        # feedforward + s * position_part with s in [0, 1]
+        # feedforward + s * position_part with s in [0, 1]: the rest lies along the position part,
+        # points the same way and is no longer (to the rounding of the sum, relative to its terms)
         rest = velocity - feedforward
-        s = float(rest @ position_part) / max(float(position_part @ position_part), 1e-300)
-        assert -1e-9 <= s <= 1.0 + 1e-9
-        np.testing.assert_allclose(rest, s * position_part, atol=1e-9)
+        length = float(np.hypot(*position_part))
+        rounding = 1e-12 * (1.0 + float(np.hypot(*feedforward)) + length)
+        assert float(np.hypot(*rest)) <= length + rounding
+        assert float(rest @ position_part) >= -rounding * length
+        assert abs(float(rest[0] * position_part[1] - rest[1] * position_part[0])) <= rounding * length
 
 
 def fly_point_mass(controller: PositionController, setpoint: TrajectorySetpoint, true_hover: float,
