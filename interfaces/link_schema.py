@@ -100,7 +100,7 @@ import math
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Annotated, Any, Literal, Union, get_args
+from typing import Annotated, Any, Literal, Protocol, Union, get_args
 
 import numpy as np
 from pydantic import (BaseModel, BeforeValidator, ConfigDict, Discriminator, Field, Strict, Tag, TypeAdapter,
@@ -442,6 +442,14 @@ def _validate(adapter: TypeAdapter, document: Any, *, tagged: bool = False, cont
 
 # --- decoding ----------------------------------------------------------------------
 
+class _HasBytes(Protocol):
+    def to_bytes(self) -> bytes: ...
+
+
+#: What the decoders take: bytes, or anything with to_bytes() such as a zenoh.ZBytes sample payload.
+Payload = Union[bytes, bytearray, _HasBytes]
+
+
 def _parse(payload: Any) -> dict:
     if hasattr(payload, "to_bytes"):  # zenoh.ZBytes
         payload = payload.to_bytes()
@@ -463,25 +471,25 @@ def _parse(payload: Any) -> dict:
     return document
 
 
-def decode_target_fix(payload: "bytes | zenoh.ZBytes") -> TargetFix:
+def decode_target_fix(payload: Payload) -> TargetFix:
     """Parse and check a ``bof.target_fix/1`` payload; PayloadError (with .reason) if it is refused."""
     fix = _validate(_TARGET_FIX, _parse(payload), tagged=True)
     return TargetFix(fix.sender, fix.seq, fix.stamp, fix.frame, fix.position, fix.velocity)
 
 
-def decode_clock(payload: "bytes | zenoh.ZBytes") -> ClockTick:
+def decode_clock(payload: Payload) -> ClockTick:
     """Parse and check a ``bof.clock/1`` payload; PayloadError (with .reason) if it is refused."""
     tick = _validate(_CLOCK, _parse(payload))
     return ClockTick(tick.sender, tick.seq, tick.stamp)
 
 
-def decode_command(payload: "bytes | zenoh.ZBytes") -> Command:
+def decode_command(payload: Payload) -> Command:
     """Parse and check a ``bof.command/1`` payload; PayloadError (with .reason) if it is refused."""
     command = _validate(_COMMAND, _parse(payload))
     return Command(command.sender, command.seq, command.stamp, command.command, command.detail)
 
 
-def decode_state(payload: "bytes | zenoh.ZBytes") -> CompanionState:
+def decode_state(payload: Payload) -> CompanionState:
     """Parse and check a ``bof.companion_state/1`` payload; PayloadError (with .reason) if it is refused.
 
     Absent sections (track, observability, estimate) are None, as are null numbers.

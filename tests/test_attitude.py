@@ -10,6 +10,8 @@ from hypothesis import strategies as st
 from paper_reference import desired_attitude, floats, unit_vectors, vectors
 from scipy.spatial.transform import Rotation
 
+from companion.assembly import vehicle_limits
+from interfaces.scenario import table1_vehicle
 from companion.core.attitude import (
     VehicleLimits,
     attitude_setpoint,
@@ -20,7 +22,7 @@ from companion.core.attitude import (
 from companion.core.geometry import E_X, E_Y, E_Z, orthogonal_projection, unit
 
 G = 9.81
-LIMITS = VehicleLimits(hover_thrust_normalized=2.0 / 3.0)  # paper's vehicle: full thrust = 1.5 g
+LIMITS = vehicle_limits(table1_vehicle(), 2.0 / 3.0)  # paper's vehicle: full thrust = 1.5 g
 PROPERTY = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.filter_too_much])
 
 
@@ -269,7 +271,7 @@ def test_attitude_setpoint_obeys_eq_21_22_within_the_limits(command: tuple[np.nd
 
 def test_hover_setpoint_is_level_at_hover_thrust() -> None:
     for hover in (2.0 / 3.0, 0.5, 0.38):
-        limits = VehicleLimits(hover_thrust_normalized=hover, mass=2.3)
+        limits = VehicleLimits(hover_thrust_normalized=hover, max_tilt=LIMITS.max_tilt, gravity=LIMITS.gravity, mass=2.3)
         setpoint = attitude_setpoint(0.0, np.zeros(3), E_X, limits)
         assert setpoint.thrust_normalized == pytest.approx(hover, abs=1e-15)
         assert setpoint.thrust == pytest.approx(2.3 * 9.81, rel=1e-15)

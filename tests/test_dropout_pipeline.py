@@ -10,7 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from companion.core.attitude import VehicleLimits
+from companion.assembly import vehicle_limits
+from interfaces.scenario import table1_vehicle
 from companion.core.estimators import GainProjection, InitialGuess, UPLKF
 from companion.core.guidance import HelicalNavigationGuidance, RangeController
 from companion.core.messages import BearingMeasurement, PursuerState
@@ -22,7 +23,7 @@ DESIRED = 8.0
 def _pipeline(policy: DropoutPolicy | None = None) -> FollowingPipeline:
     estimator = UPLKF(0.02, 0.04 * np.eye(3), 1e-4 * np.eye(3), GainProjection.PREDICTED, 0.0)
     return FollowingPipeline(estimator, HelicalNavigationGuidance(3.0, 3.5, 3.5), RangeController(DESIRED),
-                             VehicleLimits(1.0 / 1.5), InitialGuess(50.0, 30.0, np.zeros(3), 5.0), 0.05, dropout=policy)
+                             vehicle_limits(table1_vehicle(), 1.0 / 1.5), InitialGuess(50.0, 30.0, np.zeros(3), 5.0), 0.05, dropout=policy)
 
 
 def fly(blackouts=(), duration=60.0, target_turn_at=None, seed=3, policy=None):

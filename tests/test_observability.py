@@ -35,7 +35,6 @@ def _unit_rows(array):
 def test_explicit_forms_match_direct_computation(observations, sigma, r_d):
     bearings = np.array([bearing for bearing, _ in observations])
     ranges = np.array([distance for _, distance in observations])
-    n = len(bearings)
     information = fisher_information(bearings, ranges, sigma)
     # eq. (7): I_n = sum_i P_lambda_i / (sigma^2 r_i^2)
     expected = sum((np.eye(3) - np.outer(b, b)) / (sigma**2 * r**2) for b, r in zip(bearings, ranges))

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from paper_reference import helical_navigation, range_control
 
-from companion.core.attitude import VehicleLimits
+from companion.assembly import vehicle_limits
+from interfaces.scenario import table1_vehicle
 from companion.core.estimators import UPLKF, GainProjection, InitialGuess
 from companion.core.geometry import E_Z, unit
 from companion.core.guidance import HelicalNavigationGuidance, RangeController
@@ -21,7 +22,7 @@ CONTROL_PERIOD = 0.05  # 20 Hz
 STEP = 0.01  # the caller steps at 100 Hz
 ENGAGE_TIME = 3.0
 GUESS = InitialGuess(range=15.0, range_std=10.0, velocity=np.zeros(3), velocity_std=2.0)
-LIMITS = VehicleLimits(hover_thrust_normalized=2.0 / 3.0)
+LIMITS = vehicle_limits(table1_vehicle(), 2.0 / 3.0)
 G = 9.81
 
 TARGET_START = np.array([20.0, 5.0, -12.0])

@@ -9,7 +9,7 @@ SET_ATTITUDE_TARGET. The torque loop of eq. (23)-(24) belongs to the autopilot
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -29,15 +29,16 @@ class VehicleLimits:
     attitude loop's differential thrust.
     min_vertical_specific_force: m/s^2, never command less upward specific force
     than this (no free fall, never inverted).
-    gravity: m/s^2. mass: kg, used only to report thrust in newtons.
+    gravity: m/s^2. mass: kg, used only to report thrust in newtons. max_tilt, gravity and mass
+    have no defaults: they are the airframe's (the vehicle file, e.g. Table I), given by keyword.
     """
 
     hover_thrust_normalized: float
-    max_tilt: float = np.deg2rad(35.0)
+    max_tilt: float = field(kw_only=True)
+    gravity: float = field(kw_only=True)
+    mass: float = field(kw_only=True)
     thrust_headroom: float = 0.9
     min_vertical_specific_force: float = 0.3 * 9.81
-    gravity: float = 9.81
-    mass: float = 1.5
 
     @property
     def max_specific_force(self) -> float:
