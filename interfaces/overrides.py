@@ -25,7 +25,7 @@ from typing import Any, TypeVar
 
 from pydantic import BaseModel, ValidationError
 
-from interfaces.scenario import ConfigError
+from interfaces.scenario import ConfigError, describe_errors
 
 Model = TypeVar("Model", bound=BaseModel)
 _PART = re.compile(r"[A-Za-z0-9_-]+")
@@ -73,15 +73,6 @@ def apply_overrides(model: Model, overrides: Mapping[str, Any] | Iterable[tuple[
         return type(model).model_validate(document)
     except ValidationError as error:
         raise ConfigError(f"{context}: " + "; ".join(describe_errors(error, root))) from None
-
-
-def describe_errors(error: ValidationError, root: str = "") -> list[str]:
-    """One "section.key: message" per problem pydantic found (unknown keys said plainly)."""
-    problems = []
-    for item in error.errors():
-        message = "unknown key (check the spelling)" if item["type"] == "extra_forbidden" else item["msg"]
-        problems.append(f"{_dotted(root, *item['loc']) or '(top level)'}: {message}")
-    return problems
 
 
 def format_assignment(key: str, value: Any) -> str:

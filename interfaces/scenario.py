@@ -459,6 +459,15 @@ class DropoutConfig(_Strict):
         return self
 
 
+def _check_rates(physics_rate_hz: float, **rates_hz: float) -> None:
+    """Every loop rate (Hz, by section) must divide the physics rate into whole steps; ValueError naming the key."""
+    for section, rate in rates_hz.items():
+        key = f"{section}.{'tick_rate_hz' if section == 'sitl' else 'rate_hz'}"
+        ratio = physics_rate_hz / rate
+        if rate > physics_rate_hz or abs(ratio - round(ratio)) > 1e-9:
+            raise ValueError(f"{key} = {rate} must divide simulation.physics_rate_hz = {physics_rate_hz} into whole steps")
+
+
 class Scenario(_Strict):
     name: str
     description: str = ""
@@ -477,11 +486,8 @@ class Scenario(_Strict):
 
     @model_validator(mode="after")
     def _rates_fit_physics(self) -> "Scenario":
-        physics = self.simulation.physics_rate_hz
-        for key, rate in (("estimator.rate_hz", self.estimator.rate_hz), ("guidance.rate_hz", self.guidance.rate_hz), ("sensor.rate_hz", self.sensor.rate_hz), ("sitl.tick_rate_hz", self.sitl.tick_rate_hz)):
-            ratio = physics / rate
-            if rate > physics or abs(ratio - round(ratio)) > 1e-9:
-                raise ValueError(f"{key} = {rate} must divide simulation.physics_rate_hz = {physics} into whole steps")
+        _check_rates(self.simulation.physics_rate_hz, estimator=self.estimator.rate_hz, guidance=self.guidance.rate_hz,
+                     sensor=self.sensor.rate_hz, sitl=self.sitl.tick_rate_hz)
         if self.simulation.summary_window > self.simulation.duration:
             raise ValueError("simulation.summary_window must not exceed simulation.duration")
         if self.estimator.kind == "ekf_rae" and self.sensor.range_noise_std is None:
@@ -521,21 +527,23 @@ class PlantScenario(_Strict):
 
     @model_validator(mode="after")
     def _rates_fit_physics(self) -> "PlantScenario":
-        physics = self.simulation.physics_rate_hz
-        for key, rate in (("sensor.rate_hz", self.sensor.rate_hz), ("sitl.tick_rate_hz", self.sitl.tick_rate_hz)):
-            ratio = physics / rate
-            if rate > physics or abs(ratio - round(ratio)) > 1e-9:
-                raise ValueError(f"{key} = {rate} must divide simulation.physics_rate_hz = {physics} into whole steps")
+        _check_rates(self.simulation.physics_rate_hz, sensor=self.sensor.rate_hz, sitl=self.sitl.tick_rate_hz)
         return self
 
 
-def _format(path: Path, error: ValidationError) -> str:
-    lines = [f"{path}: invalid configuration"]
+def describe_errors(error: ValidationError, root: str = "") -> list[str]:
+    """One "section.key: message" per problem pydantic found (unknown keys said plainly); root: a
+    section name put in front of every key (e.g. "faults" when validating that section alone)."""
+    problems = []
     for item in error.errors():
-        key = ".".join(str(part) for part in item["loc"]) or "(top level)"
+        key = ".".join(str(part) for part in (root, *item["loc"]) if str(part)) or "(top level)"
         message = "unknown key (check the spelling)" if item["type"] == "extra_forbidden" else item["msg"]
-        lines.append(f"  {key}: {message}")
-    return "\n".join(lines)
+        problems.append(f"{key}: {message}")
+    return problems
+
+
+def _format(path: Path, error: ValidationError) -> str:
+    return "\n".join([f"{path}: invalid configuration", *(f"  {problem}" for problem in describe_errors(error))])
 
 
 def load_vehicle(path: str | Path) -> VehicleConfig:

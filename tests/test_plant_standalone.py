@@ -8,18 +8,17 @@ off, holds and lands; the child reports that it never had either package loaded.
 
 from __future__ import annotations
 
-import math
 import os
 import sys
-import time
 
 import pytest
 
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 
-from sitl_plant.vehicle.px4_modes import HOLD, LAND, TAKEOFF, decode_custom_mode  # noqa: E402
+from sitl_plant.vehicle.px4_modes import HOLD, LAND, TAKEOFF  # noqa: E402
 from studies.processes import ChildProcess, free_port  # noqa: E402
+from mavlink_peer import MavlinkPeer  # noqa: E402
 
 mavlink = mavutil.mavlink
 SPEED = 4.0  # simulated seconds per wall second
@@ -53,53 +52,6 @@ finally:
 """
 
 
-class Client:
-    """A pymavlink ground station on the plant's companion port, keeping the latest state."""
-
-    def __init__(self, port: int) -> None:
-        self.connection = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=245,
-                                                     source_component=190)
-        self.time = 0.0
-        self.z = 0.0
-        self.mode = None
-        self.armed = False
-        self.acks: list = []
-
-    def pump(self, duration: float) -> None:
-        end = time.monotonic() + duration
-        while time.monotonic() < end:
-            msg = self.connection.recv_match(blocking=True, timeout=0.02)
-            if msg is None:
-                continue
-            kind = msg.get_type()
-            if kind == "ODOMETRY":
-                self.time = msg.time_usec * 1e-6
-            elif kind == "LOCAL_POSITION_NED":
-                self.z = msg.z
-            elif kind == "HEARTBEAT":
-                self.mode = decode_custom_mode(msg.custom_mode)
-                self.armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
-            elif kind == "COMMAND_ACK":
-                self.acks.append(msg)
-
-    def until(self, condition, timeout: float, what: str) -> None:
-        end = time.monotonic() + timeout
-        while not condition():
-            if time.monotonic() > end:
-                raise AssertionError(f"timed out waiting for {what} (t={self.time:.2f}, z={self.z:.2f}, mode={self.mode})")
-            self.pump(0.05)
-
-    def command(self, command: int, *params: float) -> int:
-        params = list(params) + [math.nan] * (7 - len(params))
-        before = len(self.acks)
-        self.connection.mav.command_long_send(1, 1, command, 0, *params)
-        self.until(lambda: any(a.command == command for a in self.acks[before:]), 5.0, f"ack of {command}")
-        return next(a.result for a in self.acks[before:] if a.command == command)
-
-    def close(self) -> None:
-        self.connection.close()
-
-
 @pytest.fixture
 def standalone_plant(tmp_path):
     companion_port, gcs_port = free_port(), free_port()
@@ -115,7 +67,7 @@ def standalone_plant(tmp_path):
 
 def test_sitl_plant_flies_takeoff_hold_land_without_the_companion_package(standalone_plant):
     child, port = standalone_plant
-    client = Client(port)
+    client = MavlinkPeer(port)
     try:
         client.until(lambda: client.time > 1.2, 15.0, "arming readiness")
         assert client.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1.0) == mavlink.MAV_RESULT_ACCEPTED

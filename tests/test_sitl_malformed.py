@@ -11,7 +11,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import time
 
 
 os.environ.setdefault("MAVLINK20", "1")
@@ -19,6 +18,7 @@ from pymavlink import mavutil  # noqa: E402
 
 from studies.processes import start_plant  # noqa: E402
 from sitl_plant.vehicle.px4_modes import OFFBOARD, decode_custom_mode  # noqa: E402
+from mavlink_peer import MavlinkPeer  # noqa: E402
 
 mavlink = mavutil.mavlink
 SPEED = 2.0
@@ -26,46 +26,8 @@ HOVER = 1.0 / 1.5
 RATES_IGNORED = 7
 
 
-class Companion:
-    """A pymavlink client on the offboard port that tracks the vehicle's state as it goes."""
-
-    def __init__(self, port: int) -> None:
-        self.connection = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=245, source_component=190)
-        self.mav = self.connection.mav
-        self.time = 0.0
-        self.z = 0.0
-        self.heartbeats: list = []
-        self.acks: list = []
-
-    def pump(self, duration: float) -> None:
-        end = time.monotonic() + duration
-        while time.monotonic() < end:
-            msg = self.connection.recv_match(blocking=True, timeout=0.02)
-            if msg is None:
-                continue
-            kind = msg.get_type()
-            if kind == "ODOMETRY":
-                self.time = msg.time_usec * 1e-6
-            elif kind == "LOCAL_POSITION_NED":
-                self.z = msg.z
-            elif kind == "HEARTBEAT":
-                self.heartbeats.append((self.time, msg))
-            elif kind == "COMMAND_ACK":
-                self.acks.append(msg)
-
-    def pump_until(self, condition, timeout: float, what: str) -> None:
-        end = time.monotonic() + timeout
-        while not condition():
-            if time.monotonic() > end:
-                raise AssertionError(f"timed out waiting for {what} (t={self.time:.2f}, z={self.z:.2f})")
-            self.pump(0.05)
-
-    def command(self, command: int, *params: float) -> int:
-        params = list(params) + [math.nan] * (7 - len(params))
-        before = len(self.acks)
-        self.mav.command_long_send(1, 1, command, 0, *params)
-        self.pump_until(lambda: any(a.command == command for a in self.acks[before:]), 5.0, f"ack of {command}")
-        return next(a.result for a in self.acks[before:] if a.command == command)
+class Companion(MavlinkPeer):
+    """A (badly behaved) companion on the offboard port: valid setpoints and raw bytes."""
 
     def setpoint(self, q=(1.0, 0.0, 0.0, 0.0), thrust=HOVER, type_mask=RATES_IGNORED, rates=(0.0, 0.0, 0.0)) -> None:
         self.mav.set_attitude_target_send(0, 1, 1, type_mask, q, *rates, thrust)
@@ -85,12 +47,12 @@ def test_plant_survives_counts_and_keeps_flying_on_malformed_traffic(tmp_path):
     child, companion_port, gcs_port = start_plant(tmp_path, speed_factor=SPEED)
     companion = Companion(companion_port)
     try:
-        companion.pump_until(lambda: companion.time > 1.3, 10.0, "arming readiness")
+        companion.until(lambda: companion.time > 1.3, 10.0, "arming readiness")
         assert companion.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1.0) == mavlink.MAV_RESULT_ACCEPTED
         assert companion.command(mavlink.MAV_CMD_NAV_TAKEOFF) == mavlink.MAV_RESULT_ACCEPTED
-        companion.pump_until(lambda: companion.z < -2.4, 15.0, "takeoff")
+        companion.until(lambda: companion.z < -2.4, 15.0, "takeoff")
         start = companion.time
-        companion.pump_until(lambda: companion.time > start + 1.5, 10.0, "settling in Hold")
+        companion.until(lambda: companion.time > start + 1.5, 10.0, "settling in Hold")
         companion.setpoint()
         companion.pump(0.05)
         assert companion.command(mavlink.MAV_CMD_DO_SET_MODE, 1.0, OFFBOARD.main, 0.0) == mavlink.MAV_RESULT_ACCEPTED
@@ -119,7 +81,7 @@ def test_plant_survives_counts_and_keeps_flying_on_malformed_traffic(tmp_path):
                 companion.pump(0.02)
             companion.pump(0.05)
         end = companion.time
-        companion.pump_until(lambda: companion.time > end + 0.5, 5.0, "a last look")
+        companion.until(lambda: companion.time > end + 0.5, 5.0, "a last look")
         in_flight = [hb for t, hb in companion.heartbeats if t > start + 2.0]
         last_z = companion.z
     finally:
