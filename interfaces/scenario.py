@@ -316,7 +316,7 @@ class CompanionConfig(_Strict):
 
 Probability = Annotated[float, Field(ge=0.0, le=1.0)]
 SenderName = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")]
-#: How a corrupted fix is broken (sitl_plant.target.link_faults documents each and the decoder's reason it earns).
+#: How a corrupted fix is broken (sitl_plant.world.link_faults documents each and the decoder's reason it earns).
 CorruptKind = Literal["invalid_utf8", "truncated_json", "missing_field", "non_finite", "string_number",
                       "absurd_position"]
 CORRUPT_KINDS: tuple[str, ...] = get_args(CorruptKind)
@@ -383,7 +383,7 @@ class MavlinkFaultsConfig(_Strict):
 
 
 class FaultsConfig(_Strict):
-    """Fault injection on the target -> companion link (sitl_plant.target.link_faults); defaults inject nothing.
+    """Fault injection on the target -> companion link (sitl_plant.world.link_faults); defaults inject nothing.
 
     Times of blackouts are scenario time (s since the target started its scenario).
     loss_probability: independent loss per fix. burst: Gilbert-Elliott bursty loss

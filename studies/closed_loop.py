@@ -26,8 +26,8 @@ from companion.core.pipeline import TrackMode
 from sitl_plant.vehicle.attitude_control import AttitudeThrustVehicle
 from sitl_plant.vehicle.params import QuadrotorParams, quadrotor_params
 from sitl_plant.vehicle.quadrotor import RigidBodyState
-from sitl_plant.target.link_faults import LinkFaults, fault_rng
-from sitl_plant.target.models import Maneuver, TargetModel
+from sitl_plant.world.link_faults import LinkFaults, fault_rng
+from sitl_plant.world.target import Maneuver, TargetModel
 from studies.metrics import summarize
 
 

@@ -244,7 +244,7 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
                           "--companion-port", str(companion_port), "--gcs-port", str(gcs_port), "--seed", str(seed),
                           "--log-dir", str(folder / "plant"), "--zenoh-listen", endpoint, "--quiet"],
                          folder / "plant.out", ready="sitl-plant ready")
-    target = ChildProcess([python, "-m", "sitl_plant.target.publisher", "--config", str(config), "--zenoh-connect", endpoint,
+    target = ChildProcess([python, "-m", "sitl_plant.world.target_publisher", "--config", str(config), "--zenoh-connect", endpoint,
                            "--seed", str(seed), "--log-dir", str(folder / "target"), "--wait-for-start",
                            *[arg for fault in (target_faults or []) for arg in ("--fault", fault)]],
                           folder / "target.out", ready="sitl-target ready")

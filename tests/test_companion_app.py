@@ -78,7 +78,7 @@ def test_abort_command_is_honoured_and_garbage_commands_are_not(app):
 
 
 def test_every_malformed_kind_is_counted_under_its_reason_and_never_reaches_the_bearings(app):
-    from sitl_plant.target.link_faults import CORRUPTION_REASONS, corrupt_payload
+    from sitl_plant.world.link_faults import CORRUPTION_REASONS, corrupt_payload
 
     app.sequencer.phase = Phase.READY
     app.target_link.on_fix(_fix(0, 1.0), 0)

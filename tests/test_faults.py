@@ -1,4 +1,4 @@
-"""Link-fault injection (sitl_plant.target.link_faults) on synthetic 5 Hz fix streams, its config, and sitl-target with faults."""
+"""Link-fault injection (sitl_plant.world.link_faults) on synthetic 5 Hz fix streams, its config, and sitl-target with faults."""
 
 from __future__ import annotations
 
@@ -14,9 +14,9 @@ import pytest
 from interfaces.scenario import CORRUPT_KINDS, SCENARIOS_DIR, VEHICLES_DIR, ConfigError, FaultsConfig, load_scenario
 from interfaces.link_schema import ClockTick, PayloadError, TargetFix, decode_target_fix, encode_clock, encode_target_fix, fix_to_ned
 from interfaces.geodesy import ned_to_geodetic
-from sitl_plant.target.link_faults import CORRUPTION_REASONS, LinkFaults, corrupt_payload, fault_rng, override_faults
+from sitl_plant.world.link_faults import CORRUPTION_REASONS, LinkFaults, corrupt_payload, fault_rng, override_faults
 from studies.processes import ChildProcess
-from sitl_plant.target.publisher import FaultLog, FixSchedule, TargetLog, TargetPublisher, TargetTruth
+from sitl_plant.world.target_publisher import FaultLog, FixSchedule, TargetLog, TargetPublisher, TargetTruth
 
 RATE = 5.0  # Hz, the flight experiment's fix rate
 HOME = (47.397742, 8.545594, 488.0)
@@ -364,7 +364,7 @@ def test_bad_command_line_overrides_name_the_key(assignment, message):
 
 
 def test_sitl_target_refuses_a_bad_fault_override(capsys):
-    from sitl_plant.target import publisher as target_sim
+    from sitl_plant.world import target_publisher as target_sim
 
     assert target_sim.main(["--fault", "loss_probability=2"]) == 2
     error = capsys.readouterr().err
@@ -395,7 +395,7 @@ def test_target_process_with_a_blackout_loss_and_an_impostor_end_to_end(tmp_path
     link = clock_and_fixes("target-1")
     child = None
     try:
-        command = [sys.executable, "-m", "sitl_plant.target.publisher", "--config", str(SCENARIOS_DIR / "constant_velocity.toml"),
+        command = [sys.executable, "-m", "sitl_plant.world.target_publisher", "--config", str(SCENARIOS_DIR / "constant_velocity.toml"),
                    "--zenoh-connect", link.endpoint, "--frame", "ned", "--log-dir", str(tmp_path / "logs"),
                    "--fault", "blackouts=[{start=6,duration=2}]", "--fault", "loss_probability=0.2",
                    "--fault", "impostor_rate_hz=1", "--fault", "seed=3"]

@@ -106,7 +106,7 @@ BROKEN_COMPANION_SECTIONS = {
 def test_the_plant_starts_without_the_companions_sections_and_the_companion_refuses_them(tmp_path, scenario_path,
                                                                                         capsys, broken):
     from companion import app
-    from sitl_plant.target import publisher
+    from sitl_plant.world import target_publisher
     from studies import run_scenario
 
     path = _without_the_companion_sections(tmp_path, scenario_path, broken)
@@ -116,7 +116,7 @@ def test_the_plant_starts_without_the_companions_sections_and_the_companion_refu
     assert code == 0, out.err
     assert "sitl-plant ready: constant_velocity" in out.out
     # sitl-target reads the scenario too: it gets past it and stops at the first bad argument.
-    assert publisher.main(["--config", str(path), "--rate", "-1"]) == 2
+    assert target_publisher.main(["--config", str(path), "--rate", "-1"]) == 2
     assert "--rate" in capsys.readouterr().err
     # bof-sim and the companion need those sections and say which one is wrong.
     assert run_scenario.main([str(path), "--out", str(tmp_path / "runs")]) == 2

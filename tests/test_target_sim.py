@@ -15,8 +15,8 @@ import pytest
 from interfaces.scenario import TargetConfig, load_scenario
 from interfaces.link_schema import ClockTick, decode_target_fix, encode_clock, fix_to_ned
 from studies.processes import ChildProcess
-from sitl_plant.target.models import Maneuver, TargetModel
-from sitl_plant.target.publisher import FixSchedule, TargetLog, TargetPublisher, TargetTruth
+from sitl_plant.world.target import Maneuver, TargetModel
+from sitl_plant.world.target_publisher import FixSchedule, TargetLog, TargetPublisher, TargetTruth
 
 MANEUVERS = (Maneuver(2.0, 5.0, 0.5), Maneuver(5.0, 7.0, -0.8), Maneuver(9.0, 9.5, 1.0))
 START = np.array([10.0, -5.0, -20.0])
@@ -218,7 +218,7 @@ def test_target_process_follows_the_clock_end_to_end(tmp_path, scenario_path, cl
     link = clock_and_fixes("target-1")
     child = None
     try:
-        command = [sys.executable, "-m", "sitl_plant.target.publisher", "--config", str(scenario), "--zenoh-connect",
+        command = [sys.executable, "-m", "sitl_plant.world.target_publisher", "--config", str(scenario), "--zenoh-connect",
                    link.endpoint, "--rate", str(rate), "--start-time", str(start_time), "--log-dir", str(tmp_path / "logs"),
                    "--seed", "1"]
         child = ChildProcess(command, tmp_path / "target.out", ready="sitl-target ready").start(timeout=20.0)
@@ -274,7 +274,7 @@ def test_target_process_stops_at_its_duration_with_noisy_ned_fixes(tmp_path, sce
     link = clock_and_fixes("target-2")
     child = None
     try:
-        command = [sys.executable, "-m", "sitl_plant.target.publisher", "--config", str(scenario), "--zenoh-connect",
+        command = [sys.executable, "-m", "sitl_plant.world.target_publisher", "--config", str(scenario), "--zenoh-connect",
                    link.endpoint, "--rate", str(rate), "--frame", "ned", "--noise-std", str(noise), "--sender", "target-2",
                    "--duration", "6.0", "--seed", "4", "--log-dir", str(tmp_path / "logs")]
         child = ChildProcess(command, tmp_path / "target.out", ready="sitl-target ready").start(timeout=20.0)
@@ -312,7 +312,7 @@ def test_target_process_stops_at_its_duration_with_noisy_ned_fixes(tmp_path, sce
     (["--zenoh-connect", "127.0.0.1:7447"], "expected <protocol>"),
 ])
 def test_bad_arguments_exit_2_saying_why(arguments, message, capsys):
-    from sitl_plant.target import publisher as target_sim
+    from sitl_plant.world import target_publisher as target_sim
 
     assert target_sim.main(arguments) == 2
     error = capsys.readouterr().err

@@ -1,10 +1,10 @@
 """`sitl-target`: the target drone as a process publishing position fixes over Zenoh.
 
-    python -m sitl_plant.target.publisher --zenoh-connect tcp/127.0.0.1:7447 [--rate 5] [--frame geodetic]
+    python -m sitl_plant.world.target_publisher --zenoh-connect tcp/127.0.0.1:7447 [--rate 5] [--frame geodetic]
 
 Stands in for the target of the paper's flight experiment, whose GNSS position reached
 the pursuer over a Zigbee radio. The target flies the scenario's [target] (constant
-velocity plus scheduled turns, sitl_plant.target.models.TargetModel) on the **plant's clock**:
+velocity plus scheduled turns, sitl_plant.world.target.TargetModel) on the **plant's clock**:
 it subscribes to ``bof/sim/clock`` and, whenever simulated time reaches the next
 multiple of 1/rate, publishes a ``bof.target_fix/1`` on ``bof/target/<sender>/fix``
 stamped with that multiple (several fixes, each with its own stamp, if one clock tick
@@ -17,7 +17,7 @@ clock sender are ignored; a clock that goes back (a restarted plant) restarts th
 target from its initial state; a forward jump of more than MAX_CLOCK_JUMP re-anchors
 the fix schedule instead of publishing the whole gap.
 
-Link faults (sitl_plant.target.link_faults): the scenario's [faults] sit between the encoder and the
+Link faults (sitl_plant.world.link_faults): the scenario's [faults] sit between the encoder and the
 publisher. Every fix is offered to the fault model and every clock tick publishes what
 it says is due (its delays are resolved to the clock's tick); the impostor's fixes go
 out on the same key. --faults off disables them; --fault KEY=VALUE (repeatable, VALUE a
@@ -51,8 +51,8 @@ from interfaces.link_schema import CLOCK_KEY, PayloadError, TargetFix, decode_cl
 from interfaces.records import CsvLog, JsonLinesLog
 from interfaces.zenoh_transport import LinkError, open_session, publisher, zenoh_config
 from interfaces.geodesy import ned_to_geodetic
-from sitl_plant.target.link_faults import FaultEvent, LinkFaults, describe, fault_rng, override_faults
-from sitl_plant.target.models import Maneuver, TargetModel
+from sitl_plant.world.link_faults import FaultEvent, LinkFaults, describe, fault_rng, override_faults
+from sitl_plant.world.target import Maneuver, TargetModel
 
 DEFAULT_SCENARIO = DEFAULT_SCENARIO
 #: A fix is due when the clock is within this much (s) of its stamp (clock stamps are sums of floats).
