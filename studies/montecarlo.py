@@ -345,8 +345,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("scenarios", nargs="*", type=Path, help=f"scenario files (default {DEFAULT_SCENARIO.name})")
     parser.add_argument("--study", choices=list(STUDIES), help="a preset grid reproducing a comparison of the paper")
     parser.add_argument("--runs", type=int, default=None, help="seeded flights per grid point (default 10; 100 for --study estimators)")
-    parser.add_argument("--estimators", nargs="+", choices=list(ESTIMATORS))
-    parser.add_argument("--guidance", nargs="+", choices=list(GUIDANCE))
+    parser.add_argument("--estimators", nargs="+", choices=list(ESTIMATORS),
+                        help="estimators to compare (default uplkf, or the study's set)")
+    parser.add_argument("--guidance", nargs="+", choices=list(GUIDANCE),
+                        help="guidance laws to compare (default hng, or the study's set)")
     parser.add_argument("--case", action="append", default=None, metavar="NAME:key=value,...",
                         help="a named set of scenario overrides (repeat for a grid), e.g. planar:guidance.c_y=0")
     parser.add_argument("--initial-box", type=str, default=None, metavar="X0,X1,Y0,Y1,Z0,Z1",
@@ -357,8 +359,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--divergence-threshold", type=float, default=2.0, help="m (see the module docstring)")
     parser.add_argument("--executor", default="local", help="local (default), serial, dask-local, or tcp://scheduler:port")
     parser.add_argument("--workers", type=int, default=None, help="worker processes (default: all cores)")
-    parser.add_argument("--out", type=Path, default=Path("runs"))
-    parser.add_argument("--no-plots", action="store_true")
+    parser.add_argument("--out", type=Path, default=Path("runs"),
+                        help="parent folder: the run folder montecarlo-<study, or grid>-<time>/ is made inside it (default runs/)")
+    parser.add_argument("--no-plots", action="store_true", help="write the tables and series only, no PNG figures")
     parser.add_argument("--quiet", action="store_true", help="no progress bar (it goes to stderr)")
     args = parser.parse_args(argv)
 
