@@ -63,7 +63,8 @@ then missing fields, then field by field in the order listed above):
 ``missing_field``   a required field is absent (``schema`` included)
 ``wrong_schema``    ``schema`` is not this decoder's name/version
 ``unknown_field``   a field this schema version does not define
-``wrong_type``      a field has the wrong JSON type or length (booleans are not numbers)
+``wrong_type``      a field has the wrong JSON type or length (booleans are not numbers),
+                    or a health ``state``/``reasons`` string not in its list
 ``not_finite``      NaN or +-Infinity where a number is required
 ``bad_sender``      ``sender`` empty, too long, or not ``[A-Za-z0-9_.-]``
 ``bad_frame``       ``frame`` is a string other than ``"geodetic"`` / ``"ned"``
@@ -433,7 +434,7 @@ def _reason(kind: str, loc: tuple, value: Any) -> str:
     if not loc:
         return "not_object"
     if kind == "literal_error" and (loc[-1] == "schema" or isinstance(value, str)):
-        return _REASON_OF_LITERAL[loc[-1]]
+        return _REASON_OF_LITERAL.get(loc[-1], "wrong_type")  # e.g. a health state/reason not in its list
     if kind == "missing" and isinstance(loc[-1], int):  # an array too short
         return "wrong_type"
     if kind == "float_type" and type(value) is int:  # an integer no float can hold

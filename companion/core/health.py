@@ -76,9 +76,9 @@ def chi2_cdf(x: float, dof: float) -> float:
     else 1 - Q(a, z) by the Lentz continued fraction (Numerical Recipes, section 6.2).
     x >= 0, dof > 0; returns a probability in [0, 1].
     """
-    if x <= 0.0:
-        return 0.0
     a, z = 0.5 * dof, 0.5 * x
+    if z <= 0.0:  # x <= 0, or so small that half of it underflows
+        return 0.0
     log_prefix = a * math.log(z) - z - math.lgamma(a)
     if z < a + 1.0:
         term = total = 1.0 / a
