@@ -190,7 +190,7 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
     summary["reinitializations"] = pipeline.reinitializations
     summary["health_transitions"] = [(round(t, 3), state.value, list(reasons))
                                      for t, state, reasons in pipeline.health.transitions]
-    summary["health_reasons_at_end"] = list(pipeline.health.report.reasons)
+    summary["health_reasons_at_end"] = list(pipeline.health.episode_reasons)
     if link.enabled:
         summary["link"] = link.summary()
         summary["fault_events"] = [(round(e.time, 3), e.kind, e.detail) for e in link.faults.events]

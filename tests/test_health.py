@@ -283,3 +283,17 @@ def test_state_publisher_puts_the_health_in_the_state(app_factory):
     health = link.decode_state(sent[0]).health
     assert (health.state, health.reasons, health.nis_ratio, health.relative_range_std) == (
         "suspect", ["range_unobservable"], 0.5, 0.04)
+
+
+def test_episode_reasons_gather_every_reason_of_the_current_episode():
+    """The end-of-flight warning names what made the episode, even while SUSPECT waits to clear."""
+    monitor = HealthMonitor(HealthConfig(flag_after=0.0, clear_after=3.0))
+    behind = {**FRONT, "estimate_position": np.array([-10.0, 0.0, 0.0])}
+    far = {**FRONT, "estimate_position": np.array([3000.0, 0.0, 0.0]), "estimate_covariance": np.eye(6) * 1e-6}
+    monitor.update(0.0, **behind)
+    monitor.update(1.0, **far)
+    monitor.update(2.0, **FRONT)
+    assert monitor.state is HealthState.SUSPECT and monitor.report.reasons == ()
+    assert monitor.episode_reasons == ("behind_sensor", "range_implausible")
+    monitor.update(5.0, **FRONT)
+    assert monitor.state is HealthState.OK and monitor.episode_reasons == ()

@@ -229,7 +229,8 @@ class HealthMonitor:
     """Feeds on corrections, says OK or SUSPECT (module docstring). Observes only.
 
     update(...) once per estimator correction; `report` is the latest verdict;
-    `transitions` lists (time, state, reasons) at each change of state.
+    `transitions` lists (time, state, reasons) at each change of state; `episode_reasons`
+    every reason that counted during the current SUSPECT episode (empty while OK).
     """
 
     def __init__(self, config: HealthConfig | None = None) -> None:
@@ -241,10 +242,16 @@ class HealthMonitor:
         self._slow_unobservable_since: float | None = None
         self.report = HealthReport(0.0, HealthState.OK)
         self.transitions: list[tuple[float, HealthState, tuple[str, ...]]] = []
+        self._episode: set[str] = set()
 
     @property
     def state(self) -> HealthState:
         return self.report.state
+
+    @property
+    def episode_reasons(self) -> tuple[str, ...]:
+        """Reasons that counted at any time in the current SUSPECT episode, REASONS order; () while OK."""
+        return tuple(reason for reason in REASONS if reason in self._episode)
 
     def nis_bound(self, dof: int) -> float:
         """nis_scale x the upper chi^2 quantile (config.nis_probability) for `dof` degrees of freedom, cached."""
@@ -328,6 +335,9 @@ class HealthMonitor:
             state = HealthState.OK
         if state is not self.report.state:
             self.transitions.append((time, state, reasons))
+            self._episode.clear()
+        if state is HealthState.SUSPECT:
+            self._episode.update(reasons)
         self.report = HealthReport(time, state, reasons, tuple(raised), nis, nis_ratio, range_estimate, relative_std)
         return self.report
 
