@@ -166,6 +166,7 @@ class CompanionApp:
             "link": self.target_link.health.as_dict(time.monotonic()),
             "vehicle_status_texts": self.vehicle.status_texts if self.vehicle is not None else [],
             "bad_odometry": self.vehicle.bad_odometry if self.vehicle is not None else 0,
+            "health_reasons_at_end": list(control.pipeline.health.episode_reasons) if control.pipeline is not None else [],
         }
 
     async def _shutdown(self, tlog: TlogWriter) -> None:

@@ -4,7 +4,7 @@ Per sample: own state into the history the bearings are rebuilt from, the bearin
 time that history now covers, the shared FollowingPipeline on the vehicle's clock, then (when
 the mission sequencer allows commanding) the setpoint to the autopilot. It also keeps the
 control-side figures of the run (setpoints sent, deadline misses, fix-to-setpoint latency),
-announces track-mode changes (log, STATUSTEXT) and writes the series row. Whether it may
+announces track-mode and filter-health changes (log, STATUSTEXT) and writes the series row. Whether it may
 command at all is the sequencer's decision (companion.mission).
 """
 
@@ -17,6 +17,7 @@ import numpy as np
 
 from companion.adapters.mavsdk_vehicle import MavsdkVehicle, VehicleError, VehicleSample
 from companion.adapters.recorder import RunRecorder
+from companion.core.health import HealthReport, HealthState
 from companion.core.messages import BearingMeasurement
 from companion.core.pipeline import FollowingPipeline, PipelineOutput
 from companion.core.state_history import StateHistory
@@ -30,6 +31,12 @@ TRACK_MODE_TEXTS = {
     "degraded": ("WARNING", "target link lost: holding safe distance"),
     "reacquiring": ("INFO", "target fixes back: re-acquiring"),
     "tracking": ("INFO", "target tracked"),
+}
+
+#: Filter health (companion.core.health) -> STATUSTEXT severity and the start of its text (reasons follow).
+HEALTH_TEXTS = {
+    HealthState.SUSPECT: ("WARNING", "range estimate suspect"),
+    HealthState.OK: ("INFO", "range estimate consistent again"),
 }
 
 
@@ -50,6 +57,7 @@ class Follower:
         self.deadline_misses = 0
         self.latencies_ms: list[float] = []  # fix received -> first setpoint sent after its bearing
         self.last_output: PipelineOutput | None = None
+        self.health_state = HealthState.OK
         self._awaiting_setpoint: list["PendingFix"] = []
 
     def attach(self, vehicle: MavsdkVehicle, pipeline: FollowingPipeline) -> None:
@@ -88,9 +96,12 @@ class Follower:
 
     async def report(self, sample: VehicleSample, output: PipelineOutput, bearings: list[BearingMeasurement],
                      phase: str) -> None:
-        """Announce a track-mode change, remember the output (the state publisher reads it), write the series row."""
+        """Announce a track-mode or health change, remember the output (the state publisher reads it), write the series row."""
         if self.last_output is not None and output.mode != self.last_output.mode:
             await self._track_mode_changed(output)
+        if output.health is not None and output.health.state is not self.health_state:
+            self.health_state = output.health.state
+            await self._health_changed(output.health)
         self.last_output = output
         self._log_row(sample, output, bearings, phase)
 
@@ -103,6 +114,20 @@ class Follower:
             await self.vehicle.status_text(text, severity)
         except VehicleError as error:
             self.recorder.event(output.time, "status_text_failed", str(error))
+
+    async def _health_changed(self, health: HealthReport) -> None:
+        """The monitor changed its mind: structured event in the log, STATUSTEXT (<= 50 characters) to the
+        autopilot/ground station; the next Zenoh state carries it too. Nothing in the flight changes."""
+        severity, text = HEALTH_TEXTS[health.state]
+        reasons = ",".join(health.reasons)
+        self.recorder.event(health.time, "filter_health", f"{health.state.value}{f' ({reasons})' if reasons else ''}",
+                            state=health.state.value, reasons=list(health.reasons),
+                            nis_ratio=None if health.nis_ratio != health.nis_ratio else round(health.nis_ratio, 4),
+                            relative_range_std=round(health.relative_range_std, 4))
+        try:
+            await self.vehicle.status_text(f"{text}: {reasons}" if reasons else text, severity)
+        except VehicleError as error:
+            self.recorder.event(health.time, "status_text_failed", str(error))
 
     def _sent(self, output: PipelineOutput) -> None:
         now_ns = time.monotonic_ns()
@@ -135,6 +160,10 @@ class Follower:
         if output.observability is not None:
             row.update(observability_log_det=float(output.observability["log_det"]),
                        observability_min_eigenvalue=float(output.observability["min_eigenvalue"]))
+        if output.health is not None:
+            row.update(health=output.health.state.value,
+                       health_suspect=int(output.health.state is HealthState.SUSPECT),
+                       health_nis_ratio=output.health.nis_ratio)
         if output.setpoint is not None:
             a = output.setpoint.acceleration
             row.update(acc_x=float(a[0]), acc_y=float(a[1]), acc_z=float(a[2]), thrust_normalized=output.setpoint.thrust_normalized)

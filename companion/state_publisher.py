@@ -2,7 +2,8 @@
 
 At [link] state_rate_hz of vehicle time, in every phase: the mission phase, own state, the
 link health, setpoints sent and, once the pipeline runs, the track mode, observability
-figures and the estimate with its covariance summary (TargetEstimate.position_std /
+figures, the filter health (companion.core.health: state, reasons, windowed NIS ratio,
+sigma_r / r^) and the estimate with its covariance summary (TargetEstimate.position_std /
 velocity_std) and estimated range. Encoded by interfaces.link_schema.encode_state.
 """
 
@@ -74,6 +75,9 @@ class StatePublisher:
             state["track"] = {"mode": last.mode.value, "bearing_age": last.bearing_age}
             if last.observability is not None:
                 state["observability"] = dict(last.observability)
+            health = getattr(last, "health", None)
+            if health is not None:
+                state["health"] = health.as_dict()
         estimate = last.estimate if last is not None else None
         if estimate is not None:
             state["estimate"] = {

@@ -40,7 +40,12 @@ Any change of fields is a new schema version.
   ``bearings_used``, ``bearings_dropped`` (count by reason), ``last_seq``,
   ``last_stamp`` (s), ``last_fix_age_wall`` (wall s)}, ``setpoints_sent``, and once
   there is one: ``track`` {``mode``, ``bearing_age`` (s)}, ``observability``
-  {``log_det``, ``min_eigenvalue``, ``spread``, ``count``} and ``estimate`` {``time``
+  {``log_det``, ``min_eigenvalue``, ``spread``, ``count``}, ``health`` (the filter-health
+  monitor, companion.core.health) {``state`` (``"ok"`` or ``"suspect"``), ``reasons``
+  (list, each one of ``nis``, ``range_uncertain``, ``behind_sensor``,
+  ``range_implausible``, ``range_unobservable``), ``nis_ratio`` (windowed NIS over its
+  bound, > 1 is inconsistent; null while the window is short), ``relative_range_std``
+  (sigma_r / r^)} and ``estimate`` {``time``
   (s), ``position``, ``velocity`` (NED m, m/s), ``position_std``, ``velocity_std``
   (m, m/s: sqrt of the mean diagonal of the covariance block), ``range`` (m)}. A
   number may be ``null`` ("no value", e.g. log_det of a singular information
@@ -58,7 +63,8 @@ then missing fields, then field by field in the order listed above):
 ``missing_field``   a required field is absent (``schema`` included)
 ``wrong_schema``    ``schema`` is not this decoder's name/version
 ``unknown_field``   a field this schema version does not define
-``wrong_type``      a field has the wrong JSON type or length (booleans are not numbers)
+``wrong_type``      a field has the wrong JSON type or length (booleans are not numbers),
+                    or a health ``state``/``reasons`` string not in its list
 ``not_finite``      NaN or +-Infinity where a number is required
 ``bad_sender``      ``sender`` empty, too long, or not ``[A-Za-z0-9_.-]``
 ``bad_frame``       ``frame`` is a string other than ``"geodetic"`` / ``"ned"``
@@ -156,6 +162,9 @@ FRAMES = get_args(Frame)
 #: know is rejected with "unknown_command", never silently ignored).
 CommandName = Literal["abort", "resume", "start"]
 COMMANDS = get_args(CommandName)
+#: The filter-health monitor's reasons (companion.core.health.REASONS; interfaces imports no companion code).
+HealthReason = Literal["nis", "range_uncertain", "behind_sensor", "range_implausible", "range_unobservable"]
+HEALTH_REASONS = get_args(HealthReason)
 REASONS = frozenset({"too_large", "not_utf8", "not_json", "not_object", "missing_field", "wrong_schema",
                      "unknown_field", "wrong_type", "not_finite", "bad_sender", "bad_frame", "unknown_command",
                      "out_of_range"})
@@ -366,6 +375,15 @@ class ObservabilityState(_Declared):
     count: Count
 
 
+class HealthStateSection(_Declared):
+    """The filter-health monitor's verdict: state ("ok"/"suspect"), reasons, nis_ratio, relative_range_std."""
+
+    state: Literal["ok", "suspect"]
+    reasons: Annotated[list[HealthReason], Strict(False)]
+    nis_ratio: Value
+    relative_range_std: Value
+
+
 class EstimateState(_Declared):
     """The estimator's target state at `time` s: NED position m, velocity m/s, their std, range m."""
 
@@ -389,6 +407,7 @@ class CompanionState(Envelope):
     setpoints_sent: Count
     track: TrackState | None = None
     observability: ObservabilityState | None = None
+    health: HealthStateSection | None = None
     estimate: EstimateState | None = None
 
 
@@ -415,7 +434,7 @@ def _reason(kind: str, loc: tuple, value: Any) -> str:
     if not loc:
         return "not_object"
     if kind == "literal_error" and (loc[-1] == "schema" or isinstance(value, str)):
-        return _REASON_OF_LITERAL[loc[-1]]
+        return _REASON_OF_LITERAL.get(loc[-1], "wrong_type")  # e.g. a health state/reason not in its list
     if kind == "missing" and isinstance(loc[-1], int):  # an array too short
         return "wrong_type"
     if kind == "float_type" and type(value) is int:  # an integer no float can hold
@@ -492,7 +511,7 @@ def decode_command(payload: Payload) -> Command:
 def decode_state(payload: Payload) -> CompanionState:
     """Parse and check a ``bof.companion_state/1`` payload; PayloadError (with .reason) if it is refused.
 
-    Absent sections (track, observability, estimate) are None, as are null numbers.
+    Absent sections (track, observability, health, estimate) are None, as are null numbers.
     """
     return _validate(_STATE, _parse(payload))
 

@@ -22,6 +22,7 @@ from companion.core.fix_validator import FixRejected, FixValidator
 from companion.fix_intake import FixIntake
 from interfaces.link_schema import TargetFix, encode_target_fix
 from companion.core.messages import BearingMeasurement, PursuerState
+from companion.core.health import REASONS, HealthState
 from companion.core.pipeline import TrackMode
 from sitl_plant.vehicle.attitude_control import AttitudeThrustVehicle
 from sitl_plant.vehicle.params import QuadrotorParams, quadrotor_params
@@ -41,6 +42,8 @@ class Termination(enum.Enum):
 
 #: track_mode column of the flight log: the pipeline's TrackMode as a number.
 TRACK_MODE_CODES = {TrackMode.TRACKING: 0, TrackMode.COASTING: 1, TrackMode.DEGRADED: 2, TrackMode.REACQUIRING: 3}
+#: health_reasons column of the flight log: bit i set when companion.core.health.REASONS[i] counts.
+HEALTH_REASON_BITS = {reason: 1 << bit for bit, reason in enumerate(REASONS)}
 
 MAX_SPEED = 60.0  # m/s, far above anything the Table I vehicle can reach with 1.5 g of thrust
 
@@ -57,6 +60,7 @@ class FlightLog:
         "target_position": 3, "target_velocity": 3, "estimate_position": 3, "estimate_velocity": 3,
         "estimate_position_std": 1, "command_acceleration": 3, "thrust_normalized": 1, "track_mode": 1, "bearing_age": 1,
         "observability_log_det": 1, "observability_min_eigenvalue": 1,
+        "health_suspect": 1, "health_reasons": 1, "health_nis_ratio": 1, "health_relative_range_std": 1,
     }
 
     def __init__(self, rows: int) -> None:
@@ -184,6 +188,9 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
     summary["bearings_out_of_view"] = bearings_out_of_view
     summary["track_mode_changes"] = [(round(t, 3), mode.value) for t, mode in pipeline.mode_changes]
     summary["reinitializations"] = pipeline.reinitializations
+    summary["health_transitions"] = [(round(t, 3), state.value, list(reasons))
+                                     for t, state, reasons in pipeline.health.transitions]
+    summary["health_reasons_at_end"] = list(pipeline.health.episode_reasons)
     if link.enabled:
         summary["link"] = link.summary()
         summary["fault_events"] = [(round(e.time, 3), e.kind, e.detail) for e in link.faults.events]
@@ -283,4 +290,9 @@ def _log_tick(log: FlightLog, time: float, truth: RigidBodyState, target: Target
     if output.observability is not None:
         row.update(observability_log_det=output.observability["log_det"],
                    observability_min_eigenvalue=output.observability["min_eigenvalue"])
+    health = output.health
+    if health is not None:
+        row.update(health_suspect=float(health.state is HealthState.SUSPECT),
+                   health_reasons=sum(HEALTH_REASON_BITS[reason] for reason in health.reasons),
+                   health_nis_ratio=health.nis_ratio, health_relative_range_std=health.relative_range_std)
     log.append(**row)

@@ -35,7 +35,7 @@ from interfaces import link_schema as link
 from interfaces import zenoh_transport
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, load_scenario
 from studies.closed_loop import Termination
-from studies.metrics import convergence_text, summarize, write_summary
+from studies.metrics import convergence_text, summarize, suspect_warning, write_summary
 from studies.processes import ChildProcess, free_port
 
 DEFAULT_SCENARIO = DEFAULT_SCENARIO
@@ -106,7 +106,8 @@ def flight_series(run: Path) -> tuple[dict[str, np.ndarray], float]:
         "pursuer_tilt": np.degrees(np.arccos(np.clip(down_z, -1.0, 1.0))),
     }
     # The companion's windowed FIM (section V), -inf while singular, as bof-sim logs it.
-    for key in ("observability_log_det", "observability_min_eigenvalue"):
+    # ... and its filter-health verdict (1 suspect, 0 ok, NaN before the first correction).
+    for key in ("observability_log_det", "observability_min_eigenvalue", "health_suspect"):
         if key in companion:
             series[key] = companion[key][engaged]
     horizontal = forward[:, :2]
@@ -339,6 +340,9 @@ def format_summary(summary: dict) -> str:
         f"  plant: x{summary['plant']['speed_factor_achieved']} achieved (asked x{summary['speed_factor']:g}), "
         f"MAVLink rejected {summary['plant']['mavlink_rejected'] or 'none'}",
     ]
+    warning = suspect_warning(flight, companion.get("health_reasons_at_end", ()))
+    if warning:
+        lines.append(f"  {warning}")
     return "\n".join(lines)
 
 

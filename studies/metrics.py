@@ -48,12 +48,59 @@ def convergence_time(time: np.ndarray, range_error: np.ndarray, estimation_error
     return float(time[np.nonzero(outside)[0][-1] + 1])
 
 
+def suspected_divergence(time: np.ndarray, suspect: np.ndarray | None, window: np.ndarray) -> dict | None:
+    """How long and how often the filter-health monitor (companion.core.health) called the estimate suspect.
+
+    time (N,) s; suspect (N,) 1 while SUSPECT, 0 while OK, NaN before the monitor's first
+    verdict; window (N,) bool, the summary window. Returns None without a health series, else
+    seconds (s flagged, each sample holding until the next), episodes (OK -> SUSPECT changes,
+    a flight starting suspect counts one), first_time (s of the first flag, None if never),
+    in_last_window (flagged at any time in the summary window) and at_end (flagged at the last sample).
+    """
+    if suspect is None:
+        return None
+    flagged = np.nan_to_num(np.asarray(suspect, dtype=float), nan=0.0) > 0.5
+    held = np.diff(time, append=time[-1])
+    starts = np.flatnonzero(flagged & ~np.concatenate([[False], flagged[:-1]]))
+    return {
+        "seconds": float(np.sum(held[flagged])),
+        "episodes": int(starts.size),
+        "first_time": float(time[starts[0]]) if starts.size else None,
+        "in_last_window": bool(np.any(flagged[window])),
+        "at_end": bool(flagged[-1]),
+    }
+
+
+def verdict(termination: enum.Enum, divergence: dict | None) -> str:
+    """One word for the flight: "failed" (did not complete), "suspect" (the health monitor still called
+    the estimate suspect at the end: the flight's range may be wrong), else "clean"."""
+    if termination.name not in ("COMPLETED", "INTERRUPTED"):
+        return "failed"
+    if divergence is not None and divergence["at_end"]:
+        return "suspect"
+    return "clean"
+
+
+def suspect_warning(flight: dict, reasons: list[str] | tuple[str, ...] = ()) -> str | None:
+    """The warning line for people when the health monitor called the estimate suspect at the end, else None.
+
+    flight: a `summarize` result (or its JSON). reasons: the monitor's reasons at the end, if known.
+    """
+    divergence = flight.get("suspected_divergence")
+    if not divergence or not divergence.get("at_end"):
+        return None
+    why = f" ({', '.join(reasons)})" if reasons else ""
+    return (f"WARNING: estimate suspect at the end{why}, flagged {divergence['seconds']:.1f} s in "
+            f"{divergence['episodes']} episode(s) — do not trust this flight's range")
+
+
 def summarize(series: dict[str, np.ndarray], scenario: Scenario, termination: enum.Enum) -> dict:
     """Figures of merit over the last simulation.summary_window seconds, plus whole-flight extremes.
 
     series: "time" (N,) s; "range", "range_estimate" (N,) m; "pursuer_tilt", "heading_error" (N,)
     deg; "estimate_position", "target_position" (N, 3) m; "estimate_velocity", "target_velocity",
-    "pursuer_velocity" (N, 3) m/s; optional "observability_log_det" (N,).
+    "pursuer_velocity" (N, 3) m/s; optional "observability_log_det" (N,) and "health_suspect" (N,)
+    (see `suspected_divergence`; `verdict` says whether the flight is a clean success).
     range_error: |p_T - p| - r_d (m); range_estimation_error: |p^_T - p| - |p_T - p| (m);
     convergence_time: see `convergence_time` (NaN: did not converge). termination: why the flight
     ended (studies.closed_loop.Termination; its name and its sentence are copied).
@@ -66,6 +113,7 @@ def summarize(series: dict[str, np.ndarray], scenario: Scenario, termination: en
     velocity_error = np.linalg.norm(series["estimate_velocity"] - series["target_velocity"], axis=1)
     threshold = scenario.simulation.converged_range_error
     heading_error = series["heading_error"][window]
+    divergence = suspected_divergence(time, series.get("health_suspect"), window)
     return {
         "scenario": scenario.name,
         "termination": termination.name,
@@ -86,6 +134,8 @@ def summarize(series: dict[str, np.ndarray], scenario: Scenario, termination: en
         "max_speed": float(np.max(np.linalg.norm(series["pursuer_velocity"], axis=1))),
         "heading_error_rms_deg": rms(heading_error[np.isfinite(heading_error)]),
         "observability_log_det_median": median_finite(series.get("observability_log_det"), window),
+        "suspected_divergence": divergence,
+        "verdict": verdict(termination, divergence),
     }
 
 

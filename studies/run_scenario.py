@@ -19,7 +19,7 @@ import numpy as np
 
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, load_scenario
 from studies.closed_loop import SimulationResult, simulate
-from studies.metrics import convergence_text, write_summary
+from studies.metrics import convergence_text, suspect_warning, write_summary
 from studies.plots import plot_errors, plot_trajectories
 
 DEFAULT_SCENARIO = DEFAULT_SCENARIO
@@ -68,6 +68,9 @@ def format_summary(summary: dict) -> str:
         f"  minimum range {summary['min_range']:.2f} m, max tilt {summary['max_tilt_deg']:.1f} deg, max speed {summary['max_speed']:.1f} m/s",
     ]
     lines += [f"  note: {note}" for note in summary.get("notes", ())]
+    warning = suspect_warning(summary, summary.get("health_reasons_at_end", ()))
+    if warning:
+        lines.append(f"  {warning}")
     return "\n".join(lines)
 
 

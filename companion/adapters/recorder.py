@@ -28,7 +28,7 @@ SERIES_COLUMNS = (
     "est_x", "est_y", "est_z", "est_vx", "est_vy", "est_vz", "est_position_std", "range_estimate",
     "bearing_x", "bearing_y", "bearing_z", "bearing_time",
     "acc_x", "acc_y", "acc_z", "thrust_normalized", "new_setpoint",
-    "observability_log_det", "observability_min_eigenvalue",
+    "observability_log_det", "observability_min_eigenvalue", "health", "health_suspect", "health_nis_ratio",
 )
 BEARING_COLUMNS = ("time", "direction_x", "direction_y", "direction_z", "pursuer_x", "pursuer_y", "pursuer_z",
                    "fix_seq", "range")

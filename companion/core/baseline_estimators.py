@@ -148,6 +148,11 @@ def _innovation_angle(direction: np.ndarray, relative: np.ndarray) -> float:
     return float(math.acos(min(1.0, max(-1.0, float(direction @ relative) / norm))))
 
 
+def _innovation_covariance(covariance: np.ndarray, h: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """S = H P H^T + R, shape (m, m), the covariance of the residual (reported, as in `_kalman_update`)."""
+    return _symmetrize(h @ covariance @ h.T + r)
+
+
 def _kalman_update(
     state: np.ndarray, covariance: np.ndarray, residual: np.ndarray, h: np.ndarray, r: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -309,8 +314,10 @@ class AzElEKF(_ConstantVelocityFilter):
         h = np.hstack([jacobian, lead * jacobian])
         r = angle_noise_covariance(self.bearing_variance, relative, self.pursuer_position_std)
         self._snapshot = None
+        report = CorrectionReport(innovation_angle, False, innovation=residual,
+                                  innovation_covariance=_innovation_covariance(covariance, h, r), innovation_dof=2)
         self._state, self._covariance = _kalman_update(state, covariance, residual, h, r)
-        return CorrectionReport(innovation_angle, False)
+        return report
 
     def _cartesian(self) -> tuple[np.ndarray, np.ndarray]:
         return self._require_state()
@@ -549,9 +556,11 @@ class MSCEKF(_ConstantVelocityFilter):
         residual = np.array([wrap_angle(residual[0]), wrap_angle(residual[1])])
         r = angle_noise_covariance(self.bearing_variance, relative, self.pursuer_position_std)
         self._snapshot = None
+        report = CorrectionReport(innovation_angle, False, innovation=residual,
+                                  innovation_covariance=_innovation_covariance(covariance, h, r), innovation_dof=2)
         updated, self._covariance = _kalman_update(state, covariance, residual, h, r)
         self._state = self._guard(updated)
-        return CorrectionReport(innovation_angle, False)
+        return report
 
     def _propagate(
         self, state: np.ndarray, covariance: np.ndarray, a: np.ndarray, q_discrete: np.ndarray
@@ -776,9 +785,11 @@ class RangeAzElEKF(_TickedFilter):
         if self.pursuer_position_std > 0.0:
             r_matrix = r_matrix + self.pursuer_position_std**2 * (h_d @ h_d.T)
         self._snapshot = None
+        report = CorrectionReport(innovation_angle, False, innovation=residual,
+                                  innovation_covariance=_innovation_covariance(covariance, h, r_matrix), innovation_dof=3)
         updated, updated_covariance = _kalman_update(state, covariance, residual, h, r_matrix)
         self._state, self._covariance = self._fold(updated, updated_covariance)
-        return CorrectionReport(innovation_angle, False)
+        return report
 
     @staticmethod
     def _fold(state: np.ndarray, covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -70,11 +70,20 @@ class CorrectionReport:
     used_predicted_projection: whether the gain used the predicted (instrumental) projection.
     reinitialized: the prediction lay behind the sensor (angle > 90 deg), so the filter
     restarted on this bearing instead of correcting.
+    innovation: the residual the update used, shape (m,) (the u-PLKF's pseudo-measurement
+    P_lambda~ (p^-_T - p), m, shape (3,); angles in rad for the angle-measuring baselines),
+    None when there was no update. innovation_covariance: its predicted covariance S, shape
+    (m, m) (rank 2 for the u-PLKF). innovation_dof: degrees of freedom of the measurement
+    (the rank of S: 2 for a bearing, 3 with a range); 0 without innovation. For the filter
+    health monitor (companion.core.health); the update itself never reads them.
     """
 
     innovation_angle: float
     used_predicted_projection: bool
     reinitialized: bool = False
+    innovation: np.ndarray | None = None
+    innovation_covariance: np.ndarray | None = None
+    innovation_dof: int = 0
 
 
 class GainProjection(enum.Enum):
@@ -303,7 +312,8 @@ class UPLKF:
         self._state = state - gain @ (measured_projection @ relative)
         covariance = p_prior - gain @ (gain_projection @ p_prior[:3])  # (I - K H) P^-
         self._covariance = 0.5 * (covariance + covariance.T)
-        return CorrectionReport(innovation_angle, use_predicted)
+        return CorrectionReport(innovation_angle, use_predicted, innovation=measured_projection @ relative,
+                                innovation_covariance=innovation_covariance, innovation_dof=2)
 
     def _restart_on(self, bearing: BearingMeasurement, predicted_range: float, velocity: np.ndarray) -> None:
         self.initialize_on_bearing(bearing, restart_guess(self._initial_guess, predicted_range, velocity))

@@ -16,6 +16,7 @@ from companion.core.attitude import VehicleLimits, attitude_setpoint
 from companion.core.estimators import CorrectionReport, InitialGuess, TargetEstimator
 from companion.core.geometry import unit
 from companion.core.guidance import LateralGuidance, RangeController
+from companion.core.health import HealthConfig, HealthMonitor, HealthReport
 from companion.core.messages import AttitudeSetpoint, BearingMeasurement, PursuerState, TargetEstimate
 from companion.core.observability import WindowedObservability
 
@@ -103,6 +104,8 @@ class PipelineOutput:
     this step did to the filter, if a bearing was given. mode / bearing_age / gated_out /
     reinitialized: the dropout handling (TrackMode). observability: the windowed FIM measure
     of the bearings used (companion.core.observability.WindowedObservability.measure), or None.
+    health: the filter-health monitor's latest verdict (companion.core.health), updated at
+    each correction; None before the first one. It only reports: nothing here acts on it.
     """
 
     time: float
@@ -116,6 +119,7 @@ class PipelineOutput:
     gated_out: bool = False
     reinitialized: bool = False
     observability: dict | None = None
+    health: HealthReport | None = None
 
 
 class FollowingPipeline:
@@ -129,6 +133,10 @@ class FollowingPipeline:
     los_source: "estimate" steers on (p^_T - p)/|p^_T - p| extrapolated to the control
     time (fresh at every control tick, and lambda^T dp > 0 always, remark 3);
     "measurement" steers on the latest measured bearing, as written in the paper.
+
+    health: the filter-health monitor fed at each correction (default: HealthMonitor with
+    its default thresholds, a plausible range from r_d / 4 up); it observes and never
+    changes the flight.
     """
 
     def __init__(
@@ -142,6 +150,7 @@ class FollowingPipeline:
         los_source: str = "estimate",
         dropout: DropoutPolicy | None = None,
         observability_window: float = 5.0,
+        health: HealthMonitor | None = None,
     ) -> None:
         if control_period <= 0.0:
             raise ValueError("control period must be positive")
@@ -172,6 +181,9 @@ class FollowingPipeline:
         self.reinitializations = 0
         self.observability = WindowedObservability(observability_window, self.dropout.bearing_noise_std)
         self._observability_measure: dict | None = None
+        self.health = health if health is not None else HealthMonitor(
+            HealthConfig(min_range=0.25 * range_controller.desired_range))
+        self._health_report: HealthReport | None = None
 
     @property
     def engaged_at(self) -> float | None:
@@ -193,6 +205,10 @@ class FollowingPipeline:
             self._advance_estimator(time)
             if bearing is not None:
                 correction, gated_out, reinitialized = self._use_bearing(bearing)
+                if correction is not None:
+                    self._check_health(bearing, pursuer, correction)
+                elif reinitialized:
+                    self.health.restart()
         self._update_mode(time)
 
         new_setpoint = False
@@ -202,7 +218,18 @@ class FollowingPipeline:
             new_setpoint = True
         age = time - self._last_bearing_time if self._last_bearing_time is not None else 0.0
         return PipelineOutput(time, self._setpoint, new_setpoint, self.estimator.estimate, self._guidance, correction,
-                              self.mode, age, gated_out, reinitialized, self._observability_measure)
+                              self.mode, age, gated_out, reinitialized, self._observability_measure,
+                              self._health_report)
+
+    def _check_health(self, bearing: BearingMeasurement, pursuer: PursuerState, correction: CorrectionReport) -> None:
+        """Hand the monitor what this correction computed (it reads, never writes)."""
+        estimate = self.estimator.estimate.extrapolated(bearing.time)
+        fim = self._observability_measure
+        self._health_report = self.health.update(
+            bearing.time, unit(bearing.direction), bearing.pursuer_position, pursuer.velocity,
+            estimate.position, estimate.covariance, correction.innovation, correction.innovation_covariance,
+            correction.innovation_dof, correction.reinitialized,
+            None if fim is None else float(fim["min_eigenvalue"]))
 
     def _use_bearing(self, bearing: BearingMeasurement) -> tuple[CorrectionReport | None, bool, bool]:
         """Correct with a bearing; after a gap, only if it agrees with the prediction (the gate)."""

@@ -1,0 +1,359 @@
+"""Filter-health monitor: is the estimate believable, judged without any truth?
+
+The estimator is wrong without knowing it when its model no longer fits the target (a
+turning target followed with a constant-velocity model) or when the bearings stop carrying
+range information (the pursuer stops weaving: the range is then unobservable and the
+estimate may settle anywhere along the line of sight). The monitor looks only at what the
+companion has: the innovations and their covariances the estimator computes anyway, the
+estimate and its covariance, the own state and the windowed Fisher information of the
+bearings (companion.core.observability.WindowedObservability, section V, eq. (7)).
+
+Indicators, evaluated at every estimator correction k (a bearing used):
+
+- ``nis``: normalised innovation squared, eps_k = y_k^T S_k^+ y_k, with y_k the innovation
+  and S_k its covariance as the estimator computed them (CorrectionReport; for the u-PLKF
+  the pseudo-measurement P_lambda~ (p^-_T - p), rank 2, S_k^+ the Moore-Penrose inverse).
+  For a consistent filter eps_k ~ chi^2(m_k), m_k the measurement's degrees of freedom
+  (2 for a bearing, 3 with a range), and the sum over a window of n corrections
+  ~ chi^2(sum m_k) (independent innovations): the windowed NIS test (Bar-Shalom, Li &
+  Kirubarajan 2001, section 5.4). A filter following a manoeuvring target with a
+  constant-velocity model is never exactly consistent while the target turns, yet its
+  estimate may be good; so the test tolerates innovations up to `nis_scale` times larger in
+  variance than the filter claims: raised when sum eps_k > nis_scale * F^-1(nis_probability;
+  sum m_k), F the chi^2 distribution function (`nis_ratio` = sum / that bound > 1).
+- ``range_uncertain``: the range standard deviation along the estimated line of sight,
+  sigma_r = sqrt(lambda^T P_pp lambda), lambda = (p^_T - p)/|p^_T - p|, above
+  `max_relative_range_std` times the estimated range r^ = |p^_T - p|.
+- ``behind_sensor``: cheirality; the estimate lies behind the sensor,
+  lambda~^T (p^_T - p) <= 0 with lambda~ the measured bearing, or the estimator had to
+  restart on the bearing because its prediction was behind it (CorrectionReport.reinitialized).
+- ``range_implausible``: r^ outside [min_range, max_range] (m).
+- ``range_unobservable``: the pursuer has been slower than `slow_speed` for
+  `unobservable_time` s (and, when `min_fim_eigenvalue` is set, the windowed FIM's smallest
+  eigenvalue, 1/m^2, eq. (7), stayed below it meanwhile). HNG's weave (eq. (14)) scales with
+  the pursuer's own speed: when the pursuer stops, the weave dies and the bearings carry no
+  range information about a moving target. The windowed FIM alone does not show this
+  failure: it treats the target as static, and a target circling a stopped pursuer sweeps
+  the bearings around and keeps every eigenvalue large (measured at 5 Hz bearings: smallest
+  eigenvalue 200-2800 1/m^2 in the circling failures, about 300 in good constant-velocity
+  flights; at 50 Hz about 3000 in both), so by default (None) the speed decides alone.
+
+Hysteresis: a reason counts once its condition has held at every correction for
+`flag_after` s (`unobservable_time` for range_unobservable, at once for behind_sensor); the state becomes SUSPECT
+as soon as one reason counts, and goes back to OK only after no condition at all has been
+raised for `clear_after` s. The monitor only observes: it never changes the estimator or
+the guidance.
+
+numpy and the standard library only (the chi^2 quantile is computed here, from the
+regularised incomplete gamma function).
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+class HealthState(str, enum.Enum):
+    """OK: nothing suspicious. SUSPECT: at least one indicator says the estimate may be wrong."""
+
+    OK = "ok"
+    SUSPECT = "suspect"
+
+
+#: Every reason the monitor can give, in the order it reports them.
+REASONS = ("nis", "range_uncertain", "behind_sensor", "range_implausible", "range_unobservable")
+
+
+def chi2_cdf(x: float, dof: float) -> float:
+    """P(X <= x) for X ~ chi^2(dof): the regularised lower incomplete gamma P(dof/2, x/2).
+
+    Series P(a, z) = z^a e^-z / Gamma(a + 1) * sum_n z^n / ((a+1)...(a+n)) for z < a + 1,
+    else 1 - Q(a, z) by the Lentz continued fraction (Numerical Recipes, section 6.2).
+    x >= 0, dof > 0; returns a probability in [0, 1].
+    """
+    a, z = 0.5 * dof, 0.5 * x
+    if z <= 0.0:  # x <= 0, or so small that half of it underflows
+        return 0.0
+    log_prefix = a * math.log(z) - z - math.lgamma(a)
+    if z < a + 1.0:
+        term = total = 1.0 / a
+        denominator = a
+        for _ in range(10_000):
+            denominator += 1.0
+            term *= z / denominator
+            total += term
+            if abs(term) < abs(total) * 1e-15:
+                break
+        return min(1.0, total * math.exp(log_prefix))
+    tiny = 1e-300
+    b = z + 1.0 - a
+    c = 1.0 / tiny
+    d = 1.0 / b
+    h = d
+    for i in range(1, 10_000):
+        an = -i * (i - a)
+        b += 2.0
+        d = an * d + b
+        d = tiny if abs(d) < tiny else d
+        c = b + an / c
+        c = tiny if abs(c) < tiny else c
+        d = 1.0 / d
+        delta = d * c
+        h *= delta
+        if abs(delta - 1.0) < 1e-15:
+            break
+    return max(0.0, 1.0 - math.exp(log_prefix) * h)
+
+
+def chi2_quantile(probability: float, dof: float) -> float:
+    """x with P(X <= x) = probability for X ~ chi^2(dof), by bisection on `chi2_cdf` (relative 1e-12)."""
+    if not (0.0 < probability < 1.0) or dof <= 0.0:
+        raise ValueError("need 0 < probability < 1 and dof > 0")
+    low, high = 0.0, max(1.0, dof)
+    while chi2_cdf(high, dof) < probability:
+        high *= 2.0
+    while high - low > 1e-12 * high:
+        middle = 0.5 * (low + high)
+        if chi2_cdf(middle, dof) < probability:
+            low = middle
+        else:
+            high = middle
+    return 0.5 * (low + high)
+
+
+def normalized_innovation_squared(innovation: np.ndarray, covariance: np.ndarray) -> float:
+    """eps = y^T S^+ y (dimensionless): y the innovation (m,), S its covariance (m, m), S^+ its
+    Moore-Penrose inverse (S may be singular: the u-PLKF's bearing pseudo-measurement is rank 2 in 3-D)."""
+    y = np.asarray(innovation, dtype=float)
+    s = np.asarray(covariance, dtype=float)
+    return float(y @ np.linalg.pinv(s, rcond=1e-10, hermitian=True) @ y)
+
+
+@dataclass(frozen=True)
+class HealthConfig:
+    """Thresholds of the monitor (module docstring). Lengths m, times s, speeds m/s.
+
+    nis_window: s of corrections summed in the windowed NIS. nis_probability: the chi^2
+    quantile the sum is compared with (one-sided, upper). min_nis_samples: corrections
+    needed in the window before the test is made. nis_scale: tolerated ratio of the actual
+    to the claimed innovation variance (>= 1). max_relative_range_std: sigma_r / r^
+    limit. min_range, max_range: plausible range, m. min_fim_eigenvalue: 1/m^2, smallest
+    eigenvalue of the windowed FIM (eq. (7)) below which the range counts as poorly observed
+    (None: not used, the pursuer's speed decides alone).
+    slow_speed: m/s, pursuer speed below which a poorly observed range is suspicious.
+    unobservable_time: s the range must stay poorly observed (and the pursuer slow) before
+    it counts. flag_after: s a condition must hold before it counts. clear_after: s without
+    any condition before SUSPECT goes back to OK.
+    """
+
+    nis_window: float = 5.0
+    nis_probability: float = 0.999
+    nis_scale: float = 2.0
+    min_nis_samples: int = 10
+    max_relative_range_std: float = 1.0
+    min_range: float = 1.0
+    max_range: float = 2000.0
+    min_fim_eigenvalue: float | None = None
+    slow_speed: float = 1.0
+    unobservable_time: float = 5.0
+    flag_after: float = 3.0
+    clear_after: float = 10.0
+
+    def __post_init__(self) -> None:
+        if self.nis_window <= 0.0 or not (0.0 < self.nis_probability < 1.0) or self.min_nis_samples < 1:
+            raise ValueError("need nis_window > 0, 0 < nis_probability < 1 and min_nis_samples >= 1")
+        if self.nis_scale < 1.0:
+            raise ValueError("need nis_scale >= 1")
+        if not (0.0 <= self.min_range < self.max_range) or self.max_relative_range_std <= 0.0:
+            raise ValueError("need 0 <= min_range < max_range and max_relative_range_std > 0")
+        if min(self.flag_after, self.clear_after, self.unobservable_time) < 0.0:
+            raise ValueError("flag_after, clear_after and unobservable_time must be >= 0")
+
+
+@dataclass(frozen=True)
+class HealthReport:
+    """The monitor's verdict after a correction.
+
+    time: s. state: OK or SUSPECT (with hysteresis). reasons: the reasons that count now
+    (REASONS order; empty when OK, may be empty while SUSPECT waits for clear_after).
+    raised: the conditions raised at this correction (before hysteresis). nis: eps_k of this
+    correction (NaN without innovation). nis_ratio: windowed NIS sum divided by its chi^2
+    bound (> 1 raises "nis"; NaN while the window is short). range_estimate: r^, m.
+    relative_range_std: sigma_r / r^.
+    """
+
+    time: float
+    state: HealthState
+    reasons: tuple[str, ...] = ()
+    raised: tuple[str, ...] = ()
+    nis: float = math.nan
+    nis_ratio: float = math.nan
+    range_estimate: float = math.nan
+    relative_range_std: float = math.nan
+
+    def as_dict(self) -> dict:
+        """Plain types for logs and payloads: state, reasons, nis_ratio, relative_range_std."""
+        return {"state": self.state.value, "reasons": list(self.reasons), "nis_ratio": self.nis_ratio,
+                "relative_range_std": self.relative_range_std}
+
+
+@dataclass
+class _Window:
+    """Time-windowed sums of (nis, dof)."""
+
+    length: float
+    samples: deque = field(default_factory=deque)
+    nis_sum: float = 0.0
+    dof_sum: int = 0
+
+    def add(self, time: float, nis: float, dof: int) -> None:
+        self.samples.append((time, nis, dof))
+        self.nis_sum += nis
+        self.dof_sum += dof
+        while self.samples and self.samples[0][0] < time - self.length:
+            _, old_nis, old_dof = self.samples.popleft()
+            self.nis_sum -= old_nis
+            self.dof_sum -= old_dof
+
+    def clear(self) -> None:
+        self.samples.clear()
+        self.nis_sum, self.dof_sum = 0.0, 0
+
+
+class HealthMonitor:
+    """Feeds on corrections, says OK or SUSPECT (module docstring). Observes only.
+
+    update(...) once per estimator correction; `report` is the latest verdict;
+    `transitions` lists (time, state, reasons) at each change of state; `episode_reasons`
+    every reason that counted during the current SUSPECT episode (empty while OK).
+    """
+
+    def __init__(self, config: HealthConfig | None = None) -> None:
+        self.config = config if config is not None else HealthConfig()
+        self._window = _Window(self.config.nis_window)
+        self._bounds: dict[int, float] = {}
+        self._since: dict[str, float] = {}
+        self._last_raised: float | None = None
+        self._slow_unobservable_since: float | None = None
+        self.report = HealthReport(0.0, HealthState.OK)
+        self.transitions: list[tuple[float, HealthState, tuple[str, ...]]] = []
+        self._episode: set[str] = set()
+
+    @property
+    def state(self) -> HealthState:
+        return self.report.state
+
+    @property
+    def episode_reasons(self) -> tuple[str, ...]:
+        """Reasons that counted at any time in the current SUSPECT episode, REASONS order; () while OK."""
+        return tuple(reason for reason in REASONS if reason in self._episode)
+
+    def nis_bound(self, dof: int) -> float:
+        """nis_scale x the upper chi^2 quantile (config.nis_probability) for `dof` degrees of freedom, cached."""
+        if dof not in self._bounds:
+            self._bounds[dof] = self.config.nis_scale * chi2_quantile(self.config.nis_probability, dof)
+        return self._bounds[dof]
+
+    def restart(self) -> None:
+        """Forget the innovation window (the estimator was re-initialised: old innovations no longer apply)."""
+        self._window.clear()
+
+    def update(
+        self,
+        time: float,
+        bearing_direction: np.ndarray,
+        pursuer_position: np.ndarray,
+        pursuer_velocity: np.ndarray,
+        estimate_position: np.ndarray,
+        estimate_covariance: np.ndarray,
+        innovation: np.ndarray | None = None,
+        innovation_covariance: np.ndarray | None = None,
+        innovation_dof: int = 0,
+        reinitialized: bool = False,
+        fim_min_eigenvalue: float | None = None,
+    ) -> HealthReport:
+        """One correction's evidence in, the verdict out.
+
+        time: s. bearing_direction: the measured unit bearing, (3,). pursuer_position m and
+        pursuer_velocity m/s, (3,). estimate_position: p^_T after the correction, m, (3,);
+        estimate_covariance: of [p_T, v_T] (6, 6) (only the position block is read).
+        innovation (m,) / innovation_covariance (m, m) / innovation_dof: as the estimator
+        computed them, None when it has none. reinitialized: the estimator restarted on this
+        bearing. fim_min_eigenvalue: smallest eigenvalue of the windowed FIM, 1/m^2, or None.
+        """
+        config = self.config
+        raised: list[str] = []
+        nis = math.nan
+        if reinitialized:
+            self.restart()
+        elif innovation is not None and innovation_covariance is not None and innovation_dof > 0:
+            nis = normalized_innovation_squared(innovation, innovation_covariance)
+            self._window.add(time, nis, int(innovation_dof))
+        nis_ratio = math.nan
+        if len(self._window.samples) >= config.min_nis_samples:
+            nis_ratio = self._window.nis_sum / self.nis_bound(self._window.dof_sum)
+            if nis_ratio > 1.0:
+                raised.append("nis")
+
+        relative = np.asarray(estimate_position, float) - np.asarray(pursuer_position, float)
+        range_estimate = float(np.linalg.norm(relative))
+        relative_std = math.nan
+        if range_estimate > 1e-9:
+            los = relative / range_estimate
+            range_std = math.sqrt(max(float(los @ np.asarray(estimate_covariance)[:3, :3] @ los), 0.0))
+            relative_std = range_std / range_estimate
+            if relative_std > config.max_relative_range_std:
+                raised.append("range_uncertain")
+        if reinitialized or float(np.asarray(bearing_direction, float) @ relative) <= 0.0:
+            raised.append("behind_sensor")
+        if not (config.min_range <= range_estimate <= config.max_range):
+            raised.append("range_implausible")
+
+        speed = float(np.linalg.norm(pursuer_velocity))
+        poorly_observed = config.min_fim_eigenvalue is None or (
+            fim_min_eigenvalue is not None and fim_min_eigenvalue < config.min_fim_eigenvalue)
+        if poorly_observed and speed < config.slow_speed:
+            if self._slow_unobservable_since is None:
+                self._slow_unobservable_since = time
+            if time - self._slow_unobservable_since >= config.unobservable_time:
+                raised.append("range_unobservable")
+        else:
+            self._slow_unobservable_since = None
+
+        reasons = self._hold(time, raised)
+        if raised:
+            self._last_raised = time
+        state = self.report.state
+        if reasons:
+            state = HealthState.SUSPECT
+        elif state is HealthState.SUSPECT and (self._last_raised is None or time - self._last_raised >= config.clear_after):
+            state = HealthState.OK
+        if state is not self.report.state:
+            self.transitions.append((time, state, reasons))
+            self._episode.clear()
+        if state is HealthState.SUSPECT:
+            self._episode.update(reasons)
+        self.report = HealthReport(time, state, reasons, tuple(raised), nis, nis_ratio, range_estimate, relative_std)
+        return self.report
+
+    def _hold(self, time: float, raised: list[str]) -> tuple[str, ...]:
+        """Reasons whose condition has held for flag_after s (behind_sensor counts at once)."""
+        for reason in REASONS:
+            if reason in raised:
+                self._since.setdefault(reason, time)
+            else:
+                self._since.pop(reason, None)
+        held = []
+        for reason in REASONS:
+            if reason not in self._since:
+                continue
+            # range_unobservable already waited unobservable_time; cheirality needs no persistence.
+            wait = 0.0 if reason in ("behind_sensor", "range_unobservable") else self.config.flag_after
+            if time - self._since[reason] >= wait:
+                held.append(reason)
+        return tuple(held)

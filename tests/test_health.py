@@ -1,0 +1,299 @@
+"""The filter-health monitor (companion.core.health) and how flights report it.
+
+References: scipy.stats.chi2 for the chi-square quantile and the NIS test, a textbook linear
+Kalman filter written here on simulated data, hand-made geometry for cheirality, and the
+in-process simulator with a shipped good scenario and a circling target the default loses.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy import stats
+
+from companion.core.health import (REASONS, HealthConfig, HealthMonitor, HealthState, chi2_cdf, chi2_quantile,
+                                   normalized_innovation_squared)
+from interfaces import link_schema as link
+from interfaces.scenario import load_scenario
+from studies.closed_loop import simulate
+from studies.run_scenario import format_summary
+
+FRONT = dict(bearing_direction=np.array([1.0, 0.0, 0.0]), pursuer_position=np.zeros(3),
+             pursuer_velocity=np.array([5.0, 0.0, 0.0]), estimate_position=np.array([10.0, 0.0, 0.0]),
+             estimate_covariance=np.eye(6) * 0.01)
+
+
+@settings(max_examples=200, deadline=None)
+@given(probability=st.floats(0.5, 0.99999), dof=st.integers(1, 2000))
+def test_chi2_quantile_matches_scipy(probability, dof):
+    assert chi2_quantile(probability, dof) == pytest.approx(stats.chi2.ppf(probability, dof), rel=1e-9)
+
+
+@settings(max_examples=200, deadline=None)
+@given(x=st.floats(0.0, 5000.0), dof=st.floats(0.5, 2000.0))
+def test_chi2_cdf_matches_scipy(x, dof):
+    assert chi2_cdf(x, dof) == pytest.approx(stats.chi2.cdf(x, dof), abs=1e-10)
+
+
+@settings(max_examples=100, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1))
+def test_nis_of_a_rank2_covariance_is_the_2d_nis_in_its_plane(seed):
+    """A rank-2 S = U C U^T (U an orthonormal 3x2 basis of the measurement plane): y^T S^+ y = a^T C^-1 a for y = U a,
+    whatever component along the kernel y also has."""
+    rng = np.random.default_rng(seed)
+    basis, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    plane, kernel = basis[:, :2], basis[:, 2]
+    factor = rng.normal(size=(2, 2))
+    c = factor @ factor.T + 0.1 * np.eye(2)
+    a = rng.normal(size=2)
+    y = plane @ a + rng.normal() * kernel
+    expected = float(a @ np.linalg.solve(c, a))
+    assert normalized_innovation_squared(y, plane @ c @ plane.T) == pytest.approx(expected, rel=1e-7)
+
+
+def _kalman_nis_run(true_noise_std: float, assumed_noise_std: float, steps: int, seed: int,
+                    config: HealthConfig) -> tuple[HealthMonitor, list[HealthState]]:
+    """A 2-axis constant-velocity linear KF (position measured on both axes, dof 2) on simulated data,
+    its innovations fed to the monitor at 10 Hz; the rest of the geometry kept healthy."""
+    rng = np.random.default_rng(seed)
+    dt, q = 0.1, 0.05
+    f = np.kron(np.eye(2), np.array([[1.0, dt], [0.0, 1.0]]))
+    g = np.kron(np.eye(2), np.array([[0.5 * dt**2], [dt]]))
+    h = np.kron(np.eye(2), np.array([[1.0, 0.0]]))
+    r = assumed_noise_std**2 * np.eye(2)
+    truth = np.array([0.0, 1.0, 0.0, -0.5])
+    x, p = truth + rng.normal(size=4), np.eye(4)
+    monitor, states = HealthMonitor(config), []
+    for k in range(steps):
+        truth = f @ truth + g @ (np.sqrt(q) * rng.normal(size=2))
+        x, p = f @ x, f @ p @ f.T + q * g @ g.T
+        z = h @ truth + true_noise_std * rng.normal(size=2)
+        y, s = z - h @ x, h @ p @ h.T + r
+        gain = p @ h.T @ np.linalg.inv(s)
+        x, p = x + gain @ y, (np.eye(4) - gain @ h) @ p
+        states.append(monitor.update(k * dt, innovation=y, innovation_covariance=s, innovation_dof=2, **FRONT).state)
+    return monitor, states
+
+
+def test_a_correctly_tuned_kalman_filter_is_rarely_flagged():
+    """With the pure chi-square test (nis_scale 1, 0.999 quantile over 5 s windows) a consistent filter raises the
+    NIS condition in about 0.1 % of the windows; after flag_after = 3 s of persistence almost never."""
+    config = HealthConfig(nis_scale=1.0, nis_probability=0.999)
+    flagged = 0
+    for seed in range(5):
+        _, states = _kalman_nis_run(0.5, 0.5, 2000, seed, config)
+        flagged += sum(state is HealthState.SUSPECT for state in states)
+    assert flagged / 10_000 < 0.01
+
+
+def test_a_mistuned_kalman_filter_is_flagged_for_nis():
+    """True measurement noise 3x what the filter assumes (9x the variance): flagged, for the NIS, and for good."""
+    monitor, states = _kalman_nis_run(1.5, 0.5, 600, 1, HealthConfig())
+    assert states[-1] is HealthState.SUSPECT and monitor.report.reasons == ("nis",)
+    first = states.index(HealthState.SUSPECT)
+    assert all(state is HealthState.SUSPECT for state in states[first:])
+
+
+def test_an_estimate_behind_the_sensor_is_flagged_at_once():
+    monitor = HealthMonitor()
+    report = monitor.update(0.0, **{**FRONT, "estimate_position": np.array([-10.0, 0.0, 0.0])})
+    assert report.state is HealthState.SUSPECT and report.reasons == ("behind_sensor",)
+
+
+def test_a_restart_on_the_bearing_counts_as_behind_the_sensor():
+    report = HealthMonitor().update(0.0, reinitialized=True, **FRONT)
+    assert "behind_sensor" in report.reasons
+
+
+@pytest.mark.parametrize("distance, flagged", [(0.5, True), (5.0, False), (3000.0, True)])
+def test_range_outside_the_configured_bounds_is_implausible(distance, flagged):
+    monitor = HealthMonitor(HealthConfig(min_range=1.0, max_range=2000.0, flag_after=0.0))
+    report = monitor.update(0.0, **{**FRONT, "estimate_position": np.array([distance, 0.0, 0.0]),
+                                    "estimate_covariance": np.eye(6) * 1e-6})
+    assert ("range_implausible" in report.reasons) is flagged
+
+
+def test_range_std_is_taken_along_the_line_of_sight():
+    """sigma_r = sqrt(lambda^T P_pp lambda): a large variance across the line of sight does not count."""
+    covariance = np.diag([4.0, 400.0, 400.0, 1.0, 1.0, 1.0])
+    report = HealthMonitor().update(0.0, **{**FRONT, "estimate_covariance": covariance})
+    assert report.relative_range_std == pytest.approx(2.0 / 10.0)
+    assert report.raised == ()
+
+
+def test_hysteresis_needs_persistence_to_flag_and_quiet_to_clear():
+    """A condition must hold flag_after s to count (one that comes and goes faster never flags); once SUSPECT,
+    clear_after s without any condition to clear (a chattering condition keeps it SUSPECT, without chatter)."""
+    config = HealthConfig(max_relative_range_std=0.5, flag_after=1.0, clear_after=3.0)
+    monitor = HealthMonitor(config)
+    wide = np.diag([100.0, 0.01, 0.01, 1.0, 1.0, 1.0])  # sigma_r = 10 m at 10 m: relative 1.0
+    times = np.arange(200) / 10.0
+    states = []
+    for tenth, t in enumerate(times):
+        chatter = tenth % 10 < 5  # 0.5 s raised, 0.5 s quiet
+        uncertain = (t < 5.0 and chatter) or 6.0 <= t < 7.5 or (9.0 <= t < 15.0 and chatter)
+        covariance = wide if uncertain else FRONT["estimate_covariance"]
+        states.append(monitor.update(t, **{**FRONT, "estimate_covariance": covariance}).state)
+    suspect = np.array([s is HealthState.SUSPECT for s in states])
+    assert not suspect[times < 6.95].any()
+    assert suspect[(times > 6.95) & (times < 17.35)].all()  # raised last at 14.4: clears 3 s later
+    assert not suspect[times > 17.45].any()
+    assert [state for _, state, _ in monitor.transitions] == [HealthState.SUSPECT, HealthState.OK]
+
+
+def test_the_payload_reasons_are_the_monitors():
+    assert link.HEALTH_REASONS == REASONS
+
+
+# --------------------------------------------------------------------------- flights
+
+
+def _circling(scenario_path, speed: float, lateral_acceleration: float):
+    """The constant-velocity scenario with its target circling at `speed` m/s (radius v^2 / a)."""
+    scenario, vehicle = load_scenario(scenario_path("constant_velocity"))
+    document = scenario.model_dump()
+    document["target"]["initial_velocity"] = [speed, 0.0, 0.0]
+    document["target"]["maneuvers"] = [{"start": 0.0, "end": 60.0, "lateral_acceleration": lateral_acceleration}]
+    document["name"] = "circling"
+    return type(scenario).model_validate(document), vehicle
+
+
+def test_a_good_constant_velocity_flight_ends_clean(scenario_path):
+    result = simulate(*load_scenario(scenario_path("constant_velocity")), seed=2)
+    summary = result.summary
+    assert summary["range_estimation_error_rms"] < 0.5
+    assert summary["suspected_divergence"]["at_end"] is False
+    assert summary["verdict"] == "clean"
+    assert "do not trust" not in format_summary(summary)
+
+
+def test_a_circling_target_the_default_loses_is_flagged_and_not_a_clean_success(scenario_path):
+    """25 m circle at 5 m/s: the range estimate is tens of metres off; the monitor, with no truth, says so."""
+    result = simulate(*_circling(scenario_path, 5.0, 1.0), seed=2)
+    summary = result.summary
+    assert summary["range_estimation_error_rms"] > 2.0  # the failure the monitor must see
+    assert summary["termination"] == "COMPLETED"
+    divergence = summary["suspected_divergence"]
+    assert divergence["at_end"] and divergence["in_last_window"] and divergence["seconds"] > 20.0
+    assert summary["verdict"] == "suspect"
+    assert "estimate suspect" in format_summary(summary) and "do not trust this flight's range" in format_summary(summary)
+    assert np.nanmax(result.series["health_suspect"]) == 1.0
+    json.dumps(summary)  # plain types for summary.json
+
+
+# --------------------------------------------------------------------------- state payload and companion
+
+
+@pytest.fixture
+def app_factory(tmp_path, scenario_path):
+    """Companion apps on the constant-velocity scenario, no vehicle and no sockets (close their recorder)."""
+    from companion.app import CompanionApp
+
+    scenario, vehicle = load_scenario(scenario_path("constant_velocity"))
+    return lambda: CompanionApp(scenario, vehicle, tmp_path / "run")
+
+
+def _state(**extra) -> dict:
+    return dict(sender="pursuer-1", seq=0, stamp=1.0, phase="following",
+                pursuer={"position": [0.0, 0.0, -20.0], "velocity": [1.0, 0.0, 0.0]},
+                link={"received": 1, "accepted": 1, "rejected": {}, "bearings_used": 1, "bearings_dropped": {},
+                      "last_seq": 0, "last_stamp": 1.0, "last_fix_age_wall": 0.1},
+                setpoints_sent=3, **extra)
+
+
+def test_state_payload_decodes_with_and_without_health():
+    assert link.decode_state(link.encode_state(_state())).health is None
+    health = {"state": "suspect", "reasons": ["nis", "range_unobservable"], "nis_ratio": math.nan,
+              "relative_range_std": 0.05}
+    decoded = link.decode_state(link.encode_state(_state(health=health))).health
+    assert (decoded.state, decoded.reasons, decoded.nis_ratio, decoded.relative_range_std) == (
+        "suspect", ["nis", "range_unobservable"], None, 0.05)
+
+
+@pytest.mark.parametrize("health, reason", [
+    ({"state": "bad", "reasons": [], "nis_ratio": 1.0, "relative_range_std": 0.1}, "wrong_type"),
+    ({"state": "ok", "reasons": ["nope"], "nis_ratio": 1.0, "relative_range_std": 0.1}, "wrong_type"),
+    ({"state": "ok", "reasons": [], "nis_ratio": 1.0}, "missing_field"),
+])
+def test_state_payload_refuses_a_malformed_health_section(health, reason):
+    payload = json.dumps({"schema": link.COMPANION_STATE_SCHEMA, **_state(health=health)}).encode()
+    with pytest.raises(link.PayloadError) as error:
+        link.decode_state(payload)
+    assert error.value.reason == reason
+
+
+class _Vehicle:
+    def __init__(self) -> None:
+        self.texts: list[tuple[str, str]] = []
+
+    async def status_text(self, text: str, severity: str = "WARNING") -> None:
+        self.texts.append((severity, text))
+
+
+def test_the_follower_announces_each_health_change_once(app_factory):
+    """STATUSTEXT and a structured filter_health event on each OK <-> SUSPECT change, none while it stays."""
+    from companion.adapters.mavsdk_vehicle import VehicleSample
+    from companion.core.health import HealthReport
+    from companion.core.messages import PursuerState
+    from companion.core.pipeline import TrackMode
+
+    app = app_factory()
+    vehicle = _Vehicle()
+    app.follower.vehicle = vehicle
+    sample = VehicleSample(PursuerState(1.0, np.zeros(3), np.zeros(3)), np.eye(3))
+    verdicts = [HealthReport(1.0, HealthState.OK), HealthReport(2.0, HealthState.SUSPECT, ("nis",), nis_ratio=3.0),
+                HealthReport(3.0, HealthState.SUSPECT, ("nis",), nis_ratio=4.0), HealthReport(9.0, HealthState.OK)]
+    for verdict in verdicts:
+        output = SimpleNamespace(time=verdict.time, mode=TrackMode.TRACKING, bearing_age=0.0, health=verdict,
+                                 estimate=None, observability=None, setpoint=None, new_setpoint=False)
+        asyncio.run(app.follower.report(sample, output, [], "following"))
+    app.recorder.close()
+    assert vehicle.texts == [("WARNING", "range estimate suspect: nis"), ("INFO", "range estimate consistent again")]
+    events = [json.loads(line) for line in (app.recorder.folder / "events.jsonl").read_text().splitlines()]
+    health_events = [(e["time"], e["state"], e["reasons"]) for e in events if e["kind"] == "filter_health"]
+    assert health_events == [(2.0, "suspect", ["nis"]), (9.0, "ok", [])]
+    rows = (app.recorder.folder / "series.csv").read_text().splitlines()
+    header = rows[0].split(",")
+    assert [row.split(",")[header.index("health")] for row in rows[1:]] == ["ok", "suspect", "suspect", "ok"]
+
+
+def test_state_publisher_puts_the_health_in_the_state(app_factory):
+    from companion.adapters.mavsdk_vehicle import VehicleSample
+    from companion.core.health import HealthReport
+    from companion.core.messages import PursuerState
+    from companion.core.pipeline import TrackMode
+    from companion.state_publisher import StatePublisher
+
+    app = app_factory()
+    verdict = HealthReport(1.0, HealthState.SUSPECT, ("range_unobservable",), nis_ratio=0.5, relative_range_std=0.04)
+    control = SimpleNamespace(setpoints_sent=1, last_output=SimpleNamespace(
+        mode=TrackMode.TRACKING, bearing_age=0.0, observability=None, estimate=None, health=verdict))
+    sent: list[bytes] = []
+    publisher = StatePublisher("pursuer-1", 5.0, sent.append, phase=lambda: "following",
+                               health=app.target_link.health, control=control)
+    publisher.publish(VehicleSample(PursuerState(1.0, np.zeros(3), np.zeros(3)), np.eye(3)))
+    app.recorder.close()
+    health = link.decode_state(sent[0]).health
+    assert (health.state, health.reasons, health.nis_ratio, health.relative_range_std) == (
+        "suspect", ["range_unobservable"], 0.5, 0.04)
+
+
+def test_episode_reasons_gather_every_reason_of_the_current_episode():
+    """The end-of-flight warning names what made the episode, even while SUSPECT waits to clear."""
+    monitor = HealthMonitor(HealthConfig(flag_after=0.0, clear_after=3.0))
+    behind = {**FRONT, "estimate_position": np.array([-10.0, 0.0, 0.0])}
+    far = {**FRONT, "estimate_position": np.array([3000.0, 0.0, 0.0]), "estimate_covariance": np.eye(6) * 1e-6}
+    monitor.update(0.0, **behind)
+    monitor.update(1.0, **far)
+    monitor.update(2.0, **FRONT)
+    assert monitor.state is HealthState.SUSPECT and monitor.report.reasons == ()
+    assert monitor.episode_reasons == ("behind_sensor", "range_implausible")
+    monitor.update(5.0, **FRONT)
+    assert monitor.state is HealthState.OK and monitor.episode_reasons == ()
