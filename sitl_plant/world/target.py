@@ -212,11 +212,10 @@ class SpeedScheduleTarget:
             acceleration = self._along_track()
             end = time
             reached = None
-            for change in self.schedule:
+            for change in self.schedule:  # sorted: the first change ahead is the next one
                 if self.time < change.start < end:
                     end = change.start
                     break
-            # (the schedule is sorted: the first change ahead is the next event of the schedule)
             if acceleration != 0.0:
                 target_speed = self.commanded_speed(self.time)
                 reach_time = self.time + (target_speed - self.speed) / acceleration
