@@ -110,10 +110,113 @@ class ManeuverConfig(_Strict):
         return self
 
 
+TurnDirection = Literal["right", "left"]
+#: The target models a [target] may name besides its maneuvers; at most one per scenario.
+TARGET_PATTERNS = ("circle", "weave", "turn", "stop_and_go", "singer")
+
+
+class CircleConfig(_Strict):
+    """[target.circle]: a coordinated turn at the initial horizontal speed v, from start to end (s).
+
+    Give radius (m; lateral acceleration v^2 / radius) or turn_rate (rad/s; v * turn_rate).
+    The vertical velocity of initial_velocity is kept: with a climb it is a helix.
+    """
+
+    radius: Positive | None = None
+    turn_rate: Positive | None = None
+    direction: TurnDirection = "right"
+    start: NonNegative = 0.0
+    end: Positive = 1e6
+
+    @model_validator(mode="after")
+    def _one_size(self) -> "CircleConfig":
+        if (self.radius is None) == (self.turn_rate is None):
+            raise ValueError("give radius or turn_rate (one of them)")
+        if self.end <= self.start:
+            raise ValueError(f"end ({self.end}) must be after start ({self.start})")
+        return self
+
+
+class WeaveConfig(_Strict):
+    """[target.weave]: s-turns at the initial horizontal speed: +-lateral_acceleration (m/s^2)
+    alternating every half_period (s) from start to end (s); the first turn (to `direction`)
+    lasts half_period / 2 so the heading swings symmetrically about the initial one."""
+
+    lateral_acceleration: Positive
+    half_period: Positive
+    direction: TurnDirection = "right"
+    start: NonNegative = 0.0
+    end: Positive = 3600.0
+
+    @model_validator(mode="after")
+    def _ordered(self) -> "WeaveConfig":
+        if self.end <= self.start:
+            raise ValueError(f"end ({self.end}) must be after start ({self.start})")
+        if (self.end - self.start) / self.half_period > 10000:
+            raise ValueError("more than 10000 turns: shorten end or lengthen half_period")
+        return self
+
+
+class TurnConfig(_Strict):
+    """[target.turn]: one constant-rate turn through angle_deg (default 90) in duration (s) from
+    start (s), at the initial horizontal speed; turn_back: the opposite turn right after it
+    (the flight experiment's IX-B2 shape)."""
+
+    start: NonNegative
+    duration: Positive
+    angle_deg: Annotated[float, Field(gt=0.0, le=360.0)] = 90.0
+    direction: TurnDirection = "right"
+    turn_back: bool = False
+
+
+class SpeedChangeConfig(_Strict):
+    """From start (s) on the stop-and-go target aims at speed (m/s; 0 = stop)."""
+
+    start: NonNegative
+    speed: NonNegative
+
+
+class StopAndGoConfig(_Strict):
+    """[target.stop_and_go]: straight along initial_velocity's direction (its norm is the first
+    speed), the speed following `schedule` at up to max_acceleration (m/s^2)."""
+
+    max_acceleration: Positive = 1.0
+    schedule: Annotated[tuple[SpeedChangeConfig, ...], FROM_ARRAY, Field(min_length=1)]
+
+    @model_validator(mode="after")
+    def _ordered(self) -> "StopAndGoConfig":
+        starts = [change.start for change in self.schedule]
+        if any(later <= earlier for earlier, later in zip(starts, starts[1:])):
+            raise ValueError("schedule: starts must increase strictly")
+        return self
+
+
+class SingerConfig(_Strict):
+    """[target.singer]: random acceleration, first-order Gauss-Markov (Singer): time_constant tau (s),
+    stationary std sigma (m/s^2, north and east) and vertical_sigma (down; 0 = level), held over
+    update_period (s); speed kept within [0, max_speed] (m/s) and the acceleration normal to the
+    velocity within max_lateral_acceleration (m/s^2). Drawn on its own stream of the flight's seed."""
+
+    time_constant: Positive = 5.0
+    sigma: Positive = 1.0
+    vertical_sigma: NonNegative = 0.0
+    max_speed: Positive = 10.0
+    max_lateral_acceleration: Positive = 2.0
+    update_period: Annotated[float, Field(gt=0.0, le=1.0)] = 0.02
+
+
 class TargetConfig(_Strict):
+    """[target]: initial state (m, m/s, NED) and its motion: constant velocity plus `maneuvers`
+    (constant-speed horizontal turns), or one named model: circle, weave, turn, stop_and_go, singer."""
+
     initial_position: Vector3
     initial_velocity: Vector3
     maneuvers: Annotated[tuple[ManeuverConfig, ...], FROM_ARRAY] = ()
+    circle: CircleConfig | None = None
+    weave: WeaveConfig | None = None
+    turn: TurnConfig | None = None
+    stop_and_go: StopAndGoConfig | None = None
+    singer: SingerConfig | None = None
 
     @model_validator(mode="after")
     def _no_overlap(self) -> "TargetConfig":
@@ -121,8 +224,18 @@ class TargetConfig(_Strict):
         for earlier, later in zip(ordered, ordered[1:]):
             if later.start < earlier.end:
                 raise ValueError(f"maneuvers overlap: [{earlier.start}, {earlier.end}] and [{later.start}, {later.end}]")
-        if self.maneuvers and math.hypot(*self.initial_velocity[:2]) < 1e-6:
+        named = [name for name in TARGET_PATTERNS if getattr(self, name) is not None]
+        if len(named) + bool(self.maneuvers) > 1:
+            raise ValueError(f"give maneuvers or one of {', '.join(TARGET_PATTERNS)}, not several "
+                             f"(got {', '.join(named + (['maneuvers'] if self.maneuvers else []))})")
+        turning = bool(self.maneuvers) or any(getattr(self, name) is not None for name in ("circle", "weave", "turn"))
+        if turning and math.hypot(*self.initial_velocity[:2]) < 1e-6:
             raise ValueError("a turning target needs a nonzero horizontal initial_velocity")
+        speed = math.sqrt(sum(component**2 for component in self.initial_velocity))
+        if self.stop_and_go is not None and speed < 1e-6:
+            raise ValueError("stop_and_go needs a nonzero initial_velocity (its direction is the track)")
+        if self.singer is not None and speed > self.singer.max_speed:
+            raise ValueError(f"initial speed {speed:g} m/s exceeds singer.max_speed {self.singer.max_speed:g}")
         return self
 
 

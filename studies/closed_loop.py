@@ -28,7 +28,7 @@ from sitl_plant.vehicle.attitude_control import AttitudeThrustVehicle
 from sitl_plant.vehicle.params import QuadrotorParams, quadrotor_params
 from sitl_plant.vehicle.quadrotor import RigidBodyState
 from sitl_plant.world.link_faults import LinkFaults, fault_rng
-from sitl_plant.world.target import Maneuver, TargetModel
+from sitl_plant.world.target import TargetMotion, target_from_config
 from studies.metrics import summarize
 
 
@@ -111,11 +111,7 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
     link = InProcessLink(scenario, seed)
     params = quadrotor_params(vehicle)
     autopilot = AttitudeThrustVehicle(params, _initial_state(scenario, params), scenario.simulation.physics_rate_hz, plant_rng)
-    target = TargetModel(
-        np.array(scenario.target.initial_position),
-        np.array(scenario.target.initial_velocity),
-        tuple(Maneuver(m.start, m.end, m.lateral_acceleration) for m in scenario.target.maneuvers),
-    )
+    target = target_from_config(scenario.target, seed)
     pipeline = build_pipeline(scenario, vehicle, params.hover_thrust_normalized)
     sensor = build_sensor(scenario.sensor)
 
@@ -266,7 +262,7 @@ class InProcessLink:
                 "rejected": dict(self.validator.rejected), "faults": dict(self.faults.counters)}
 
 
-def _log_tick(log: FlightLog, time: float, truth: RigidBodyState, target: TargetModel, output) -> None:
+def _log_tick(log: FlightLog, time: float, truth: RigidBodyState, target: TargetMotion, output) -> None:
     estimate, setpoint = output.estimate, output.setpoint
     row = dict(
         time=time,

@@ -4,6 +4,7 @@
                    [--case NAME:key=value,key=value ...] [--initial-box X0,X1,Y0,Y1,Z0,Z1]
                    [--executor local|serial|dask-local|tcp://host:port] [--workers 2] [--out runs]
     bof-montecarlo --study estimators|guidance|table2 [--runs N] ...   # the paper's section VIII-B/C/D
+    bof-montecarlo --study maneuvering [--runs N] ...   # issue 13: the maneuvering-target scenarios x 5/50 Hz
 
 Every flight is the in-process simulator (studies.closed_loop.simulate): the same
 pipeline object as the networked companion, only the estimator / guidance / parameters
@@ -77,6 +78,9 @@ GUIDANCE: dict[str, dict[str, Any]] = {
 TABLE_II = {"a": (1.0, 3.0, 3.0), "b": (3.0, 3.0, 3.0), "c": (3.0, 3.0, 0.0), "d": (3.0, 3.5, 3.5)}
 #: Section VIII-B: the initial estimate drawn uniformly in this box (x0, x1, y0, y1, z0, z1), m
 PAPER_INITIAL_BOX = (20.0, 120.0, -50.0, 50.0, -50.0, 50.0)
+#: Issue 13's maneuvering targets (config/scenarios/, sitl_plant/world/target.py), flown with the defaults
+MANEUVERING_SCENARIOS = ("circle_5ms", "circle_10ms", "helix_climb", "weave", "turn90_5ms", "stop_and_go", "singer",
+                         "seed003_straight", "seed003_vertical", "seed003_helix")
 
 
 @dataclass(frozen=True)
@@ -92,13 +96,14 @@ class Study:
     curves_by: str | None = None
     title: str = ""
     windows: tuple[tuple[float, float], ...] = ()
+    runs: int = 10  # seeded flights per grid point unless --runs says
 
 
 STUDIES: dict[str, Study] = {
     "estimators": Study(
         "estimators", ("constant_velocity",), tuple(ESTIMATORS), ("hng",),
         (("5Hz", {"sensor.rate_hz": 5.0}), ("50Hz", {"sensor.rate_hz": 50.0})),
-        initial_box=PAPER_INITIAL_BOX, curves_by="estimator", windows=((5.0, 15.0), (15.0, 30.0), (30.0, 60.0)),
+        initial_box=PAPER_INITIAL_BOX, curves_by="estimator", windows=((5.0, 15.0), (15.0, 30.0), (30.0, 60.0)), runs=100,
         title="Section VIII-B (Fig. 10): estimators, initial estimate uniform in x [20,120], y, z [-50,50] m"),
     "guidance": Study(
         "guidance", ("constant_velocity", "s_maneuver"), ("uplkf",), tuple(GUIDANCE), (("default", {}),),
@@ -110,6 +115,12 @@ STUDIES: dict[str, Study] = {
               for name, (n, cz, cy) in TABLE_II.items()),
         curves_by="case", windows=((10.0, 30.0), (30.0, 60.0)),
         title="Section VIII-D (Table II, Figs. 13-14): HNG parameter sets on the maneuvering target"),
+    "maneuvering": Study(
+        "maneuvering", MANEUVERING_SCENARIOS, ("uplkf",), ("hng",),
+        (("5Hz", {"sensor.rate_hz": 5.0}), ("50Hz", {"sensor.rate_hz": 50.0})),
+        curves_by="case", windows=((10.0, 30.0), (30.0, 60.0)), runs=20,
+        title="Issue 13: maneuvering targets (circles, helices, weave, turn, stop-and-go, Singer, seed 003) "
+              "x bearings at 5 and 50 Hz, default u-PLKF and HNG"),
 }
 
 
@@ -343,8 +354,10 @@ def run_tasks(tasks: list[FlightTask], executor_spec: str, workers: int | None, 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="bof-montecarlo", description=__doc__.split("\n\n")[0])
     parser.add_argument("scenarios", nargs="*", type=Path, help=f"scenario files (default {DEFAULT_SCENARIO.name})")
-    parser.add_argument("--study", choices=list(STUDIES), help="a preset grid reproducing a comparison of the paper")
-    parser.add_argument("--runs", type=int, default=None, help="seeded flights per grid point (default 10; 100 for --study estimators)")
+    parser.add_argument("--study", choices=list(STUDIES), help="a preset grid: the paper's comparisons (estimators, guidance, table2) or issue 13's "
+                        "maneuvering targets")
+    parser.add_argument("--runs", type=int, default=None, help="seeded flights per grid point (default 10; 100 for --study estimators, "
+                        "20 for --study maneuvering)")
     parser.add_argument("--estimators", nargs="+", choices=list(ESTIMATORS),
                         help="estimators to compare (default uplkf, or the study's set)")
     parser.add_argument("--guidance", nargs="+", choices=list(GUIDANCE),
@@ -366,7 +379,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     study = STUDIES.get(args.study) if args.study else None
-    runs = args.runs if args.runs is not None else (100 if args.study == "estimators" else 10)
+    runs = args.runs if args.runs is not None else (study.runs if study else 10)
     if runs < 1 or (args.workers is not None and args.workers < 1) or args.divergence_threshold <= 0:
         print("bof-montecarlo: --runs and --workers must be >= 1, --divergence-threshold > 0", file=sys.stderr)
         return 2

@@ -4,7 +4,7 @@
 
 Stands in for the target of the paper's flight experiment, whose GNSS position reached
 the pursuer over a Zigbee radio. The target flies the scenario's [target] (constant
-velocity plus scheduled turns, sitl_plant.world.target.TargetModel) on the **plant's clock**:
+velocity plus scheduled turns or a named motion model, sitl_plant.world.target) on the **plant's clock**:
 it subscribes to ``bof/sim/clock`` and, whenever simulated time reaches the next
 multiple of 1/rate, publishes a ``bof.target_fix/1`` on ``bof/target/<sender>/fix``
 stamped with that multiple (several fixes, each with its own stamp, if one clock tick
@@ -52,7 +52,7 @@ from interfaces.records import CsvLog, JsonLinesLog
 from interfaces.zenoh_transport import LinkError, open_session, publisher, zenoh_config
 from interfaces.geodesy import ned_to_geodetic
 from sitl_plant.world.link_faults import FaultEvent, LinkFaults, describe, fault_rng, override_faults
-from sitl_plant.world.target import Maneuver, TargetModel
+from sitl_plant.world.target import TargetMotion, target_from_config
 
 DEFAULT_SCENARIO = DEFAULT_SCENARIO
 #: A fix is due when the clock is within this much (s) of its stamp (clock stamps are sums of floats).
@@ -90,28 +90,26 @@ class FixSchedule:
         return stamps
 
 
-def target_model(config: TargetConfig) -> TargetModel:
-    """A TargetModel at scenario time 0 from a scenario's [target]."""
-    return TargetModel(
-        np.array(config.initial_position),
-        np.array(config.initial_velocity),
-        tuple(Maneuver(m.start, m.end, m.lateral_acceleration) for m in config.maneuvers),
-    )
+def target_model(config: TargetConfig, seed: int = 0) -> TargetMotion:
+    """The scenario's target model at scenario time 0 (sitl_plant.world.target.target_from_config;
+    seed: the flight's seed, drawn from by the random-acceleration target only)."""
+    return target_from_config(config, seed)
 
 
 class TargetTruth:
     """The target's true state at any simulated time: hover until start_time (s), then the scenario."""
 
-    def __init__(self, config: TargetConfig, start_time: float = 0.0) -> None:
+    def __init__(self, config: TargetConfig, start_time: float = 0.0, seed: int = 0) -> None:
         self.config = config
         self.start_time = start_time
-        self.model = target_model(config)
+        self.seed = seed
+        self.model = target_model(config, seed)
 
     def at(self, sim_time: float) -> tuple[float, np.ndarray, np.ndarray]:
         """(scenario time s, position m NED shape (3,), velocity m/s NED shape (3,)) at `sim_time` (s)."""
         scenario_time = max(0.0, sim_time - self.start_time)
         if scenario_time < self.model.time:  # the clock went back: fly again from the start
-            self.model = target_model(self.config)
+            self.model = target_model(self.config, self.seed)
         self.model.advance_to(scenario_time)
         velocity = self.model.velocity.copy() if sim_time >= self.start_time else np.zeros(3)
         return scenario_time, self.model.position.copy(), velocity
@@ -386,7 +384,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         fixes = publisher(session, key)
         start_time = math.inf if args.wait_for_start else args.start_time
-        target = TargetPublisher(TargetTruth(scenario.target, start_time), FixSchedule(args.rate), fixes.put, log,
+        target = TargetPublisher(TargetTruth(scenario.target, start_time, seed), FixSchedule(args.rate), fixes.put, log,
                                  args.sender, args.frame, home, args.noise_std, np.random.default_rng(seed),
                                  args.duration, faults, fault_log)
         clock = session.declare_subscriber(CLOCK_KEY, on_clock)
