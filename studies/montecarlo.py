@@ -20,8 +20,10 @@ Guidance: hng, hng_planar (c_Y = 0), ppg, png, pd, retro_png, zem.
 Per flight (results.csv): final_error, mean |range-estimation error| over the last 5 s;
 rms_error over the scenario's summary window; diverged: the flight did not complete or
 final_error > --divergence-threshold (default 2 m); lost: mean |range - r_d| over the last
-5 s > the same threshold (the guidance did not hold the following distance); plus
-convergence time, min range, max tilt, the windowed-FIM observability. Time series at
+5 s > the same threshold (the guidance did not hold the following distance); flagged: the
+companion's truth-free health monitor (companion.core.health) judged the estimate suspect at
+the end of the flight (the group table counts the diverged flights it missed and its false
+alarms); plus convergence time, min range, max tilt, the windowed-FIM observability. Time series at
 0.2 s go to series.npz for the figures. Output in runs/montecarlo-<label>-<time>/:
 results.csv, summary.md, summary.json, series.npz, and the figures (error over time per
 group, trajectories and normalised image-plane tracks of the first seed of each group).
@@ -221,6 +223,8 @@ def fly(task: FlightTask) -> dict:
         "termination": result.termination.name,
         "diverged": bool(not completed or not final_error <= task.divergence_threshold),
         "lost": bool(not completed or not final_range_error <= task.divergence_threshold),
+        # the companion's own, truth-free verdict (companion.core.health): suspect at the end of the flight
+        "flagged": bool(summary["suspected_divergence"]["at_end"]),
         "final_error": final_error,
         "rms_error": summary["range_estimation_error_rms"],
         "final_range_error": final_range_error,
@@ -275,6 +279,7 @@ def group_key(row: dict) -> tuple[str, str, str, str]:
 #: group-table figure -> (results.csv column, statistic over the group's runs; NaN and inf skipped)
 GROUP_FIGURES = {
     "runs": ("seed", "size"), "diverged": ("diverged", "sum"), "lost": ("lost", "sum"),
+    "flagged": ("flagged", "sum"), "missed": ("missed", "sum"), "false_alarms": ("false_alarm", "sum"),
     "final_error_median": ("final_error", "median"), "final_error_p90": ("final_error", lambda values: values.quantile(0.9)),
     "rms_error_median_kept": ("rms_error_kept", "median"), "range_error_rms_median": ("range_error_rms", "median"),
     "converged_runs": ("convergence_time", "count"), "convergence_time_median": ("convergence_time", "median"),
@@ -287,7 +292,9 @@ def group_table(rows: list[dict]) -> list[dict]:
     """One line per (scenario, estimator, guidance, case): divergence counted, then robust statistics
     (medians over the runs with a finite figure; the RMS error over the runs that did not diverge)."""
     windows = [key for key in rows[0] if key.startswith("error_")] if rows else []
-    rows = [{**row, "rms_error_kept": math.nan if row["diverged"] else row["rms_error"]} for row in rows]
+    rows = [{**row, "rms_error_kept": math.nan if row["diverged"] else row["rms_error"],
+             "missed": row["diverged"] and not row["flagged"], "false_alarm": row["flagged"] and not row["diverged"]}
+            for row in rows]
     figures = {**GROUP_FIGURES, **{f"{key}_median": (key, "median") for key in windows}}
     finite = ["final_error", "rms_error_kept", "range_error_rms", "convergence_time", "min_range", "max_tilt_deg",
               "observability_log_det", *windows]
@@ -296,13 +303,15 @@ def group_table(rows: list[dict]) -> list[dict]:
 
 def markdown(table: list[dict], title: str, runs: int, threshold: float, executor: str) -> str:
     windows = [key[: -len("_median")] for key in (table[0] if table else {}) if key.startswith("error_")]
-    headers = ["scenario", "estimator", "guidance", "case", "diverged", "lost", "final error median / p90",
+    headers = ["scenario", "estimator", "guidance", "case", "diverged", "lost", "flagged (missed / false)",
+               "final error median / p90",
                "RMS error median (kept)", "range error RMS median", "converged runs, median time (s)", "min range (m)",
                "max tilt (deg)", "log10 det FIM median",
                *(f"mean abs error {key[len('error_'):]}, median" for key in windows)]
     f = reporting.cell
     lines = [dict(zip(headers, (
         e["scenario"], e["estimator"], e["guidance"], e["case"], f"{e['diverged']}/{e['runs']}", f"{e['lost']}/{e['runs']}",
+        f"{e['flagged']}/{e['runs']} ({e['missed']} / {e['false_alarms']})",
         f"{f(e['final_error_median'])} / {f(e['final_error_p90'])}", f(e["rms_error_median_kept"], 3),
         f(e["range_error_rms_median"], 3), f"{e['converged_runs']}, {f(e['convergence_time_median'], 1)}",
         f(e["min_range"]), f(e["max_tilt_deg"], 1), f(e["observability_log_det_median"], 1),
@@ -311,7 +320,9 @@ def markdown(table: list[dict], title: str, runs: int, threshold: float, executo
         f"# {title}", "",
         f"{runs} seeded runs per row (seeds 1..{runs}); executor: {executor}. diverged: did not complete, or mean "
         f"|range-estimation error| over the last {FINAL_WINDOW:g} s > {threshold:g} m. lost: mean |range - r_d| "
-        f"over the last {FINAL_WINDOW:g} s > {threshold:g} m. Error statistics in m; final error over all runs, "
+        f"over the last {FINAL_WINDOW:g} s > {threshold:g} m. flagged: the companion's health monitor judged the "
+        "estimate suspect at the end of the flight, without truth; missed: diverged but not flagged; false: flagged "
+        "but not diverged. Error statistics in m; final error over all runs, "
         "RMS (last summary window) over the runs that did not diverge.", "",
         reporting.markdown(lines, headers)]) + "\n"
 
