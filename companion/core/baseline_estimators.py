@@ -38,8 +38,8 @@ import math
 
 import numpy as np
 
-from companion.core.estimators import (CorrectionReport, InitialGuess, explicit_start, on_bearing_covariance, restart_guess,
-                                  transition_matrices)
+from companion.core.estimators import (MAX_RANGE, CorrectionReport, InitialGuess, explicit_start, limit_range,
+                                       on_bearing_covariance, restart_guess, transition_matrices)
 from companion.core.geometry import unit
 from companion.core.messages import BearingMeasurement, TargetEstimate
 
@@ -48,8 +48,8 @@ MAX_ELEVATION_MARGIN = 1e-3
 MAX_ELEVATION = 0.5 * math.pi - MAX_ELEVATION_MARGIN
 MIN_RANGE = 1e-6
 """m: floor on ranges used as divisors."""
-MIN_INVERSE_RANGE = 1e-6
-"""1/m: floor on the MSC inverse range (targets at most 1000 km away)."""
+MIN_INVERSE_RANGE = 1.0 / MAX_RANGE
+"""1/m: floor on the MSC inverse range (targets at most MAX_RANGE = 1000 km away)."""
 MAX_INVERSE_RANGE = 1e3
 """1/m: ceiling on the MSC inverse range (targets at least 1 mm away)."""
 
@@ -310,6 +310,9 @@ class AzElEKF(_ConstantVelocityFilter):
         r = angle_noise_covariance(self.bearing_variance, relative, self.pursuer_position_std)
         self._snapshot = None
         self._state, self._covariance = _kalman_update(state, covariance, residual, h, r)
+        # A linearised angle update steps along the tangent plane, so large residuals (a
+        # sensor much noisier than Sigma) lengthen the range at every bearing: keep it bounded.
+        self._state[:3] = limit_range(self._state[:3], np.asarray(bearing.pursuer_position, dtype=float))
         return CorrectionReport(innovation_angle, False)
 
     def _cartesian(self) -> tuple[np.ndarray, np.ndarray]:

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
+from scipy.linalg import null_space
 
 from companion.core.geometry import orthogonal_projection, unit
 from companion.core.messages import BearingMeasurement, TargetEstimate
@@ -93,6 +94,36 @@ class GainProjection(enum.Enum):
 
 
 
+MAX_INSTRUMENTAL_ANGLE = np.pi / 6.0
+"""rad: the largest angle between the measured bearing and the predicted line of sight at
+which the u-PLKF's PREDICTED form builds its gain from the predicted line of sight (the
+instrumental variable). That form is a small-angle device: the two projections differ by
+|P_lambda~ - P_lambda^-| = sin(angle), half of their size at 30 deg. Beyond it the step
+it takes with a confident prior lies across the predicted line of sight and lands at
+range r / cos(angle) or so, always farther out: a sensor much noisier than Sigma then
+makes the range estimate grow geometrically (to 1e29 m within a minute of 50 Hz bearings
+at noise_std = 1 against Sigma = 1e-4 I). The paper's own MEASURED form, used for such a
+bearing instead, projects onto the measured line (range r cos(angle)), so noisy bearings
+no longer pump the range up. In normal flight the angle stays below 0.11 rad."""
+
+MAX_RANGE = 1.0e6
+"""m: ceiling on the estimated target range. A numerical guard, not a model: a filter fed
+bearings far noisier than its Sigma can wander to ranges of 1e8 m and beyond, and a
+following drone never has a target 1000 km away. A corrected estimate beyond it is pulled
+back along its line of sight (`limit_range`); restarts use at most this range. The
+MSC-EKF's inverse-range floor (baseline_estimators.MIN_INVERSE_RANGE) is the same bound."""
+
+
+def limit_range(target_position: np.ndarray, pursuer_position: np.ndarray) -> np.ndarray:
+    """The target position (m, NED, shape (3,)) moved along its line of sight from the
+    pursuer (m, shape (3,)) to at most MAX_RANGE away; the same array when already within."""
+    relative = target_position - pursuer_position
+    distance = float(np.linalg.norm(relative))
+    if distance <= MAX_RANGE:
+        return target_position
+    return pursuer_position + (MAX_RANGE / distance) * relative
+
+
 def transition_matrices(period: float) -> tuple[np.ndarray, np.ndarray]:
     """A and B of the discrete double integrator, eq. (1).
 
@@ -104,15 +135,39 @@ def transition_matrices(period: float) -> tuple[np.ndarray, np.ndarray]:
     return a, b
 
 
+SHORTCUT_EIGENVALUE_BAND = (2.0**-10, 2.0**10)
+"""Bounds on the non-zero eigenvalues of the innovation covariance (m^2 scale) inside which
+`_projector_pseudo_inverse` uses the one-inverse shortcut; outside it, the general form."""
+
+
 def _projector_pseudo_inverse(matrix: np.ndarray, null_direction: np.ndarray) -> np.ndarray:
-    """Moore-Penrose pseudo-inverse of a symmetric PSD 3x3 `matrix` whose kernel is span(g).
+    """Moore-Penrose pseudo-inverse of a symmetric PSD 3x3 `matrix` S whose kernel is span(g).
 
     The innovation covariance of section IV-C is rank 2 with kernel span(g), g the unit
-    vector of its projector; for such a matrix S^+ = (S + g g^T)^-1 - g g^T exactly,
-    which costs one 3x3 inverse instead of an eigendecomposition. Shape (3, 3).
+    vector of its projector. Shape (3, 3) in and out; g: shape (3,), unit.
+
+    Shortcut: S^+ = (S + g g^T)^-1 - g g^T exactly, one 3x3 inverse. It is accurate only
+    while the two non-zero eigenvalues of S are on the scale of the added unit eigenvalue:
+    a diverging filter drives them to 1e50 and beyond, the g g^T term is then lost in the
+    rounding of S's entries and S + g g^T is numerically singular (LinAlgError); tiny or
+    very unequal eigenvalues lose accuracy the same way. So the shortcut is taken only when
+    both lie in SHORTCUT_EIGENVALUE_BAND (their sum is trace S, their product
+    det(S + g g^T)), which holds throughout normal flight. Otherwise the general form:
+    E (E^T S E)^+ E^T, with E (3, 2) an orthonormal basis of g's orthogonal complement and
+    the 2x2 pseudo-inverse from numpy's SVD, which is defined for any finite S and any
+    unit g (a rank-deficient block gives the pseudo-inverse, never an error).
     """
     outer = np.outer(null_direction, null_direction)
-    return np.linalg.inv(matrix + outer) - outer
+    low, high = SHORTCUT_EIGENVALUE_BAND
+    trace = float(np.trace(matrix))
+    if low <= trace <= high:
+        regularized = matrix + outer
+        determinant = float(np.linalg.det(regularized))
+        if determinant >= low * trace:  # smallest eigenvalue >= det / trace >= low
+            return np.linalg.inv(regularized) - outer
+    basis = null_space(np.reshape(null_direction, (1, 3)))
+    block = basis.T @ matrix @ basis
+    return basis @ np.linalg.pinv(0.5 * (block + block.T), hermitian=True) @ basis.T
 
 
 def explicit_start(initial_guess: InitialGuess) -> tuple[np.ndarray, np.ndarray] | None:
@@ -140,6 +195,7 @@ def restart_guess(previous: InitialGuess | None, predicted_range: float, velocit
     """The guess a filter restarts on when its prediction lies behind the sensor (remark 3):
     the predicted range (at least 1 m), an along-bearing std of at least that range, the
     current velocity estimate. Always on the bearing, never at an explicit position."""
+    predicted_range = min(predicted_range, MAX_RANGE)
     guess = previous or InitialGuess(predicted_range, predicted_range, velocity, 5.0)
     return InitialGuess(max(predicted_range, 1.0), max(guess.range_std, predicted_range), velocity, guess.velocity_std)
 
@@ -282,7 +338,7 @@ class UPLKF:
             self._restart_on(bearing, predicted_range, state[3:])
             return CorrectionReport(innovation_angle, False, reinitialized=True)
 
-        use_predicted = self.gain_projection is GainProjection.PREDICTED
+        use_predicted = self.gain_projection is GainProjection.PREDICTED and innovation_angle <= MAX_INSTRUMENTAL_ANGLE
         if self.gain_projection is GainProjection.NOISE_FREE:
             if bearing.true_direction is None:
                 raise ValueError("the noise-free (optimal) u-PLKF needs BearingMeasurement.true_direction: simulation only")
@@ -301,6 +357,7 @@ class UPLKF:
         # x_k = x^-_k - K_k H_k x^-_k, with H_k x^-_k = P_lambda~ (p^-_T - p)
         self._snapshot = None
         self._state = state - gain @ (measured_projection @ relative)
+        self._state[:3] = limit_range(self._state[:3], np.asarray(bearing.pursuer_position, dtype=float))
         covariance = p_prior - gain @ (gain_projection @ p_prior[:3])  # (I - K H) P^-
         self._covariance = 0.5 * (covariance + covariance.T)
         return CorrectionReport(innovation_angle, use_predicted)
