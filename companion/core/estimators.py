@@ -170,6 +170,22 @@ def _projector_pseudo_inverse(matrix: np.ndarray, null_direction: np.ndarray) ->
     return basis @ np.linalg.pinv(0.5 * (block + block.T), hermitian=True) @ basis.T
 
 
+def _joseph_update(prior: np.ndarray, gain: np.ndarray, projection: np.ndarray, measurement_covariance: np.ndarray) -> np.ndarray:
+    """Joseph form of the covariance update, P = (I - K H) P^- (I - K H)^T + K R K^T, H = [P_lambda, 0].
+
+    The short form (I - K H) P^- of section IV-C is the same matrix in exact arithmetic and is
+    what the filter uses; with a prior of condition number beyond ~1e12 (only a filter fed
+    bearings far noisier than its Sigma gets there) its rounding can leave negative
+    eigenvalues, which later steps amplify. The Joseph form is a sum of two congruences of
+    PSD matrices, so it stays PSD to rounding. prior: P^-, (6, 6). gain: K, (6, 3).
+    projection: P_lambda of H, (3, 3). measurement_covariance: R_k, (3, 3). Returns (6, 6).
+    """
+    h = np.hstack([projection, np.zeros((3, 3))])
+    i_kh = np.eye(6) - gain @ h
+    covariance = i_kh @ prior @ i_kh.T + gain @ measurement_covariance @ gain.T
+    return 0.5 * (covariance + covariance.T)
+
+
 def explicit_start(initial_guess: InitialGuess) -> tuple[np.ndarray, np.ndarray] | None:
     """(position, covariance of [p_T, v_T]) when the guess fixes the start position, else None.
 
@@ -359,7 +375,10 @@ class UPLKF:
         self._state = state - gain @ (measured_projection @ relative)
         self._state[:3] = limit_range(self._state[:3], np.asarray(bearing.pursuer_position, dtype=float))
         covariance = p_prior - gain @ (gain_projection @ p_prior[:3])  # (I - K H) P^-
-        self._covariance = 0.5 * (covariance + covariance.T)
+        covariance = 0.5 * (covariance + covariance.T)
+        if np.linalg.eigvalsh(covariance)[0] < 0.0:
+            covariance = _joseph_update(p_prior, gain, gain_projection, measurement_covariance)
+        self._covariance = covariance
         return CorrectionReport(innovation_angle, use_predicted)
 
     def _restart_on(self, bearing: BearingMeasurement, predicted_range: float, velocity: np.ndarray) -> None:
