@@ -94,18 +94,6 @@ class GainProjection(enum.Enum):
 
 
 
-MAX_INSTRUMENTAL_ANGLE = np.pi / 6.0
-"""rad: the largest angle between the measured bearing and the predicted line of sight at
-which the u-PLKF's PREDICTED form builds its gain from the predicted line of sight (the
-instrumental variable). That form is a small-angle device: the two projections differ by
-|P_lambda~ - P_lambda^-| = sin(angle), half of their size at 30 deg. Beyond it the step
-it takes with a confident prior lies across the predicted line of sight and lands at
-range r / cos(angle) or so, always farther out: a sensor much noisier than Sigma then
-makes the range estimate grow geometrically (to 1e29 m within a minute of 50 Hz bearings
-at noise_std = 1 against Sigma = 1e-4 I). The paper's own MEASURED form, used for such a
-bearing instead, projects onto the measured line (range r cos(angle)), so noisy bearings
-no longer pump the range up. In normal flight the angle stays below 0.11 rad."""
-
 MAX_RANGE = 1.0e6
 """m: ceiling on the estimated target range. A numerical guard, not a model: a filter fed
 bearings far noisier than its Sigma can wander to ranges of 1e8 m and beyond, and a
@@ -239,6 +227,17 @@ class UPLKF:
     variable that does not depend on the current noise, while the innovation stays
     the paper's pseudo-linear residual -P_lambda~ (p^-_T - p).
 
+    Bearings far noisier than Sigma (a sensor noise_std of 1 against Sigma = 1e-4 I). Each
+    correction then trusts a bearing tens of degrees off; the PREDICTED form's step lies
+    across the predicted line of sight and lengthens the range, so the range estimate grows
+    geometrically (1e29 m within a minute of 50 Hz bearings) and the innovation covariance
+    with it. Three guards keep such a filter finite without touching normal flight: the
+    estimated range is capped at MAX_RANGE, the pseudo-inverse is scale-safe
+    (`_projector_pseudo_inverse`), and the covariance update turns to the Joseph form when
+    rounding has made the short form indefinite. In normal flight none of them acts, so the
+    filter is the same bit for bit; for any bearing, state and covariance stay finite and
+    the covariance symmetric PSD.
+
     Both forms share one guard: eq. (6) only says the target lies on the *line*
     through p along lambda~, so a prediction that has drifted behind the sensor
     (lambda~^T (p^-_T - p) <= 0) would be pulled onto the mirrored half-line, and the
@@ -354,7 +353,7 @@ class UPLKF:
             self._restart_on(bearing, predicted_range, state[3:])
             return CorrectionReport(innovation_angle, False, reinitialized=True)
 
-        use_predicted = self.gain_projection is GainProjection.PREDICTED and innovation_angle <= MAX_INSTRUMENTAL_ANGLE
+        use_predicted = self.gain_projection is GainProjection.PREDICTED
         if self.gain_projection is GainProjection.NOISE_FREE:
             if bearing.true_direction is None:
                 raise ValueError("the noise-free (optimal) u-PLKF needs BearingMeasurement.true_direction: simulation only")
