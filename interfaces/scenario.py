@@ -13,7 +13,7 @@ import tomllib
 from pathlib import Path
 from typing import Annotated, Literal, get_args
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, Strict, ValidationError, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, Strict, ValidationError, field_validator, model_validator
 
 
 class ConfigError(ValueError):
@@ -267,10 +267,23 @@ class CameraConfig(_Strict):
         return self
 
 
+MAX_BEARING_NOISE_STD = 10.0
+"""Largest accepted [sensor] noise_std (unit-vector units for 'additive', rad for 'rotation')."""
+MAX_RANGE_NOISE_STD = 1.0e4
+"""m: largest accepted [sensor] range_noise_std."""
+
+
 class SensorConfig(_Strict):
     """Bearing sensor: 'additive' is eq. (4) (nu ~ N(0, noise_std^2 I)); 'rotation' is eq. (25)
     (epsilon ~ N(0, noise_std^2)); 'camera' is the pin-hole camera of section VIII ([sensor.camera];
-    noise_std is then unused)."""
+    noise_std is then unused).
+
+    Accepted noise: every noise_std in [0, MAX_BEARING_NOISE_STD], range_noise_std in
+    [0, MAX_RANGE_NOISE_STD] m and any finite pixel_noise_std >= 0 flies: the estimators stay
+    finite however far the bearings are from the Sigma they were given, though a bearing with
+    noise_std near 1 carries almost no information and the estimate is then poor. Larger values
+    are refused: beyond a few units the measured direction is indistinguishable from a uniformly
+    random one, and at 1e150 and above the noise overflows the bearing arithmetic."""
 
     model: Literal["additive", "rotation", "camera"] = "additive"
     noise_std: NonNegative = 0.01
@@ -279,6 +292,25 @@ class SensorConfig(_Strict):
     range_noise_std: NonNegative | None = None
     """m. A range sensor beside the bearing (seed 003's measurement set): every bearing then
     also carries |p_T - p| + N(0, range_noise_std^2). None (default): bearings only."""
+
+    @field_validator("noise_std")
+    @classmethod
+    def _bearing_noise_carries_information(cls, value: float) -> float:
+        if value > MAX_BEARING_NOISE_STD:
+            raise ValueError(
+                f"must be at most {MAX_BEARING_NOISE_STD:g}, got {value!r}: with noise of that size per axis the "
+                "measured bearing is a uniformly random direction (the true line of sight has length 1), so no "
+                "estimator can follow it")
+        return value
+
+    @field_validator("range_noise_std")
+    @classmethod
+    def _range_noise_carries_information(cls, value: float | None) -> float | None:
+        if value is not None and value > MAX_RANGE_NOISE_STD:
+            raise ValueError(
+                f"must be at most {MAX_RANGE_NOISE_STD:g} m, got {value!r}: a range sensor with noise of 10 km "
+                "and more says nothing about a target followed at metres; leave range_noise_std out for bearings only")
+        return value
 
 
 class EstimatorConfig(_Strict):

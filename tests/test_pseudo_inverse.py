@@ -1,9 +1,12 @@
-"""The u-PLKF's pseudo-inverse shortcut equals the Moore-Penrose pseudo-inverse (section IV-C)."""
+"""The u-PLKF's pseudo-inverse equals the Moore-Penrose pseudo-inverse (section IV-C), at any
+scale of the innovation covariance (a diverging filter reaches 1e50 and beyond)."""
 
 import numpy as np
 from hypothesis import given, settings
+from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from paper_reference import floats, unit_vectors
+from scipy.stats import special_ortho_group
 
 from companion.core.estimators import _projector_pseudo_inverse
 
@@ -16,3 +19,20 @@ def test_matches_numpy_pinv_for_rank_two_innovation_covariances(direction, facto
     innovation = projection @ (factor @ factor.T) @ projection + noise_scale * projection
     expected = np.linalg.pinv(innovation, hermitian=True)
     np.testing.assert_allclose(_projector_pseudo_inverse(innovation, direction), expected, atol=1e-9 * np.abs(expected).max())
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(-40, 60), floats(0.0, 4.0))
+def test_matches_numpy_pinv_at_any_scale(seed, exponent, spread):
+    """Random rank-2 PSD S = Q diag(0, l1, l2) Q^T, kernel g = Q e_1, with l1 = 10^exponent and
+    l2 = l1 10^-spread: from far below to far above unit scale (where the shortcut
+    (S + g g^T)^-1 - g g^T is numerically singular). Reference: numpy's pinv on the same S,
+    whose rounding-level third eigenvalue its relative cutoff discards."""
+    rotation = special_ortho_group.rvs(3, random_state=np.random.default_rng(seed))
+    largest = 10.0**exponent
+    innovation = rotation @ np.diag([0.0, largest, largest * 10.0**-spread]) @ rotation.T
+    innovation = 0.5 * (innovation + innovation.T)
+    expected = np.linalg.pinv(innovation, rcond=1e-10, hermitian=True)
+    actual = _projector_pseudo_inverse(innovation, rotation[:, 0])
+    np.testing.assert_allclose(actual, expected, rtol=0.0, atol=1e-7 * np.abs(expected).max())
+    assert np.all(np.isfinite(actual))

@@ -29,7 +29,9 @@ azimuth measured in the horizontal plane).
 
 Numerical guards: the elevation used in Jacobians and noise covariances is clipped to
 +-(90 deg - MAX_ELEVATION_MARGIN), ranges are floored at MIN_RANGE, covariance updates
-use the Joseph form and are symmetrised, so finite inputs never give NaN.
+use the Joseph form and are symmetrised, the MSC-EKF's covariance transforms are kept PSD
+(`_symmetric_psd`), and the az/el EKF's range is capped at MAX_RANGE, so finite inputs never
+give NaN or overflow, however noisy the bearings.
 """
 
 from __future__ import annotations
@@ -38,8 +40,8 @@ import math
 
 import numpy as np
 
-from companion.core.estimators import (CorrectionReport, InitialGuess, explicit_start, on_bearing_covariance, restart_guess,
-                                  transition_matrices)
+from companion.core.estimators import (MAX_RANGE, CorrectionReport, InitialGuess, explicit_start, limit_range,
+                                       on_bearing_covariance, restart_guess, transition_matrices)
 from companion.core.geometry import unit
 from companion.core.messages import BearingMeasurement, TargetEstimate
 
@@ -48,8 +50,8 @@ MAX_ELEVATION_MARGIN = 1e-3
 MAX_ELEVATION = 0.5 * math.pi - MAX_ELEVATION_MARGIN
 MIN_RANGE = 1e-6
 """m: floor on ranges used as divisors."""
-MIN_INVERSE_RANGE = 1e-6
-"""1/m: floor on the MSC inverse range (targets at most 1000 km away)."""
+MIN_INVERSE_RANGE = 1.0 / MAX_RANGE
+"""1/m: floor on the MSC inverse range (targets at most MAX_RANGE = 1000 km away)."""
 MAX_INVERSE_RANGE = 1e3
 """1/m: ceiling on the MSC inverse range (targets at least 1 mm away)."""
 
@@ -65,6 +67,22 @@ def wrap_angle(angle: float) -> float:
 
 def _symmetrize(matrix: np.ndarray) -> np.ndarray:
     return 0.5 * (matrix + matrix.T)
+
+
+def _symmetric_psd(matrix: np.ndarray) -> np.ndarray:
+    """The nearest symmetric positive semi-definite matrix (Frobenius norm; Higham 1988): the
+    symmetric part with its negative eigenvalues set to zero. Shape (n, n) in and out.
+
+    Why: the MSC-EKF moves its covariance through congruences J P J^T whose Jacobians are badly
+    scaled far out (at the inverse-range floor, entries of 1e6 beside 1e-6), and their rounding
+    can leave eigenvalues of -1e-6 beside 0.1, which the next steps amplify. A symmetric
+    PSD input comes back unchanged (the same bits).
+    """
+    symmetric = _symmetrize(matrix)
+    eigenvalues, vectors = np.linalg.eigh(symmetric)
+    if eigenvalues[0] >= 0.0:
+        return symmetric
+    return _symmetrize((vectors * np.maximum(eigenvalues, 0.0)) @ vectors.T)
 
 
 def _horizontal_and_range(relative: np.ndarray) -> tuple[float, float]:
@@ -317,6 +335,9 @@ class AzElEKF(_ConstantVelocityFilter):
         report = CorrectionReport(innovation_angle, False, innovation=residual,
                                   innovation_covariance=_innovation_covariance(covariance, h, r), innovation_dof=2)
         self._state, self._covariance = _kalman_update(state, covariance, residual, h, r)
+        # A linearised angle update steps along the tangent plane, so large residuals (a
+        # sensor much noisier than Sigma) lengthen the range at every bearing: keep it bounded.
+        self._state[:3] = limit_range(self._state[:3], np.asarray(bearing.pursuer_position, dtype=float))
         return report
 
     def _cartesian(self) -> tuple[np.ndarray, np.ndarray]:
@@ -570,7 +591,7 @@ class MSCEKF(_ConstantVelocityFilter):
         j_c = a @ cartesian_from_msc_jacobian(state)
         j_m = msc_from_cartesian_jacobian(moved)
         cartesian_covariance = j_c @ covariance @ j_c.T + q_discrete
-        return self._guard(msc_from_cartesian(moved)), _symmetrize(j_m @ cartesian_covariance @ j_m.T)
+        return self._guard(msc_from_cartesian(moved)), _symmetric_psd(j_m @ cartesian_covariance @ j_m.T)
 
     def _set_cartesian(self, cartesian: np.ndarray, covariance: np.ndarray, reference: np.ndarray | None) -> None:
         """Store absolute [p_T, v_T] and its covariance as MSC about `reference` (or as-is when None)."""
@@ -585,7 +606,7 @@ class MSCEKF(_ConstantVelocityFilter):
         relative_state[:3] -= self._reference
         j_m = msc_from_cartesian_jacobian(relative_state)
         self._state = self._guard(msc_from_cartesian(relative_state))
-        self._covariance = _symmetrize(j_m @ covariance @ j_m.T)
+        self._covariance = _symmetric_psd(j_m @ covariance @ j_m.T)
 
     @staticmethod
     def _guard(y: np.ndarray) -> np.ndarray:
@@ -603,7 +624,7 @@ class MSCEKF(_ConstantVelocityFilter):
         relative_state = cartesian_from_msc(state)
         j_c = cartesian_from_msc_jacobian(state)
         relative_state[:3] += self._reference
-        return relative_state, _symmetrize(j_c @ covariance @ j_c.T)
+        return relative_state, _symmetric_psd(j_c @ covariance @ j_c.T)
 
 
 # --------------------------------------------------------------------------- seed 003 EKF

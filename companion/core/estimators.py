@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
+from scipy.linalg import null_space
 
 from companion.core.geometry import orthogonal_projection, unit
 from companion.core.messages import BearingMeasurement, TargetEstimate
@@ -102,6 +103,25 @@ class GainProjection(enum.Enum):
 
 
 
+MAX_RANGE = 1.0e6
+"""m: ceiling on the estimated target range. A numerical guard, not a model: a filter fed
+bearings far noisier than its Sigma (noise_std = 1 against Sigma = 1e-4 I) pushes its range
+out at nearly every correction, to 1e29 m within a minute of 50 Hz bearings and on to
+overflow, and a following drone never has a target 1000 km away. A corrected estimate beyond it is pulled
+back along its line of sight (`limit_range`); restarts use at most this range. The
+MSC-EKF's inverse-range floor (baseline_estimators.MIN_INVERSE_RANGE) is the same bound."""
+
+
+def limit_range(target_position: np.ndarray, pursuer_position: np.ndarray) -> np.ndarray:
+    """The target position (m, NED, shape (3,)) moved along its line of sight from the
+    pursuer (m, shape (3,)) to at most MAX_RANGE away; the same array when already within."""
+    relative = target_position - pursuer_position
+    distance = float(np.linalg.norm(relative))
+    if distance <= MAX_RANGE:
+        return target_position
+    return pursuer_position + (MAX_RANGE / distance) * relative
+
+
 def transition_matrices(period: float) -> tuple[np.ndarray, np.ndarray]:
     """A and B of the discrete double integrator, eq. (1).
 
@@ -113,15 +133,55 @@ def transition_matrices(period: float) -> tuple[np.ndarray, np.ndarray]:
     return a, b
 
 
+SHORTCUT_EIGENVALUE_BAND = (2.0**-10, 2.0**10)
+"""Bounds on the non-zero eigenvalues of the innovation covariance (m^2 scale) inside which
+`_projector_pseudo_inverse` uses the one-inverse shortcut; outside it, the general form."""
+
+
 def _projector_pseudo_inverse(matrix: np.ndarray, null_direction: np.ndarray) -> np.ndarray:
-    """Moore-Penrose pseudo-inverse of a symmetric PSD 3x3 `matrix` whose kernel is span(g).
+    """Moore-Penrose pseudo-inverse of a symmetric PSD 3x3 `matrix` S whose kernel is span(g).
 
     The innovation covariance of section IV-C is rank 2 with kernel span(g), g the unit
-    vector of its projector; for such a matrix S^+ = (S + g g^T)^-1 - g g^T exactly,
-    which costs one 3x3 inverse instead of an eigendecomposition. Shape (3, 3).
+    vector of its projector. Shape (3, 3) in and out; g: shape (3,), unit.
+
+    Shortcut: S^+ = (S + g g^T)^-1 - g g^T exactly, one 3x3 inverse. It is accurate only
+    while the two non-zero eigenvalues of S are on the scale of the added unit eigenvalue:
+    a diverging filter drives them to 1e50 and beyond, the g g^T term is then lost in the
+    rounding of S's entries and S + g g^T is numerically singular (LinAlgError); tiny or
+    very unequal eigenvalues lose accuracy the same way. So the shortcut is taken only when
+    both lie in SHORTCUT_EIGENVALUE_BAND (their sum is trace S, their product
+    det(S + g g^T)), which holds throughout normal flight. Otherwise the general form:
+    E (E^T S E)^+ E^T, with E (3, 2) an orthonormal basis of g's orthogonal complement and
+    the 2x2 pseudo-inverse from numpy's SVD, which is defined for any finite S and any
+    unit g (a rank-deficient block gives the pseudo-inverse, never an error).
     """
     outer = np.outer(null_direction, null_direction)
-    return np.linalg.inv(matrix + outer) - outer
+    low, high = SHORTCUT_EIGENVALUE_BAND
+    trace = float(np.trace(matrix))
+    if low <= trace <= high:
+        regularized = matrix + outer
+        determinant = float(np.linalg.det(regularized))
+        if determinant >= low * trace:  # smallest eigenvalue >= det / trace >= low
+            return np.linalg.inv(regularized) - outer
+    basis = null_space(np.reshape(null_direction, (1, 3)))
+    block = basis.T @ matrix @ basis
+    return basis @ np.linalg.pinv(0.5 * (block + block.T), hermitian=True) @ basis.T
+
+
+def _joseph_update(prior: np.ndarray, gain: np.ndarray, projection: np.ndarray, measurement_covariance: np.ndarray) -> np.ndarray:
+    """Joseph form of the covariance update, P = (I - K H) P^- (I - K H)^T + K R K^T, H = [P_lambda, 0].
+
+    The short form (I - K H) P^- of section IV-C is the same matrix in exact arithmetic and is
+    what the filter uses; with a prior of condition number beyond ~1e12 (only a filter fed
+    bearings far noisier than its Sigma gets there) its rounding can leave negative
+    eigenvalues, which later steps amplify. The Joseph form is a sum of two congruences of
+    PSD matrices, so it stays PSD to rounding. prior: P^-, (6, 6). gain: K, (6, 3).
+    projection: P_lambda of H, (3, 3). measurement_covariance: R_k, (3, 3). Returns (6, 6).
+    """
+    h = np.hstack([projection, np.zeros((3, 3))])
+    i_kh = np.eye(6) - gain @ h
+    covariance = i_kh @ prior @ i_kh.T + gain @ measurement_covariance @ gain.T
+    return 0.5 * (covariance + covariance.T)
 
 
 def explicit_start(initial_guess: InitialGuess) -> tuple[np.ndarray, np.ndarray] | None:
@@ -149,6 +209,7 @@ def restart_guess(previous: InitialGuess | None, predicted_range: float, velocit
     """The guess a filter restarts on when its prediction lies behind the sensor (remark 3):
     the predicted range (at least 1 m), an along-bearing std of at least that range, the
     current velocity estimate. Always on the bearing, never at an explicit position."""
+    predicted_range = min(predicted_range, MAX_RANGE)
     guess = previous or InitialGuess(predicted_range, predicted_range, velocity, 5.0)
     return InitialGuess(max(predicted_range, 1.0), max(guess.range_std, predicted_range), velocity, guess.velocity_std)
 
@@ -175,6 +236,17 @@ class UPLKF:
     predicted line of sight lambda^- = (p^-_T - p)/|p^-_T - p|, an instrumental
     variable that does not depend on the current noise, while the innovation stays
     the paper's pseudo-linear residual -P_lambda~ (p^-_T - p).
+
+    Bearings far noisier than Sigma (a sensor noise_std of 1 against Sigma = 1e-4 I). Each
+    correction then trusts a bearing tens of degrees off; the PREDICTED form's step lies
+    across the predicted line of sight and lengthens the range, so the range estimate grows
+    geometrically (1e29 m within a minute of 50 Hz bearings) and the innovation covariance
+    with it. Three guards keep such a filter finite without touching normal flight: the
+    estimated range is capped at MAX_RANGE, the pseudo-inverse is scale-safe
+    (`_projector_pseudo_inverse`), and the covariance update turns to the Joseph form when
+    rounding has made the short form indefinite. In normal flight none of them acts, so the
+    filter is the same bit for bit; for any bearing, state and covariance stay finite and
+    the covariance symmetric PSD.
 
     Both forms share one guard: eq. (6) only says the target lies on the *line*
     through p along lambda~, so a prediction that has drifted behind the sensor
@@ -310,8 +382,12 @@ class UPLKF:
         # x_k = x^-_k - K_k H_k x^-_k, with H_k x^-_k = P_lambda~ (p^-_T - p)
         self._snapshot = None
         self._state = state - gain @ (measured_projection @ relative)
+        self._state[:3] = limit_range(self._state[:3], np.asarray(bearing.pursuer_position, dtype=float))
         covariance = p_prior - gain @ (gain_projection @ p_prior[:3])  # (I - K H) P^-
-        self._covariance = 0.5 * (covariance + covariance.T)
+        covariance = 0.5 * (covariance + covariance.T)
+        if np.linalg.eigvalsh(covariance)[0] < 0.0:
+            covariance = _joseph_update(p_prior, gain, gain_projection, measurement_covariance)
+        self._covariance = covariance
         return CorrectionReport(innovation_angle, use_predicted, innovation=measured_projection @ relative,
                                 innovation_covariance=innovation_covariance, innovation_dof=2)
 
