@@ -15,10 +15,11 @@ import numpy as np
 from companion.core.attitude import VehicleLimits
 from interfaces.scenario import (ConfigError, EstimatorConfig, GuidanceConfig, Scenario, SensorConfig,
                                  VehicleConfig)
-from companion.core.bearing_sensor import BearingSensor, CameraModel
+from companion.core.bearing_sensor import BearingSensor, CameraModel, RangeDependentVariance
 from companion.core.baseline_estimators import AzElEKF, MSCEKF, RangeAzElEKF
 from companion.core.baseline_guidance import (PDFollowingController, ProportionalNavigationGuidance,
-                                         RetroProportionalNavigationGuidance, ZEMObservabilityGuidance)
+                                         RetroProportionalNavigationGuidance, Seed003BacksteppingGuidance,
+                                         ZEMObservabilityGuidance)
 from companion.core.estimators import GainProjection, InitialGuess, TargetEstimator, UPLKF
 from companion.core.guidance import HelicalNavigationGuidance, LateralGuidance, PurePursuitGuidance, RangeController
 from companion.core.pipeline import DropoutPolicy, FollowingPipeline
@@ -41,8 +42,13 @@ def _camera_sensor(config: SensorConfig) -> BearingSensor:
 
 
 def _direction_noise_sensor(config: SensorConfig) -> BearingSensor:
-    """Direction noise added to the true line of sight: eq. (4) ('additive') or eq. (25) ('rotation')."""
-    return BearingSensor(config.model, config.noise_std, range_noise_std=config.range_noise_std)
+    """Direction noise added to the true line of sight: eq. (4) ('additive') or eq. (25) ('rotation'),
+    white by default; coloured and/or range-dependent (seed 003 cases 2 and 3) when configured."""
+    dependent = config.range_dependent_noise
+    return BearingSensor(config.model, config.noise_std, range_noise_std=config.range_noise_std,
+                         noise_time_constant=config.noise_time_constant, sample_period=1.0 / config.rate_hz,
+                         range_dependent=None if dependent is None else RangeDependentVariance(
+                             dependent.a0, dependent.a1, dependent.a2, dependent.alpha))
 
 
 #: [sensor] model -> the sensor it builds. Keys are exactly SensorConfig.model's Literal values.
@@ -130,11 +136,12 @@ LATERAL_GUIDANCE: dict[str, Callable[[GuidanceConfig], LateralGuidance]] = {
     "pd": lambda g: PDFollowingController(g.pd_kp, g.pd_kd, g.desired_range),
     "retro_png": lambda g: RetroProportionalNavigationGuidance(g.retro_gain),
     "zem": lambda g: ZEMObservabilityGuidance(g.zem_k_w, g.zem_max_gain, g.desired_range),
+    "seed003": lambda g: Seed003BacksteppingGuidance(g.seed003_alpha, g.seed003_gain, g.desired_range),
 }
 
 
 def build_lateral_guidance(scenario: Scenario) -> LateralGuidance:
-    """The [guidance] law: HNG (eq. 14) or a baseline of section VIII-C."""
+    """The [guidance] law: HNG (eq. 14), a baseline of section VIII-C or seed 003's law."""
     return LATERAL_GUIDANCE[scenario.guidance.law](scenario.guidance)
 
 

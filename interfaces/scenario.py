@@ -273,6 +273,20 @@ MAX_RANGE_NOISE_STD = 1.0e4
 """m: largest accepted [sensor] range_noise_std."""
 
 
+class RangeDependentNoise(_Strict):
+    """Seed 003 eq. (15)-(16): sigma_r^2 = a2 (r - a1)^2 + a0 for the range, alpha times that for
+    each bearing angle (r the true range, m). Defaults: the seed's case 3."""
+
+    a0: Positive = 1.0
+    """m^2: the variance at r = a1 (its minimum)."""
+    a1: NonNegative = 1.0
+    """m: the range of least noise."""
+    a2: NonNegative = 0.0024
+    """dimensionless: growth of the variance with (r - a1)^2."""
+    alpha: Positive = 1e-5
+    """rad^2/m^2: angle variance per m^2 of range variance."""
+
+
 class SensorConfig(_Strict):
     """Bearing sensor: 'additive' is eq. (4) (nu ~ N(0, noise_std^2 I)); 'rotation' is eq. (25)
     (epsilon ~ N(0, noise_std^2)); 'camera' is the pin-hole camera of section VIII ([sensor.camera];
@@ -292,6 +306,22 @@ class SensorConfig(_Strict):
     range_noise_std: NonNegative | None = None
     """m. A range sensor beside the bearing (seed 003's measurement set): every bearing then
     also carries |p_T - p| + N(0, range_noise_std^2). None (default): bearings only."""
+    noise_time_constant: Positive | None = None
+    """s. Coloured noise (seed 003 case 2): the bearing noise (model 'additive') and the range
+    noise become first-order Gauss-Markov processes with this time constant and the same
+    stationary std, sampled at rate_hz. None (default): white noise."""
+    range_dependent_noise: RangeDependentNoise | None = None
+    """Seed 003 case 3 (eq. (15)-(16)): the noise std follows the true range, sqrt(sigma_r^2) for the
+    range and sqrt(alpha sigma_r^2) per bearing axis, replacing range_noise_std and noise_std in the
+    sensor (the estimators keep their configured constant noise). Not for model 'camera'."""
+
+    @model_validator(mode="after")
+    def _noise_options_fit_the_model(self) -> "SensorConfig":
+        if self.noise_time_constant is not None and self.model != "additive":
+            raise ValueError(f"noise_time_constant (coloured noise) needs model = 'additive', got {self.model!r}")
+        if self.range_dependent_noise is not None and self.model == "camera":
+            raise ValueError("range_dependent_noise does not apply to the camera (its noise is in pixels)")
+        return self
 
     @field_validator("noise_std")
     @classmethod
@@ -345,7 +375,7 @@ class EstimatorConfig(_Strict):
         return self
 
 
-GUIDANCE_LAWS = ("hng", "ppg", "png", "pd", "retro_png", "zem")
+GUIDANCE_LAWS = ("hng", "ppg", "png", "pd", "retro_png", "zem", "seed003")
 
 
 class GuidanceConfig(_Strict):
@@ -353,9 +383,11 @@ class GuidanceConfig(_Strict):
     c_y = 0 is planar weaving), 'ppg' pure pursuit, 'png' 3-D proportional navigation, 'pd' the
     PD controller (k_p, k_d; replaces the range controller), 'retro_png' retro-PNG of refs
     [14]/[16] per horizontal/vertical plane (retro_gain), 'zem' the ZEM-based law of ref. [43]
-    (zem_k_w, zem_max_gain). All but 'pd' add the range controller of eq. (18)."""
+    (zem_k_w, zem_max_gain), 'seed003' seed 003's backstepping speed / flight-path / course law
+    (eq. (5)-(8), sign erratum fixed; seed003_alpha, seed003_gain), holding desired_range behind
+    the target. All but 'pd' and 'seed003' add the range controller of eq. (18)."""
 
-    law: Literal["hng", "ppg", "png", "pd", "retro_png", "zem"] = "hng"
+    law: Literal["hng", "ppg", "png", "pd", "retro_png", "zem", "seed003"] = "hng"
     navigation_gain: Positive = 3.0
     c_z: NonNegative = 3.5
     c_y: NonNegative = 3.5
@@ -370,6 +402,10 @@ class GuidanceConfig(_Strict):
     retro_gain: Positive = 2.0
     zem_k_w: Positive = 0.007
     zem_max_gain: Positive = 10.0
+    seed003_alpha: Positive = 0.3
+    """1/s: seed 003's position gain alpha_1 = alpha_2 = alpha_3 (the seed flies 1)."""
+    seed003_gain: Positive = 1.0
+    """1/s: seed 003's velocity/course gain lambda_1..3 (the seed's 50 assumes a 100/s autopilot)."""
 
 
 class SimulationConfig(_Strict):

@@ -204,7 +204,7 @@ def _measure(sensor: BearingSensor, time: float, line_of_sight: np.ndarray, rota
     """
     distance = float(np.linalg.norm(line_of_sight))
     true_direction = line_of_sight / distance
-    direction = sensor.measure(true_direction, sensor_rng, rotation)
+    direction = sensor.measure(true_direction, sensor_rng, rotation, true_range=distance)
     if direction is None:
         return None
     return BearingMeasurement(time, direction, measured_position, sensor.measure_range(distance, range_rng), true_direction)

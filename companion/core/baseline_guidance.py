@@ -10,6 +10,8 @@ relative_velocity m/s (3,) = v^_T - v) -> m/s^2, shape (3,). Frames: local NED
   complete command (`includes_range_control = True`).
 * `RetroProportionalNavigationGuidance` - retro-PNG of refs. [14], [16],
   section VIII-C2 (Fig. 12(a)), applied per plane.
+* `Seed003BacksteppingGuidance` - seed 003's speed / flight-path / course law, eq. (5)-(8),
+  erratum fixed, converted to an acceleration through its first-order autopilot (eq. (4)).
 * `ZEMObservabilityGuidance` - the linear observability-enhancement law of
   ref. [43], section VIII-C2 (Fig. 12(b)), applied per plane.
 
@@ -276,3 +278,157 @@ class ZEMObservabilityGuidance:
         speed = closing_speed if t_go is not None else self.min_closing_speed
         rates = plane_los_rates(dp, dv)
         return gain * speed * (rates.beta_dot * rates.e_beta + rates.eps_dot * rates.e_eps)
+
+
+class FlightPathCommands(NamedTuple):
+    """Seed 003's commands to the chaser's first-order autopilot (eq. (5)-(7), erratum fixed).
+
+    speed: v_g^c, m/s. flight_path_angle: gamma^c, rad, positive climbing. course: chi^c,
+    rad, from north towards east (NED heading).
+    """
+
+    speed: float
+    flight_path_angle: float
+    course: float
+
+
+def flight_path_angles(velocity_ned: np.ndarray) -> tuple[float, float, float]:
+    """(v_g, gamma, chi) of a NED velocity (m/s, (3,)): speed m/s, flight-path angle rad
+    (positive climbing), course rad (atan2(v_E, v_N)); seed 003 eq. (4) with z up = -z_NED."""
+    v = np.asarray(velocity_ned, dtype=float)
+    horizontal = math.hypot(float(v[0]), float(v[1]))
+    return float(np.linalg.norm(v)), math.atan2(-float(v[2]), horizontal), math.atan2(float(v[1]), float(v[0]))
+
+
+def autopilot_acceleration(speed: float, gamma: float, chi: float, speed_rate: float, gamma_rate: float,
+                           chi_rate: float) -> np.ndarray:
+    """NED acceleration (m/s^2, (3,)) of the point mass of seed 003 eq. (4) given its rates.
+
+    With V = v_g e_v, e_v = [cos g cos chi, cos g sin chi, sin g] (z up):
+    V' = v_g' e_v + v_g g' e_g + v_g cos g chi' e_chi, e_g = d e_v / d g =
+    [-sin g cos chi, -sin g sin chi, cos g], e_chi = [-sin chi, cos chi, 0]; the z
+    component is negated for NED. speed m/s, angles rad, rates m/s^2 and rad/s.
+    """
+    cg, sg, cc, sc = math.cos(gamma), math.sin(gamma), math.cos(chi), math.sin(chi)
+    e_v = np.array([cg * cc, cg * sc, sg])
+    e_g = np.array([-sg * cc, -sg * sc, cg])
+    e_chi = np.array([-sc, cc, 0.0])
+    up = speed_rate * e_v + speed * gamma_rate * e_g + speed * cg * chi_rate * e_chi
+    return np.array([up[0], up[1], -up[2]])
+
+
+@dataclass(frozen=True)
+class Seed003BacksteppingGuidance:
+    """Backstepping-like speed / flight-path / course law of seed 003 (Ahmed and Subbarao,
+    Aerospace 2016), eq. (5)-(8), with the erratum's sign fixed, as a complete following command.
+
+    Frame: the seed's x north, y east, z up (NED with z negated). Following task: the law
+    tracks the reference point p_r = p^_T - r_d lambda (r_d behind the target on the line
+    of sight) instead of the target itself, so the position error of eq. (8) is
+    e = p - p_r = (r_d - r^) lambda, and its velocity x_r' = v^_T - r_d lambda' with
+    lambda' = P_lambda dv / r^ (dv = v^_T - v). The target's acceleration and lambda'' are
+    not estimated (the seed's "derivative estimation filter" is not in the interface), so
+    x_r'' = 0 in eq. (8).
+
+    Desired velocity (eq. (8)): u = -alpha e + x_r' (horizontal gains alpha, vertical alpha);
+    v_1^d = |u_h|, v_2^d = u_z, chi^d = atan2(u_y, u_x); with e' = v - x_r':
+    u' = -alpha e', v_1^d' = u_h . u_h' / v_1^d, v_2^d' = u_z',
+    chi^d' = (cos chi^d u_y' - sin chi^d u_x') / v_1^d.
+
+    Commands with the erratum fixed (A_1 = -v_1^d' + lambda v~_1, A_2 = -v_2^d' + lambda v~_2,
+    v~_1 = v_g cos g - v_1^d, v~_2 = v_g sin g - v_2^d, chi~ = wrap(chi - chi^d)):
+    v_g^c = v_g + [-cos g A_1 - sin g A_2] / c_1 (eq. (5)), g^c = g + [sin g A_1 -
+    cos g A_2] / (c_2 v_g) (eq. (6)), chi^c = chi - (-chi^d' + lambda chi~) / c_3 (eq. (7)).
+    Through the first-order autopilot of eq. (4) these give v~_i' = -lambda v~_i and
+    chi~' = -lambda chi~; the printed leading minus of (5)-(6) gives v~_i' = +lambda v~_i.
+
+    Acceleration command (what the pipeline's attitude mapping, eq. (21)-(22), needs): the
+    autopilot's rates v_g' = c_1 (v_g^c - v_g), g' = c_2 (g^c - g), chi' = c_3 (chi^c - chi)
+    put into `autopilot_acceleration`. c_1, c_2, c_3 cancel and the result is regular at
+    v_g = 0: a_up = -A_1 [cos chi, sin chi, 0] - A_2 [0, 0, 1]
+    + v_g cos g (chi^d' - lambda chi~) [-sin chi, cos chi, 0].
+
+    Singularities guarded: v_1^d below min_horizontal_speed (a vertical target, or the
+    reference point reached) divides by min_horizontal_speed instead (v_1^d' is then still
+    bounded by |u_h'|), and chi^d' = 0, chi^d = chi (hold the course); a pursuer whose
+    horizontal speed is below min_horizontal_speed takes chi = chi^d (its course is
+    undefined). The 1 / v_g of eq. (6) only appears in `commands`, floored the same way.
+
+    alpha: position gain alpha_1 = alpha_2 = alpha_3, 1/s. gain: lambda_1 = lambda_2 =
+    lambda_3, 1/s. desired_range: r_d, m. autopilot_gains: (c_1, c_2, c_3), 1/s (the seed's
+    100), used by `commands` only. The seed's lambda = 50 assumes a 100/s autopilot; a
+    quadrotor's attitude loop is far slower: on seed 003's helix
+    (seed003_ekf_rae, seed 1) alpha = 0.5, lambda = 2 goes out of control, 0.3 / 1 flies.
+    """
+
+    includes_range_control: ClassVar[bool] = True
+
+    alpha: float = 0.3
+    gain: float = 1.0
+    desired_range: float = 8.0
+    autopilot_gains: tuple[float, float, float] = (100.0, 100.0, 100.0)
+    min_horizontal_speed: float = 0.05
+
+    def __post_init__(self) -> None:
+        for name in ("alpha", "gain", "desired_range", "min_horizontal_speed"):
+            if not getattr(self, name) > 0.0:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)!r}")
+        if len(self.autopilot_gains) != 3 or not all(c > 0.0 for c in self.autopilot_gains):
+            raise ValueError(f"autopilot_gains must be three positive numbers, got {self.autopilot_gains!r}")
+
+    def _errors(self, velocity: np.ndarray, los: np.ndarray, range_estimate: float,
+                relative_velocity: np.ndarray) -> tuple[float, float, float, float, float, float, float, float]:
+        """(v_g, g, chi, A_1, A_2, chi~, chi^d', v_1^d) of the class docstring (seed frame, z up)."""
+        up = np.array([1.0, 1.0, -1.0])
+        lam = unit(np.asarray(los, dtype=float))
+        r = max(float(range_estimate), _MIN_RANGE)
+        v_ned = np.asarray(velocity, dtype=float)
+        dv = np.asarray(relative_velocity, dtype=float)
+        reference_velocity = up * (v_ned + dv - self.desired_range * (orthogonal_projection(lam) @ dv) / r)
+        error = up * ((self.desired_range - r) * lam)
+        v = up * v_ned
+        u = -self.alpha * error + reference_velocity
+        u_dot = -self.alpha * (v - reference_velocity)
+        v1d = math.hypot(float(u[0]), float(u[1]))
+        v2d, v2d_dot = float(u[2]), float(u_dot[2])
+        v1d_dot = float(u[0] * u_dot[0] + u[1] * u_dot[1]) / max(v1d, self.min_horizontal_speed)
+        speed, gamma, chi = flight_path_angles(v_ned)
+        if v1d >= self.min_horizontal_speed:
+            chi_d = math.atan2(float(u[1]), float(u[0]))
+            chi_d_dot = (math.cos(chi_d) * float(u_dot[1]) - math.sin(chi_d) * float(u_dot[0])) / v1d
+        else:
+            chi_d, chi_d_dot = chi, 0.0
+        if speed * math.cos(gamma) < self.min_horizontal_speed:
+            chi = chi_d
+        a1 = -v1d_dot + self.gain * (speed * math.cos(gamma) - v1d)
+        a2 = -v2d_dot + self.gain * (speed * math.sin(gamma) - v2d)
+        chi_error = math.remainder(chi - chi_d, 2.0 * math.pi)
+        return speed, gamma, chi, a1, a2, chi_error, chi_d_dot, v1d
+
+    def commands(self, velocity: np.ndarray, los: np.ndarray, range_estimate: float,
+                 relative_velocity: np.ndarray, printed_sign: bool = False) -> FlightPathCommands:
+        """v_g^c, gamma^c, chi^c of eq. (5)-(7), erratum fixed (printed_sign=True: as printed).
+
+        velocity m/s (3,) NED, los (3,), range m, relative_velocity m/s (3,).
+        """
+        speed, gamma, chi, a1, a2, chi_error, chi_d_dot, _ = self._errors(velocity, los, range_estimate,
+                                                                          relative_velocity)
+        c1, c2, c3 = self.autopilot_gains
+        sign = -1.0 if printed_sign else 1.0
+        return FlightPathCommands(
+            speed + sign * (-math.cos(gamma) * a1 - math.sin(gamma) * a2) / c1,
+            gamma + sign * (math.sin(gamma) * a1 - math.cos(gamma) * a2) / (c2 * max(speed, self.min_horizontal_speed)),
+            chi - (-chi_d_dot + self.gain * chi_error) / c3,
+        )
+
+    def acceleration(self, engaged_time: float, velocity: np.ndarray, los: np.ndarray, range_estimate: float,
+                     relative_velocity: np.ndarray | None = None) -> np.ndarray:
+        """The autopilot acceleration the law asks for (class docstring), m/s^2, NED, shape (3,).
+
+        velocity m/s (3,), los (3,), range m, relative_velocity m/s (3,) (required).
+        """
+        dv = _require_relative_velocity(relative_velocity, "the seed 003 law")
+        speed, gamma, chi, a1, a2, chi_error, chi_d_dot, _ = self._errors(velocity, los, range_estimate, dv)
+        turn = speed * math.cos(gamma) * (chi_d_dot - self.gain * chi_error)
+        cc, sc = math.cos(chi), math.sin(chi)
+        return np.array([-a1 * cc - turn * sc, -a1 * sc + turn * cc, a2])

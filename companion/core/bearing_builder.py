@@ -83,7 +83,7 @@ class BearingBuilder:
         if distance < self._min_range or distance == 0.0:
             return BuildResult(None, BuildFailure.TOO_CLOSE)
         line_of_sight = relative / distance
-        direction = self._sensor.measure(line_of_sight, self._rng, own.rotation)
+        direction = self._sensor.measure(line_of_sight, self._rng, own.rotation, true_range=distance)
         if direction is None:
             return BuildResult(None, BuildFailure.OUT_OF_VIEW, line_of_sight)
         measured_range = self._sensor.measure_range(distance, self._range_rng)

@@ -13,6 +13,12 @@ Three models:
   quantised to the pixel grid and back-projected; outside the field of view there is
   no bearing at all.
 
+Beside the white noise of eq. (4)/(25), seed 003's noise options (Ahmed and Subbarao,
+Aerospace 2016): coloured noise (case 2, a first-order Gauss-Markov process per axis,
+`GaussMarkovNoise`) and range-dependent variance (case 3, eq. (15)-(16),
+`RangeDependentVariance`), for the bearing ('additive'; range-dependent also 'rotation')
+and for the range.
+
 Camera frame: x along the optical axis, y to the right of the image (+u), z down the
 image (+v), i.e. the body FRD axes when the camera is mounted looking forward (the
 default, no gimbal; the paper's attitude mapping of section VII turns body x towards
@@ -24,7 +30,7 @@ the target). Pixel centres are at integer coordinates, so pixel (i, j) covers
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
@@ -226,33 +232,149 @@ def measure_bearing(
 
 
 @dataclass(frozen=True)
+class RangeDependentVariance:
+    """Seed 003 eq. (15)-(16): sigma_r^2 = a2 (r - a1)^2 + a0 (m^2), angles alpha sigma_r^2 (rad^2).
+
+    a0: m^2, > 0. a1: m. a2: dimensionless, >= 0. alpha: rad^2/m^2, > 0.
+    """
+
+    a0: float = 1.0
+    a1: float = 1.0
+    a2: float = 0.0024
+    alpha: float = 1e-5
+
+    def __post_init__(self) -> None:
+        if not (self.a0 > 0.0 and self.a2 >= 0.0 and self.alpha > 0.0 and math.isfinite(self.a1)):
+            raise ValueError(f"range-dependent noise needs a0 > 0, a2 >= 0, alpha > 0, finite a1; got {self!r}")
+
+    def range_variance(self, true_range: float) -> float:
+        """sigma_r^2 of eq. (15), m^2, at the true range r (m)."""
+        return self.a2 * (float(true_range) - self.a1) ** 2 + self.a0
+
+    def angle_variance(self, true_range: float) -> float:
+        """sigma_phi^2 = sigma_theta^2 of eq. (16), rad^2, at the true range r (m)."""
+        return self.alpha * self.range_variance(true_range)
+
+
+@dataclass
+class GaussMarkovNoise:
+    """Unit-variance first-order Gauss-Markov noise (seed 003 eq. (11), the shaping filter
+    z' = -b z + b w with b = 1/tau), sampled exactly every `period`.
+
+    x_0 ~ N(0, I) (stationary start), x_k = phi x_{k-1} + sqrt(1 - phi^2) w_k with
+    phi = exp(-period / time_constant), w_k ~ N(0, I): stationary variance 1 and
+    autocorrelation phi^n at lag n. time_constant, period: s, > 0. size: components.
+    Multiply by the wanted std (which may vary with time).
+    """
+
+    time_constant: float
+    period: float
+    size: int = 3
+    _state: np.ndarray | None = field(default=None, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if not (self.time_constant > 0.0 and self.period > 0.0):
+            raise ValueError(f"Gauss-Markov noise needs a positive time constant and period, got {self.time_constant!r}, {self.period!r}")
+
+    @property
+    def correlation(self) -> float:
+        """phi = exp(-period / time_constant), the lag-one autocorrelation."""
+        return math.exp(-self.period / self.time_constant)
+
+    def sample(self, rng: np.random.Generator) -> np.ndarray:
+        """The next sample, shape (size,), unit stationary variance; draws `size` normals from rng."""
+        drive = rng.normal(0.0, 1.0, self.size)
+        if self._state is None:
+            self._state = drive
+        else:
+            phi = self.correlation
+            self._state = phi * self._state + math.sqrt(1.0 - phi * phi) * drive
+        return self._state.copy()
+
+
+@dataclass(frozen=True)
 class BearingSensor:
-    """A configured bearing sensor: the model, its noise and, for 'camera', the camera."""
+    """A configured bearing sensor: the model, its noise and, for 'camera', the camera.
+
+    noise_time_constant: s, or None (white noise). When set, the 'additive' bearing noise
+    and the range noise are `GaussMarkovNoise` with that time constant, stepped once per
+    measurement with sample_period (s, the sensor's 1 / rate_hz; required then), scaled by
+    their std. range_dependent: seed 003 eq. (15)-(16); the stds then follow the true
+    range passed to `measure` and `measure_range` instead of noise_std and range_noise_std.
+    With neither, the draws are exactly those of eq. (4)/(25) and r + N(0, sigma_r^2).
+    The sensor then holds the noise processes' state: one sensor per flight.
+    """
 
     model: str = "additive"
     noise_std: float = 0.01
     camera: CameraModel | None = None
     range_noise_std: float | None = None
+    noise_time_constant: float | None = None
+    sample_period: float | None = None
+    range_dependent: RangeDependentVariance | None = None
+    _bearing_process: GaussMarkovNoise | None = field(default=None, init=False, repr=False, compare=False)
+    _range_process: GaussMarkovNoise | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if self.model not in MODELS:
             raise ValueError(f"unknown bearing sensor model {self.model!r} (expected one of {', '.join(MODELS)})")
         if self.model == "camera" and self.camera is None:
             object.__setattr__(self, "camera", CameraModel())
+        if self.noise_time_constant is not None:
+            if self.model != "additive":
+                raise ValueError(f"coloured bearing noise needs the 'additive' model, got {self.model!r}")
+            if self.sample_period is None:
+                raise ValueError("coloured noise needs the sample_period (1 / rate_hz) it is stepped with")
+            object.__setattr__(self, "_bearing_process", GaussMarkovNoise(self.noise_time_constant, self.sample_period, 3))
+            object.__setattr__(self, "_range_process", GaussMarkovNoise(self.noise_time_constant, self.sample_period, 1))
+        if self.range_dependent is not None and self.model == "camera":
+            raise ValueError("range-dependent noise does not apply to the camera")
 
     @property
     def needs_attitude(self) -> bool:
         """Whether measure() needs the vehicle's attitude."""
         return self.model == "camera"
 
-    def measure(self, true_bearing: np.ndarray, rng: np.random.Generator, rotation: np.ndarray | Rotation | None = None) -> np.ndarray | None:
-        """The measured bearing for a true unit line of sight (NED, shape (3,)); None if not seen."""
-        return measure_bearing(self.model, true_bearing, self.noise_std, rng, rotation, self.camera)
+    def bearing_noise_std(self, true_range: float | None = None) -> float:
+        """Per-axis bearing noise std (rad): noise_std, or sqrt(eq. (16)) at true_range (m)."""
+        if self.range_dependent is None:
+            return self.noise_std
+        if true_range is None:
+            raise ValueError("range-dependent bearing noise needs the true range")
+        return math.sqrt(self.range_dependent.angle_variance(true_range))
+
+    def range_noise(self, true_range: float) -> float | None:
+        """Range noise std (m): range_noise_std, or sqrt(eq. (15)) at true_range (m); None without a range sensor."""
+        if self.range_noise_std is None:
+            return None
+        if self.range_dependent is None:
+            return self.range_noise_std
+        return math.sqrt(self.range_dependent.range_variance(true_range))
+
+    def measure(self, true_bearing: np.ndarray, rng: np.random.Generator, rotation: np.ndarray | Rotation | None = None,
+                true_range: float | None = None) -> np.ndarray | None:
+        """The measured bearing for a true unit line of sight (NED, shape (3,)); None if not seen.
+
+        true_range: m, needed by range-dependent noise only. Coloured: lambda + sigma x_k,
+        x_k the unit Gauss-Markov process (seed 003 case 2 applied to eq. (4)).
+        """
+        if self._bearing_process is None and self.range_dependent is None:
+            return measure_bearing(self.model, true_bearing, self.noise_std, rng, rotation, self.camera)
+        std = self.bearing_noise_std(true_range)
+        if self._bearing_process is not None:
+            return np.asarray(true_bearing, float) + std * self._bearing_process.sample(rng)
+        return measure_bearing(self.model, true_bearing, std, rng, rotation, self.camera)
 
     def measure_range(self, true_range: float, rng: np.random.Generator) -> float | None:
         """Range measured beside the bearing (seed 003 eq. (2)): r + N(0, range_noise_std^2), m,
         floored at 0.1 m; None without a range sensor. Draws from its own generator `rng`, so
-        adding a range sensor leaves the bearing noise unchanged."""
+        adding a range sensor leaves the bearing noise unchanged. Coloured and range-dependent
+        noise as for the bearing (std from `range_noise`)."""
         if self.range_noise_std is None:
             return None
-        return max(float(true_range) + float(rng.normal(0.0, self.range_noise_std)), 0.1)
+        if self._range_process is None and self.range_dependent is None:
+            return max(float(true_range) + float(rng.normal(0.0, self.range_noise_std)), 0.1)
+        std = self.range_noise(true_range)
+        assert std is not None
+        draw = float(self._range_process.sample(rng)[0]) if self._range_process is not None else float(rng.normal())
+        return max(float(true_range) + std * draw, 0.1)
