@@ -136,7 +136,8 @@ LATERAL_GUIDANCE: dict[str, Callable[[GuidanceConfig], LateralGuidance]] = {
     "pd": lambda g: PDFollowingController(g.pd_kp, g.pd_kd, g.desired_range),
     "retro_png": lambda g: RetroProportionalNavigationGuidance(g.retro_gain),
     "zem": lambda g: ZEMObservabilityGuidance(g.zem_k_w, g.zem_max_gain, g.desired_range),
-    "seed003": lambda g: Seed003BacksteppingGuidance(g.seed003_alpha, g.seed003_gain, g.desired_range),
+    "seed003": lambda g: Seed003BacksteppingGuidance(g.seed003_alpha, g.seed003_gain, g.desired_range,
+                                                           g.seed003_max_approach_speed),
 }
 
 

@@ -384,8 +384,8 @@ class GuidanceConfig(_Strict):
     PD controller (k_p, k_d; replaces the range controller), 'retro_png' retro-PNG of refs
     [14]/[16] per horizontal/vertical plane (retro_gain), 'zem' the ZEM-based law of ref. [43]
     (zem_k_w, zem_max_gain), 'seed003' seed 003's backstepping speed / flight-path / course law
-    (eq. (5)-(8), sign erratum fixed; seed003_alpha, seed003_gain), holding desired_range behind
-    the target. All but 'pd' and 'seed003' add the range controller of eq. (18)."""
+    (eq. (5)-(8), sign erratum fixed; seed003_alpha, seed003_gain, seed003_max_approach_speed), holding
+    desired_range behind the target. All but 'pd' and 'seed003' add the range controller of eq. (18)."""
 
     law: Literal["hng", "ppg", "png", "pd", "retro_png", "zem", "seed003"] = "hng"
     navigation_gain: Positive = 3.0
@@ -402,10 +402,12 @@ class GuidanceConfig(_Strict):
     retro_gain: Positive = 2.0
     zem_k_w: Positive = 0.007
     zem_max_gain: Positive = 10.0
-    seed003_alpha: Positive = 0.3
+    seed003_alpha: Positive = 0.5
     """1/s: seed 003's position gain alpha_1 = alpha_2 = alpha_3 (the seed flies 1)."""
     seed003_gain: Positive = 1.0
     """1/s: seed 003's velocity/course gain lambda_1..3 (the seed's 50 assumes a 100/s autopilot)."""
+    seed003_max_approach_speed: Positive = 3.0
+    """m/s: bound on seed 003's approach velocity alpha |e| towards the following point (not in the seed)."""
 
 
 class SimulationConfig(_Strict):

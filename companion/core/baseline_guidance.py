@@ -31,7 +31,7 @@ per-plane commands are always perpendicular to the line of sight.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import ClassVar, NamedTuple
 
 import numpy as np
@@ -280,6 +280,29 @@ class ZEMObservabilityGuidance:
         return gain * speed * (rates.beta_dot * rates.e_beta + rates.eps_dot * rates.e_eps)
 
 
+class _FilteredDerivative:
+    """First-order filtered derivative of a sampled vector (seed 003's "derivative estimation
+    filter", section 2.2, in its simplest form): d_k = d_{k-1} + dt / (tau + dt) ((x_k - x_{k-1}) / dt
+    - d_{k-1}), d = 0 until two samples. A sample at a time not after the last restarts it."""
+
+    def __init__(self, time_constant: float) -> None:
+        self.time_constant = float(time_constant)
+        self._time: float | None = None
+        self._value = np.zeros(3)
+        self._rate = np.zeros(3)
+
+    def update(self, time: float, value: np.ndarray) -> np.ndarray:
+        """The filtered rate (units of value per s, (3,)) after a sample at time (s)."""
+        if self._time is None or not time > self._time:
+            self._time, self._value, self._rate = float(time), np.array(value, dtype=float), np.zeros(3)
+            return self._rate.copy()
+        step = float(time) - self._time
+        raw = (np.asarray(value, dtype=float) - self._value) / step
+        self._rate = self._rate + step / (self.time_constant + step) * (raw - self._rate)
+        self._time, self._value = float(time), np.array(value, dtype=float)
+        return self._rate.copy()
+
+
 class FlightPathCommands(NamedTuple):
     """Seed 003's commands to the chaser's first-order autopilot (eq. (5)-(7), erratum fixed).
 
@@ -326,14 +349,20 @@ class Seed003BacksteppingGuidance:
     tracks the reference point p_r = p^_T - r_d lambda (r_d behind the target on the line
     of sight) instead of the target itself, so the position error of eq. (8) is
     e = p - p_r = (r_d - r^) lambda, and its velocity x_r' = v^_T - r_d lambda' with
-    lambda' = P_lambda dv / r^ (dv = v^_T - v). The target's acceleration and lambda'' are
-    not estimated (the seed's "derivative estimation filter" is not in the interface), so
-    x_r'' = 0 in eq. (8).
+    lambda' = P_lambda dv / r^ (dv = v^_T - v). x_r'' in eq. (8) is the target's acceleration
+    from the seed's derivative estimation filter (section 2.2) applied to the estimated target
+    velocity (`target_acceleration`: first order, target_acceleration_time_constant s, norm
+    bounded by max_target_acceleration m/s^2; None: x_r'' = 0); r_d lambda'' is neglected.
+    With the filter, `acceleration` keeps state between calls: one law per flight.
 
     Desired velocity (eq. (8)): u = -alpha e + x_r' (horizontal gains alpha, vertical alpha);
     v_1^d = |u_h|, v_2^d = u_z, chi^d = atan2(u_y, u_x); with e' = v - x_r':
     u' = -alpha e', v_1^d' = u_h . u_h' / v_1^d, v_2^d' = u_z',
-    chi^d' = (cos chi^d u_y' - sin chi^d u_x') / v_1^d.
+    chi^d' = (cos chi^d u_y' - sin chi^d u_x') / v_1^d. Departure from the seed: alpha |e|
+    is bounded by max_approach_speed (the direction kept, u' differentiated accordingly,
+    `_bounded_approach`); unbounded, a target 80 m away asks for 40 m/s at alpha = 0.5,
+    which the seed's point mass flies and a quadrotor does not (seed003_ekf_rae went out
+    of control that way at lambda = 2).
 
     Commands with the erratum fixed (A_1 = -v_1^d' + lambda v~_1, A_2 = -v_2^d' + lambda v~_2,
     v~_1 = v_g cos g - v_1^d, v~_2 = v_g sin g - v_2^d, chi~ = wrap(chi - chi^d)):
@@ -355,29 +384,48 @@ class Seed003BacksteppingGuidance:
     undefined). The 1 / v_g of eq. (6) only appears in `commands`, floored the same way.
 
     alpha: position gain alpha_1 = alpha_2 = alpha_3, 1/s. gain: lambda_1 = lambda_2 =
-    lambda_3, 1/s. desired_range: r_d, m. autopilot_gains: (c_1, c_2, c_3), 1/s (the seed's
+    lambda_3, 1/s. desired_range: r_d, m. max_approach_speed: bound on alpha |e|, m/s. autopilot_gains: (c_1, c_2, c_3), 1/s (the seed's
     100), used by `commands` only. The seed's lambda = 50 assumes a 100/s autopilot; a
-    quadrotor's attitude loop is far slower: on seed 003's helix
-    (seed003_ekf_rae, seed 1) alpha = 0.5, lambda = 2 goes out of control, 0.3 / 1 flies.
+    quadrotor's attitude loop is far slower. Defaults measured on seed 003's helix
+    (seed003_ekf_rae, seeds 1-6, in-process quadrotor): alpha = 0.5, lambda = 1, 3 m/s
+    approach bound, 1 s / 3 m/s^2 acceleration filter follow at 1.0-1.5 m range-error RMS and
+    never closer than 7.9 m; a 5 m/s bound lets the approach overshoot to 3.5 m, no filter
+    (x_r'' = 0) lags by 9.7 m, lambda = 2 overshoots the tilt limit.
     """
 
     includes_range_control: ClassVar[bool] = True
 
-    alpha: float = 0.3
+    alpha: float = 0.5
     gain: float = 1.0
     desired_range: float = 8.0
+    max_approach_speed: float = 3.0
+    target_acceleration_time_constant: float | None = 1.0
+    max_target_acceleration: float = 3.0
     autopilot_gains: tuple[float, float, float] = (100.0, 100.0, 100.0)
     min_horizontal_speed: float = 0.05
 
     def __post_init__(self) -> None:
-        for name in ("alpha", "gain", "desired_range", "min_horizontal_speed"):
+        for name in ("alpha", "gain", "desired_range", "max_approach_speed", "min_horizontal_speed"):
             if not getattr(self, name) > 0.0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)!r}")
         if len(self.autopilot_gains) != 3 or not all(c > 0.0 for c in self.autopilot_gains):
             raise ValueError(f"autopilot_gains must be three positive numbers, got {self.autopilot_gains!r}")
+        tau = self.target_acceleration_time_constant
+        if tau is not None and not tau > 0.0:
+            raise ValueError(f"target_acceleration_time_constant must be positive or None, got {tau!r}")
+        object.__setattr__(self, "_target_acceleration", None if tau is None else _FilteredDerivative(tau))
 
-    def _errors(self, velocity: np.ndarray, los: np.ndarray, range_estimate: float,
-                relative_velocity: np.ndarray) -> tuple[float, float, float, float, float, float, float, float]:
+    def target_acceleration(self, engaged_time: float, target_velocity: np.ndarray) -> np.ndarray:
+        """x_r'' fed to eq. (8): the filtered derivative of the estimated target velocity (NED, m/s^2,
+        (3,)), its norm bounded by max_target_acceleration; zero without the filter. Stateful."""
+        if self._target_acceleration is None:
+            return np.zeros(3)
+        rate = self._target_acceleration.update(engaged_time, target_velocity)
+        size = float(np.linalg.norm(rate))
+        return rate if size <= self.max_target_acceleration else rate * (self.max_target_acceleration / size)
+
+    def _errors(self, velocity: np.ndarray, los: np.ndarray, range_estimate: float, relative_velocity: np.ndarray,
+                target_acceleration: np.ndarray | None = None) -> tuple[float, float, float, float, float, float, float, float]:
         """(v_g, g, chi, A_1, A_2, chi~, chi^d', v_1^d) of the class docstring (seed frame, z up)."""
         up = np.array([1.0, 1.0, -1.0])
         lam = unit(np.asarray(los, dtype=float))
@@ -387,8 +435,11 @@ class Seed003BacksteppingGuidance:
         reference_velocity = up * (v_ned + dv - self.desired_range * (orthogonal_projection(lam) @ dv) / r)
         error = up * ((self.desired_range - r) * lam)
         v = up * v_ned
-        u = -self.alpha * error + reference_velocity
-        u_dot = -self.alpha * (v - reference_velocity)
+        approach, approach_dot = self._bounded_approach(error, v - reference_velocity)
+        u = reference_velocity - approach
+        u_dot = -approach_dot
+        if target_acceleration is not None:
+            u_dot = u_dot + up * np.asarray(target_acceleration, dtype=float)
         v1d = math.hypot(float(u[0]), float(u[1]))
         v2d, v2d_dot = float(u[2]), float(u_dot[2])
         v1d_dot = float(u[0] * u_dot[0] + u[1] * u_dot[1]) / max(v1d, self.min_horizontal_speed)
@@ -405,14 +456,27 @@ class Seed003BacksteppingGuidance:
         chi_error = math.remainder(chi - chi_d, 2.0 * math.pi)
         return speed, gamma, chi, a1, a2, chi_error, chi_d_dot, v1d
 
+    def _bounded_approach(self, error: np.ndarray, error_rate: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """w = alpha e and w' = alpha e' (m/s, m/s^2, (3,)), or beyond max_approach_speed
+        w = s e / |e| (s = max_approach_speed) and w' = s P_e e' / |e|, P_e = I - e e^T / |e|^2."""
+        scaled = self.alpha * error
+        size = float(np.linalg.norm(scaled))
+        if size <= self.max_approach_speed:
+            return scaled, self.alpha * error_rate
+        direction = error / float(np.linalg.norm(error))
+        rate = self.max_approach_speed / float(np.linalg.norm(error)) * (error_rate - direction * float(direction @ error_rate))
+        return self.max_approach_speed * direction, rate
+
     def commands(self, velocity: np.ndarray, los: np.ndarray, range_estimate: float,
-                 relative_velocity: np.ndarray, printed_sign: bool = False) -> FlightPathCommands:
+                 relative_velocity: np.ndarray, printed_sign: bool = False,
+                 target_acceleration: np.ndarray | None = None) -> FlightPathCommands:
         """v_g^c, gamma^c, chi^c of eq. (5)-(7), erratum fixed (printed_sign=True: as printed).
 
-        velocity m/s (3,) NED, los (3,), range m, relative_velocity m/s (3,).
+        velocity m/s (3,) NED, los (3,), range m, relative_velocity m/s (3,), target_acceleration
+        x_r'' m/s^2 (3,) NED or None (zero). Stateless.
         """
         speed, gamma, chi, a1, a2, chi_error, chi_d_dot, _ = self._errors(velocity, los, range_estimate,
-                                                                          relative_velocity)
+                                                                          relative_velocity, target_acceleration)
         c1, c2, c3 = self.autopilot_gains
         sign = -1.0 if printed_sign else 1.0
         return FlightPathCommands(
@@ -428,7 +492,9 @@ class Seed003BacksteppingGuidance:
         velocity m/s (3,), los (3,), range m, relative_velocity m/s (3,) (required).
         """
         dv = _require_relative_velocity(relative_velocity, "the seed 003 law")
-        speed, gamma, chi, a1, a2, chi_error, chi_d_dot, _ = self._errors(velocity, los, range_estimate, dv)
+        target_acceleration = self.target_acceleration(engaged_time, np.asarray(velocity, dtype=float) + dv)
+        speed, gamma, chi, a1, a2, chi_error, chi_d_dot, _ = self._errors(velocity, los, range_estimate, dv,
+                                                                          target_acceleration)
         turn = speed * math.cos(gamma) * (chi_d_dot - self.gain * chi_error)
         cc, sc = math.cos(chi), math.sin(chi)
         return np.array([-a1 * cc - turn * sc, -a1 * sc + turn * cc, a2])
