@@ -389,8 +389,8 @@ class Seed003BacksteppingGuidance:
     quadrotor's attitude loop is far slower. Defaults measured on seed 003's helix
     (seed003_ekf_rae, seeds 1-6, in-process quadrotor): alpha = 0.5, lambda = 1, 3 m/s
     approach bound, 1 s / 3 m/s^2 acceleration filter follow at 1.0-1.5 m range-error RMS and
-    never closer than 7.9 m; a 5 m/s bound lets the approach overshoot to 3.5 m, no filter
-    (x_r'' = 0) lags by 9.7 m, lambda = 2 overshoots the tilt limit.
+    never closer than 7.9 m; a 5 m/s bound lets the approach overshoot to 4.1 m, no filter
+    (x_r'' = 0) lags 8.7 m RMS, lambda = 2 gives 5-6 m (seeds 1-3).
     """
 
     includes_range_control: ClassVar[bool] = True
