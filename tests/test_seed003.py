@@ -171,3 +171,13 @@ def test_seed003_scenario_flies_with_a_finite_estimate():
     assert summary["termination"] == "COMPLETED"
     assert math.isfinite(summary["range_estimation_error_rms"]) and summary["range_estimation_error_rms"] < 3.0
     assert summary["min_range"] > scenario.guidance.desired_range / 2.0
+
+
+@pytest.mark.parametrize("noise", [{"noise_time_constant": 0.5}, {"range_dependent_noise": {}}])
+def test_seed003_noise_options_fly_through_the_simulator(noise):
+    """The coloured and the range-dependent sensor reach the estimator in a flight (figures in the README)."""
+    scenario, vehicle = load_scenario(SCENARIOS_DIR / "seed003_ekf_rae.toml")
+    sensor = SensorConfig(**{**scenario.sensor.model_dump(), **noise})
+    summary = simulate(scenario.model_copy(update={"sensor": sensor}), vehicle, seed=1).summary
+    assert summary["termination"] == "COMPLETED"
+    assert math.isfinite(summary["range_estimation_error_rms"]) and summary["range_estimation_error_rms"] < 3.0
