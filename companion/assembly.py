@@ -21,7 +21,8 @@ from companion.core.baseline_guidance import (PDFollowingController, Proportiona
                                          RetroProportionalNavigationGuidance, Seed003BacksteppingGuidance,
                                          ZEMObservabilityGuidance)
 from companion.core.estimators import GainProjection, InitialGuess, TargetEstimator, UPLKF
-from companion.core.guidance import HelicalNavigationGuidance, LateralGuidance, PurePursuitGuidance, RangeController
+from companion.core.guidance import (HelicalNavigationGuidance, LateralGuidance, PurePursuitGuidance, RangeController,
+                                     RangeExcitation)
 from companion.core.pipeline import DropoutPolicy, FollowingPipeline
 
 
@@ -153,6 +154,16 @@ def build_range_controller(scenario: Scenario) -> RangeController:
     return RangeController(scenario.guidance.desired_range, scenario.guidance.range_gain)
 
 
+def build_excitation(scenario: Scenario) -> RangeExcitation | None:
+    """[guidance] excitation: None for 'none' (the paper's law, the pipeline's default path), else the
+    RangeExcitation with the lateral law's navigation gain as the damping it cancels."""
+    g = scenario.guidance
+    if g.excitation == "none":
+        return None
+    return RangeExcitation(g.excitation_speed, g.navigation_gain, g.excitation_frequency, g.excitation_low,
+                           g.excitation_high)
+
+
 def initial_guess(scenario: Scenario) -> InitialGuess:
     """Range guess along the first bearing: initial_range, else |initial_position - pursuer start|."""
     settings = scenario.estimator
@@ -187,6 +198,7 @@ def build_pipeline(scenario: Scenario, vehicle: VehicleConfig, hover_thrust_norm
         control_period=1.0 / scenario.guidance.rate_hz,
         los_source=scenario.guidance.los_source,
         dropout=dropout_policy(scenario),
+        excitation=build_excitation(scenario),
     )
 
 

@@ -408,6 +408,25 @@ class GuidanceConfig(_Strict):
     """1/s: seed 003's velocity/course gain lambda_1..3 (the seed's 50 assumes a 100/s autopilot)."""
     seed003_max_approach_speed: Positive = 3.0
     """m/s: bound on seed 003's approach velocity alpha |e| towards the following point (not in the seed)."""
+    # Range excitation (issue 13; companion.core.guidance.RangeExcitation): 'none' is the paper's
+    # law unchanged; 'uncertainty' adds a lateral term that makes the pursuer circle the line of
+    # sight at excitation_speed (m/s, angular rate excitation_frequency rad/s) while the relative
+    # range std sigma_r / r^ is above excitation_low (full above excitation_high) or the health
+    # monitor says suspect. Only for 'hng' and 'ppg' (its design cancels their N P v damping).
+    excitation: Literal["none", "uncertainty"] = "none"
+    excitation_speed: Positive = 1.0
+    excitation_frequency: Positive = 0.5
+    excitation_low: NonNegative = 0.05
+    excitation_high: Positive = 0.15
+
+    @model_validator(mode="after")
+    def _excitation_consistent(self) -> "GuidanceConfig":
+        if self.excitation != "none":
+            if self.law not in ("hng", "ppg"):
+                raise ValueError(f"excitation = {self.excitation!r} needs law 'hng' or 'ppg', not {self.law!r}")
+            if self.excitation_low >= self.excitation_high:
+                raise ValueError("excitation_low must be below excitation_high")
+        return self
 
 
 class SimulationConfig(_Strict):

@@ -160,3 +160,99 @@ class RangeController:
             # sight by 90 degrees or more; no longitudinal command is meaningful.
             return np.zeros(3)
         return u_star / projection * los
+
+
+@dataclass(frozen=True)
+class RangeExcitation:
+    """Lateral excitation that keeps the range observable while it is poorly known (issue 13).
+
+    Why. A bearing-only filter learns the range only from how the line of sight turns in
+    response to the pursuer's own motion: with a constant-velocity target model the
+    relative position dp obeys dp'' = a_T - a, and the bearings lambda = dp / |dp| fix dp
+    up to a scale unless the own-ship acceleration a has a component perpendicular to
+    lambda (the classic bearing-only observability condition; section V's windowed FIM,
+    eq. (7), grows only with the spread of the bearings). HNG's weave, eq. (14), is
+    a_HN = N (v x lambda_v) x lambda: it is linear in the pursuer's own velocity v, so when
+    the pursuer slows to match a slow or circling target the weave - and the range
+    information with it - vanishes, while a wrong range estimate near r_d still looks
+    self-consistent to the filter.
+
+    What. While the relative range standard deviation rho = sigma_r / r^ is large, make the
+    pursuer's own velocity perpendicular to lambda track a vector of fixed size rotating
+    about lambda:
+
+        u(t) = cos(w t) e_1 + sin(w t) e_2,   u_perp(t) = -sin(w t) e_1 + cos(w t) e_2 = u'(t) / w,
+        a_X  = s V_X (N u + w u_perp),        |a_X| = s V_X sqrt(N^2 + w^2),
+
+    with (e_1, e_2) the second and third columns of R_eta (the rotation taking e_X onto
+    lambda that eq. (14) uses), so e_1, e_2, lambda are orthonormal and a_X . lambda = 0.
+    The N u term cancels HNG's/PPG's damping of the lateral velocity (-N P_lambda v):
+    with a = a_HN + a_X and v_perp = P_lambda v (line of sight turning slowly),
+    v_perp' = N (s V_X u - v_perp) + s V_X u' + (HNG's weave), so v_perp -> s V_X u: the pursuer circles the line of sight at speed s V_X,
+    i.e. a perpendicular own-ship acceleration of s V_X w and a baseline of radius
+    s V_X / w, whatever its own speed. A pursuer at rest is therefore never left with a
+    zero (stop) command while s > 0: its lateral command is a_X itself.
+
+    The level s in [0, 1] ramps with rho between rho_0 (low) and rho_1 (high):
+
+        s = clip((rho - rho_0) / (rho_1 - rho_0), 0, 1),   and s = 1 while the health
+        monitor (companion.core.health) judges the estimate suspect,
+
+    because a diverged filter can be confident and wrong (small sigma_r), which the monitor
+    detects from its innovations. Section V's windowed FIM is not used: it treats the target
+    as static, so a target circling a stopped pursuer sweeps the bearings and keeps it large
+    (README "Filter health"). With the range well observed (rho <= rho_0, not
+    suspect) a_X = 0 and the guidance is the paper's HNG.
+
+    speed: V_X, m/s. damping_gain: N of the lateral law it is added to, 1/s.
+    frequency: w, rad/s. low / high: rho_0 < rho_1, dimensionless.
+    """
+
+    speed: float = 1.0
+    damping_gain: float = 3.0
+    frequency: float = 0.5
+    low: float = 0.05
+    high: float = 0.15
+
+    def __post_init__(self) -> None:
+        if not (self.speed > 0.0 and self.damping_gain >= 0.0 and self.frequency > 0.0):
+            raise ValueError("need speed > 0, damping_gain >= 0 and frequency > 0")
+        if not (0.0 <= self.low < self.high):
+            raise ValueError("need 0 <= low < high")
+
+    def level(self, relative_range_std: float, suspect: bool = False) -> float:
+        """s in [0, 1] from rho = sigma_r / r^ (dimensionless) and the health verdict (see class)."""
+        if suspect or not np.isfinite(relative_range_std):
+            return 1.0
+        return float(np.clip((relative_range_std - self.low) / (self.high - self.low), 0.0, 1.0))
+
+    def peak_acceleration(self, level: float = 1.0) -> float:
+        """|a_X| = s V_X sqrt(N^2 + w^2), m/s^2 (constant in time)."""
+        return level * self.speed * float(np.hypot(self.damping_gain, self.frequency))
+
+    def acceleration(self, engaged_time: float, los: np.ndarray, level: float) -> np.ndarray:
+        """a_X = s V_X (N u + w u_perp), m/s^2, shape (3,); perpendicular to the unit line of sight los (3,).
+
+        engaged_time: s since the first bearing. level: s in [0, 1].
+        """
+        if level <= 0.0:
+            return np.zeros(3)
+        basis = rotation_from_x_axis_to(unit(los))
+        phase = self.frequency * engaged_time
+        cos_phase, sin_phase = np.cos(phase), np.sin(phase)
+        direction = cos_phase * basis[:, 1] + sin_phase * basis[:, 2]
+        turning = -sin_phase * basis[:, 1] + cos_phase * basis[:, 2]
+        return level * self.speed * (self.damping_gain * direction + self.frequency * turning)
+
+
+def relative_range_std(relative_position: np.ndarray, position_covariance: np.ndarray) -> float:
+    """rho = sigma_r / r^ with sigma_r^2 = lambda^T P_pp lambda, lambda = dp / |dp|.
+
+    relative_position: dp = p^_T - p, m, (3,). position_covariance: P_pp of the target
+    position estimate, m^2, (3, 3). Returns inf for |dp| = 0 (the range is then unknown).
+    """
+    distance = float(np.linalg.norm(relative_position))
+    if distance <= 1e-9:
+        return float("inf")
+    los = relative_position / distance
+    return float(np.sqrt(max(float(los @ position_covariance @ los), 0.0))) / distance

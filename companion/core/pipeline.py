@@ -15,8 +15,8 @@ import numpy as np
 from companion.core.attitude import VehicleLimits, attitude_setpoint
 from companion.core.estimators import CorrectionReport, InitialGuess, TargetEstimator
 from companion.core.geometry import unit
-from companion.core.guidance import LateralGuidance, RangeController
-from companion.core.health import HealthConfig, HealthMonitor, HealthReport
+from companion.core.guidance import LateralGuidance, RangeController, RangeExcitation, relative_range_std
+from companion.core.health import HealthConfig, HealthMonitor, HealthReport, HealthState
 from companion.core.messages import AttitudeSetpoint, BearingMeasurement, PursuerState, TargetEstimate
 from companion.core.observability import WindowedObservability
 
@@ -136,7 +136,14 @@ class FollowingPipeline:
 
     health: the filter-health monitor fed at each correction (default: HealthMonitor with
     its default thresholds, a plausible range from r_d / 4 up); it observes and never
-    changes the flight.
+    changes the flight, except through `excitation`.
+
+    excitation: None (default) flies the lateral law as given (the paper's HNG). A
+    RangeExcitation adds its lateral term a_X (perpendicular to the line of sight) to the
+    lateral law while the range is poorly observed: level s from the estimate's
+    rho = sigma_r / r^ at the control time, s = 1 while the health monitor says suspect.
+    Not added in the degraded mode (safe behaviour) nor to a complete law (PD).
+    `excitation_level` holds the latest s.
     """
 
     def __init__(
@@ -151,6 +158,7 @@ class FollowingPipeline:
         dropout: DropoutPolicy | None = None,
         observability_window: float = 5.0,
         health: HealthMonitor | None = None,
+        excitation: RangeExcitation | None = None,
     ) -> None:
         if control_period <= 0.0:
             raise ValueError("control period must be positive")
@@ -184,6 +192,8 @@ class FollowingPipeline:
         self.health = health if health is not None else HealthMonitor(
             HealthConfig(min_range=0.25 * range_controller.desired_range))
         self._health_report: HealthReport | None = None
+        self.excitation = excitation
+        self.excitation_level = 0.0
 
     @property
     def engaged_at(self) -> float | None:
@@ -303,6 +313,14 @@ class FollowingPipeline:
             self.mode_changes.append((time, mode))
             self._blend_until = time + self.dropout.blend_time
 
+    def _excitation_term(self, time: float, relative_position: np.ndarray, los: np.ndarray,
+                         covariance: np.ndarray) -> np.ndarray:
+        """a_X of RangeExcitation (m/s^2, (3,)) at the level set by rho and the health verdict."""
+        assert self.excitation is not None and self._engaged_at is not None
+        suspect = self._health_report is not None and self._health_report.state == HealthState.SUSPECT
+        self.excitation_level = self.excitation.level(relative_range_std(relative_position, covariance[:3, :3]), suspect)
+        return self.excitation.acceleration(time - self._engaged_at, los, self.excitation_level)
+
     def _advance_estimator(self, time: float) -> None:
         assert self._engaged_at is not None
         period = self.estimator.period
@@ -331,6 +349,8 @@ class FollowingPipeline:
             if getattr(self.lateral_guidance, "includes_range_control", False):
                 longitudinal = np.zeros(3)  # a complete law (PD controller): no range-controller term
             else:
+                if self.excitation is not None:
+                    lateral = lateral + self._excitation_term(time, relative_position, los, estimate.covariance)
                 longitudinal = self.range_controller.acceleration(relative_position, relative_velocity, los, lateral)
         command = lateral + longitudinal
         if self.mode != TrackMode.TRACKING:
