@@ -31,7 +31,7 @@ per-plane commands are always perpendicular to the line of sight.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import ClassVar, NamedTuple
 
 import numpy as np
