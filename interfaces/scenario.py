@@ -82,6 +82,12 @@ class VehicleConfig(_Strict):
     attitude_kd: Positive = _TABLE1["attitude_kd"]
     position_noise_std: NonNegative = _TABLE1["position_noise_std"]
     velocity_noise_std: NonNegative = _TABLE1["velocity_noise_std"]
+    # Own-state feedback error model: 0 (the default) draws the noise above independently at
+    # every read-out (white, section VIII); tau > 0 makes it first-order Gauss-Markov with that
+    # time constant, s, and the same stationary std (an autopilot's fused position error is
+    # correlated over seconds, not independent at 50 Hz).
+    position_noise_time_constant: NonNegative = 0.0
+    velocity_noise_time_constant: NonNegative = 0.0
     max_tilt_deg: Annotated[float, Field(gt=0.0, lt=80.0)] = _TABLE1["max_tilt_deg"]
 
     @model_validator(mode="after")

@@ -242,6 +242,23 @@ class Mixer:
         )
 
 
+def gauss_markov_step(previous: np.ndarray, innovation: np.ndarray, elapsed: float, time_constant: float) -> np.ndarray:
+    """One exact step of a first-order Gauss-Markov (Ornstein-Uhlenbeck) error process.
+
+    e(t + dt) = a e(t) + sqrt(1 - a^2) w with a = exp(-dt / tau) and w ~ N(0, sigma^2): the
+    exact discretisation of de = -e / tau dt + sigma sqrt(2 / tau) dW, so an error started in
+    N(0, sigma^2) keeps std sigma and has autocorrelation exp(-|dt| / tau) at any step size.
+
+    previous: e(t), shape (3,). innovation: w, shape (3,), already scaled to the stationary
+    std sigma. elapsed: dt >= 0, s (0 returns previous: a repeated read-out at the same time
+    sees the same error). time_constant: tau, s; 0 means white (returns innovation).
+    """
+    if time_constant <= 0.0:
+        return innovation
+    a = math.exp(-elapsed / time_constant)
+    return a * previous + math.sqrt(max(0.0, 1.0 - a * a)) * innovation
+
+
 class AttitudeThrustVehicle:
     """The "PX4 side": attitude + thrust setpoints in, rigid-body motion out.
 
@@ -271,6 +288,9 @@ class AttitudeThrustVehicle:
         self._controller = GeometricAttitudeController(params)
         self._mixer = Mixer(params)
         self._rng = np.random.default_rng(rng)
+        # Last Gauss-Markov feedback error (position, velocity) and its vehicle time, s.
+        self._feedback_error: tuple[np.ndarray, np.ndarray] | None = None
+        self._feedback_time = 0.0
         self._steps = 0
         self._qd: Quat = self._plant._s[6:10]  # type: ignore[assignment]
         self._thrust = params.hover_thrust
@@ -347,9 +367,26 @@ class AttitudeThrustVehicle:
         """Noisy feedback (position m, velocity m/s), each shape (3,) NED.
 
         Noise is N(0, params.position_noise_std^2) and N(0, params.velocity_noise_std^2)
-        per axis, independent each call.
+        per axis. With a zero time constant (the default) it is drawn independently each
+        call; with params.position_noise_time_constant / velocity_noise_time_constant
+        tau > 0 it is first-order Gauss-Markov in the vehicle's clock (gauss_markov_step),
+        with the same stationary std. Either way each call takes the same six normal draws
+        from the vehicle's generator, so no other random stream moves.
         """
         s = self._plant._s
-        p = np.array(s[0:3]) + self._rng.normal(0.0, self.params.position_noise_std, 3)
-        v = np.array(s[3:6]) + self._rng.normal(0.0, self.params.velocity_noise_std, 3)
+        params = self.params
+        white_p = self._rng.normal(0.0, params.position_noise_std, 3)
+        white_v = self._rng.normal(0.0, params.velocity_noise_std, 3)
+        if params.position_noise_time_constant > 0.0 or params.velocity_noise_time_constant > 0.0:
+            now = self.time
+            if self._feedback_error is None:
+                error_p, error_v = white_p, white_v  # start in the stationary distribution
+            else:
+                elapsed = now - self._feedback_time
+                error_p = gauss_markov_step(self._feedback_error[0], white_p, elapsed, params.position_noise_time_constant)
+                error_v = gauss_markov_step(self._feedback_error[1], white_v, elapsed, params.velocity_noise_time_constant)
+            self._feedback_error, self._feedback_time = (error_p, error_v), now
+            white_p, white_v = error_p, error_v
+        p = np.array(s[0:3]) + white_p
+        v = np.array(s[3:6]) + white_v
         return p, v

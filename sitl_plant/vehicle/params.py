@@ -39,6 +39,9 @@ class QuadrotorParams:
     attitude_kd: float  # N m s / rad, eq. (24)
     position_noise_std: float  # m, feedback noise sigma_p (section VIII)
     velocity_noise_std: float  # m/s, feedback noise sigma_v (section VIII)
+    # s, Gauss-Markov correlation time of the feedback noise; 0 = white (independent each read-out)
+    position_noise_time_constant: float = 0.0
+    velocity_noise_time_constant: float = 0.0
 
     @property
     def inertia_matrix(self) -> np.ndarray:
@@ -82,6 +85,8 @@ def quadrotor_params(vehicle: VehicleConfig) -> QuadrotorParams:
         attitude_kd=vehicle.attitude_kd,
         position_noise_std=vehicle.position_noise_std,
         velocity_noise_std=vehicle.velocity_noise_std,
+        position_noise_time_constant=vehicle.position_noise_time_constant,
+        velocity_noise_time_constant=vehicle.velocity_noise_time_constant,
     )
 
 

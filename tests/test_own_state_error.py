@@ -1,0 +1,117 @@
+"""Own-state (position/velocity feedback) error model: white by default, first-order
+Gauss-Markov when the vehicle file gives a time constant (issue 13, item 5)."""
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from interfaces.scenario import ConfigError, load_vehicle
+from sitl_plant.vehicle.attitude_control import AttitudeThrustVehicle, gauss_markov_step
+from sitl_plant.vehicle.params import quadrotor_params, table1_params
+
+PARAMS = table1_params()
+times = st.floats(min_value=1e-3, max_value=100.0)
+
+
+@given(elapsed=times, tau=times)
+def test_gauss_markov_step_coefficients_are_the_exact_ou_discretisation(elapsed, tau):
+    """e' = exp(-dt/tau) e + sqrt(1 - exp(-2 dt/tau)) w, so var e' = var e when var e = var w."""
+    unit = np.array([1.0, -2.0, 0.5])
+    decay = gauss_markov_step(unit, np.zeros(3), elapsed, tau)
+    fresh = gauss_markov_step(np.zeros(3), unit, elapsed, tau)
+    a = math.exp(-elapsed / tau)
+    np.testing.assert_allclose(decay, a * unit, rtol=1e-12)
+    np.testing.assert_allclose(fresh, math.sqrt(-math.expm1(-2.0 * elapsed / tau)) * unit, rtol=1e-9, atol=1e-300)
+    assert (decay[0] ** 2 + fresh[0] ** 2) == pytest.approx(1.0, rel=1e-12)
+
+
+@given(first=times, second=times, tau=times)
+def test_gauss_markov_mean_decay_composes_over_steps(first, second, tau):
+    """The conditional mean decays as exp(-t/tau) whatever the read-out times (Markov semigroup)."""
+    start = np.array([0.3, -0.1, 2.0])
+    two = gauss_markov_step(gauss_markov_step(start, np.zeros(3), first, tau), np.zeros(3), second, tau)
+    np.testing.assert_allclose(two, gauss_markov_step(start, np.zeros(3), first + second, tau), rtol=1e-9, atol=1e-300)
+
+
+def test_gauss_markov_step_edge_cases():
+    previous, innovation = np.array([1.0, 2.0, 3.0]), np.array([-1.0, 0.5, 0.0])
+    np.testing.assert_array_equal(gauss_markov_step(previous, innovation, 0.0, 2.0), previous)
+    np.testing.assert_array_equal(gauss_markov_step(previous, innovation, 0.3, 0.0), innovation)
+
+
+def test_gauss_markov_long_run_matches_stationary_std_and_autocorrelation():
+    """Closed form of a stationary first-order Gauss-Markov process: std sigma, autocorrelation
+    exp(-lag / tau). 200 000 steps of 0.02 s with tau = 0.2 s: 20 000 correlation times."""
+    sigma, tau, dt, n = 0.1, 0.2, 0.02, 200_000
+    rng = np.random.default_rng(7)
+    innovations = rng.normal(0.0, sigma, (n, 3))
+    errors = np.empty((n, 3))
+    errors[0] = innovations[0]
+    for k in range(1, n):
+        errors[k] = gauss_markov_step(errors[k - 1], innovations[k], dt, tau)
+    np.testing.assert_allclose(errors.mean(axis=0), 0.0, atol=0.1 * sigma)
+    np.testing.assert_allclose(errors.std(axis=0), sigma, rtol=0.03)
+    for lag in (1, 5, 10, 20):
+        x = errors[:-lag].ravel()
+        y = errors[lag:].ravel()
+        correlation = float(np.mean(x * y) / np.mean(errors**2))
+        assert correlation == pytest.approx(math.exp(-lag * dt / tau), abs=0.02)
+
+
+def _errors(vehicle: AttitudeThrustVehicle, samples: int, every: float) -> np.ndarray:
+    """Feedback minus truth, shape (samples, 6): position then velocity error."""
+    out = np.empty((samples, 6))
+    for k in range(samples):
+        truth = vehicle.state
+        p, v = vehicle.measured_state()
+        out[k] = np.concatenate([p - truth.position, v - truth.velocity])
+        vehicle.advance(every)
+    return out
+
+
+def test_white_default_draws_independent_normals_from_the_vehicle_generator():
+    """Default (no time constant): each read-out is N(0, sigma_p^2), N(0, sigma_v^2), drawn in that order."""
+    assert PARAMS.position_noise_time_constant == 0.0 and PARAMS.velocity_noise_time_constant == 0.0
+    errors = _errors(AttitudeThrustVehicle(PARAMS, rng=11), 50, 0.01)
+    reference = np.random.default_rng(11)
+    expected = np.array([np.concatenate([reference.normal(0.0, PARAMS.position_noise_std, 3),
+                                         reference.normal(0.0, PARAMS.velocity_noise_std, 3)]) for _ in range(50)])
+    np.testing.assert_allclose(errors, expected, atol=1e-9)
+
+
+def test_vehicle_gauss_markov_follows_the_closed_form_recursion_in_vehicle_time():
+    """With tau set, the vehicle's error is the OU recursion over its own clock, fed by the same
+    draws as the white model (so no other random stream moves), and a repeated read-out at the
+    same instant sees the same error."""
+    params = replace(PARAMS, position_noise_time_constant=2.0, velocity_noise_time_constant=0.5)
+    vehicle = AttitudeThrustVehicle(params, rng=3)
+    every = 0.02
+    errors = _errors(vehicle, 40, every)
+    draws = np.random.default_rng(3)
+    white = np.array([np.concatenate([draws.normal(0.0, params.position_noise_std, 3),
+                                      draws.normal(0.0, params.velocity_noise_std, 3)]) for _ in range(40)])
+    a = np.repeat([math.exp(-every / 2.0), math.exp(-every / 0.5)], 3)
+    expected = np.empty_like(white)
+    expected[0] = white[0]
+    for k in range(1, 40):
+        expected[k] = a * expected[k - 1] + np.sqrt(1.0 - a**2) * white[k]
+    np.testing.assert_allclose(errors, expected, atol=1e-9)
+    truth = vehicle.state
+    first, second = vehicle.measured_state(), vehicle.measured_state()
+    np.testing.assert_allclose(first[0] - truth.position, second[0] - truth.position, atol=1e-12)
+
+
+def test_time_constant_loads_from_a_vehicle_file(tmp_path):
+    path = tmp_path / "slow_gnss.toml"
+    path.write_text('name = "slow-gnss"\nposition_noise_time_constant = 5.0\nvelocity_noise_time_constant = 2\n')
+    vehicle = load_vehicle(path)
+    params = quadrotor_params(vehicle)
+    assert params.position_noise_time_constant == 5.0 and params.velocity_noise_time_constant == 2.0
+    assert params.position_noise_std == PARAMS.position_noise_std  # std unchanged: Table I
+    path.write_text("position_noise_time_constant = -1.0\n")
+    with pytest.raises(ConfigError, match="position_noise_time_constant"):
+        load_vehicle(path)
