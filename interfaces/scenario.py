@@ -369,7 +369,7 @@ class EstimatorConfig(_Strict):
     """s, of the scale's growth while that mean exceeds adaptive_nis_threshold."""
     adaptive_relax_time_constant: Positive = 10.0
     """s, of its return to 1 while the mean is below 1."""
-    adaptive_nis_threshold: float = Field(1.5, gt=1.0)
+    adaptive_nis_threshold: float = Field(3.0, gt=1.0)
     measurement_noise: Positive = 1e-4
     pursuer_position_std: NonNegative = 0.1
     restart_when_behind: bool = True

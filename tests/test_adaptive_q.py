@@ -151,6 +151,8 @@ def test_a_manoeuvre_raises_the_scale_and_it_relaxes_afterwards(seed: int) -> No
     assert scales[299] < 2.0 and scales[300:].max() > 5.0
     rng = np.random.default_rng(seed)
     t0 = 600 * 0.1
-    for k in range(1, 601):  # 60 s of consistent innovations
+    # 120 s of consistent innovations; the running mean is below 1 about half of the time
+    # (the median of a chi^2 mean is below its expectation), so ~6 relax_time_constant of decay.
+    for k in range(1, 1201):
         adapter.update(t0 + 0.1 * k, float(chi2.rvs(1, random_state=rng)), 1)
-    assert adapter.scale < 1.5
+    assert adapter.scale < 1.2
