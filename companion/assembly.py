@@ -20,7 +20,7 @@ from companion.core.baseline_estimators import AzElEKF, MSCEKF, RangeAzElEKF
 from companion.core.baseline_guidance import (PDFollowingController, ProportionalNavigationGuidance,
                                          RetroProportionalNavigationGuidance, Seed003BacksteppingGuidance,
                                          ZEMObservabilityGuidance)
-from companion.core.estimators import GainProjection, InitialGuess, TargetEstimator, UPLKF
+from companion.core.estimators import AdaptiveNoiseSettings, GainProjection, InitialGuess, TargetEstimator, UPLKF
 from companion.core.guidance import (HelicalNavigationGuidance, LateralGuidance, PurePursuitGuidance, RangeController,
                                      RangeExcitation)
 from companion.core.pipeline import DropoutPolicy, FollowingPipeline
@@ -84,10 +84,15 @@ class EstimatorSettings:
 
 
 def _uplkf(s: EstimatorSettings) -> TargetEstimator:
-    """The paper's u-PLKF (section IV) with the configured gain projection."""
+    """The paper's u-PLKF (section IV) with the configured gain projection (and, opt-in, adaptive Q)."""
+    c = s.config
+    adaptive = AdaptiveNoiseSettings(c.adaptive_max_scale, c.adaptive_nis_time_constant, c.adaptive_rise_time_constant,
+                                     c.adaptive_relax_time_constant, c.adaptive_nis_threshold) \
+        if c.adaptive_process_noise else None
     return UPLKF(period=s.period, process_noise=s.process_noise, measurement_noise=s.measurement_noise,
-                 gain_projection=GainProjection(s.config.gain_projection),
-                 pursuer_position_std=s.config.pursuer_position_std, restart_when_behind=s.config.restart_when_behind)
+                 gain_projection=GainProjection(c.gain_projection),
+                 pursuer_position_std=c.pursuer_position_std, restart_when_behind=c.restart_when_behind,
+                 adaptive_noise=adaptive)
 
 
 def _azel_ekf(s: EstimatorSettings) -> TargetEstimator:

@@ -363,6 +363,19 @@ class EstimatorConfig(_Strict):
     initialize: Literal["bearing", "position"] = "bearing"
     rate_hz: Positive = 50.0
     process_noise: Positive = 0.04
+    adaptive_process_noise: bool = False
+    """u-PLKF only. True: Q = s process_noise I with a scale 1 <= s <= adaptive_max_scale raised while
+    the innovations are larger than the filter claims (mean NIS per degree of freedom above
+    adaptive_nis_threshold) and relaxed back to 1 when they are not (README "Estimators";
+    companion.core.estimators.AdaptiveProcessNoise). False (default): the constant Q."""
+    adaptive_max_scale: float = Field(25.0, ge=1.0)
+    adaptive_nis_time_constant: Positive = 2.0
+    """s, of the running mean of the NIS per degree of freedom."""
+    adaptive_rise_time_constant: Positive = 2.0
+    """s, of the scale's growth while that mean exceeds adaptive_nis_threshold."""
+    adaptive_relax_time_constant: Positive = 10.0
+    """s, of its return to 1 while the mean is below 1."""
+    adaptive_nis_threshold: float = Field(3.0, gt=1.0)
     measurement_noise: Positive = 1e-4
     pursuer_position_std: NonNegative = 0.1
     restart_when_behind: bool = True
@@ -378,6 +391,8 @@ class EstimatorConfig(_Strict):
             raise ValueError("set initial_range or initial_position (the range guess along the first bearing)")
         if self.initialize == "position" and self.initial_position is None:
             raise ValueError("initialize = 'position' needs initial_position")
+        if self.adaptive_process_noise and self.kind != "uplkf":
+            raise ValueError(f"adaptive_process_noise is implemented for kind = 'uplkf' only, got {self.kind!r}")
         return self
 
 
