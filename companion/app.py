@@ -99,6 +99,9 @@ class CompanionApp:
             publisher = self._open_zenoh(loop)
             self.vehicle = MavsdkVehicle(self.mavlink_url, connect_timeout=self.settings.connect_timeout,
                                          forward_url=f"udpout://127.0.0.1:{tlog.port}")
+            # Every odometry sample goes into the own-state history as it arrives, from before take-off:
+            # a fix stamped just before the follow loop's first sample still finds its own state.
+            self.vehicle.sample_observers.append(self.follower.record_state)
             await self.vehicle.connect()
             limits = await self.vehicle.vehicle_limits(self.vehicle_config.mass, self.vehicle_config.gravity)
             self.recorder.event(None, "vehicle", f"connected; hover thrust {limits.hover_thrust_normalized:.4f}, "

@@ -65,8 +65,11 @@ class Follower:
         self.pipeline = pipeline
 
     def record_state(self, sample: VehicleSample) -> None:
+        """Put one odometry sample into the own-state history (a sample already there is ignored)."""
         state = sample.state
-        self.history.append(state.time, state.position, state.velocity, sample.rotation)
+        newest = self.history.newest_time
+        if newest is None or state.time > newest:
+            self.history.append(state.time, state.position, state.velocity, sample.rotation)
 
     def step(self, sample: VehicleSample) -> tuple[PipelineOutput, list[BearingMeasurement]]:
         """Own state in, due bearings (oldest first) through the pipeline; returns its last output and the bearings."""

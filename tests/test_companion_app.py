@@ -159,3 +159,25 @@ def test_state_payload_carries_the_estimate_summary_at_the_state_rate(app):
     assert state["track"] == {"mode": "tracking", "bearing_age": 0.1}
     assert set(state) == {"schema", "sender", "seq", "stamp", "phase", "pursuer", "link", "setpoints_sent", "track",
                           "estimate"}
+
+
+def test_a_fix_stamped_before_the_follow_loops_first_sample_still_gets_its_bearing(app):
+    """The own-state history is fed by every odometry sample as it arrives (the adapter's
+    sample_observers -> Follower.record_state), not only by the follow loop. A fix stamped while
+    the loop was starting (after READY, before its first sample) finds its own state; the
+    loop's own call with a sample already recorded changes nothing."""
+    from types import SimpleNamespace
+
+    def sample(t):
+        state = SimpleNamespace(time=t, position=np.array([5.0 * (t - 2.0), 0.0, -20.0]), velocity=np.array([5.0, 0.0, 0.0]))
+        return SimpleNamespace(state=state, rotation=np.eye(3))
+
+    for k in range(11):  # what the adapter hands the observers at 50 Hz while the phase turns READY
+        app.follower.record_state(sample(2.0 + 0.02 * k))
+    app.sequencer.phase = Phase.READY
+    app.target_link.on_fix(_fix(0, 2.15, position=(60.0, 0.0, -20.0)), 0)
+    app.follower.record_state(sample(2.2))  # the follow loop's first sample: already in the history
+    due = app.target_link.due_bearings(2.2)
+    assert [fix.seq for fix, _ in due] == [0] and not app.target_link.health.bearings_dropped
+    np.testing.assert_allclose(due[0][1].pursuer_position, [0.75, 0.0, -20.0], atol=1e-9)
+    assert app.history.rejected_out_of_order == 0 and len(app.history) == 11

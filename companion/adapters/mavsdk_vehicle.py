@@ -102,6 +102,9 @@ class MavsdkVehicle:
         self._status = None
         self._latest: VehicleSample | None = None
         self._new_sample = asyncio.Event()
+        #: called with every new odometry sample as it arrives, in order (e.g. the own-state history),
+        #: so nothing depends on how often a consumer happens to await next_sample()
+        self.sample_observers: list = []
         self._flight_mode: FlightMode | None = None
         self._in_air: bool | None = None
         self._armed: bool | None = None
@@ -175,6 +178,8 @@ class MavsdkVehicle:
             if self._latest is not None and sample.state.time <= self._latest.state.time:
                 continue  # stale or duplicated: the pipeline's clock never runs backwards
             self._latest = sample
+            for observer in self.sample_observers:
+                observer(sample)
             self._new_sample.set()
 
     async def _follow(self, stream, attribute: str) -> None:
