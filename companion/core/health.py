@@ -44,8 +44,7 @@ as soon as one reason counts, and goes back to OK only after no condition at all
 raised for `clear_after` s. The monitor only observes: it never changes the estimator or
 the guidance.
 
-numpy and the standard library only (the chi^2 quantile is computed here, from the
-regularised incomplete gamma function).
+numpy, and scipy.stats.chi2 for the chi^2 quantile.
 """
 
 from __future__ import annotations
@@ -56,6 +55,7 @@ from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.stats import chi2
 
 
 class HealthState(str, enum.Enum):
@@ -68,62 +68,6 @@ class HealthState(str, enum.Enum):
 #: Every reason the monitor can give, in the order it reports them.
 REASONS = ("nis", "range_uncertain", "behind_sensor", "range_implausible", "range_unobservable")
 
-
-def chi2_cdf(x: float, dof: float) -> float:
-    """P(X <= x) for X ~ chi^2(dof): the regularised lower incomplete gamma P(dof/2, x/2).
-
-    Series P(a, z) = z^a e^-z / Gamma(a + 1) * sum_n z^n / ((a+1)...(a+n)) for z < a + 1,
-    else 1 - Q(a, z) by the Lentz continued fraction (Numerical Recipes, section 6.2).
-    x >= 0, dof > 0; returns a probability in [0, 1].
-    """
-    a, z = 0.5 * dof, 0.5 * x
-    if z <= 0.0:  # x <= 0, or so small that half of it underflows
-        return 0.0
-    log_prefix = a * math.log(z) - z - math.lgamma(a)
-    if z < a + 1.0:
-        term = total = 1.0 / a
-        denominator = a
-        for _ in range(10_000):
-            denominator += 1.0
-            term *= z / denominator
-            total += term
-            if abs(term) < abs(total) * 1e-15:
-                break
-        return min(1.0, total * math.exp(log_prefix))
-    tiny = 1e-300
-    b = z + 1.0 - a
-    c = 1.0 / tiny
-    d = 1.0 / b
-    h = d
-    for i in range(1, 10_000):
-        an = -i * (i - a)
-        b += 2.0
-        d = an * d + b
-        d = tiny if abs(d) < tiny else d
-        c = b + an / c
-        c = tiny if abs(c) < tiny else c
-        d = 1.0 / d
-        delta = d * c
-        h *= delta
-        if abs(delta - 1.0) < 1e-15:
-            break
-    return max(0.0, 1.0 - math.exp(log_prefix) * h)
-
-
-def chi2_quantile(probability: float, dof: float) -> float:
-    """x with P(X <= x) = probability for X ~ chi^2(dof), by bisection on `chi2_cdf` (relative 1e-12)."""
-    if not (0.0 < probability < 1.0) or dof <= 0.0:
-        raise ValueError("need 0 < probability < 1 and dof > 0")
-    low, high = 0.0, max(1.0, dof)
-    while chi2_cdf(high, dof) < probability:
-        high *= 2.0
-    while high - low > 1e-12 * high:
-        middle = 0.5 * (low + high)
-        if chi2_cdf(middle, dof) < probability:
-            low = middle
-        else:
-            high = middle
-    return 0.5 * (low + high)
 
 
 def normalized_innovation_squared(innovation: np.ndarray, covariance: np.ndarray) -> float:
@@ -256,7 +200,7 @@ class HealthMonitor:
     def nis_bound(self, dof: int) -> float:
         """nis_scale x the upper chi^2 quantile (config.nis_probability) for `dof` degrees of freedom, cached."""
         if dof not in self._bounds:
-            self._bounds[dof] = self.config.nis_scale * chi2_quantile(self.config.nis_probability, dof)
+            self._bounds[dof] = self.config.nis_scale * float(chi2.ppf(self.config.nis_probability, dof))
         return self._bounds[dof]
 
     def restart(self) -> None:
