@@ -251,7 +251,7 @@ class _ConstantVelocityFilter(_TickedFilter):
     Q (target acceleration covariance, (m/s^2)^2, (3, 3)), A, B and B Q B^T, and the restart guard."""
 
     def __init__(self, period: float, process_noise: np.ndarray, measurement_noise: np.ndarray,
-                 pursuer_position_std: float, restart_when_behind: bool) -> None:
+                 pursuer_position_std: float = 0.0, restart_when_behind: bool = True) -> None:
         super().__init__(period, measurement_noise, pursuer_position_std)
         self.process_noise = np.asarray(process_noise, dtype=float).reshape(3, 3)
         self.restart_when_behind = bool(restart_when_behind)
@@ -275,17 +275,8 @@ class AzElEKF(_ConstantVelocityFilter):
     period: Delta t, s. process_noise: Q, target acceleration covariance, (m/s^2)^2,
     shape (3, 3). measurement_noise: Sigma of eq. (4), shape (3, 3) (sigma^2 = trace/3).
     pursuer_position_std: sigma_p, m (0: the paper's EKF). restart_when_behind: the guard.
+    (The constructor is the constant-velocity base's.)
     """
-
-    def __init__(
-        self,
-        period: float,
-        process_noise: np.ndarray,
-        measurement_noise: np.ndarray,
-        pursuer_position_std: float = 0.0,
-        restart_when_behind: bool = True,
-    ) -> None:
-        super().__init__(period, process_noise, measurement_noise, pursuer_position_std, restart_when_behind)
 
     def initialize(self, time: float, position: np.ndarray, velocity: np.ndarray, covariance: np.ndarray) -> None:
         """Start from an explicit target estimate; covariance of [p_T, v_T], shape (6, 6)."""
