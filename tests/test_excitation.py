@@ -14,8 +14,8 @@ from scipy.integrate import solve_ivp
 
 from companion.assembly import build_excitation, build_pipeline
 from companion.core.estimators import InitialGuess
-from companion.core.guidance import (HelicalNavigationGuidance, PurePursuitGuidance, RangeController,
-                                     RangeExcitation, relative_range_std)
+from companion.core.geometry import relative_range_std
+from companion.core.guidance import HelicalNavigationGuidance, PurePursuitGuidance, RangeController, RangeExcitation
 from companion.core.messages import BearingMeasurement, PursuerState
 from interfaces.scenario import SCENARIOS_DIR, ConfigError, GuidanceConfig, load_scenario
 from studies.closed_loop import Termination, simulate

@@ -78,3 +78,17 @@ def rotation_about_y(angle: float) -> np.ndarray:
     """R_Y(alpha): rotation by `angle` rad about the y axis, shape (3, 3)."""
     c, s = math.cos(angle), math.sin(angle)
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def relative_range_std(relative_position: np.ndarray, position_covariance: np.ndarray) -> float:
+    """Relative range uncertainty rho = sigma_r / r^, sigma_r^2 = lambda^T P_pp lambda, lambda = dp / |dp|
+    (the range excitation and the health monitor both read it).
+
+    relative_position: dp = p^_T - p, m, (3,). position_covariance: P_pp of the target
+    position estimate, m^2, (3, 3). Returns inf for |dp| = 0 (the range is then unknown).
+    """
+    distance = float(np.linalg.norm(relative_position))
+    if distance <= 1e-9:
+        return float("inf")
+    los = relative_position / distance
+    return float(np.sqrt(max(float(los @ position_covariance @ los), 0.0))) / distance

@@ -243,16 +243,3 @@ class RangeExcitation:
         direction = cos_phase * basis[:, 1] + sin_phase * basis[:, 2]
         turning = -sin_phase * basis[:, 1] + cos_phase * basis[:, 2]
         return level * self.speed * (self.damping_gain * direction + self.frequency * turning)
-
-
-def relative_range_std(relative_position: np.ndarray, position_covariance: np.ndarray) -> float:
-    """rho = sigma_r / r^ with sigma_r^2 = lambda^T P_pp lambda, lambda = dp / |dp|.
-
-    relative_position: dp = p^_T - p, m, (3,). position_covariance: P_pp of the target
-    position estimate, m^2, (3, 3). Returns inf for |dp| = 0 (the range is then unknown).
-    """
-    distance = float(np.linalg.norm(relative_position))
-    if distance <= 1e-9:
-        return float("inf")
-    los = relative_position / distance
-    return float(np.sqrt(max(float(los @ position_covariance @ los), 0.0))) / distance

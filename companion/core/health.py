@@ -57,6 +57,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2
 
+from companion.core.geometry import relative_range_std
+
 
 class HealthState(str, enum.Enum):
     """OK: nothing suspicious. SUSPECT: at least one indicator says the estimate may be wrong."""
@@ -248,9 +250,7 @@ class HealthMonitor:
         range_estimate = float(np.linalg.norm(relative))
         relative_std = math.nan
         if range_estimate > 1e-9:
-            los = relative / range_estimate
-            range_std = math.sqrt(max(float(los @ np.asarray(estimate_covariance)[:3, :3] @ los), 0.0))
-            relative_std = range_std / range_estimate
+            relative_std = relative_range_std(relative, np.asarray(estimate_covariance)[:3, :3])
             if relative_std > config.max_relative_range_std:
                 raised.append("range_uncertain")
         if reinitialized or float(np.asarray(bearing_direction, float) @ relative) <= 0.0:

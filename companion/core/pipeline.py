@@ -14,8 +14,8 @@ import numpy as np
 
 from companion.core.attitude import VehicleLimits, attitude_setpoint
 from companion.core.estimators import CorrectionReport, InitialGuess, TargetEstimator
-from companion.core.geometry import unit
-from companion.core.guidance import LateralGuidance, RangeController, RangeExcitation, relative_range_std
+from companion.core.geometry import relative_range_std, unit
+from companion.core.guidance import LateralGuidance, RangeController, RangeExcitation
 from companion.core.health import HealthConfig, HealthMonitor, HealthReport, HealthState
 from companion.core.messages import AttitudeSetpoint, BearingMeasurement, PursuerState, TargetEstimate
 from companion.core.observability import WindowedObservability
