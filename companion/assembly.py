@@ -231,7 +231,8 @@ def health_action_config(scenario: Scenario) -> HealthActionConfig:
                               reinitialize_reasons=tuple(h.reinitialize_reasons),
                               reinitialize_interval=h.reinitialize_interval,
                               reinitialize_relative_std=h.reinitialize_relative_std, excite=h.excite,
-                              excitation_low=h.excitation_low, excitation_high=h.excitation_high)
+                              excitation_low=h.excitation_low, excitation_high=h.excitation_high,
+                              boost_follows_evidence=h.boost_follows_evidence)
 
 
 def build_action_excitation(scenario: Scenario) -> RangeExcitation | None:

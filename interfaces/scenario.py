@@ -696,7 +696,8 @@ class HealthSection(_Strict):
     with an along-bearing std of reinitialize_relative_std x that range, at most every
     reinitialize_interval s), excite (full range excitation while suspect; without
     [guidance] excitation, also never a stop while sigma_r / r^ > excitation_high, ramping in
-    from excitation_low; lateral laws 'hng' and 'ppg' only).
+    from excitation_low; lateral laws 'hng' and 'ppg' only), boost_follows_evidence (full boost only
+    while a condition is raised, relaxing during the SUSPECT tail).
     """
 
     nis_window: Positive = 5.0
@@ -711,7 +712,7 @@ class HealthSection(_Strict):
     flag_after: NonNegative = 3.0
     clear_after: NonNegative = 10.0
     act: bool = False
-    process_noise_boost: Annotated[float, Field(ge=1.0)] = 10.0
+    process_noise_boost: Annotated[float, Field(ge=1.0)] = 30.0
     boost_relax_time: Positive = 5.0
     reinitialize_reasons: Annotated[tuple[HealthReasonName, ...], FROM_ARRAY] = ("behind_sensor", "range_implausible")
     reinitialize_interval: NonNegative = 20.0
@@ -719,6 +720,7 @@ class HealthSection(_Strict):
     excite: bool = True
     excitation_low: NonNegative = 0.25
     excitation_high: Positive = 0.5
+    boost_follows_evidence: bool = True
 
     @model_validator(mode="after")
     def _ordered(self) -> "HealthSection":

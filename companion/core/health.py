@@ -41,8 +41,12 @@ Indicators, evaluated at every estimator correction k (a bearing used):
 Hysteresis: a reason counts once its condition has held at every correction for
 `flag_after` s (`unobservable_time` for range_unobservable, at once for behind_sensor); the state becomes SUSPECT
 as soon as one reason counts, and goes back to OK only after no condition at all has been
-raised for `clear_after` s. The monitor only observes: it never changes the estimator or
-the guidance.
+raised for `clear_after` s. The monitor itself only observes. What to do about its verdict
+is the HealthActionPolicy's (below), which the pipeline (companion.core.pipeline) applies
+when `HealthActionConfig.act` is on: while SUSPECT, inflate the estimator's process noise
+(its `process_noise_boost`, relaxing back to 1 once OK), restart the estimator on the
+bearing (remark 3) when the reasons say the range is wrong (rate-limited), and fly the
+range excitation (companion.core.guidance.RangeExcitation) at full level.
 
 numpy, and scipy.stats.chi2 for the chi^2 quantile.
 """
@@ -338,11 +342,14 @@ class HealthActionConfig:
     reinitialize_relative_std x that range; not more often than every reinitialize_interval s.
     excite: full range excitation while suspect, and a lateral excitation that never lets the
     pursuer stop while sigma_r / r^ is above excitation_high (ramping in from excitation_low),
-    for lateral laws that take one (guidance.RangeExcitation).
+    for lateral laws that take one (guidance.RangeExcitation). boost_follows_evidence: hold the full
+    boost only while some condition is raised at the correction (HealthReport.raised), relaxing
+    already during the SUSPECT tail the monitor's clear_after hysteresis keeps (False: full boost for
+    the whole SUSPECT episode). Defaults chosen on tuning seeds (docs/reproduction.md section 5.5).
     """
 
     act: bool = False
-    process_noise_boost: float = 10.0
+    process_noise_boost: float = 30.0
     boost_relax_time: float = 5.0
     reinitialize_reasons: tuple[str, ...] = RANGE_WRONG_REASONS
     reinitialize_interval: float = 20.0
@@ -350,6 +357,7 @@ class HealthActionConfig:
     excite: bool = True
     excitation_low: float = 0.25
     excitation_high: float = 0.5
+    boost_follows_evidence: bool = True
 
     def __post_init__(self) -> None:
         if self.process_noise_boost < 1.0 or self.boost_relax_time <= 0.0:
@@ -405,7 +413,7 @@ class HealthActionPolicy:
         self._suspect = suspect
         elapsed = 0.0 if self._time is None else max(report.time - self._time, 0.0)
         self._time = report.time
-        if suspect:
+        if suspect and (report.raised or not config.boost_follows_evidence):
             self.boost = config.process_noise_boost
         else:
             self.boost = 1.0 + (self.boost - 1.0) * math.exp(-elapsed / config.boost_relax_time)
