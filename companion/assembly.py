@@ -23,6 +23,7 @@ from companion.core.baseline_guidance import (PDFollowingController, Proportiona
 from companion.core.estimators import AdaptiveNoiseSettings, GainProjection, InitialGuess, TargetEstimator, UPLKF
 from companion.core.guidance import (HelicalNavigationGuidance, LateralGuidance, PurePursuitGuidance, RangeController,
                                      RangeExcitation)
+from companion.core.health import HealthActionConfig, HealthActionPolicy, HealthConfig, HealthMonitor
 from companion.core.pipeline import DropoutPolicy, FollowingPipeline
 
 
@@ -204,7 +205,45 @@ def build_pipeline(scenario: Scenario, vehicle: VehicleConfig, hover_thrust_norm
         los_source=scenario.guidance.los_source,
         dropout=dropout_policy(scenario),
         excitation=build_excitation(scenario),
+        health=HealthMonitor(health_config(scenario)),
+        actions=HealthActionPolicy(health_action_config(scenario)),
+        action_excitation=build_action_excitation(scenario),
     )
+
+
+def health_config(scenario: Scenario) -> HealthConfig:
+    """The [health] section's monitor thresholds; the plausible range starts at guidance.desired_range / 4 by default."""
+    h = scenario.health
+    min_range = h.min_range if h.min_range is not None else 0.25 * scenario.guidance.desired_range
+    try:
+        return HealthConfig(nis_window=h.nis_window, nis_probability=h.nis_probability, nis_scale=h.nis_scale,
+                            min_nis_samples=h.min_nis_samples, max_relative_range_std=h.max_relative_range_std,
+                            min_range=min_range, max_range=h.max_range, slow_speed=h.slow_speed,
+                            unobservable_time=h.unobservable_time, flag_after=h.flag_after, clear_after=h.clear_after)
+    except ValueError as error:
+        raise ConfigError(f"health: {error}") from None
+
+
+def health_action_config(scenario: Scenario) -> HealthActionConfig:
+    """The [health] section's actions (act, Q boost, re-initialisation, excitation)."""
+    h = scenario.health
+    return HealthActionConfig(act=h.act, process_noise_boost=h.process_noise_boost, boost_relax_time=h.boost_relax_time,
+                              reinitialize_reasons=tuple(h.reinitialize_reasons),
+                              reinitialize_interval=h.reinitialize_interval,
+                              reinitialize_relative_std=h.reinitialize_relative_std, excite=h.excite,
+                              excitation_low=h.excitation_low, excitation_high=h.excitation_high,
+                              boost_follows_evidence=h.boost_follows_evidence)
+
+
+def build_action_excitation(scenario: Scenario) -> RangeExcitation | None:
+    """The excitation the health actions fly when [guidance] has none: [guidance] excitation_speed and
+    excitation_frequency, the lateral law's gain as its damping, [health] excitation_low/high as its
+    thresholds. None for lateral laws it was not designed for (only 'hng' and 'ppg')."""
+    g, h = scenario.guidance, scenario.health
+    if g.law not in ("hng", "ppg") or not h.act or not h.excite:
+        return None
+    return RangeExcitation(g.excitation_speed, g.navigation_gain, g.excitation_frequency, h.excitation_low,
+                           h.excitation_high)
 
 
 def dropout_policy(scenario: Scenario) -> DropoutPolicy:

@@ -17,7 +17,7 @@ import numpy as np
 
 from companion.adapters.mavsdk_vehicle import MavsdkVehicle, VehicleError, VehicleSample
 from companion.adapters.recorder import RunRecorder
-from companion.core.health import HealthReport, HealthState
+from companion.core.health import HealthAction, HealthReport, HealthState
 from companion.core.messages import BearingMeasurement
 from companion.core.pipeline import FollowingPipeline, PipelineOutput
 from companion.core.state_history import StateHistory
@@ -39,6 +39,15 @@ HEALTH_TEXTS = {
     HealthState.OK: ("INFO", "range estimate consistent again"),
 }
 
+#: What the companion does about the verdict (companion.core.health.HealthAction) -> STATUSTEXT severity and text.
+HEALTH_ACTION_TEXTS = {
+    HealthAction.RECOVERING: ("WARNING", "recovering: Q inflated, range excitation on"),
+    HealthAction.NOMINAL: ("INFO", "estimate trusted: recovery actions off"),
+    HealthAction.OFF: ("INFO", "health actions off: reporting only"),
+}
+#: STATUSTEXT when the health actions restarted the estimator on the bearing.
+HEALTH_RESTART_TEXT = ("WARNING", "range estimate restarted on bearing")
+
 
 class Follower:
     """Drives the pipeline with odometry and bearings; `attach` the vehicle and pipeline before `step`.
@@ -58,6 +67,7 @@ class Follower:
         self.latencies_ms: list[float] = []  # fix received -> first setpoint sent after its bearing
         self.last_output: PipelineOutput | None = None
         self.health_state = HealthState.OK
+        self.health_action: HealthAction | None = None
         self._awaiting_setpoint: list["PendingFix"] = []
 
     def attach(self, vehicle: MavsdkVehicle, pipeline: FollowingPipeline) -> None:
@@ -105,6 +115,13 @@ class Follower:
         if output.health is not None and output.health.state is not self.health_state:
             self.health_state = output.health.state
             await self._health_changed(output.health)
+        action = getattr(output, "health_action", None)
+        if action is not None and self.health_action is not None and action is not self.health_action:
+            await self._health_action_changed(output)
+        if action is not None:
+            self.health_action = action
+        if getattr(output, "health_reinitialized", False):
+            await self._announce(output.time, "health_restart", "estimator restarted on the bearing", HEALTH_RESTART_TEXT)
         self.last_output = output
         self._log_row(sample, output, bearings, phase)
 
@@ -131,6 +148,22 @@ class Follower:
             await self.vehicle.status_text(f"{text}: {reasons}" if reasons else text, severity)
         except VehicleError as error:
             self.recorder.event(health.time, "status_text_failed", str(error))
+
+    async def _health_action_changed(self, output: PipelineOutput) -> None:
+        """The pipeline started or stopped acting on the verdict (Q boost, excitation, restarts): event and STATUSTEXT."""
+        action = output.health_action
+        await self._announce(output.time, "health_action", f"{action.value} (Q x{output.process_noise_boost:.3g})",
+                             HEALTH_ACTION_TEXTS[action], action=action.value,
+                             process_noise_boost=round(output.process_noise_boost, 4))
+
+    async def _announce(self, time_s: float, kind: str, detail: str, text: tuple[str, str], **fields) -> None:
+        """A structured event in the log and a STATUSTEXT (severity, text) to the autopilot/ground station."""
+        self.recorder.event(time_s, kind, detail, **fields)
+        severity, message = text
+        try:
+            await self.vehicle.status_text(message, severity)
+        except VehicleError as error:
+            self.recorder.event(time_s, "status_text_failed", str(error))
 
     def _sent(self, output: PipelineOutput) -> None:
         now_ns = time.monotonic_ns()
@@ -167,6 +200,9 @@ class Follower:
             row.update(health=output.health.state.value,
                        health_suspect=int(output.health.state is HealthState.SUSPECT),
                        health_nis_ratio=output.health.nis_ratio)
+        action = getattr(output, "health_action", None)
+        if action is not None:
+            row.update(health_action=action.value, process_noise_boost=output.process_noise_boost)
         if output.setpoint is not None:
             a = output.setpoint.acceleration
             row.update(acc_x=float(a[0]), acc_y=float(a[1]), acc_z=float(a[2]), thrust_normalized=output.setpoint.thrust_normalized)

@@ -78,6 +78,9 @@ class StatePublisher:
             health = getattr(last, "health", None)
             if health is not None:
                 state["health"] = health.as_dict()
+                action = getattr(last, "health_action", None)
+                if action is not None:
+                    state["health"].update(action=action.value, process_noise_boost=last.process_noise_boost)
         estimate = last.estimate if last is not None else None
         if estimate is not None:
             state["estimate"] = {

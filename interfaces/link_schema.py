@@ -45,7 +45,9 @@ Any change of fields is a new schema version.
   (list, each one of ``nis``, ``range_uncertain``, ``behind_sensor``,
   ``range_implausible``, ``range_unobservable``), ``nis_ratio`` (windowed NIS over its
   bound, > 1 is inconsistent; null while the window is short), ``relative_range_std``
-  (sigma_r / r^)} and ``estimate`` {``time``
+  (sigma_r / r^), optionally ``action`` (what the companion does about it:
+  ``"off"`` reports only, ``"nominal"``, ``"recovering"`` while suspect and acting) and
+  ``process_noise_boost`` (factor on the estimator's Q, 1 when none)} and ``estimate`` {``time``
   (s), ``position``, ``velocity`` (NED m, m/s), ``position_std``, ``velocity_std``
   (m, m/s: sqrt of the mean diagonal of the covariance block), ``range`` (m)}. A
   number may be ``null`` ("no value", e.g. log_det of a singular information
@@ -376,12 +378,16 @@ class ObservabilityState(_Declared):
 
 
 class HealthStateSection(_Declared):
-    """The filter-health monitor's verdict: state ("ok"/"suspect"), reasons, nis_ratio, relative_range_std."""
+    """The filter-health monitor's verdict: state ("ok"/"suspect"), reasons, nis_ratio, relative_range_std;
+    and what the companion does about it (companion.core.health.HealthAction): action, process_noise_boost
+    (absent from senders that only report)."""
 
     state: Literal["ok", "suspect"]
     reasons: Annotated[list[HealthReason], Strict(False)]
     nis_ratio: Value
     relative_range_std: Value
+    action: Literal["off", "nominal", "recovering"] | None = None
+    process_noise_boost: Value = None
 
 
 class EstimateState(_Declared):

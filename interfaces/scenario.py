@@ -682,6 +682,55 @@ class DropoutConfig(_Strict):
         return self
 
 
+HealthReasonName = Literal["nis", "range_uncertain", "behind_sensor", "range_implausible", "range_unobservable"]
+
+
+class HealthSection(_Strict):
+    """The filter-health monitor (companion.core.health: HealthConfig, HealthActionConfig; README "Filter health").
+
+    Monitor: nis_window s, nis_probability, nis_scale, min_nis_samples, max_relative_range_std,
+    min_range m (default guidance.desired_range / 4), max_range m, slow_speed m/s,
+    unobservable_time s, flag_after s, clear_after s. Actions while suspect: act (false: the
+    monitor only reports), process_noise_boost (factor on Q, >= 1) relaxing back to 1 with
+    boost_relax_time s once OK, reinitialize_reasons (restart on the bearing at the current range
+    with an along-bearing std of reinitialize_relative_std x that range, at most every
+    reinitialize_interval s), excite (full range excitation while suspect; without
+    [guidance] excitation, also never a stop while sigma_r / r^ > excitation_high, ramping in
+    from excitation_low; lateral laws 'hng' and 'ppg' only), boost_follows_evidence (full boost only
+    while a condition is raised, relaxing during the SUSPECT tail).
+    """
+
+    nis_window: Positive = 5.0
+    nis_probability: Annotated[float, Field(gt=0.0, lt=1.0)] = 0.999
+    nis_scale: Annotated[float, Field(ge=1.0)] = 2.0
+    min_nis_samples: Annotated[int, Field(ge=1)] = 10
+    max_relative_range_std: Positive = 1.0
+    min_range: NonNegative | None = None
+    max_range: Positive = 2000.0
+    slow_speed: NonNegative = 1.0
+    unobservable_time: NonNegative = 5.0
+    flag_after: NonNegative = 3.0
+    clear_after: NonNegative = 10.0
+    act: bool = False
+    process_noise_boost: Annotated[float, Field(ge=1.0)] = 30.0
+    boost_relax_time: Positive = 5.0
+    reinitialize_reasons: Annotated[tuple[HealthReasonName, ...], FROM_ARRAY] = ("behind_sensor", "range_implausible")
+    reinitialize_interval: NonNegative = 20.0
+    reinitialize_relative_std: Positive = 0.5
+    excite: bool = True
+    excitation_low: NonNegative = 0.25
+    excitation_high: Positive = 0.5
+    boost_follows_evidence: bool = True
+
+    @model_validator(mode="after")
+    def _ordered(self) -> "HealthSection":
+        if self.min_range is not None and self.min_range >= self.max_range:
+            raise ValueError("min_range must be below max_range")
+        if self.excitation_low >= self.excitation_high:
+            raise ValueError("excitation_low must be below excitation_high")
+        return self
+
+
 def _check_rates(physics_rate_hz: float, **rates_hz: float) -> None:
     """Every loop rate (Hz, by section) must divide the physics rate into whole steps; ValueError naming the key."""
     for section, rate in rates_hz.items():
@@ -706,6 +755,7 @@ class Scenario(_Strict):
     companion: CompanionConfig = CompanionConfig()
     faults: FaultsConfig = FaultsConfig()
     dropout: DropoutConfig = DropoutConfig()
+    health: HealthSection = HealthSection()
 
     @model_validator(mode="after")
     def _rates_fit_physics(self) -> "Scenario":
@@ -724,7 +774,7 @@ class Scenario(_Strict):
 
 #: The companion's own sections: the plant and the target simulator never read them, so a
 #: scenario whose [estimator] or [guidance] is broken or missing still flies the plant.
-COMPANION_SECTIONS = ("estimator", "guidance", "companion", "dropout")
+COMPANION_SECTIONS = ("estimator", "guidance", "companion", "dropout", "health")
 
 
 class PlantSensorConfig(_Strict):

@@ -22,7 +22,7 @@ from companion.core.fix_validator import FixRejected, FixValidator
 from companion.fix_intake import FixIntake
 from interfaces.link_schema import TargetFix, encode_target_fix
 from companion.core.messages import BearingMeasurement, PursuerState
-from companion.core.health import REASONS, HealthState
+from companion.core.health import REASONS, HealthAction, HealthState
 from companion.core.pipeline import TrackMode
 from sitl_plant.vehicle.attitude_control import AttitudeThrustVehicle
 from sitl_plant.vehicle.params import QuadrotorParams, quadrotor_params
@@ -44,6 +44,8 @@ class Termination(enum.Enum):
 TRACK_MODE_CODES = {TrackMode.TRACKING: 0, TrackMode.COASTING: 1, TrackMode.DEGRADED: 2, TrackMode.REACQUIRING: 3}
 #: health_reasons column of the flight log: bit i set when companion.core.health.REASONS[i] counts.
 HEALTH_REASON_BITS = {reason: 1 << bit for bit, reason in enumerate(REASONS)}
+#: health_action column of the flight log: what the pipeline does about the verdict (companion.core.health.HealthAction).
+HEALTH_ACTION_CODES = {HealthAction.OFF: 0, HealthAction.NOMINAL: 1, HealthAction.RECOVERING: 2}
 
 MAX_SPEED = 60.0  # m/s, far above anything the Table I vehicle can reach with 1.5 g of thrust
 
@@ -61,6 +63,7 @@ class FlightLog:
         "estimate_position_std": 1, "command_acceleration": 3, "thrust_normalized": 1, "track_mode": 1, "bearing_age": 1,
         "observability_log_det": 1, "observability_min_eigenvalue": 1,
         "health_suspect": 1, "health_reasons": 1, "health_nis_ratio": 1, "health_relative_range_std": 1,
+        "health_action": 1, "process_noise_boost": 1, "health_reinitialized": 1,
     }
 
     def __init__(self, rows: int) -> None:
@@ -187,11 +190,22 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
     summary["health_transitions"] = [(round(t, 3), state.value, list(reasons))
                                      for t, state, reasons in pipeline.health.transitions]
     summary["health_reasons_at_end"] = list(pipeline.health.episode_reasons)
+    summary["health_actions"] = health_actions_summary(pipeline)
     if link.enabled:
         summary["link"] = link.summary()
         summary["fault_events"] = [(round(e.time, 3), e.kind, e.detail) for e in link.faults.events]
     summary["seed"] = seed
     return SimulationResult(scenario, series, summary, termination)
+
+
+def health_actions_summary(pipeline) -> dict:
+    """What the health actions did in a flight (companion.core.health.HealthActionPolicy): act (on/off),
+    reinitializations (restarts on the bearing they made), episodes (SUSPECT episodes acted on), recoveries
+    (of those, ended OK again), changes [(time s, action)]."""
+    policy = pipeline.actions
+    return {"act": policy.config.act, "reinitializations": pipeline.health_reinitializations,
+            "episodes": policy.episodes, "recoveries": policy.recoveries,
+            "changes": [(round(t, 3), action.value) for t, action in pipeline.health_action_changes]}
 
 
 def _measure(sensor: BearingSensor, time: float, line_of_sight: np.ndarray, rotation: np.ndarray,
@@ -290,5 +304,7 @@ def _log_tick(log: FlightLog, time: float, truth: RigidBodyState, target: Target
     if health is not None:
         row.update(health_suspect=float(health.state is HealthState.SUSPECT),
                    health_reasons=sum(HEALTH_REASON_BITS[reason] for reason in health.reasons),
-                   health_nis_ratio=health.nis_ratio, health_relative_range_std=health.relative_range_std)
+                   health_nis_ratio=health.nis_ratio, health_relative_range_std=health.relative_range_std,
+                   health_action=HEALTH_ACTION_CODES[output.health_action], process_noise_boost=output.process_noise_boost,
+                   health_reinitialized=float(output.health_reinitialized))
     log.append(**row)

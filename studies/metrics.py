@@ -54,17 +54,20 @@ def suspected_divergence(time: np.ndarray, suspect: np.ndarray | None, window: n
     time (N,) s; suspect (N,) 1 while SUSPECT, 0 while OK, NaN before the monitor's first
     verdict; window (N,) bool, the summary window. Returns None without a health series, else
     seconds (s flagged, each sample holding until the next), episodes (OK -> SUSPECT changes,
-    a flight starting suspect counts one), first_time (s of the first flag, None if never),
-    in_last_window (flagged at any time in the summary window) and at_end (flagged at the last sample).
+    a flight starting suspect counts one), recoveries (SUSPECT -> OK changes: episodes that ended),
+    first_time (s of the first flag, None if never), in_last_window (flagged at any time in the
+    summary window) and at_end (flagged at the last sample).
     """
     if suspect is None:
         return None
     flagged = np.nan_to_num(np.asarray(suspect, dtype=float), nan=0.0) > 0.5
     held = np.diff(time, append=time[-1])
     starts = np.flatnonzero(flagged & ~np.concatenate([[False], flagged[:-1]]))
+    ends = np.flatnonzero(~flagged[1:] & flagged[:-1])
     return {
         "seconds": float(np.sum(held[flagged])),
         "episodes": int(starts.size),
+        "recoveries": int(ends.size),
         "first_time": float(time[starts[0]]) if starts.size else None,
         "in_last_window": bool(np.any(flagged[window])),
         "at_end": bool(flagged[-1]),
@@ -73,11 +76,15 @@ def suspected_divergence(time: np.ndarray, suspect: np.ndarray | None, window: n
 
 def verdict(termination: enum.Enum, divergence: dict | None) -> str:
     """One word for the flight: "failed" (did not complete), "suspect" (the health monitor still called
-    the estimate suspect at the end: the flight's range may be wrong), else "clean"."""
+    the estimate suspect at the end: the flight's range may be wrong), "recovered" (it called it suspect
+    at some time and OK again at the end: the range was doubted during the flight, so not a clean
+    success either), else "clean" (never flagged)."""
     if termination.name not in ("COMPLETED", "INTERRUPTED"):
         return "failed"
     if divergence is not None and divergence["at_end"]:
         return "suspect"
+    if divergence is not None and divergence["episodes"] > 0:
+        return "recovered"
     return "clean"
 
 

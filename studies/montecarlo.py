@@ -225,6 +225,8 @@ def fly(task: FlightTask) -> dict:
         "lost": bool(not completed or not final_range_error <= task.divergence_threshold),
         # the companion's own, truth-free verdict (companion.core.health): suspect at the end of the flight
         "flagged": bool(summary["suspected_divergence"]["at_end"]),
+        # ... and at any time: "clean" only when never flagged (studies.metrics.verdict)
+        "verdict": summary["verdict"],
         "final_error": final_error,
         "rms_error": summary["range_estimation_error_rms"],
         "final_range_error": final_range_error,

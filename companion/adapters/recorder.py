@@ -29,6 +29,7 @@ SERIES_COLUMNS = (
     "bearing_x", "bearing_y", "bearing_z", "bearing_time",
     "acc_x", "acc_y", "acc_z", "thrust_normalized", "new_setpoint",
     "observability_log_det", "observability_min_eigenvalue", "health", "health_suspect", "health_nis_ratio",
+    "health_action", "process_noise_boost",
 )
 BEARING_COLUMNS = ("time", "direction_x", "direction_y", "direction_z", "pursuer_x", "pursuer_y", "pursuer_z",
                    "fix_seq", "range")

@@ -375,6 +375,7 @@ class UPLKF:
         self._a, self._b = transition_matrices(self.period)
         self._q_discrete = self._b @ self.process_noise @ self._b.T
         self.adaptive_noise = None if adaptive_noise is None else AdaptiveProcessNoise(adaptive_noise)
+        self.process_noise_boost: float = 1.0
         self._state: np.ndarray | None = None
         self._covariance: np.ndarray | None = None
         self._start_time = 0.0
@@ -438,6 +439,7 @@ class UPLKF:
         q_discrete = self._q_discrete
         if self.adaptive_noise is not None:
             q_discrete = self.adaptive_noise.scale * q_discrete
+        q_discrete = self.process_noise_boost * q_discrete
         self._covariance = self._a @ covariance @ self._a.T + q_discrete
         self._ticks += 1
 

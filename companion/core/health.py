@@ -41,8 +41,12 @@ Indicators, evaluated at every estimator correction k (a bearing used):
 Hysteresis: a reason counts once its condition has held at every correction for
 `flag_after` s (`unobservable_time` for range_unobservable, at once for behind_sensor); the state becomes SUSPECT
 as soon as one reason counts, and goes back to OK only after no condition at all has been
-raised for `clear_after` s. The monitor only observes: it never changes the estimator or
-the guidance.
+raised for `clear_after` s. The monitor itself only observes. What to do about its verdict
+is the HealthActionPolicy's (below), which the pipeline (companion.core.pipeline) applies
+when `HealthActionConfig.act` is on: while SUSPECT, inflate the estimator's process noise
+(its `process_noise_boost`, relaxing back to 1 once OK), restart the estimator on the
+bearing (remark 3) when the reasons say the range is wrong (rate-limited), and fly the
+range excitation (companion.core.guidance.RangeExcitation) at full level.
 
 numpy, and scipy.stats.chi2 for the chi^2 quantile.
 """
@@ -301,3 +305,125 @@ class HealthMonitor:
             if time - self._since[reason] >= wait:
                 held.append(reason)
         return tuple(held)
+
+
+# --------------------------------------------------------------------------- acting on the verdict
+
+
+class HealthAction(str, enum.Enum):
+    """What the pipeline does about the monitor's verdict (kept apart from the dropout TrackMode, whose
+    modes say whether bearings arrive; this says whether the estimate built from them is believed).
+
+    off: the monitor only reports (`HealthActionConfig.act` false). nominal: acting is on and the
+    estimate is judged OK (process_noise_boost relaxing back to 1). recovering: the estimate is
+    judged suspect and the actions are on (Q inflated, guidance exciting the range, re-initialisation
+    on the bearing when the reasons say the range is wrong).
+    """
+
+    OFF = "off"
+    NOMINAL = "nominal"
+    RECOVERING = "recovering"
+
+
+#: Reasons that say the range itself is wrong or unknowable, so restarting along the bearing helps.
+RANGE_WRONG_REASONS = ("behind_sensor", "range_implausible")
+
+
+@dataclass(frozen=True)
+class HealthActionConfig:
+    """What to do while the monitor says SUSPECT (issue 13 item 3). Times s, ratios dimensionless.
+
+    act: False keeps the monitor a pure observer (the flight is the reporting-only pipeline,
+    bit for bit). process_noise_boost: factor (>= 1) on the estimator's discrete process noise
+    while suspect (the estimator's `process_noise_boost`; estimators without it are left
+    alone); once OK again it relaxes back to 1 as 1 + (b - 1) exp(-dt / boost_relax_time).
+    reinitialize_reasons: reasons (REASONS) that restart the estimator on the bearing, at the
+    current range estimate (clamped to the plausible range) with an along-bearing std of
+    reinitialize_relative_std x that range; not more often than every reinitialize_interval s.
+    excite: full range excitation while suspect, and a lateral excitation that never lets the
+    pursuer stop while sigma_r / r^ is above excitation_high (ramping in from excitation_low),
+    for lateral laws that take one (guidance.RangeExcitation). boost_follows_evidence: hold the full
+    boost only while some condition is raised at the correction (HealthReport.raised), relaxing
+    already during the SUSPECT tail the monitor's clear_after hysteresis keeps (False: full boost for
+    the whole SUSPECT episode). Defaults chosen on tuning seeds (docs/reproduction.md section 5.5).
+    """
+
+    act: bool = False
+    process_noise_boost: float = 30.0
+    boost_relax_time: float = 5.0
+    reinitialize_reasons: tuple[str, ...] = RANGE_WRONG_REASONS
+    reinitialize_interval: float = 20.0
+    reinitialize_relative_std: float = 0.5
+    excite: bool = True
+    excitation_low: float = 0.25
+    excitation_high: float = 0.5
+    boost_follows_evidence: bool = True
+
+    def __post_init__(self) -> None:
+        if self.process_noise_boost < 1.0 or self.boost_relax_time <= 0.0:
+            raise ValueError("need process_noise_boost >= 1 and boost_relax_time > 0")
+        unknown = set(self.reinitialize_reasons) - set(REASONS)
+        if unknown:
+            raise ValueError(f"unknown reinitialize_reasons {sorted(unknown)}; known: {', '.join(REASONS)}")
+        if self.reinitialize_interval < 0.0 or self.reinitialize_relative_std <= 0.0:
+            raise ValueError("need reinitialize_interval >= 0 and reinitialize_relative_std > 0")
+        if not (0.0 <= self.excitation_low < self.excitation_high):
+            raise ValueError("need 0 <= excitation_low < excitation_high")
+
+
+@dataclass(frozen=True)
+class ActionDecision:
+    """The actions for one verdict. action: HealthAction. process_noise_boost: factor on Q to set now
+    (1 means none). reinitialize: restart the estimator on this bearing now. excite: excitation at full level."""
+
+    action: HealthAction
+    process_noise_boost: float = 1.0
+    reinitialize: bool = False
+    excite: bool = False
+
+
+class HealthActionPolicy:
+    """Turns each HealthReport into actions (HealthActionConfig); pure bookkeeping, no estimator access.
+
+    decide(report) once per monitor verdict, in time order. `reinitialize_times` lists the times
+    (s) it asked for a restart; `episodes` / `recoveries` count SUSPECT episodes acted on and
+    those that ended OK again.
+    """
+
+    def __init__(self, config: HealthActionConfig | None = None) -> None:
+        self.config = config if config is not None else HealthActionConfig()
+        self.boost = 1.0
+        self._time: float | None = None
+        self._suspect = False
+        self.reinitialize_times: list[float] = []
+        self.episodes = 0
+        self.recoveries = 0
+
+    def decide(self, report: HealthReport, estimator_restarted: bool = False) -> ActionDecision:
+        """Actions for `report` (the monitor's latest verdict). estimator_restarted: the estimator
+        already restarted on this bearing by itself (no second restart)."""
+        config = self.config
+        if not config.act:
+            return ActionDecision(HealthAction.OFF)
+        suspect = report.state is HealthState.SUSPECT
+        if suspect and not self._suspect:
+            self.episodes += 1
+        elif self._suspect and not suspect:
+            self.recoveries += 1
+        self._suspect = suspect
+        elapsed = 0.0 if self._time is None else max(report.time - self._time, 0.0)
+        self._time = report.time
+        if suspect and (report.raised or not config.boost_follows_evidence):
+            self.boost = config.process_noise_boost
+        else:
+            self.boost = 1.0 + (self.boost - 1.0) * math.exp(-elapsed / config.boost_relax_time)
+            if self.boost - 1.0 < 1e-3:
+                self.boost = 1.0
+        reinitialize = False
+        if suspect and not estimator_restarted and any(r in config.reinitialize_reasons for r in report.reasons):
+            last = self.reinitialize_times[-1] if self.reinitialize_times else None
+            if last is None or report.time - last >= config.reinitialize_interval:
+                reinitialize = True
+                self.reinitialize_times.append(report.time)
+        action = HealthAction.RECOVERING if suspect else HealthAction.NOMINAL
+        return ActionDecision(action, self.boost, reinitialize, suspect and config.excite)

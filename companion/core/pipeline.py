@@ -16,7 +16,8 @@ from companion.core.attitude import VehicleLimits, attitude_setpoint
 from companion.core.estimators import CorrectionReport, InitialGuess, TargetEstimator
 from companion.core.geometry import relative_range_std, unit
 from companion.core.guidance import LateralGuidance, RangeController, RangeExcitation
-from companion.core.health import HealthConfig, HealthMonitor, HealthReport, HealthState
+from companion.core.health import (HealthAction, HealthActionConfig, HealthActionPolicy, HealthConfig, HealthMonitor,
+                                   HealthReport, HealthState)
 from companion.core.messages import AttitudeSetpoint, BearingMeasurement, PursuerState, TargetEstimate
 from companion.core.observability import WindowedObservability
 
@@ -105,7 +106,10 @@ class PipelineOutput:
     reinitialized: the dropout handling (TrackMode). observability: the windowed FIM measure
     of the bearings used (companion.core.observability.WindowedObservability.measure), or None.
     health: the filter-health monitor's latest verdict (companion.core.health), updated at
-    each correction; None before the first one. It only reports: nothing here acts on it.
+    each correction; None before the first one. health_action: what the pipeline does about
+    it (HealthAction: off when it only reports, nominal, recovering while suspect and acting).
+    process_noise_boost: the factor on Q the actions set on the estimator (1 when none).
+    health_reinitialized: the actions restarted the estimator on this step's bearing.
     """
 
     time: float
@@ -120,6 +124,9 @@ class PipelineOutput:
     reinitialized: bool = False
     observability: dict | None = None
     health: HealthReport | None = None
+    health_action: HealthAction = HealthAction.OFF
+    process_noise_boost: float = 1.0
+    health_reinitialized: bool = False
 
 
 class FollowingPipeline:
@@ -135,8 +142,18 @@ class FollowingPipeline:
     "measurement" steers on the latest measured bearing, as written in the paper.
 
     health: the filter-health monitor fed at each correction (default: HealthMonitor with
-    its default thresholds, a plausible range from r_d / 4 up); it observes and never
-    changes the flight, except through `excitation`.
+    its default thresholds, a plausible range from r_d / 4 up).
+
+    actions: what to do while the monitor says suspect (companion.core.health.HealthActionPolicy;
+    default: HealthActionConfig() defaults). With act off the monitor only observes and the
+    flight is the reporting-only pipeline. With it on, at each correction: the estimator's
+    `process_noise_boost` (when it has one) gets the policy's factor; a restart on the bearing
+    (remark 3) at the current range estimate with a large along-bearing std when the reasons
+    say the range is wrong (rate-limited by the policy); and the guidance excitation at full
+    level while suspect: `excitation` when given, else `action_excitation` (a RangeExcitation
+    whose low/high thresholds are the policy's: it also keeps the pursuer from stopping while
+    sigma_r / r^ is high). `health_action_changes` lists (time, HealthAction);
+    `health_reinitializations` counts the restarts the actions made.
 
     excitation: None (default) flies the lateral law as given (the paper's HNG). A
     RangeExcitation adds its lateral term a_X (perpendicular to the line of sight) to the
@@ -159,6 +176,8 @@ class FollowingPipeline:
         observability_window: float = 5.0,
         health: HealthMonitor | None = None,
         excitation: RangeExcitation | None = None,
+        actions: HealthActionPolicy | None = None,
+        action_excitation: RangeExcitation | None = None,
     ) -> None:
         if control_period <= 0.0:
             raise ValueError("control period must be positive")
@@ -194,6 +213,12 @@ class FollowingPipeline:
         self._health_report: HealthReport | None = None
         self.excitation = excitation
         self.excitation_level = 0.0
+        self.actions = actions if actions is not None else HealthActionPolicy(HealthActionConfig())
+        self.action_excitation = action_excitation
+        self.health_action = HealthAction.NOMINAL if self.actions.config.act else HealthAction.OFF
+        self.health_action_changes: list[tuple[float, HealthAction]] = []
+        self.health_reinitializations = 0
+        self._process_noise_boost = 1.0
 
     @property
     def engaged_at(self) -> float | None:
@@ -202,7 +227,7 @@ class FollowingPipeline:
 
     def step(self, time: float, pursuer: PursuerState, bearing: BearingMeasurement | None = None) -> PipelineOutput:
         correction = None
-        gated_out = reinitialized = False
+        gated_out = reinitialized = health_reinitialized = False
         if self._engaged_at is None:
             if bearing is None:
                 return PipelineOutput(time, None, False, None, None, None)
@@ -217,6 +242,7 @@ class FollowingPipeline:
                 correction, gated_out, reinitialized = self._use_bearing(bearing)
                 if correction is not None:
                     self._check_health(bearing, pursuer, correction)
+                    health_reinitialized = self._act_on_health(bearing, correction)
                 elif reinitialized:
                     self.health.restart()
         self._update_mode(time)
@@ -229,7 +255,8 @@ class FollowingPipeline:
         age = time - self._last_bearing_time if self._last_bearing_time is not None else 0.0
         return PipelineOutput(time, self._setpoint, new_setpoint, self.estimator.estimate, self._guidance, correction,
                               self.mode, age, gated_out, reinitialized, self._observability_measure,
-                              self._health_report)
+                              self._health_report, self.health_action, self._process_noise_boost,
+                              health_reinitialized)
 
     def _check_health(self, bearing: BearingMeasurement, pursuer: PursuerState, correction: CorrectionReport) -> None:
         """Hand the monitor what this correction computed (it reads, never writes)."""
@@ -240,6 +267,38 @@ class FollowingPipeline:
             estimate.position, estimate.covariance, correction.innovation, correction.innovation_covariance,
             correction.innovation_dof, correction.reinitialized,
             None if fim is None else float(fim["min_eigenvalue"]))
+
+    def _act_on_health(self, bearing: BearingMeasurement, correction: CorrectionReport) -> bool:
+        """The policy's actions for the verdict just made; True when it restarted the estimator."""
+        decision = self.actions.decide(self._health_report, correction.reinitialized)
+        if decision.action is not self.health_action:
+            self.health_action = decision.action
+            self.health_action_changes.append((bearing.time, decision.action))
+        if decision.action is HealthAction.OFF:
+            return False
+        if hasattr(self.estimator, "process_noise_boost"):
+            self.estimator.process_noise_boost = decision.process_noise_boost
+            self._process_noise_boost = decision.process_noise_boost
+        if not decision.reinitialize:
+            return False
+        self._restart_on_bearing(bearing)
+        return True
+
+    def _restart_on_bearing(self, bearing: BearingMeasurement) -> None:
+        """Remark 3 again: restart on `bearing` at the current range estimate (the desired range when that is
+        implausible), along-bearing std reinitialize_relative_std x that range, the velocity estimate kept
+        with the initial guess's velocity std."""
+        estimate = self.estimator.estimate.extrapolated(bearing.time)
+        plausible = self.health.config
+        distance = float(np.linalg.norm(estimate.position - bearing.pursuer_position))
+        if not (plausible.min_range <= distance <= plausible.max_range):
+            distance = self.range_controller.desired_range
+        guess = InitialGuess(distance, self.actions.config.reinitialize_relative_std * distance, estimate.velocity,
+                             self.initial_guess.velocity_std)
+        self.estimator.initialize_on_bearing(bearing, guess)
+        self._estimator_ticks = int(np.floor((bearing.time - self._engaged_at) / self.estimator.period + _TIME_EPS))
+        self.health.restart()
+        self.health_reinitializations += 1
 
     def _use_bearing(self, bearing: BearingMeasurement) -> tuple[CorrectionReport | None, bool, bool]:
         """Correct with a bearing; after a gap, only if it agrees with the prediction (the gate)."""
@@ -314,12 +373,14 @@ class FollowingPipeline:
             self._blend_until = time + self.dropout.blend_time
 
     def _excitation_term(self, time: float, relative_position: np.ndarray, los: np.ndarray,
-                         covariance: np.ndarray) -> np.ndarray:
-        """a_X of RangeExcitation (m/s^2, (3,)) at the level set by rho and the health verdict."""
-        assert self.excitation is not None and self._engaged_at is not None
+                         covariance: np.ndarray, excitation: RangeExcitation | None = None) -> np.ndarray:
+        """a_X of RangeExcitation (m/s^2, (3,)) at the level set by rho and the health verdict
+        (`excitation`, default the configured one)."""
+        excitation = self.excitation if excitation is None else excitation
+        assert excitation is not None and self._engaged_at is not None
         suspect = self._health_report is not None and self._health_report.state == HealthState.SUSPECT
-        self.excitation_level = self.excitation.level(relative_range_std(relative_position, covariance[:3, :3]), suspect)
-        return self.excitation.acceleration(time - self._engaged_at, los, self.excitation_level)
+        self.excitation_level = excitation.level(relative_range_std(relative_position, covariance[:3, :3]), suspect)
+        return excitation.acceleration(time - self._engaged_at, los, self.excitation_level)
 
     def _advance_estimator(self, time: float) -> None:
         assert self._engaged_at is not None
@@ -351,9 +412,16 @@ class FollowingPipeline:
             else:
                 if self.excitation is not None:
                     lateral = lateral + self._excitation_term(time, relative_position, los, estimate.covariance)
+                elif (self.action_excitation is not None and self.health_action is not HealthAction.OFF
+                      and self.actions.config.excite):
+                    # Acting without a configured excitation: full while suspect, and never a stop while
+                    # sigma_r / r^ is high (the action excitation's own low/high thresholds).
+                    lateral = lateral + self._excitation_term(time, relative_position, los, estimate.covariance,
+                                                              self.action_excitation)
                 longitudinal = self.range_controller.acceleration(relative_position, relative_velocity, los, lateral)
         command = lateral + longitudinal
-        if self.mode != TrackMode.TRACKING:
+        if self.mode != TrackMode.TRACKING or self.health_action is HealthAction.RECOVERING:
+            # Also while recovering: the estimate is judged wrong, so its range cannot be trusted to close on.
             range_std = float(np.sqrt(max(los @ estimate.covariance[:3, :3] @ los, 0.0)))
             closing = float(command @ los)
             if range_estimate - 2.0 * range_std < self.dropout.min_range and closing > 0.0:
