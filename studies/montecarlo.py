@@ -360,8 +360,29 @@ def run_tasks(tasks: list[FlightTask], executor_spec: str, workers: int | None, 
         results.write(row)
     results.close()
     partial.path.unlink()
-    stacked = {key: np.stack([s[key] for s in series]) for key in series[0]} if series[0] is not None else {}
-    return ordered, stacked, name
+    return ordered, stack_series(series), name
+
+
+def stack_series(series: list[dict | None]) -> dict[str, np.ndarray]:
+    """The flights' series on the common SAMPLE_PERIOD grid, one leading axis over flights (shape (flights, samples, ...)).
+
+    Scenarios of different durations give grids of different lengths: the shorter ones are padded with NaN
+    (no sample there), and `time` is the longest flight's grid."""
+    kept = [s for s in series if s is not None]
+    if not kept:
+        return {}
+    longest = max(kept, key=lambda s: len(s["time"]))
+    stacked = {"time": np.stack([longest["time"]] * len(kept))}
+    for key in kept[0]:
+        if key == "time":
+            continue
+        arrays = [s[key] for s in kept]
+        length = max(len(a) for a in arrays)
+        padded = np.full((len(arrays), length, *arrays[0].shape[1:]), np.nan)
+        for row, values in zip(padded, arrays):
+            row[: len(values)] = values
+        stacked[key] = padded
+    return stacked
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -193,3 +193,25 @@ def test_command_rejects_bad_arguments(tmp_path, capsys):
     assert montecarlo.main(["--initial-box", "1,0,0,1,0,1", "--out", str(tmp_path)]) == 2
     assert montecarlo.main(["--error-window", "5", "--out", str(tmp_path)]) == 2
     assert "bof-montecarlo:" in capsys.readouterr().err
+
+
+def test_scenarios_of_different_durations_share_one_series_file(tmp_path):
+    """Flights of 4 s and 6 s in one grid: the shorter one's series is padded with NaN past its end
+    (0.2 s grid: 21 and 31 samples), the table has both."""
+    text = SCENARIO.read_text()
+    paths = []
+    for name, duration in (("short", 4.0), ("long", 6.0)):
+        path = tmp_path / f"{name}.toml"
+        path.write_text(text.replace('vehicle = "../vehicles/', f'vehicle = "{SCENARIO.parent.parent}/vehicles/')
+                        .replace("duration = 60.0", f"duration = {duration}").replace("summary_window = 20.0", "summary_window = 2.0"))
+        paths.append(path)
+    out = tmp_path / "out"
+    assert montecarlo.main([*map(str, paths), "--runs", "1", "--executor", "serial", "--no-plots", "--quiet",
+                            "--out", str(out)]) == 0
+    (folder,) = out.iterdir()
+    with np.load(folder / "series.npz") as series:
+        error = series["range_estimation_error"]
+        assert error.shape == (2, 31)
+        assert np.isnan(error[0, 21:]).all() and np.isfinite(error[0, 1:21]).any()
+        assert np.isfinite(error[1, 21:]).any()
+        np.testing.assert_allclose(series["time"][0], np.arange(31) * 0.2, atol=1e-9)
