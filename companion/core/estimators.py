@@ -356,9 +356,11 @@ class OwnPositionTracker:
         self.acceleration_psd = float(acceleration_psd)
         self.max_gap = float(max_gap)
         self._time: float | None = None
-        self._position = np.zeros(3)
-        self._velocity = np.zeros(3)
-        self._last_prediction = self._position
+        # Per-axis floats rather than numpy arrays: at three elements the arithmetic is cheaper
+        # than numpy's per-call overhead, and this runs at every correction.
+        self._position = (0.0, 0.0, 0.0)
+        self._velocity = (0.0, 0.0, 0.0)
+        self._last_prediction = np.zeros(3)
         self._p00 = self._p01 = self._p11 = 0.0
 
     def reference(self, time: float, position: np.ndarray) -> np.ndarray:
@@ -375,33 +377,35 @@ class OwnPositionTracker:
             # A second bearing at the same stamp: the state already holds that sample's error,
             # the prediction made before it does not.
             return self._last_prediction
+        x0, x1, x2 = self._position
+        v0, v1, v2 = self._velocity
         if dt < 0.0:
             # A late sample: carried back from later ones, it is not folded in (the tracker
             # runs forward in time only).
-            return self._position + dt * self._velocity
-        r = self.position_std**2
+            return np.array((x0 + dt * v0, x1 + dt * v1, x2 + dt * v2))
         q = self.acceleration_psd
-        # Time update of the shared 2x2 covariance [[p00, p01], [p01, p11]].
+        # Time update of the shared 2x2 covariance [[p00, p01], [p01, p11]] and of the state.
         p00 = self._p00 + dt * (2.0 * self._p01 + dt * self._p11) + q * dt**3 / 3.0
         p01 = self._p01 + dt * self._p11 + q * dt**2 / 2.0
         p11 = self._p11 + q * dt
-        predicted = self._position + dt * self._velocity
-        # Measurement update with the sample.
-        s = p00 + r
-        k0, k1 = p00 / s, p01 / s
-        residual = position - predicted
-        self._position = predicted + k0 * residual
-        self._velocity = self._velocity + k1 * residual
+        a0, a1, a2 = x0 + dt * v0, x1 + dt * v1, x2 + dt * v2
+        # Measurement update with the sample: gains k0 (position), k1 (velocity).
+        innovation_variance = p00 + self.position_std**2
+        k0, k1 = p00 / innovation_variance, p01 / innovation_variance
+        z0, z1, z2 = np.asarray(position, dtype=float).tolist()
+        e0, e1, e2 = z0 - a0, z1 - a1, z2 - a2
+        self._position = (a0 + k0 * e0, a1 + k0 * e1, a2 + k0 * e2)
+        self._velocity = (v0 + k1 * e0, v1 + k1 * e1, v2 + k1 * e2)
         self._p00, self._p01, self._p11 = (1.0 - k0) * p00, (1.0 - k0) * p01, p11 - k1 * p01
         self._time = time
-        self._last_prediction = predicted
-        return predicted
+        self._last_prediction = np.array((a0, a1, a2))
+        return self._last_prediction
 
     def _restart(self, time: float, position: np.ndarray) -> None:
         self._time = time
-        self._position = position
-        self._last_prediction = self._position
-        self._velocity = np.zeros(3)
+        self._position = tuple(position.tolist())
+        self._velocity = (0.0, 0.0, 0.0)
+        self._last_prediction = position
         # Unknown velocity: a prior std of 10 m/s, far beyond a following drone's speed changes.
         self._p00, self._p01, self._p11 = self.position_std**2, 0.0, 100.0
 
