@@ -1,0 +1,353 @@
+"""Interacting-multiple-model (IMM) estimator over pseudo-linear model filters.
+
+A target that keeps turning is not a constant-velocity target: the u-PLKF's prediction lags
+it, and with the small Q that the constant-velocity cases need, the bearings' correction
+cannot keep up. The IMM (Blom & Bar-Shalom 1988; seed 004 eqs. (17)-(23), its straight /
+left-turn / right-turn models with p_ii = 0.98) runs one u-PLKF per motion model, each with
+its own transition and process noise but the same correction (`UPLKF.correct`), and weighs
+them by how well each predicted the bearings.
+
+One cycle per bearing used (k), with n models, Markov matrix p_ij (the probability that the
+target switches from model i to model j between two corrections) and model probabilities
+mu^i_{k-1}:
+
+1. Mixing, seed 004 eqs. (17)-(19): predicted model probabilities c_j = sum_i p_ij mu^i,
+   mixing weights mu^{i|j} = p_ij mu^i / c_j, and each model filter restarts from
+   x0^j = sum_i mu^{i|j} x^i,  P0^j = sum_i mu^{i|j} [P^i + (x^i - x0^j)(x^i - x0^j)^T].
+   Done right after each correction, so the model filters then predict from their mixed
+   starts at the estimator rate until the next bearing (any number of predictions).
+2. Model-conditioned filtering: every model filter predicts with its own A_j, Q_j and
+   corrects with the bearing (eq. (6), section IV-C).
+3. Model probabilities, seed 004 eqs. (20)-(21): mu^j_k = Lambda^j c_j / sum_t Lambda^t c_t,
+   Lambda^j = N(y_j; 0, S_j) with y_j the model's pseudo-linear innovation and S_j its
+   innovation covariance. S_j has rank 2 (a bearing constrains two directions), so the
+   Gaussian density is the one on S_j's range:
+   Lambda^j = exp(-y^T S^+ y / 2) / (2 pi sqrt(pdet S)), pdet the product of the two
+   non-zero eigenvalues. Evaluated in logarithms (the densities of 50 Hz bearings differ by
+   hundreds of orders of magnitude during a manoeuvre).
+4. Combination, seed 004 eqs. (22)-(23): x = sum_j mu^j x^j,
+   P = sum_j mu^j [P^j + (x^j - x)(x^j - x)^T]; that is the estimate the pipeline flies on.
+
+The Markov matrix is defined per time, not per correction, so the same settings mean the
+same switching at 5 Hz and at 50 Hz bearings: over a correction interval Delta,
+p_ii = stay_probability^(Delta / stay_time), the rest split evenly over the other models
+(seed 004's p_ii = 0.98, p_ij = 0.01 at Delta = stay_time).
+
+Restarts. The IMM checks the combined prediction against the bearing first: behind the
+sensor (remark 3, the u-PLKF's guard), every model restarts on the bearing at the combined
+predicted range and the probabilities return to their initial values. A single model whose
+own prediction is behind the sensor restarts itself (its own guard) and gets zero
+likelihood for that bearing, so the next mixing rebuilds it from the others.
+
+numpy only (and the u-PLKF of companion.core.estimators).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from companion.core.estimators import (AdaptiveNoiseSettings, CorrectionReport, GainProjection, InitialGuess, UPLKF,
+                                       coordinated_turn_matrices, restart_guess)
+from companion.core.geometry import unit
+from companion.core.messages import BearingMeasurement, TargetEstimate
+
+_LOG_TWO_PI = math.log(2.0 * math.pi)
+
+
+@dataclass(frozen=True)
+class MotionModel:
+    """One model filter of the IMM.
+
+    name: for logs ("cv", "ct+0.30", ...). turn_rate: omega, rad/s, about the NED down axis
+    (0: eq. (1)'s constant velocity; > 0 a right turn seen from above). process_noise: q,
+    (m/s^2)^2, the target acceleration variance per axis of this model (Q = q I).
+    """
+
+    name: str
+    turn_rate: float
+    process_noise: float
+
+
+def standard_models(turn_rates: Sequence[float], cv_process_noise: float, turn_process_noise: float) -> list[MotionModel]:
+    """Constant velocity first, then a right (+omega) and a left (-omega) coordinated turn per
+    turn rate (rad/s, each > 0): seed 004's straight / right / left set for one rate."""
+    models = [MotionModel("cv", 0.0, cv_process_noise)]
+    for rate in turn_rates:
+        models.append(MotionModel(f"ct+{rate:g}", float(rate), turn_process_noise))
+        models.append(MotionModel(f"ct-{rate:g}", -float(rate), turn_process_noise))
+    return models
+
+
+def markov_matrix(count: int, stay_probability: float) -> np.ndarray:
+    """p_ij, shape (count, count): stay_probability on the diagonal, the rest split evenly over
+    the other models (seed 004's matrix for count = 3, stay_probability = 0.98); rows sum to 1."""
+    if count == 1:
+        return np.ones((1, 1))
+    leave = (1.0 - stay_probability) / (count - 1)
+    matrix = np.full((count, count), leave)
+    np.fill_diagonal(matrix, stay_probability)
+    return matrix
+
+
+def mix(probabilities: np.ndarray, transition: np.ndarray, states: np.ndarray,
+        covariances: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """IMM input interaction, seed 004 eqs. (17)-(19).
+
+    probabilities: mu^i_{k-1}, shape (n,). transition: p_ij, (n, n). states: x^i, (n, d).
+    covariances: P^i, (n, d, d). Returns (c, x0, P0): the predicted model probabilities
+    c_j = sum_i p_ij mu^i, (n,), and each model's mixed start x0^j (n, d) and P0^j (n, d, d).
+    """
+    predicted = probabilities @ transition
+    weights = transition * probabilities[:, None] / np.where(predicted > 0.0, predicted, 1.0)[None, :]  # mu^{i|j}
+    # A model with c_j = 0 (p_ij = 0 from every likely model) takes no part in anything until
+    # its probability returns; it keeps its own estimate instead of an empty mixture.
+    for j in np.flatnonzero(predicted <= 0.0):
+        weights[:, j] = 0.0
+        weights[j, j] = 1.0
+    mixed = weights.T @ states
+    mixed_covariances = np.empty_like(covariances)
+    for j in range(len(predicted)):
+        spread = states - mixed[j]
+        mixed_covariances[j] = np.einsum("i,ikl->kl", weights[:, j], covariances) + (weights[:, j, None] * spread).T @ spread
+    return predicted, mixed, mixed_covariances
+
+
+def combine(probabilities: np.ndarray, states: np.ndarray, covariances: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """IMM output combination, seed 004 eqs. (22)-(23): the moment-matched mixture of the
+    model estimates. probabilities (n,), states (n, d), covariances (n, d, d) -> x (d,), P (d, d)."""
+    state = probabilities @ states
+    spread = states - state
+    covariance = np.einsum("i,ikl->kl", probabilities, covariances) + (probabilities[:, None] * spread).T @ spread
+    return state, 0.5 * (covariance + covariance.T)
+
+
+def rank2_log_likelihood(innovation: np.ndarray, covariance: np.ndarray) -> float:
+    """ln N(y; 0, S) on the range of a rank-2 symmetric PSD S (3, 3), y (3,): the likelihood of
+    seed 004 eq. (20) for the u-PLKF's bearing pseudo-measurement, whose S is singular along
+    the predicted line of sight. -(y^T S^+ y + ln pdet(2 pi S)) / 2 with the two largest
+    eigenvalues of S; -inf when S has fewer than two positive eigenvalues or y is not finite."""
+    values, vectors = np.linalg.eigh(covariance)
+    top = values[1:]
+    if not (top[0] > 0.0 and math.isfinite(float(top[1]))):
+        return -math.inf
+    projected = vectors[:, 1:].T @ innovation
+    nis = float(projected**2 @ (1.0 / top))
+    if not math.isfinite(nis):
+        return -math.inf
+    return -0.5 * (nis + 2.0 * _LOG_TWO_PI + math.log(float(top[0])) + math.log(float(top[1])))
+
+
+class IMMEstimator:
+    """Interacting-multiple-model estimator over u-PLKF model filters (module docstring).
+
+    Same interface as the u-PLKF (`TargetEstimator`). period: Delta t, s, of every model
+    filter's prediction. models: the motion models (`standard_models`), at least one.
+    measurement_noise: Sigma of eq. (4), (3, 3). gain_projection, pursuer_position_std,
+    restart_when_behind, adaptive_noise: as the u-PLKF's, for every model filter.
+    stay_probability: p_ii over stay_time s (module docstring); 1 never switches.
+    initial_probabilities: mu_0, (n,); default: seed 004's 0.98 on the first model
+    (constant velocity) and the rest split evenly.
+    """
+
+    def __init__(
+        self,
+        period: float,
+        models: Sequence[MotionModel],
+        measurement_noise: np.ndarray,
+        gain_projection: GainProjection = GainProjection.PREDICTED,
+        pursuer_position_std: float = 0.0,
+        restart_when_behind: bool = True,
+        stay_probability: float = 0.98,
+        stay_time: float = 0.2,
+        initial_probabilities: Sequence[float] | None = None,
+        adaptive_noise: AdaptiveNoiseSettings | None = None,
+    ) -> None:
+        if not models:
+            raise ValueError("the IMM needs at least one motion model")
+        if not (0.0 < stay_probability <= 1.0) or stay_time <= 0.0:
+            raise ValueError("need 0 < stay_probability <= 1 and stay_time > 0")
+        self.period = float(period)
+        self.models = tuple(models)
+        self.stay_probability = float(stay_probability)
+        self.stay_time = float(stay_time)
+        self.restart_when_behind = bool(restart_when_behind)
+        self.filters: list[UPLKF] = []
+        for model in self.models:
+            a, b = coordinated_turn_matrices(self.period, model.turn_rate)
+            process_noise = model.process_noise * np.eye(3)
+            self.filters.append(UPLKF(self.period, process_noise, measurement_noise, gain_projection,
+                                      pursuer_position_std, restart_when_behind, adaptive_noise,
+                                      transition=a, discrete_process_noise=b @ process_noise @ b.T))
+        count = len(self.models)
+        if initial_probabilities is None:
+            initial = np.full(count, 0.02 / (count - 1)) if count > 1 else np.ones(1)
+            initial[0] = 0.98 if count > 1 else 1.0
+        else:
+            initial = np.asarray(initial_probabilities, dtype=float).reshape(count)
+            if np.any(initial < 0.0) or not math.isclose(float(initial.sum()), 1.0, rel_tol=1e-9):
+                raise ValueError("initial_probabilities must be a probability distribution over the models")
+        self.initial_probabilities = initial
+        self._probabilities = initial.copy()  # mu_k after the last correction
+        self._weights = initial.copy()  # c_j: weights of the model filters' current states
+        self._last_correction_time: float | None = None
+        self._initial_guess: InitialGuess | None = None
+        self._snapshot: TargetEstimate | None = None
+        self._process_noise_boost = 1.0
+
+    # --- the TargetEstimator interface ------------------------------------------------
+
+    @property
+    def initialized(self) -> bool:
+        return self.filters[0].initialized
+
+    @property
+    def time(self) -> float:
+        """Time of the current estimate, s (the model filters share one clock)."""
+        return self.filters[0].time
+
+    @property
+    def estimate(self) -> TargetEstimate:
+        """The combined estimate, seed 004 eqs. (22)-(23) (a snapshot)."""
+        if self._snapshot is None:
+            if len(self.filters) == 1:
+                self._snapshot = self.filters[0].estimate
+            else:
+                estimates = [f.estimate for f in self.filters]
+                states = np.array([np.concatenate([e.position, e.velocity]) for e in estimates])
+                state, covariance = combine(self._weights, states, np.array([e.covariance for e in estimates]))
+                self._snapshot = TargetEstimate(self.time, state[:3], state[3:], covariance)
+        return self._snapshot
+
+    @property
+    def model_probabilities(self) -> np.ndarray:
+        """mu_k, shape (n,), in the order of `models`: each model's probability after the last
+        correction (the initial probabilities before any)."""
+        return self._probabilities.copy()
+
+    @property
+    def model_names(self) -> tuple[str, ...]:
+        return tuple(model.name for model in self.models)
+
+    @property
+    def process_noise_boost(self) -> float:
+        """The factor on every model filter's discrete process noise (UPLKF.process_noise_boost)."""
+        return self._process_noise_boost
+
+    @process_noise_boost.setter
+    def process_noise_boost(self, value: float) -> None:
+        self._process_noise_boost = float(value)
+        for model_filter in self.filters:
+            model_filter.process_noise_boost = self._process_noise_boost
+
+    def initialize_on_bearing(self, bearing: BearingMeasurement, initial_guess: InitialGuess) -> None:
+        """Every model filter starts on the bearing (remark 3); probabilities back to their initial values."""
+        self._initial_guess = initial_guess
+        for model_filter in self.filters:
+            model_filter.initialize_on_bearing(bearing, initial_guess)
+        self._reset_probabilities()
+
+    def predict(self) -> None:
+        """Each model filter's own time update over one period."""
+        self._snapshot = None
+        for model_filter in self.filters:
+            model_filter.predict()
+
+    def correct(self, bearing: BearingMeasurement) -> CorrectionReport:
+        """Model-conditioned corrections, model probabilities, then the mixing for the next cycle.
+
+        The report's innovation is that of the combined prediction (see `_combined_report`).
+        """
+        prior = self.estimate
+        lead = bearing.time - prior.time
+        relative = prior.position + lead * prior.velocity - bearing.pursuer_position
+        predicted_range = float(np.linalg.norm(relative))
+        direction = unit(bearing.direction)
+        cos_angle = float(np.clip(direction @ relative / max(predicted_range, 1e-12), -1.0, 1.0))
+        if self.restart_when_behind and (cos_angle <= 0.0 or predicted_range < 1e-6):
+            guess = restart_guess(self._initial_guess, predicted_range, prior.velocity)
+            for model_filter in self.filters:
+                model_filter.initialize_on_bearing(bearing, guess)
+            self._reset_probabilities()
+            return CorrectionReport(float(np.arccos(cos_angle)), False, reinitialized=True)
+
+        reports = [model_filter.correct(bearing) for model_filter in self.filters]
+        self._snapshot = None
+        if len(self.filters) == 1:
+            self._last_correction_time = bearing.time
+            return reports[0]
+        log_likelihoods = np.array([
+            -math.inf if r.reinitialized or r.innovation is None or r.innovation_covariance is None
+            else rank2_log_likelihood(r.innovation, r.innovation_covariance) for r in reports])
+        self._probabilities = self._updated_probabilities(log_likelihoods)
+        report = self._combined_report(reports, prior, relative, predicted_range, cos_angle)
+        interval = self.stay_time if self._last_correction_time is None else bearing.time - self._last_correction_time
+        self._last_correction_time = bearing.time
+        self._mix(interval)
+        return report
+
+    # --- the IMM steps -----------------------------------------------------------------
+
+    def markov_matrix(self, interval: float) -> np.ndarray:
+        """p_ij over `interval` s: p_ii = stay_probability^(interval / stay_time) (module docstring)."""
+        stay = self.stay_probability ** (max(interval, 0.0) / self.stay_time)
+        return markov_matrix(len(self.models), stay)
+
+    def _updated_probabilities(self, log_likelihoods: np.ndarray) -> np.ndarray:
+        """mu^j = Lambda^j c_j / sum_t Lambda^t c_t, seed 004 eq. (21), in logarithms. With no
+        finite likelihood (every model restarted) the predicted probabilities c stand."""
+        finite = np.isfinite(log_likelihoods)
+        if not finite.any():
+            return self._weights.copy()
+        with np.errstate(divide="ignore"):
+            log_posterior = np.where(finite, log_likelihoods, -math.inf) + np.log(self._weights)
+        log_posterior -= np.max(log_posterior)
+        posterior = np.exp(log_posterior)
+        return posterior / posterior.sum()
+
+    def _mix(self, interval: float) -> None:
+        """Seed 004 eqs. (17)-(19): every model filter restarts from its mixed start."""
+        estimates = [f.estimate for f in self.filters]
+        states = np.array([np.concatenate([e.position, e.velocity]) for e in estimates])
+        covariances = np.array([e.covariance for e in estimates])
+        predicted, mixed, mixed_covariances = mix(self._probabilities, self.markov_matrix(interval), states, covariances)
+        for j, model_filter in enumerate(self.filters):
+            model_filter.set_state(mixed[j], 0.5 * (mixed_covariances[j] + mixed_covariances[j].T))
+        self._weights = predicted
+        self._snapshot = None
+
+    def _combined_report(self, reports: list[CorrectionReport], prior: TargetEstimate, relative: np.ndarray,
+                         predicted_range: float, cos_angle: float) -> CorrectionReport:
+        """The innovation of the combined prediction, for the health monitor.
+
+        y = P_lambda~ (p^-_T - p) of the combined prior is sum_j c_j y_j (the pseudo-measurement
+        is linear in the prior); its covariance is the moment-matched mixture
+        sum_j c_j [S_j + (y_j - y)(y_j - y)^T], projected across the combined predicted line of
+        sight so it keeps rank 2 (each S_j is singular along its own model's line of sight).
+        The combined innovation rather than the most likely model's: the monitor judges the
+        estimate the guidance flies on, which is the combination; the most likely model's
+        innovation looks consistent whenever one model fits, even while the models disagree
+        and the combination is off, and the mixture's S grows with that disagreement.
+        Models that restarted on this bearing (no innovation) are left out.
+        """
+        used = [(c, r) for c, r in zip(self._weights, reports) if r.innovation is not None and r.innovation_covariance is not None]
+        if not used:
+            return CorrectionReport(float(np.arccos(cos_angle)), reports[0].used_predicted_projection, reinitialized=True)
+        weights = np.array([c for c, _ in used])
+        weights = weights / weights.sum() if weights.sum() > 0.0 else np.full(len(used), 1.0 / len(used))
+        innovations = np.array([r.innovation for _, r in used])
+        innovation, covariance = combine(weights, innovations, np.array([r.innovation_covariance for _, r in used]))
+        line_of_sight = relative / predicted_range
+        across = np.eye(3) - np.outer(line_of_sight, line_of_sight)
+        covariance = across @ covariance @ across
+        return CorrectionReport(float(np.arccos(cos_angle)), reports[0].used_predicted_projection, innovation=innovation,
+                                innovation_covariance=0.5 * (covariance + covariance.T), innovation_dof=2)
+
+    def _reset_probabilities(self) -> None:
+        self._probabilities = self.initial_probabilities.copy()
+        self._weights = self.initial_probabilities.copy()
+        self._last_correction_time = None
+        self._snapshot = None
