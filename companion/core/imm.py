@@ -19,12 +19,19 @@ mu^i_{k-1}:
 2. Model-conditioned filtering: every model filter predicts with its own A_j, Q_j and
    corrects with the bearing (eq. (6), section IV-C).
 3. Model probabilities, seed 004 eqs. (20)-(21): mu^j_k = Lambda^j c_j / sum_t Lambda^t c_t,
-   Lambda^j = N(y_j; 0, S_j) with y_j the model's pseudo-linear innovation and S_j its
-   innovation covariance. S_j has rank 2 (a bearing constrains two directions), so the
-   Gaussian density is the one on S_j's range:
-   Lambda^j = exp(-y^T S^+ y / 2) / (2 pi sqrt(pdet S)), pdet the product of the two
-   non-zero eigenvalues. Evaluated in logarithms (the densities of 50 Hz bearings differ by
-   hundreds of orders of magnitude during a manoeuvre).
+   Lambda^j the likelihood of the bearing under model j, from the model's pseudo-linear
+   innovation y_j and its innovation covariance S_j. S_j has rank 2 (a bearing constrains two
+   directions), so the Gaussian density is the one on S_j's range. It is taken in bearing
+   (angle) units: Lambda^j = N(y_j / r_j; 0, S_j / r_j^2), r_j the model's predicted range,
+   that is exp(-y^T S^+ y / 2) r_j^2 / (2 pi sqrt(pdet S)), pdet the product of the two
+   non-zero eigenvalues. Why not N(y_j; 0, S_j) as printed: y_j = P_lambda~ (p^-_T - p) is
+   r_j times the bearing error, and S_j grows with r_j^2 (R_k = r^2 P Sigma P); the density of
+   the pseudo-measurement then favours whichever model predicts the target closer (measured:
+   on a straight target, a turn model predicting 35 m instead of the true 42 m won with
+   noise-free bearings, and the IMM left the right model). The factor r_j^2 is the Jacobian
+   that makes the densities of different models densities of the same quantity, the bearing.
+   Evaluated in logarithms (the densities of 50 Hz bearings differ by hundreds of orders of
+   magnitude during a manoeuvre).
 4. Combination, seed 004 eqs. (22)-(23): x = sum_j mu^j x^j,
    P = sum_j mu^j [P^j + (x^j - x)(x^j - x)^T]; that is the estimate the pipeline flies on.
 
@@ -125,11 +132,12 @@ def combine(probabilities: np.ndarray, states: np.ndarray, covariances: np.ndarr
     return state, 0.5 * (covariance + covariance.T)
 
 
-def rank2_log_likelihood(innovation: np.ndarray, covariance: np.ndarray) -> float:
-    """ln N(y; 0, S) on the range of a rank-2 symmetric PSD S (3, 3), y (3,): the likelihood of
-    seed 004 eq. (20) for the u-PLKF's bearing pseudo-measurement, whose S is singular along
-    the predicted line of sight. -(y^T S^+ y + ln pdet(2 pi S)) / 2 with the two largest
-    eigenvalues of S; -inf when S has fewer than two positive eigenvalues or y is not finite."""
+def rank2_log_likelihood(innovation: np.ndarray, covariance: np.ndarray, scale: float = 1.0) -> float:
+    """ln N(y / r; 0, S / r^2) on the range of a rank-2 symmetric PSD S (3, 3), y (3,), r = scale > 0:
+    the likelihood of seed 004 eq. (20) for the u-PLKF's bearing pseudo-measurement, whose S is
+    singular along the predicted line of sight; with r the predicted range, the density of the
+    bearing error y / r (module docstring). -(y^T S^+ y + ln pdet(2 pi S)) / 2 + 2 ln r with the two
+    largest eigenvalues of S; -inf when S has fewer than two positive eigenvalues or y is not finite."""
     values, vectors = np.linalg.eigh(covariance)
     top = values[1:]
     if not (top[0] > 0.0 and math.isfinite(float(top[1]))):
@@ -138,7 +146,7 @@ def rank2_log_likelihood(innovation: np.ndarray, covariance: np.ndarray) -> floa
     nis = float(projected**2 @ (1.0 / top))
     if not math.isfinite(nis):
         return -math.inf
-    return -0.5 * (nis + 2.0 * _LOG_TWO_PI + math.log(float(top[0])) + math.log(float(top[1])))
+    return -0.5 * (nis + 2.0 * _LOG_TWO_PI + math.log(float(top[0])) + math.log(float(top[1]))) + 2.0 * math.log(scale)
 
 
 class IMMEstimator:
@@ -274,14 +282,18 @@ class IMMEstimator:
             self._reset_probabilities()
             return CorrectionReport(float(np.arccos(cos_angle)), False, reinitialized=True)
 
+        if len(self.filters) == 1:
+            self._snapshot = None
+            return self.filters[0].correct(bearing)
+        ranges = []
+        for model_filter in self.filters:
+            model_prior = model_filter.estimate
+            ranges.append(float(np.linalg.norm(model_prior.position + lead * model_prior.velocity - bearing.pursuer_position)))
         reports = [model_filter.correct(bearing) for model_filter in self.filters]
         self._snapshot = None
-        if len(self.filters) == 1:
-            self._last_correction_time = bearing.time
-            return reports[0]
         log_likelihoods = np.array([
-            -math.inf if r.reinitialized or r.innovation is None or r.innovation_covariance is None
-            else rank2_log_likelihood(r.innovation, r.innovation_covariance) for r in reports])
+            -math.inf if r.reinitialized or r.innovation is None or r.innovation_covariance is None or not distance > 0.0
+            else rank2_log_likelihood(r.innovation, r.innovation_covariance, distance) for r, distance in zip(reports, ranges)])
         self._probabilities = self._updated_probabilities(log_likelihoods)
         report = self._combined_report(reports, prior, relative, predicted_range, cos_angle)
         interval = self.stay_time if self._last_correction_time is None else bearing.time - self._last_correction_time
