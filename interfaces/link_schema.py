@@ -47,7 +47,11 @@ Any change of fields is a new schema version.
   bound, > 1 is inconsistent; null while the window is short), ``relative_range_std``
   (sigma_r / r^)} and ``estimate`` {``time``
   (s), ``position``, ``velocity`` (NED m, m/s), ``position_std``, ``velocity_std``
-  (m, m/s: sqrt of the mean diagonal of the covariance block), ``range`` (m)}. A
+  (m, m/s: sqrt of the mean diagonal of the covariance block), ``range`` (m)}, and with the
+  interacting-multiple-model estimator ``model_probabilities`` {model name: probability in
+  [0, 1]} (names like ``"cv"``, ``"ct+0.2"``: constant velocity, coordinated turn at +0.2
+  rad/s; companion.core.imm; optional, absent with any other estimator, so payloads without
+  it decode as before). A
   number may be ``null`` ("no value", e.g. log_det of a singular information
   matrix): `encode_state` turns NaN and +-inf into null.
 
@@ -395,6 +399,10 @@ class EstimateState(_Declared):
     range: Value
 
 
+ModelName = Annotated[str, Field(min_length=1, max_length=32)]
+Probability = Annotated[Number, Field(ge=0.0, le=1.0), BeforeValidator(_plain)]
+
+
 class CompanionState(Envelope):
     """``bof.companion_state/1``: what the companion publishes at [link] state_rate_hz (module docstring)."""
 
@@ -409,6 +417,7 @@ class CompanionState(Envelope):
     observability: ObservabilityState | None = None
     health: HealthStateSection | None = None
     estimate: EstimateState | None = None
+    model_probabilities: Annotated[dict[ModelName, Probability], Field(max_length=16)] | None = None
 
 
 _TARGET_FIX = TypeAdapter(Annotated[

@@ -61,6 +61,7 @@ class FlightLog:
         "estimate_position_std": 1, "command_acceleration": 3, "thrust_normalized": 1, "track_mode": 1, "bearing_age": 1,
         "observability_log_det": 1, "observability_min_eigenvalue": 1,
         "health_suspect": 1, "health_reasons": 1, "health_nis_ratio": 1, "health_relative_range_std": 1,
+        "model_probabilities": 3,  # IMM estimator only: (straight, right turn, left turn), IMMEstimator.motion_probabilities
     }
 
     def __init__(self, rows: int) -> None:
@@ -171,7 +172,7 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
             termination = Termination.ESTIMATE_NOT_FINITE
         if truth.rotation[2, 2] < 0.0 or float(truth.velocity @ truth.velocity) > MAX_SPEED**2:
             termination = Termination.OUT_OF_CONTROL
-        _log_tick(log, time, truth, target, output)
+        _log_tick(log, time, truth, target, output, pipeline.estimator)
         if termination is not Termination.COMPLETED or index + 1 == len(event_steps):
             break
         gap = event_steps[index + 1] - step
@@ -262,7 +263,8 @@ class InProcessLink:
                 "rejected": dict(self.validator.rejected), "faults": dict(self.faults.counters)}
 
 
-def _log_tick(log: FlightLog, time: float, truth: RigidBodyState, target: TargetMotion, output) -> None:
+def _log_tick(log: FlightLog, time: float, truth: RigidBodyState, target: TargetMotion, output,
+              estimator: object = None) -> None:
     estimate, setpoint = output.estimate, output.setpoint
     row = dict(
         time=time,
@@ -291,4 +293,7 @@ def _log_tick(log: FlightLog, time: float, truth: RigidBodyState, target: Target
         row.update(health_suspect=float(health.state is HealthState.SUSPECT),
                    health_reasons=sum(HEALTH_REASON_BITS[reason] for reason in health.reasons),
                    health_nis_ratio=health.nis_ratio, health_relative_range_std=health.relative_range_std)
+    motion = getattr(estimator, "motion_probabilities", None)
+    if motion is not None and estimate is not None:
+        row.update(model_probabilities=motion)
     log.append(**row)

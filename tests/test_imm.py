@@ -8,6 +8,7 @@ the rank-2 likelihood of eq. (20); the target's true turn for the model probabil
 
 from __future__ import annotations
 
+import json
 import math
 from fractions import Fraction
 
@@ -328,3 +329,74 @@ def test_config_builds_the_imm():
 def test_config_refuses_bad_imm_options(options):
     with pytest.raises(ConfigError):
         _scenario(**options)
+
+
+# --- model probabilities in the logs and on the link -------------------------------------------
+
+def _state_document(**changes) -> dict:
+    state = {"phase": "following", "sender": "pursuer-1", "seq": 5, "stamp": 2.5,
+             "pursuer": {"position": [1.0, 2.0, -20.0], "velocity": [0.5, 0.0, 0.0]},
+             "link": {"received": 1, "accepted": 1, "rejected": {}, "bearings_used": 1, "bearings_dropped": {},
+                      "last_seq": 0, "last_stamp": 2.2, "last_fix_age_wall": None},
+             "setpoints_sent": 3}
+    state.update(changes)
+    return state
+
+
+def test_companion_state_carries_optional_model_probabilities():
+    from interfaces import link_schema as link
+
+    imm = IMMEstimator(PERIOD, standard_models([0.2], 0.04, 0.04), SIGMA)
+    probabilities = {name: p for name, p in zip(imm.model_names, np.float64(imm.model_probabilities))}
+    decoded = link.decode_state(link.encode_state(_state_document(model_probabilities=probabilities)))
+    assert decoded.model_probabilities == {"cv": 0.98, "ct+0.2": 0.01, "ct-0.2": 0.01}
+    assert link.decode_state(link.encode_state(_state_document())).model_probabilities is None  # older payloads
+    with pytest.raises(link.PayloadError) as error:
+        link.decode_state(json.dumps({"schema": "bof.companion_state/1", **_state_document(model_probabilities={"cv": 1.5})}).encode())
+    assert error.value.reason == "out_of_range"
+
+
+def test_state_publisher_sends_the_imm_probabilities_and_nothing_for_the_uplkf():
+    from types import SimpleNamespace
+
+    from companion.adapters.mavsdk_vehicle import VehicleSample
+    from companion.core.messages import PursuerState
+    from companion.core.pipeline import TrackMode
+    from companion.state_publisher import StatePublisher
+
+    bearing = BearingMeasurement(0.0, np.array([1.0, 0.0, 0.0]), np.zeros(3))
+    output = SimpleNamespace(mode=TrackMode.TRACKING, bearing_age=0.0, observability=None, health=None, estimate=None)
+    link_health = SimpleNamespace(as_dict=lambda _now: {})
+    sample = VehicleSample(PursuerState(1.0, np.zeros(3), np.zeros(3)), np.eye(3))
+    for estimator, expected in ((IMMEstimator(PERIOD, standard_models([0.3], 0.04, 0.04), SIGMA), {"cv", "ct+0.3", "ct-0.3"}),
+                                (UPLKF(PERIOD, 0.04 * np.eye(3), SIGMA), None)):
+        estimator.initialize_on_bearing(bearing, GUESS)
+        output.estimate = estimator.estimate
+        control = SimpleNamespace(last_output=output, setpoints_sent=0, pipeline=SimpleNamespace(estimator=estimator))
+        state = StatePublisher("p", 5.0, lambda _b: None, lambda: "following", link_health, control).build(sample)
+        assert (None if "model_probabilities" not in state else set(state["model_probabilities"])) == expected
+
+
+def test_in_process_log_and_recorder_columns_hold_the_probabilities(tmp_path):
+    from companion.adapters.recorder import RunRecorder, model_columns
+    from studies.closed_loop import simulate
+
+    scenario, vehicle = load_scenario(SCENARIOS / "circle_5ms.toml")
+    flown = with_overrides(scenario, {"estimator.kind": "imm", "simulation.duration": 4.0, "simulation.summary_window": 4.0})
+    series = simulate(flown, vehicle, seed=7).series
+    engaged = np.isfinite(series["estimate_position"][:, 0])
+    probabilities = series["model_probabilities"][engaged]
+    assert np.all(np.isfinite(probabilities)) and np.allclose(probabilities.sum(axis=1), 1.0)
+    plain = simulate(with_overrides(flown, {"estimator.kind": "uplkf"}), vehicle, seed=7).series
+    assert np.all(np.isnan(plain["model_probabilities"]))
+
+    imm = IMMEstimator(PERIOD, standard_models([0.1, 0.3], 0.04, 0.04), SIGMA)
+    columns = model_columns(imm)
+    assert columns == pytest.approx({"model_straight": 0.98, "model_right": 0.01, "model_left": 0.01})
+    assert model_columns(UPLKF(PERIOD, 0.04 * np.eye(3), SIGMA)) == {}
+    recorder = RunRecorder(tmp_path)
+    recorder.series({"time": 1.0, **columns})
+    recorder.close()
+    header, row = (tmp_path / "series.csv").read_text().splitlines()
+    values = dict(zip(header.split(","), row.split(",")))
+    assert float(values["model_straight"]) == pytest.approx(0.98) and float(values["model_left"]) == pytest.approx(0.01)

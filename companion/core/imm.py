@@ -241,6 +241,14 @@ class IMMEstimator:
         return tuple(model.name for model in self.models)
 
     @property
+    def motion_probabilities(self) -> tuple[float, float, float]:
+        """(straight, right turn, left turn): mu_k summed over the constant-velocity models
+        (turn_rate 0), the right turns (> 0) and the left turns (< 0); fixed-width, for logs."""
+        rates = np.array([model.turn_rate for model in self.models])
+        mu = self._probabilities
+        return float(mu[rates == 0.0].sum()), float(mu[rates > 0.0].sum()), float(mu[rates < 0.0].sum())
+
+    @property
     def process_noise_boost(self) -> float:
         """The factor on every model filter's discrete process noise (UPLKF.process_noise_boost)."""
         return self._process_noise_boost
