@@ -165,6 +165,8 @@ def test_rank2_likelihood_is_the_gaussian_on_the_plane(eigen, angles, coefficien
     r = 1.0 + eigen[0]
     in_angle = multivariate_normal(np.zeros(3), s / r**2, allow_singular=True).logpdf(y / r)
     assert rank2_log_likelihood(y, s, r) == pytest.approx(in_angle, rel=1e-6, abs=1e-6)
+    # the closed form with the known kernel g (Cayley-Hamilton), as the IMM evaluates it
+    assert rank2_log_likelihood(y, s, r, rotation[:, 2]) == pytest.approx(in_angle, rel=1e-6, abs=1e-6)
 
 
 def test_markov_matrix_is_seed_004s():

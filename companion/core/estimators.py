@@ -501,6 +501,12 @@ class UPLKF:
             covariance,
         )
 
+    @property
+    def state_and_covariance(self) -> tuple[np.ndarray, np.ndarray]:
+        """The current [p_T, v_T] (6,) and its covariance (6, 6) themselves, not copies (read only):
+        what an interacting-multiple-model estimator mixes and combines at every correction."""
+        return self._require_state()
+
     def set_state(self, state: np.ndarray, covariance: np.ndarray) -> None:
         """Replace the state [p_T, v_T] (m, m/s, shape (6,)) and its covariance (6, 6), keeping the
         clock: an interacting-multiple-model estimator hands each model filter its mixed start this way."""

@@ -116,10 +116,11 @@ def mix(probabilities: np.ndarray, transition: np.ndarray, states: np.ndarray,
         weights[:, j] = 0.0
         weights[j, j] = 1.0
     mixed = weights.T @ states
-    mixed_covariances = np.empty_like(covariances)
-    for j in range(len(predicted)):
+    count, size = states.shape
+    mixed_covariances = (weights.T @ covariances.reshape(count, size * size)).reshape(count, size, size)
+    for j in range(count):
         spread = states - mixed[j]
-        mixed_covariances[j] = np.einsum("i,ikl->kl", weights[:, j], covariances) + (weights[:, j, None] * spread).T @ spread
+        mixed_covariances[j] += (weights[:, j, None] * spread).T @ spread
     return predicted, mixed, mixed_covariances
 
 
@@ -128,16 +129,36 @@ def combine(probabilities: np.ndarray, states: np.ndarray, covariances: np.ndarr
     model estimates. probabilities (n,), states (n, d), covariances (n, d, d) -> x (d,), P (d, d)."""
     state = probabilities @ states
     spread = states - state
-    covariance = np.einsum("i,ikl->kl", probabilities, covariances) + (probabilities[:, None] * spread).T @ spread
+    size = states.shape[1]
+    covariance = (probabilities @ covariances.reshape(len(probabilities), size * size)).reshape(size, size)
+    covariance += (probabilities[:, None] * spread).T @ spread
     return state, 0.5 * (covariance + covariance.T)
 
 
-def rank2_log_likelihood(innovation: np.ndarray, covariance: np.ndarray, scale: float = 1.0) -> float:
+def rank2_log_likelihood(innovation: np.ndarray, covariance: np.ndarray, scale: float = 1.0,
+                         null_direction: np.ndarray | None = None) -> float:
     """ln N(y / r; 0, S / r^2) on the range of a rank-2 symmetric PSD S (3, 3), y (3,), r = scale > 0:
     the likelihood of seed 004 eq. (20) for the u-PLKF's bearing pseudo-measurement, whose S is
     singular along the predicted line of sight; with r the predicted range, the density of the
-    bearing error y / r (module docstring). -(y^T S^+ y + ln pdet(2 pi S)) / 2 + 2 ln r with the two
-    largest eigenvalues of S; -inf when S has fewer than two positive eigenvalues or y is not finite."""
+    bearing error y / r (module docstring). -(y^T S^+ y + ln pdet(2 pi S)) / 2 + 2 ln r; -inf when S
+    has fewer than two positive eigenvalues or y is not finite.
+
+    null_direction: g, the unit kernel of S (the u-PLKF's S = P_g (.) P_g, g the predicted line of
+    sight), when known. Then without an eigen-decomposition: with e1 = tr S and
+    e2 = ((tr S)^2 - tr S^2) / 2 (= lambda_1 lambda_2, pdet S, since the third eigenvalue is 0),
+    each non-zero eigenvalue solves lambda^2 - e1 lambda + e2 = 0, so 1/lambda = (e1 - lambda)/e2
+    and S^+ = (e1 (I - g g^T) - S) / e2 (Cayley-Hamilton on the range of S). Without g: the two
+    largest eigenvalues of numpy's eigh.
+    """
+    if null_direction is not None:
+        e1 = float(covariance[0, 0] + covariance[1, 1] + covariance[2, 2])
+        e2 = 0.5 * (e1 * e1 - float(np.sum(covariance * covariance)))
+        along = float(null_direction @ innovation)
+        nis = (e1 * (float(innovation @ innovation) - along * along) - float(innovation @ covariance @ innovation)) / e2 \
+            if e2 > 0.0 else math.nan
+        if not (e2 > 0.0 and math.isfinite(nis) and math.isfinite(e2)):
+            return -math.inf
+        return -0.5 * (nis + 2.0 * _LOG_TWO_PI + math.log(e2)) + 2.0 * math.log(scale)
     values, vectors = np.linalg.eigh(covariance)
     top = values[1:]
     if not (top[0] > 0.0 and math.isfinite(float(top[1]))):
@@ -224,11 +245,14 @@ class IMMEstimator:
             if len(self.filters) == 1:
                 self._snapshot = self.filters[0].estimate
             else:
-                estimates = [f.estimate for f in self.filters]
-                states = np.array([np.concatenate([e.position, e.velocity]) for e in estimates])
-                state, covariance = combine(self._weights, states, np.array([e.covariance for e in estimates]))
+                state, covariance = combine(self._weights, *self._stacked())
                 self._snapshot = TargetEstimate(self.time, state[:3], state[3:], covariance)
         return self._snapshot
+
+    def _stacked(self) -> tuple[np.ndarray, np.ndarray]:
+        """The model filters' states (n, 6) and covariances (n, 6, 6), stacked (copies)."""
+        pairs = [model_filter.state_and_covariance for model_filter in self.filters]
+        return np.array([state for state, _ in pairs]), np.array([covariance for _, covariance in pairs])
 
     @property
     def model_probabilities(self) -> np.ndarray:
@@ -277,33 +301,34 @@ class IMMEstimator:
 
         The report's innovation is that of the combined prediction (see `_combined_report`).
         """
-        prior = self.estimate
-        lead = bearing.time - prior.time
-        relative = prior.position + lead * prior.velocity - bearing.pursuer_position
+        if len(self.filters) == 1:
+            self._snapshot = None
+            return self.filters[0].correct(bearing)
+        states, _ = self._stacked()
+        lead = bearing.time - self.time
+        # each model's prior line of sight at the bearing's time, as UPLKF.correct forms it, and the combined one
+        model_relative = states[:, :3] + lead * states[:, 3:] - np.asarray(bearing.pursuer_position, dtype=float)
+        ranges = np.sqrt(np.einsum("ij,ij->i", model_relative, model_relative))
+        relative = self._weights @ model_relative
         predicted_range = float(np.linalg.norm(relative))
         direction = unit(bearing.direction)
         cos_angle = float(np.clip(direction @ relative / max(predicted_range, 1e-12), -1.0, 1.0))
         if self.restart_when_behind and (cos_angle <= 0.0 or predicted_range < 1e-6):
-            guess = restart_guess(self._initial_guess, predicted_range, prior.velocity)
+            guess = restart_guess(self._initial_guess, predicted_range, self._weights @ states[:, 3:])
             for model_filter in self.filters:
                 model_filter.initialize_on_bearing(bearing, guess)
             self._reset_probabilities()
             return CorrectionReport(float(np.arccos(cos_angle)), False, reinitialized=True)
 
-        if len(self.filters) == 1:
-            self._snapshot = None
-            return self.filters[0].correct(bearing)
-        ranges = []
-        for model_filter in self.filters:
-            model_prior = model_filter.estimate
-            ranges.append(float(np.linalg.norm(model_prior.position + lead * model_prior.velocity - bearing.pursuer_position)))
         reports = [model_filter.correct(bearing) for model_filter in self.filters]
         self._snapshot = None
         log_likelihoods = np.array([
             -math.inf if r.reinitialized or r.innovation is None or r.innovation_covariance is None or not distance > 0.0
-            else rank2_log_likelihood(r.innovation, r.innovation_covariance, distance) for r, distance in zip(reports, ranges)])
+            else rank2_log_likelihood(r.innovation, r.innovation_covariance, distance,
+                                      None if not r.used_predicted_projection else line / distance)
+            for r, distance, line in zip(reports, ranges, model_relative)])
         self._probabilities = self._updated_probabilities(log_likelihoods)
-        report = self._combined_report(reports, prior, relative, predicted_range, cos_angle)
+        report = self._combined_report(reports, relative, predicted_range, cos_angle)
         interval = self.stay_time if self._last_correction_time is None else bearing.time - self._last_correction_time
         self._last_correction_time = bearing.time
         self._mix(interval)
@@ -330,16 +355,14 @@ class IMMEstimator:
 
     def _mix(self, interval: float) -> None:
         """Seed 004 eqs. (17)-(19): every model filter restarts from its mixed start."""
-        estimates = [f.estimate for f in self.filters]
-        states = np.array([np.concatenate([e.position, e.velocity]) for e in estimates])
-        covariances = np.array([e.covariance for e in estimates])
+        states, covariances = self._stacked()
         predicted, mixed, mixed_covariances = mix(self._probabilities, self.markov_matrix(interval), states, covariances)
         for j, model_filter in enumerate(self.filters):
             model_filter.set_state(mixed[j], 0.5 * (mixed_covariances[j] + mixed_covariances[j].T))
         self._weights = predicted
         self._snapshot = None
 
-    def _combined_report(self, reports: list[CorrectionReport], prior: TargetEstimate, relative: np.ndarray,
+    def _combined_report(self, reports: list[CorrectionReport], relative: np.ndarray,
                          predicted_range: float, cos_angle: float) -> CorrectionReport:
         """The innovation of the combined prediction, for the health monitor.
 
