@@ -385,7 +385,7 @@ class EstimatorConfig(_Strict):
     imm_stay_probability: float = Field(0.98, gt=0.0, le=1.0)
     """kind 'imm' only: p_ii, the probability that the target keeps its motion model over imm_stay_time s
     (seed 004: 0.98, the rest split evenly over the other models)."""
-    imm_stay_time: Positive = 0.2
+    imm_stay_time: Positive = 1.0
     """kind 'imm' only: s, the interval imm_stay_probability refers to (p_ii = p^(Delta / imm_stay_time)
     over a correction interval Delta, so the switching is the same at any bearing rate)."""
     measurement_noise: Positive = 1e-4

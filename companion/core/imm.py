@@ -191,7 +191,7 @@ class IMMEstimator:
         pursuer_position_std: float = 0.0,
         restart_when_behind: bool = True,
         stay_probability: float = 0.98,
-        stay_time: float = 0.2,
+        stay_time: float = 1.0,
         initial_probabilities: Sequence[float] | None = None,
         adaptive_noise: AdaptiveNoiseSettings | None = None,
     ) -> None:
