@@ -23,7 +23,7 @@ from companion.assembly import build_estimator
 from companion.core.estimators import (GainProjection, InitialGuess, UPLKF, coordinated_turn_matrices,
                                        transition_matrices)
 from companion.core.imm import (IMMEstimator, MotionModel, combine, markov_matrix, mix, rank2_log_likelihood,
-                                standard_models)
+                                rank2_log_likelihoods, standard_models)
 from companion.core.messages import BearingMeasurement
 from interfaces.overrides import ConfigError
 from interfaces.scenario import load_scenario
@@ -167,6 +167,9 @@ def test_rank2_likelihood_is_the_gaussian_on_the_plane(eigen, angles, coefficien
     assert rank2_log_likelihood(y, s, r) == pytest.approx(in_angle, rel=1e-6, abs=1e-6)
     # the closed form with the known kernel g (Cayley-Hamilton), as the IMM evaluates it
     assert rank2_log_likelihood(y, s, r, rotation[:, 2]) == pytest.approx(in_angle, rel=1e-6, abs=1e-6)
+    batch = rank2_log_likelihoods(np.array([y, y]), np.array([s, s]), np.array([r, 1.0]), np.array([rotation[:, 2]] * 2))
+    assert batch[0] == pytest.approx(in_angle, rel=1e-6, abs=1e-6)
+    assert batch[1] == pytest.approx(reference, rel=1e-6, abs=1e-6)
 
 
 def test_markov_matrix_is_seed_004s():

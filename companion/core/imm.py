@@ -118,9 +118,8 @@ def mix(probabilities: np.ndarray, transition: np.ndarray, states: np.ndarray,
     mixed = weights.T @ states
     count, size = states.shape
     mixed_covariances = (weights.T @ covariances.reshape(count, size * size)).reshape(count, size, size)
-    for j in range(count):
-        spread = states - mixed[j]
-        mixed_covariances[j] += (weights[:, j, None] * spread).T @ spread
+    spread = states[None, :, :] - mixed[:, None, :]  # [j, i] = x^i - x0^j
+    mixed_covariances += np.matmul((spread * weights.T[:, :, None]).transpose(0, 2, 1), spread)
     return predicted, mixed, mixed_covariances
 
 
@@ -168,6 +167,20 @@ def rank2_log_likelihood(innovation: np.ndarray, covariance: np.ndarray, scale: 
     if not math.isfinite(nis):
         return -math.inf
     return -0.5 * (nis + 2.0 * _LOG_TWO_PI + math.log(float(top[0])) + math.log(float(top[1]))) + 2.0 * math.log(scale)
+
+
+def rank2_log_likelihoods(innovations: np.ndarray, covariances: np.ndarray, scales: np.ndarray,
+                          null_directions: np.ndarray) -> np.ndarray:
+    """`rank2_log_likelihood` with its null_direction for n models at once: innovations (n, 3),
+    covariances (n, 3, 3), scales (n,), null_directions (n, 3) -> (n,), -inf where S is not rank 2."""
+    e1 = np.einsum("kii->k", covariances)
+    e2 = 0.5 * (e1 * e1 - np.einsum("kij,kij->k", covariances, covariances))
+    along = np.einsum("ki,ki->k", null_directions, innovations)
+    quadratic = np.einsum("ki,kij,kj->k", innovations, covariances, innovations)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        nis = (e1 * (np.einsum("ki,ki->k", innovations, innovations) - along * along) - quadratic) / e2
+        result = -0.5 * (nis + 2.0 * _LOG_TWO_PI + np.log(e2)) + 2.0 * np.log(scales)
+    return np.where((e2 > 0.0) & np.isfinite(result), result, -math.inf)
 
 
 class IMMEstimator:
@@ -226,6 +239,8 @@ class IMMEstimator:
         self._initial_guess: InitialGuess | None = None
         self._snapshot: TargetEstimate | None = None
         self._process_noise_boost = 1.0
+        self._markov_interval = math.nan
+        self._markov = markov_matrix(len(self.models), self.stay_probability)
 
     # --- the TargetEstimator interface ------------------------------------------------
 
@@ -304,7 +319,7 @@ class IMMEstimator:
         if len(self.filters) == 1:
             self._snapshot = None
             return self.filters[0].correct(bearing)
-        states, _ = self._stacked()
+        states = np.array([model_filter.state_and_covariance[0] for model_filter in self.filters])
         lead = bearing.time - self.time
         # each model's prior line of sight at the bearing's time, as UPLKF.correct forms it, and the combined one
         model_relative = states[:, :3] + lead * states[:, 3:] - np.asarray(bearing.pursuer_position, dtype=float)
@@ -322,13 +337,30 @@ class IMMEstimator:
 
         reports = [model_filter.correct(bearing) for model_filter in self.filters]
         self._snapshot = None
-        log_likelihoods = np.array([
-            -math.inf if r.reinitialized or r.innovation is None or r.innovation_covariance is None or not distance > 0.0
-            else rank2_log_likelihood(r.innovation, r.innovation_covariance, distance,
-                                      None if not r.used_predicted_projection else line / distance)
-            for r, distance, line in zip(reports, ranges, model_relative)])
+        if all(r.innovation is not None and r.innovation_covariance is not None for r in reports) and np.all(ranges > 0.0):
+            innovations = np.array([r.innovation for r in reports])
+            covariances = np.array([r.innovation_covariance for r in reports])
+            if reports[0].used_predicted_projection:  # the kernel of each S_j is its model's predicted line of sight
+                log_likelihoods = rank2_log_likelihoods(innovations, covariances, ranges, model_relative / ranges[:, None])
+            else:
+                log_likelihoods = np.array([rank2_log_likelihood(y, c, r) for y, c, r in zip(innovations, covariances, ranges)])
+            report = self._combined_report(self._weights, innovations, covariances, relative, predicted_range, cos_angle,
+                                           reports[0].used_predicted_projection)
+        else:  # a model restarted on this bearing: it has no likelihood and no innovation
+            used = [j for j, r in enumerate(reports) if r.innovation is not None and r.innovation_covariance is not None
+                    and ranges[j] > 0.0]
+            log_likelihoods = np.full(len(reports), -math.inf)
+            for j in used:
+                log_likelihoods[j] = rank2_log_likelihood(reports[j].innovation, reports[j].innovation_covariance, ranges[j])
+            if used:
+                weights = self._weights[used]
+                weights = weights / weights.sum() if weights.sum() > 0.0 else np.full(len(used), 1.0 / len(used))
+                report = self._combined_report(weights, np.array([reports[j].innovation for j in used]),
+                                               np.array([reports[j].innovation_covariance for j in used]),
+                                               relative, predicted_range, cos_angle, reports[0].used_predicted_projection)
+            else:
+                report = CorrectionReport(float(np.arccos(cos_angle)), reports[0].used_predicted_projection, reinitialized=True)
         self._probabilities = self._updated_probabilities(log_likelihoods)
-        report = self._combined_report(reports, relative, predicted_range, cos_angle)
         interval = self.stay_time if self._last_correction_time is None else bearing.time - self._last_correction_time
         self._last_correction_time = bearing.time
         self._mix(interval)
@@ -356,14 +388,19 @@ class IMMEstimator:
     def _mix(self, interval: float) -> None:
         """Seed 004 eqs. (17)-(19): every model filter restarts from its mixed start."""
         states, covariances = self._stacked()
-        predicted, mixed, mixed_covariances = mix(self._probabilities, self.markov_matrix(interval), states, covariances)
+        if interval != self._markov_interval:  # the same interval at every bearing of a regular sensor
+            self._markov = self.markov_matrix(interval)
+            self._markov_interval = interval
+        predicted, mixed, mixed_covariances = mix(self._probabilities, self._markov, states, covariances)
+        mixed_covariances = 0.5 * (mixed_covariances + mixed_covariances.transpose(0, 2, 1))
         for j, model_filter in enumerate(self.filters):
-            model_filter.set_state(mixed[j], 0.5 * (mixed_covariances[j] + mixed_covariances[j].T))
+            model_filter.set_state(mixed[j], mixed_covariances[j])
         self._weights = predicted
         self._snapshot = None
 
-    def _combined_report(self, reports: list[CorrectionReport], relative: np.ndarray,
-                         predicted_range: float, cos_angle: float) -> CorrectionReport:
+    @staticmethod
+    def _combined_report(weights: np.ndarray, innovations: np.ndarray, covariances: np.ndarray, relative: np.ndarray,
+                         predicted_range: float, cos_angle: float, used_predicted: bool) -> CorrectionReport:
         """The innovation of the combined prediction, for the health monitor.
 
         y = P_lambda~ (p^-_T - p) of the combined prior is sum_j c_j y_j (the pseudo-measurement
@@ -374,19 +411,14 @@ class IMMEstimator:
         estimate the guidance flies on, which is the combination; the most likely model's
         innovation looks consistent whenever one model fits, even while the models disagree
         and the combination is off, and the mixture's S grows with that disagreement.
-        Models that restarted on this bearing (no innovation) are left out.
+        Models that restarted on this bearing (no innovation) are left out (weights renormalised).
+        weights (n,), innovations (n, 3), covariances (n, 3, 3); relative: the combined p^-_T - p, m.
         """
-        used = [(c, r) for c, r in zip(self._weights, reports) if r.innovation is not None and r.innovation_covariance is not None]
-        if not used:
-            return CorrectionReport(float(np.arccos(cos_angle)), reports[0].used_predicted_projection, reinitialized=True)
-        weights = np.array([c for c, _ in used])
-        weights = weights / weights.sum() if weights.sum() > 0.0 else np.full(len(used), 1.0 / len(used))
-        innovations = np.array([r.innovation for _, r in used])
-        innovation, covariance = combine(weights, innovations, np.array([r.innovation_covariance for _, r in used]))
+        innovation, covariance = combine(weights, innovations, covariances)
         line_of_sight = relative / predicted_range
         across = np.eye(3) - np.outer(line_of_sight, line_of_sight)
         covariance = across @ covariance @ across
-        return CorrectionReport(float(np.arccos(cos_angle)), reports[0].used_predicted_projection, innovation=innovation,
+        return CorrectionReport(float(np.arccos(cos_angle)), used_predicted, innovation=innovation,
                                 innovation_covariance=0.5 * (covariance + covariance.T), innovation_dof=2)
 
     def _reset_probabilities(self) -> None:
