@@ -354,7 +354,9 @@ class EstimatorConfig(_Strict):
     is its exact form, 'predicted' the default (README), 'noise_free' the simulation-only
     "optimal u-PLKF" of section VIII-B. The baselines: 'ekf' (azimuth/elevation, Cartesian state,
     the paper's classic EKF), 'msc_ekf' (modified spherical coordinates), 'ekf_rae' (seed 003:
-    range/azimuth/elevation; needs [sensor] range_noise_std). initialize: 'bearing' starts on the
+    range/azimuth/elevation; needs [sensor] range_noise_std). 'imm' is the interacting-multiple-model
+estimator over u-PLKF model filters (constant velocity and left/right coordinated turns, options
+imm_*; README "IMM estimator"). initialize: 'bearing' starts on the
     first bearing at the range guess (remark 3); 'position' starts at initial_position itself with
     an isotropic initial_range_std (the initialisation study of section VIII-B)."""
 
