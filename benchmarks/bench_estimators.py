@@ -4,7 +4,10 @@ Run: python benchmarks/bench_estimators.py. Prints a Markdown table of medians o
 repeats (microseconds); timings are figures for notes, never test assertions (machines
 here are shared and noisy). Every estimator sees the same geometry: target ~47 m away
 along [0.8, -0.4, -0.3], bearing noise sigma = 0.01, bearings with a true direction
-(for the noise-free u-PLKF) and a range (for the range/az/el EKF).
+(for the noise-free u-PLKF) and a range (for the range/az/el EKF). The IMM rows: its
+predict (every model filter's) and its correct (the model corrections, likelihoods, mixing);
+the pipeline also reads the combined estimate once per tick, which the figures include
+through correct's own use of it only.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ from timing import median_us
 
 from companion.core.baseline_estimators import MSCEKF, AzElEKF, RangeAzElEKF
 from companion.core.estimators import GainProjection, InitialGuess, UPLKF
+from companion.core.imm import IMMEstimator, standard_models
 from companion.core.messages import BearingMeasurement
 
 PERIOD = 0.02
@@ -33,6 +37,10 @@ def _estimators() -> list[tuple[str, object]]:
         ("AzElEKF", AzElEKF(PERIOD, PROCESS_NOISE, MEASUREMENT_NOISE, pursuer_position_std=0.1)),
         ("MSCEKF", MSCEKF(PERIOD, PROCESS_NOISE, MEASUREMENT_NOISE, pursuer_position_std=0.1)),
         ("RangeAzElEKF", RangeAzElEKF(PERIOD, MEASUREMENT_NOISE, range_noise_std=1.0)),
+        ("IMM (cv, ct +-0.2)", IMMEstimator(PERIOD, standard_models([0.2], 0.04, 0.04), MEASUREMENT_NOISE,
+                                            GainProjection.PREDICTED, pursuer_position_std=0.1)),
+        ("IMM (cv, ct +-0.1, +-0.3)", IMMEstimator(PERIOD, standard_models([0.1, 0.3], 0.04, 0.04), MEASUREMENT_NOISE,
+                                                   GainProjection.PREDICTED, pursuer_position_std=0.1)),
     ]
 
 

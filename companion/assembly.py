@@ -24,6 +24,7 @@ from companion.core.estimators import AdaptiveNoiseSettings, GainProjection, Ini
 from companion.core.guidance import (HelicalNavigationGuidance, LateralGuidance, PurePursuitGuidance, RangeController,
                                      RangeExcitation)
 from companion.core.health import HealthActionConfig, HealthActionPolicy, HealthConfig, HealthMonitor
+from companion.core.imm import IMMEstimator, standard_models
 from companion.core.pipeline import DropoutPolicy, FollowingPipeline
 
 
@@ -116,6 +117,16 @@ def _range_azel_ekf(s: EstimatorSettings) -> TargetEstimator:
                         pursuer_position_std=s.config.pursuer_position_std)
 
 
+def _imm(s: EstimatorSettings) -> TargetEstimator:
+    """The interacting-multiple-model estimator (companion.core.imm): constant velocity with Q = process_noise I,
+    and a right and a left coordinated turn (Q = imm_turn_process_noise I) per imm_turn_rates entry."""
+    c = s.config
+    models = standard_models(c.imm_turn_rates, c.process_noise, c.imm_turn_process_noise)
+    return IMMEstimator(s.period, models, s.measurement_noise, gain_projection=GainProjection(c.gain_projection),
+                        pursuer_position_std=c.pursuer_position_std, restart_when_behind=c.restart_when_behind,
+                        stay_probability=c.imm_stay_probability, stay_time=c.imm_stay_time)
+
+
 #: [estimator] kind -> its factory. Keys are exactly EstimatorConfig.kind's Literal values;
 #: a new baseline is one entry here and one value in the schema's Literal.
 ESTIMATORS: dict[str, Callable[[EstimatorSettings], TargetEstimator]] = {
@@ -123,6 +134,7 @@ ESTIMATORS: dict[str, Callable[[EstimatorSettings], TargetEstimator]] = {
     "ekf": _azel_ekf,
     "msc_ekf": _msc_ekf,
     "ekf_rae": _range_azel_ekf,
+    "imm": _imm,
 }
 
 

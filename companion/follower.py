@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from companion.adapters.mavsdk_vehicle import MavsdkVehicle, VehicleError, VehicleSample
-from companion.adapters.recorder import RunRecorder
+from companion.adapters.recorder import RunRecorder, model_columns
 from companion.core.health import HealthAction, HealthReport, HealthState
 from companion.core.messages import BearingMeasurement
 from companion.core.pipeline import FollowingPipeline, PipelineOutput
@@ -203,6 +203,8 @@ class Follower:
         action = getattr(output, "health_action", None)
         if action is not None:
             row.update(health_action=action.value, process_noise_boost=output.process_noise_boost)
+        if output.estimate is not None:
+            row.update(model_columns(self.pipeline.estimator))
         if output.setpoint is not None:
             a = output.setpoint.acceleration
             row.update(acc_x=float(a[0]), acc_y=float(a[1]), acc_z=float(a[2]), thrust_normalized=output.setpoint.thrust_normalized)

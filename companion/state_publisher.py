@@ -4,7 +4,8 @@ At [link] state_rate_hz of vehicle time, in every phase: the mission phase, own 
 link health, setpoints sent and, once the pipeline runs, the track mode, observability
 figures, the filter health (companion.core.health: state, reasons, windowed NIS ratio,
 sigma_r / r^) and the estimate with its covariance summary (TargetEstimate.position_std /
-velocity_std) and estimated range. Encoded by interfaces.link_schema.encode_state.
+velocity_std) and estimated range, and with the IMM estimator its model probabilities
+(companion.core.imm). Encoded by interfaces.link_schema.encode_state.
 """
 
 from __future__ import annotations
@@ -91,4 +92,17 @@ class StatePublisher:
                 "velocity_std": estimate.velocity_std,
                 "range": float(np.linalg.norm(estimate.position - sample.state.position)),
             }
+            probabilities = model_probabilities(getattr(self.control, "pipeline", None))
+            if probabilities is not None:
+                state["model_probabilities"] = probabilities
         return state
+
+
+def model_probabilities(pipeline) -> dict[str, float] | None:
+    """{model name: probability} of the pipeline's estimator when it is an interacting-multiple-model
+    estimator (companion.core.imm.IMMEstimator: model_names, model_probabilities), else None."""
+    estimator = getattr(pipeline, "estimator", None)
+    names = getattr(estimator, "model_names", None)
+    if names is None:
+        return None
+    return {name: float(p) for name, p in zip(names, estimator.model_probabilities)}

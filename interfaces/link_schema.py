@@ -49,7 +49,11 @@ Any change of fields is a new schema version.
   ``"off"`` reports only, ``"nominal"``, ``"recovering"`` while suspect and acting) and
   ``process_noise_boost`` (factor on the estimator's Q, 1 when none)} and ``estimate`` {``time``
   (s), ``position``, ``velocity`` (NED m, m/s), ``position_std``, ``velocity_std``
-  (m, m/s: sqrt of the mean diagonal of the covariance block), ``range`` (m)}. A
+  (m, m/s: sqrt of the mean diagonal of the covariance block), ``range`` (m)}, and with the
+  interacting-multiple-model estimator ``model_probabilities`` {model name: probability in
+  [0, 1]} (names like ``"cv"``, ``"ct+0.2"``: constant velocity, coordinated turn at +0.2
+  rad/s; companion.core.imm; optional, absent with any other estimator, so payloads without
+  it decode as before). A
   number may be ``null`` ("no value", e.g. log_det of a singular information
   matrix): `encode_state` turns NaN and +-inf into null.
 
@@ -401,6 +405,10 @@ class EstimateState(_Declared):
     range: Value
 
 
+ModelName = Annotated[str, Field(min_length=1, max_length=32)]
+Probability = Annotated[Number, Field(ge=0.0, le=1.0), BeforeValidator(_plain)]
+
+
 class CompanionState(Envelope):
     """``bof.companion_state/1``: what the companion publishes at [link] state_rate_hz (module docstring)."""
 
@@ -415,6 +423,7 @@ class CompanionState(Envelope):
     observability: ObservabilityState | None = None
     health: HealthStateSection | None = None
     estimate: EstimateState | None = None
+    model_probabilities: Annotated[dict[ModelName, Probability], Field(max_length=16)] | None = None
 
 
 _TARGET_FIX = TypeAdapter(Annotated[

@@ -354,11 +354,13 @@ class EstimatorConfig(_Strict):
     is its exact form, 'predicted' the default (README), 'noise_free' the simulation-only
     "optimal u-PLKF" of section VIII-B. The baselines: 'ekf' (azimuth/elevation, Cartesian state,
     the paper's classic EKF), 'msc_ekf' (modified spherical coordinates), 'ekf_rae' (seed 003:
-    range/azimuth/elevation; needs [sensor] range_noise_std). initialize: 'bearing' starts on the
+    range/azimuth/elevation; needs [sensor] range_noise_std). 'imm' is the interacting-multiple-model
+estimator over u-PLKF model filters (constant velocity and left/right coordinated turns, options
+imm_*; README "IMM estimator"). initialize: 'bearing' starts on the
     first bearing at the range guess (remark 3); 'position' starts at initial_position itself with
     an isotropic initial_range_std (the initialisation study of section VIII-B)."""
 
-    kind: Literal["uplkf", "ekf", "msc_ekf", "ekf_rae"] = "uplkf"
+    kind: Literal["uplkf", "ekf", "msc_ekf", "ekf_rae", "imm"] = "uplkf"
     gain_projection: Literal["predicted", "measured", "noise_free"] = "predicted"
     initialize: Literal["bearing", "position"] = "bearing"
     rate_hz: Positive = 50.0
@@ -376,6 +378,18 @@ class EstimatorConfig(_Strict):
     adaptive_relax_time_constant: Positive = 10.0
     """s, of its return to 1 while the mean is below 1."""
     adaptive_nis_threshold: float = Field(3.0, gt=1.0)
+    imm_turn_rates: Annotated[list[float], Strict(False)] = [0.2]
+    """kind 'imm' only: omega, rad/s, of the coordinated-turn models (README "IMM estimator"); each rate
+    gives a right (+omega) and a left (-omega) model beside the constant-velocity one. Each in
+    (0, IMM_MAX_TURN_RATE]; an empty list leaves the constant-velocity model alone (the u-PLKF)."""
+    imm_turn_process_noise: Positive = 0.04
+    """kind 'imm' only: q of the turn models, (m/s^2)^2 per axis (the constant-velocity model uses process_noise)."""
+    imm_stay_probability: float = Field(0.98, gt=0.0, le=1.0)
+    """kind 'imm' only: p_ii, the probability that the target keeps its motion model over imm_stay_time s
+    (seed 004: 0.98, the rest split evenly over the other models)."""
+    imm_stay_time: Positive = 1.0
+    """kind 'imm' only: s, the interval imm_stay_probability refers to (p_ii = p^(Delta / imm_stay_time)
+    over a correction interval Delta, so the switching is the same at any bearing rate)."""
     measurement_noise: Positive = 1e-4
     pursuer_position_std: NonNegative = 0.1
     restart_when_behind: bool = True
@@ -393,7 +407,23 @@ class EstimatorConfig(_Strict):
             raise ValueError("initialize = 'position' needs initial_position")
         if self.adaptive_process_noise and self.kind != "uplkf":
             raise ValueError(f"adaptive_process_noise is implemented for kind = 'uplkf' only, got {self.kind!r}")
+        for rate in self.imm_turn_rates:
+            if not (math.isfinite(rate) and 0.0 < rate <= IMM_MAX_TURN_RATE):
+                raise ValueError(f"imm_turn_rates: each turn rate must be in (0, {IMM_MAX_TURN_RATE:g}] rad/s, got {rate!r} "
+                                 "(a rate gives both a right and a left model)")
+        if len(set(self.imm_turn_rates)) != len(self.imm_turn_rates):
+            raise ValueError(f"imm_turn_rates: a rate is repeated in {self.imm_turn_rates!r}")
+        if self.kind != "imm":
+            changed = [name for name in IMM_OPTIONS if getattr(self, name) != type(self).model_fields[name].default]
+            if changed:
+                raise ValueError(f"{', '.join(changed)} applies to kind = 'imm' only, not to kind = {self.kind!r}")
         return self
+
+
+IMM_MAX_TURN_RATE = 2.0
+"""rad/s: the largest turn rate an IMM model may assume (a 2 m/s^2 turn at 1 m/s; a multirotor target
+turning faster is hovering, which the constant-velocity model covers)."""
+IMM_OPTIONS = ("imm_turn_rates", "imm_turn_process_noise", "imm_stay_probability", "imm_stay_time")
 
 
 GUIDANCE_LAWS = ("hng", "ppg", "png", "pd", "retro_png", "zem", "seed003")
@@ -765,7 +795,7 @@ class Scenario(_Strict):
             raise ValueError("simulation.summary_window must not exceed simulation.duration")
         if self.estimator.kind == "ekf_rae" and self.sensor.range_noise_std is None:
             raise ValueError("estimator.kind = 'ekf_rae' measures range: set sensor.range_noise_std")
-        if self.estimator.kind != "uplkf" and self.estimator.gain_projection != "predicted":
+        if self.estimator.kind not in ("uplkf", "imm") and self.estimator.gain_projection != "predicted":
             raise ValueError(f"estimator.gain_projection applies to the u-PLKF only, not to kind = {self.estimator.kind!r}")
         return self
 

@@ -64,6 +64,7 @@ class FlightLog:
         "observability_log_det": 1, "observability_min_eigenvalue": 1,
         "health_suspect": 1, "health_reasons": 1, "health_nis_ratio": 1, "health_relative_range_std": 1,
         "health_action": 1, "process_noise_boost": 1, "health_reinitialized": 1,
+        "model_probabilities": 3,  # IMM estimator only: (straight, right turn, left turn), IMMEstimator.motion_probabilities
     }
 
     def __init__(self, rows: int) -> None:
@@ -174,7 +175,7 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
             termination = Termination.ESTIMATE_NOT_FINITE
         if truth.rotation[2, 2] < 0.0 or float(truth.velocity @ truth.velocity) > MAX_SPEED**2:
             termination = Termination.OUT_OF_CONTROL
-        _log_tick(log, time, truth, target, output)
+        _log_tick(log, time, truth, target, output, pipeline.estimator)
         if termination is not Termination.COMPLETED or index + 1 == len(event_steps):
             break
         gap = event_steps[index + 1] - step
@@ -276,7 +277,8 @@ class InProcessLink:
                 "rejected": dict(self.validator.rejected), "faults": dict(self.faults.counters)}
 
 
-def _log_tick(log: FlightLog, time: float, truth: RigidBodyState, target: TargetMotion, output) -> None:
+def _log_tick(log: FlightLog, time: float, truth: RigidBodyState, target: TargetMotion, output,
+              estimator: object = None) -> None:
     estimate, setpoint = output.estimate, output.setpoint
     row = dict(
         time=time,
@@ -307,4 +309,8 @@ def _log_tick(log: FlightLog, time: float, truth: RigidBodyState, target: Target
                    health_nis_ratio=health.nis_ratio, health_relative_range_std=health.relative_range_std,
                    health_action=HEALTH_ACTION_CODES[output.health_action], process_noise_boost=output.process_noise_boost,
                    health_reinitialized=float(output.health_reinitialized))
+                   health_nis_ratio=health.nis_ratio, health_relative_range_std=health.relative_range_std)
+    motion = getattr(estimator, "motion_probabilities", None)
+    if motion is not None and estimate is not None:
+        row.update(model_probabilities=motion)
     log.append(**row)

@@ -34,12 +34,16 @@ def write_run_folder(result: SimulationResult, folder: Path) -> None:
         writer = csv.writer(handle)
         vectors = ("pursuer_position", "pursuer_velocity", "target_position", "estimate_position", "estimate_velocity", "command_acceleration")
         scalars = ("range", "range_estimate", "thrust_normalized", "pursuer_tilt")
-        writer.writerow(["time"] + [f"{key}_{axis}" for key in vectors for axis in "ned"] + list(scalars))
+        # the IMM estimator's model probabilities (straight, right, left), only when it flew
+        models = series["model_probabilities"] if np.isfinite(series.get("model_probabilities", np.nan)).any() else None
+        writer.writerow(["time"] + [f"{key}_{axis}" for key in vectors for axis in "ned"] + list(scalars)
+                        + (["model_straight", "model_right", "model_left"] if models is not None else []))
         for row in range(len(series["time"])):
             writer.writerow(
                 [f"{series['time'][row]:.3f}"]
                 + [f"{value:.4f}" for key in vectors for value in series[key][row]]
                 + [f"{series[key][row]:.4f}" for key in scalars]
+                + ([f"{value:.4f}" for value in models[row]] if models is not None else [])
             )
     write_summary(folder / "summary.json", result.summary)
     title = f"{result.scenario.name} (seed {result.summary['seed']})"

@@ -38,7 +38,7 @@ def _resolve(dotted: str):
 
 
 def _cited(docstring: str, equation: str) -> bool:
-    numbers = [int(n) for n in re.findall(r"\d+", equation.removeprefix("seed 003 ").removeprefix("seed 002 "))]
+    numbers = [int(n) for n in re.findall(r"\d+", re.sub(r"^seed \d{3} ", "", equation))]
     wanted = set(range(numbers[0], numbers[-1] + 1))
     seed = equation[:8] if equation.startswith("seed") else ""
     found: set[int] = set()

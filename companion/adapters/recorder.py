@@ -2,7 +2,9 @@
 interrupted run keeps everything up to the interruption.
 
     series.csv      one row per own-state sample while engaged: own state, estimate,
-                    bearing used (if any), command, setpoint
+                    bearing used (if any), command, setpoint, filter health and, with the IMM
+                    estimator, its model probabilities summed by motion (model_straight,
+                    model_right, model_left; companion.core.imm)
     bearings.csv    every bearing given to the estimator (its only measurement input; a range
                     column is filled only when a range sensor is configured)
     zenoh_rx.jsonl  every Zenoh message received, with receipt time and verdict
@@ -30,10 +32,20 @@ SERIES_COLUMNS = (
     "acc_x", "acc_y", "acc_z", "thrust_normalized", "new_setpoint",
     "observability_log_det", "observability_min_eigenvalue", "health", "health_suspect", "health_nis_ratio",
     "health_action", "process_noise_boost",
+    "model_straight", "model_right", "model_left",
 )
 BEARING_COLUMNS = ("time", "direction_x", "direction_y", "direction_z", "pursuer_x", "pursuer_y", "pursuer_z",
                    "fix_seq", "range")
 LATENCY_COLUMNS = ("fix_seq", "fix_stamp", "received_ns", "setpoint_sent_ns", "latency_ms")
+
+
+def model_columns(estimator: object) -> dict[str, float]:
+    """The series' model_straight / model_right / model_left columns: an IMM estimator's model
+    probabilities summed by motion (IMMEstimator.motion_probabilities); empty for any other estimator."""
+    motion = getattr(estimator, "motion_probabilities", None)
+    if motion is None:
+        return {}
+    return dict(zip(("model_straight", "model_right", "model_left"), (float(p) for p in motion)))
 
 
 class RunRecorder:

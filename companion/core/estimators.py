@@ -134,6 +134,62 @@ def transition_matrices(period: float) -> tuple[np.ndarray, np.ndarray]:
     return a, b
 
 
+_SMALL_TURN_ANGLE = 1e-4
+"""rad: below this |omega Delta t| the coordinated-turn coefficients use their Taylor series
+(the closed forms divide by omega and lose digits to cancellation)."""
+
+
+def coordinated_turn_matrices(period: float, turn_rate: float) -> tuple[np.ndarray, np.ndarray]:
+    """A and B of the 3-D coordinated turn at a known turn rate about the NED down axis.
+
+    The target's horizontal velocity rotates at turn_rate omega (rad/s; positive is a
+    clockwise turn seen from above, i.e. a right turn: the heading psi = atan2(v_E, v_N)
+    grows at omega), its vertical velocity is constant:
+
+        d/dt p = v,   d/dt v_h = omega J v_h + a_h,   d/dt v_D = a_D,   J = [[0, -1], [1, 0]],
+
+    with a the target acceleration held constant over each period, the same noise model as
+    eq. (1) (whose double integrator this is at omega = 0). The discretisation is exact:
+    A = exp(F Delta t) and B = int_0^Delta t exp(F s) ds L, L = [0; I]. With theta = omega Delta t,
+    the horizontal blocks are
+
+        A_vv = R(theta) = [[c, -s], [s, c]],           A_pv = [[s, -(1 - c)], [1 - c, s]] / omega,
+        B_v = A_pv,                                      B_p = [[1 - c, -(theta - s)], [theta - s, 1 - c]] / omega^2,
+
+    c = cos theta, s = sin theta; the down axis is eq. (1)'s. As omega -> 0 both tend to
+    `transition_matrices` (A_pv -> Delta t I, B_p -> Delta t^2 / 2 I); for
+    |theta| < 1e-4 the series to theta^2 are used, exactly eq. (1) at omega = 0.
+
+    period: Delta t, s. turn_rate: omega, rad/s. Returns A shape (6, 6), B shape (6, 3),
+    state order [p_N, p_E, p_D, v_N, v_E, v_D].
+    """
+    a, b = transition_matrices(period)
+    theta = turn_rate * period
+    if theta == 0.0:
+        return a, b
+    if abs(theta) < _SMALL_TURN_ANGLE:
+        # sin(theta)/omega, (1 - cos)/omega, (1 - cos)/omega^2, (theta - sin)/omega^2 to second order in theta
+        sin_w = period * (1.0 - theta**2 / 6.0)
+        one_minus_cos_w = period * (theta / 2.0 - theta**3 / 24.0)
+        one_minus_cos_w2 = period**2 * (0.5 - theta**2 / 24.0)
+        theta_minus_sin_w2 = period**2 * (theta / 6.0 - theta**3 / 120.0)
+    else:
+        sin_w = math.sin(theta) / turn_rate
+        one_minus_cos_w = (1.0 - math.cos(theta)) / turn_rate
+        one_minus_cos_w2 = (1.0 - math.cos(theta)) / turn_rate**2
+        theta_minus_sin_w2 = (theta - math.sin(theta)) / turn_rate**2
+    cos_t, sin_t = math.cos(theta), math.sin(theta)
+    rotation = np.array([[cos_t, -sin_t], [sin_t, cos_t]])
+    position_from_velocity = np.array([[sin_w, -one_minus_cos_w], [one_minus_cos_w, sin_w]])
+    position_from_acceleration = np.array([[one_minus_cos_w2, -theta_minus_sin_w2],
+                                           [theta_minus_sin_w2, one_minus_cos_w2]])
+    a[0:2, 3:5] = position_from_velocity
+    a[3:5, 3:5] = rotation
+    b[0:2, 0:2] = position_from_acceleration
+    b[3:5, 0:2] = position_from_velocity
+    return a, b
+
+
 SHORTCUT_EIGENVALUE_BAND = (2.0**-10, 2.0**10)
 """Bounds on the non-zero eigenvalues of the innovation covariance (m^2 scale) inside which
 `_projector_pseudo_inverse` uses the one-inverse shortcut; outside it, the general form."""
@@ -463,6 +519,14 @@ class UPLKF:
     pursuer_position_std: sigma_p, m. restart_when_behind: the guard above (False is
     the paper's filter exactly). adaptive_noise: None (default) keeps Q constant; settings
     make Q_k = s_k Q with s_k from `AdaptiveProcessNoise`, fed each correction's NIS.
+
+    Motion model. By default the target is eq. (1)'s double integrator. A model filter of
+    an interacting-multiple-model estimator (companion.core.imm) passes its own transition
+    (A, shape (6, 6)) and discrete process noise (Q_d, shape (6, 6), m^2 and (m/s)^2) instead,
+    e.g. `coordinated_turn_matrices`; the correction is the same for every model.
+    process_noise_boost: a factor >= 0 on the discrete process noise of every prediction
+    (after the adaptive scale), 1 by default; the filter-health monitor raises it while it
+    judges the estimate unreliable.
     """
 
     _own_track: OwnPositionTracker | None = None
@@ -478,6 +542,8 @@ class UPLKF:
         pursuer_position_std: float = 0.0,
         restart_when_behind: bool = True,
         adaptive_noise: AdaptiveNoiseSettings | None = None,
+        transition: np.ndarray | None = None,
+        discrete_process_noise: np.ndarray | None = None,
     ) -> None:
         if period <= 0.0:
             raise ValueError("estimator period must be positive")
@@ -489,6 +555,11 @@ class UPLKF:
         self.restart_when_behind = bool(restart_when_behind)
         self._a, self._b = transition_matrices(self.period)
         self._q_discrete = self._b @ self.process_noise @ self._b.T
+        if transition is not None:
+            self._a = np.array(transition, dtype=float).reshape(6, 6)
+        if discrete_process_noise is not None:
+            self._q_discrete = np.array(discrete_process_noise, dtype=float).reshape(6, 6)
+        self.process_noise_boost = 1.0
         self.adaptive_noise = None if adaptive_noise is None else AdaptiveProcessNoise(adaptive_noise)
         self.process_noise_boost: float = 1.0
         self._state: np.ndarray | None = None
@@ -545,6 +616,20 @@ class UPLKF:
             initial_guess.velocity,
             covariance,
         )
+
+    @property
+    def state_and_covariance(self) -> tuple[np.ndarray, np.ndarray]:
+        """The current [p_T, v_T] (6,) and its covariance (6, 6) themselves, not copies (read only):
+        what an interacting-multiple-model estimator mixes and combines at every correction."""
+        return self._require_state()
+
+    def set_state(self, state: np.ndarray, covariance: np.ndarray) -> None:
+        """Replace the state [p_T, v_T] (m, m/s, shape (6,)) and its covariance (6, 6), keeping the
+        clock: an interacting-multiple-model estimator hands each model filter its mixed start this way."""
+        self._require_state()
+        self._snapshot = None
+        self._state = np.asarray(state, dtype=float).reshape(6)
+        self._covariance = np.asarray(covariance, dtype=float).reshape(6, 6)
 
     def predict(self) -> None:
         """Time update over one period, section IV-C: x^- = A x, P^- = A P A^T + B Q B^T."""
