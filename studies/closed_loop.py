@@ -309,7 +309,6 @@ def _log_tick(log: FlightLog, time: float, truth: RigidBodyState, target: Target
                    health_nis_ratio=health.nis_ratio, health_relative_range_std=health.relative_range_std,
                    health_action=HEALTH_ACTION_CODES[output.health_action], process_noise_boost=output.process_noise_boost,
                    health_reinitialized=float(output.health_reinitialized))
-                   health_nis_ratio=health.nis_ratio, health_relative_range_std=health.relative_range_std)
     motion = getattr(estimator, "motion_probabilities", None)
     if motion is not None and estimate is not None:
         row.update(model_probabilities=motion)
