@@ -350,17 +350,19 @@ class SensorConfig(_Strict):
 
 
 class EstimatorConfig(_Strict):
-    """Target estimator. kind 'uplkf' is the paper's u-PLKF (section IV); gain_projection 'measured'
-    is its exact form, 'predicted' the default (README), 'noise_free' the simulation-only
-    "optimal u-PLKF" of section VIII-B. The baselines: 'ekf' (azimuth/elevation, Cartesian state,
-    the paper's classic EKF), 'msc_ekf' (modified spherical coordinates), 'ekf_rae' (seed 003:
-    range/azimuth/elevation; needs [sensor] range_noise_std). 'imm' is the interacting-multiple-model
-estimator over u-PLKF model filters (constant velocity and left/right coordinated turns, options
-imm_*; README "IMM estimator"). initialize: 'bearing' starts on the
+    """Target estimator. kind 'imm' (the default since issue 13) is the interacting-multiple-model
+    estimator over u-PLKF model filters (constant velocity and left/right coordinated turns, options
+    imm_*; README "IMM estimator"): as accurate as the u-PLKF on constant-velocity targets and the
+    one that follows sustained turns (docs/reproduction.md 5.6). kind 'uplkf' is the paper's
+    u-PLKF (section IV) alone; gain_projection 'measured' is its exact form, 'predicted' the
+    default (README), 'noise_free' the simulation-only "optimal u-PLKF" of section VIII-B. The
+    baselines: 'ekf' (azimuth/elevation, Cartesian state, the paper's classic EKF), 'msc_ekf'
+    (modified spherical coordinates), 'ekf_rae' (seed 003: range/azimuth/elevation; needs
+    [sensor] range_noise_std). initialize: 'bearing' starts on the
     first bearing at the range guess (remark 3); 'position' starts at initial_position itself with
     an isotropic initial_range_std (the initialisation study of section VIII-B)."""
 
-    kind: Literal["uplkf", "ekf", "msc_ekf", "ekf_rae", "imm"] = "uplkf"
+    kind: Literal["uplkf", "ekf", "msc_ekf", "ekf_rae", "imm"] = "imm"
     gain_projection: Literal["predicted", "measured", "noise_free"] = "predicted"
     initialize: Literal["bearing", "position"] = "bearing"
     rate_hz: Positive = 50.0
@@ -406,7 +408,8 @@ imm_*; README "IMM estimator"). initialize: 'bearing' starts on the
         if self.initialize == "position" and self.initial_position is None:
             raise ValueError("initialize = 'position' needs initial_position")
         if self.adaptive_process_noise and self.kind != "uplkf":
-            raise ValueError(f"adaptive_process_noise is implemented for kind = 'uplkf' only, got {self.kind!r}")
+            raise ValueError(f"adaptive_process_noise is implemented for kind = 'uplkf' only, got {self.kind!r} "
+                             "(the default kind is 'imm': set kind = 'uplkf' with it)")
         for rate in self.imm_turn_rates:
             if not (math.isfinite(rate) and 0.0 < rate <= IMM_MAX_TURN_RATE):
                 raise ValueError(f"imm_turn_rates: each turn rate must be in (0, {IMM_MAX_TURN_RATE:g}] rad/s, got {rate!r} "
@@ -720,7 +723,7 @@ class HealthSection(_Strict):
 
     Monitor: nis_window s, nis_probability, nis_scale, min_nis_samples, max_relative_range_std,
     min_range m (default guidance.desired_range / 4), max_range m, slow_speed m/s,
-    unobservable_time s, flag_after s, clear_after s. Actions while suspect: act (false: the
+    unobservable_time s, flag_after s, clear_after s. Actions while suspect: act (default true since issue 13; false: the
     monitor only reports), process_noise_boost (factor on Q, >= 1) relaxing back to 1 with
     boost_relax_time s once OK, reinitialize_reasons (restart on the bearing at the current range
     with an along-bearing std of reinitialize_relative_std x that range, at most every
@@ -741,7 +744,7 @@ class HealthSection(_Strict):
     unobservable_time: NonNegative = 5.0
     flag_after: NonNegative = 3.0
     clear_after: NonNegative = 10.0
-    act: bool = False
+    act: bool = True
     process_noise_boost: Annotated[float, Field(ge=1.0)] = 30.0
     boost_relax_time: Positive = 5.0
     reinitialize_reasons: Annotated[tuple[HealthReasonName, ...], FROM_ARRAY] = ("behind_sensor", "range_implausible")

@@ -63,6 +63,7 @@ def _uplkf(adaptive: AdaptiveNoiseSettings | None) -> UPLKF:
 def test_option_off_by_default_and_the_built_filter_matches_the_constant_q_one() -> None:
     scenario, _ = load_scenario(DEFAULT_SCENARIO)
     assert scenario.estimator.adaptive_process_noise is False
+    scenario = apply_overrides(scenario, {"estimator.kind": "uplkf"}, "test")  # the option is the u-PLKF's
     built = build_estimator(scenario)
     assert isinstance(built, UPLKF) and built.adaptive_noise is None and built.process_noise_scale == 1.0
     on = build_estimator(apply_overrides(scenario, {"estimator.adaptive_process_noise": True,

@@ -149,10 +149,15 @@ def test_the_payload_reasons_are_the_monitors():
 # --------------------------------------------------------------------------- flights
 
 
-def _circling(scenario_path, speed: float, lateral_acceleration: float):
-    """The constant-velocity scenario with its target circling at `speed` m/s (radius v^2 / a)."""
+def _circling(scenario_path, speed: float, lateral_acceleration: float, old_defaults: bool = True):
+    """The constant-velocity scenario with its target circling at `speed` m/s (radius v^2 / a), flown with the
+    defaults before issue 13 (the u-PLKF alone, the monitor only reporting), which lose such a target; with
+    old_defaults False, today's defaults (the IMM, the monitor acting)."""
     scenario, vehicle = load_scenario(scenario_path("constant_velocity"))
     document = scenario.model_dump()
+    if old_defaults:
+        document["estimator"]["kind"] = "uplkf"
+        document["health"]["act"] = False
     document["target"]["initial_velocity"] = [speed, 0.0, 0.0]
     document["target"]["maneuvers"] = [{"start": 0.0, "end": 60.0, "lateral_acceleration": lateral_acceleration}]
     document["name"] = "circling"
@@ -180,6 +185,14 @@ def test_a_circling_target_the_default_loses_is_flagged_and_not_a_clean_success(
     assert "estimate suspect" in format_summary(summary) and "do not trust this flight's range" in format_summary(summary)
     assert np.nanmax(result.series["health_suspect"]) == 1.0
     json.dumps(summary)  # plain types for summary.json
+
+
+def test_the_default_follows_the_circle_the_old_default_lost(scenario_path):
+    """The same 25 m circle with today's defaults (issue 13: the IMM's turn models): followed, and not flagged."""
+    summary = simulate(*_circling(scenario_path, 5.0, 1.0, old_defaults=False), seed=2).summary
+    assert summary["range_estimation_error_rms"] < 1.0, summary
+    assert summary["min_range"] > 0.5 * summary["desired_range"]
+    assert summary["suspected_divergence"]["at_end"] is False and summary["verdict"] in ("clean", "recovered")
 
 
 # --------------------------------------------------------------------------- state payload and companion

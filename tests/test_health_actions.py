@@ -192,9 +192,11 @@ def test_the_pipeline_acts_on_the_estimator_only_while_suspect(scenario_path):
 
 
 def _circling(scenario_path, **health):
-    """The constant-velocity scenario with its target on a 25 m circle at 5 m/s (the default filter loses it)."""
+    """The constant-velocity scenario with its target on a 25 m circle at 5 m/s, flown with the u-PLKF alone (the
+    pre-issue-13 default, which loses it: a flight for the monitor to act on); `health` overrides [health]."""
     scenario, vehicle = _scenario(scenario_path, **health)
     document = scenario.model_dump()
+    document["estimator"]["kind"] = "uplkf"
     document["target"]["initial_velocity"] = [5.0, 0.0, 0.0]
     document["target"]["maneuvers"] = [{"start": 0.0, "end": 60.0, "lateral_acceleration": 1.0}]
     document["name"] = "circling"
@@ -219,9 +221,9 @@ def test_a_flight_built_to_fail_is_flagged_and_the_actions_are_logged(scenario_p
 
 
 def test_act_off_is_the_reporting_only_pipeline_bit_for_bit(scenario_path):
-    """act = false, whatever the other action settings: the same series as the reporting-only default, sample for
+    """act = false, whatever the other action settings: the same series as the reporting-only pipeline (act = false alone), sample for
     sample, on a flight the monitor flags (so there would be something to act on)."""
-    reference = simulate(*_circling(scenario_path), seed=3)
+    reference = simulate(*_circling(scenario_path, act=False), seed=3)
     other = simulate(*_circling(scenario_path, act=False, process_noise_boost=50.0, reinitialize_interval=0.0,
                                 reinitialize_reasons=list(REASONS), excitation_low=0.0, excitation_high=0.01), seed=3)
     assert np.nanmax(reference.series["health_suspect"]) == 1.0
