@@ -211,20 +211,20 @@ def test_seed003_range_sensor_and_ekf_fly_through_the_companion(tmp_path, scenar
 
 
 #: The turning-target scenario flown end to end with the scenario defaults (issue 13).
-TURNING_SCENARIO = "turn90_5ms"
+TURNING_SCENARIO = "circle_5ms"
 
 
 def test_a_turning_target_is_followed_end_to_end_with_the_default_estimator(tmp_path, scenario_path):
     """Issue 13: a target that turns, flown through the real processes with every default. The flight must
-    complete, the health monitor must not call the estimate suspect at the end, the range estimate must be
-    good, the pursuer must keep at least r_d / 2 from the target and within the airframe's tilt limit (the
+    complete, the health monitor must not call the estimate suspect at the end (it may have been suspect on the
+    way: verdict "recovered"), the range estimate must be good, the pursuer must keep at least r_d / 2 from the target and within the airframe's tilt limit (the
     plant's attitude loop may overshoot the commanded tilt by a little: 1 deg is allowed)."""
     code, folder, summary = full_sitl.run(scenario_path(TURNING_SCENARIO), tmp_path, SPEED, seed=2,
                                           timeout=240.0, plots=False, quiet=True)
     assert code == 0, (folder / "companion.out").read_text()[-3000:]
     assert summary["companion"]["phase"] == "done"
     flight = summary["flight"]
-    assert flight["verdict"] == "clean", flight
+    assert flight["verdict"] in ("clean", "recovered"), flight
     assert flight["range_estimation_error_rms"] < 1.0, flight
     assert flight["min_range"] > 0.5 * flight["desired_range"], flight
     assert flight["max_tilt_deg"] < 35.0 + 1.0, flight
