@@ -11,10 +11,13 @@ pipeline object as the networked companion, only the estimator / guidance / para
 named by its case changed. Runs are seeded 1..N; a flight depends only on its scenario,
 case and seed, so the results are the same whichever executor ran them.
 
-Estimators (names -> [estimator] settings): uplkf (the default, gain from the predicted line
-of sight), uplkf_paper (the paper's exact u-PLKF), uplkf_optimal (noise-free projection,
-simulation only), ekf (azimuth/elevation, Cartesian), msc_ekf (modified spherical
-coordinates), ekf_rae (seed 003's range/azimuth/elevation EKF; adds a 1 m range sensor).
+Estimators (names -> [estimator] settings): by default each scenario's own [estimator] (the
+schema's default is the IMM); imm (issue 13's interacting multiple model over u-PLKF model
+filters), uplkf (gain from the predicted line of sight), uplkf_paper (the paper's exact
+u-PLKF), uplkf_optimal (noise-free projection, simulation only), ekf (azimuth/elevation,
+Cartesian), msc_ekf (modified spherical coordinates), ekf_rae (seed 003's
+range/azimuth/elevation EKF; adds a 1 m range sensor). The paper's studies (estimators,
+guidance, table2) fly the paper's system: the health monitor reports but does not act.
 Guidance: hng, hng_planar (c_Y = 0), ppg, png, pd, retro_png, zem.
 
 Per flight (results.csv): final_error, mean |range-estimation error| over the last 5 s;
@@ -65,7 +68,14 @@ ESTIMATORS: dict[str, dict[str, Any]] = {
     "ekf": {"estimator.kind": "ekf", "estimator.gain_projection": "predicted"},
     "msc_ekf": {"estimator.kind": "msc_ekf", "estimator.gain_projection": "predicted"},
     "ekf_rae": {"estimator.kind": "ekf_rae", "estimator.gain_projection": "predicted", "sensor.range_noise_std": 1.0},
+    "imm": {"estimator.kind": "imm", "estimator.gain_projection": "predicted"},
 }
+#: The paper's estimators (section VIII-B's comparison); "imm" is issue 13's
+PAPER_ESTIMATORS = ("uplkf", "uplkf_paper", "uplkf_optimal", "ekf", "msc_ekf", "ekf_rae")
+#: --estimators default outside a study: each scenario's own [estimator] (rows labelled with its kind)
+SCENARIO_ESTIMATOR = "scenario"
+#: The paper's comparisons fly the paper's system: the filter-health monitor reports but does not act
+PAPER_SYSTEM = {"health.act": False}
 #: guidance name -> scenario overrides
 GUIDANCE: dict[str, dict[str, Any]] = {
     "hng": {"guidance.law": "hng"},
@@ -99,30 +109,32 @@ class Study:
     title: str = ""
     windows: tuple[tuple[float, float], ...] = ()
     runs: int = 10  # seeded flights per grid point unless --runs says
+    overrides: tuple[tuple[str, Any], ...] = ()  # applied to every flight of the study, before the cases
 
 
 STUDIES: dict[str, Study] = {
     "estimators": Study(
-        "estimators", ("constant_velocity",), tuple(ESTIMATORS), ("hng",),
+        "estimators", ("constant_velocity",), PAPER_ESTIMATORS, ("hng",),
         (("5Hz", {"sensor.rate_hz": 5.0}), ("50Hz", {"sensor.rate_hz": 50.0})),
         initial_box=PAPER_INITIAL_BOX, curves_by="estimator", windows=((5.0, 15.0), (15.0, 30.0), (30.0, 60.0)), runs=100,
+        overrides=tuple(PAPER_SYSTEM.items()),
         title="Section VIII-B (Fig. 10): estimators, initial estimate uniform in x [20,120], y, z [-50,50] m"),
     "guidance": Study(
         "guidance", ("constant_velocity", "s_maneuver"), ("uplkf",), tuple(GUIDANCE), (("default", {}),),
-        curves_by="guidance", windows=((10.0, 30.0), (30.0, 60.0)),
+        curves_by="guidance", windows=((10.0, 30.0), (30.0, 60.0)), overrides=tuple(PAPER_SYSTEM.items()),
         title="Section VIII-C (Figs. 11-12): guidance laws, constant-velocity and maneuvering targets"),
     "table2": Study(
         "table2", ("s_maneuver",), ("uplkf",), ("hng",),
         tuple((name, {"guidance.navigation_gain": n, "guidance.c_z": cz, "guidance.c_y": cy})
               for name, (n, cz, cy) in TABLE_II.items()),
-        curves_by="case", windows=((10.0, 30.0), (30.0, 60.0)),
+        curves_by="case", windows=((10.0, 30.0), (30.0, 60.0)), overrides=tuple(PAPER_SYSTEM.items()),
         title="Section VIII-D (Table II, Figs. 13-14): HNG parameter sets on the maneuvering target"),
     "maneuvering": Study(
-        "maneuvering", MANEUVERING_SCENARIOS, ("uplkf",), ("hng",),
+        "maneuvering", MANEUVERING_SCENARIOS, ("imm",), ("hng",),
         (("5Hz", {"sensor.rate_hz": 5.0}), ("50Hz", {"sensor.rate_hz": 50.0})),
         curves_by="case", windows=((10.0, 30.0), (30.0, 60.0)), runs=20,
         title="Issue 13: maneuvering targets (circles, helices, weave, turn, stop-and-go, Singer, seed 003) "
-              "x bearings at 5 and 50 Hz, default u-PLKF and HNG"),
+              "x bearings at 5 and 50 Hz, the defaults: IMM, acting health monitor, HNG"),
 }
 
 
@@ -165,16 +177,20 @@ def parse_case(text: str) -> tuple[str, dict[str, Any]]:
 def build_tasks(scenarios: list[tuple[Scenario, VehicleConfig]], estimators: list[str], guidance: list[str],
                 cases: list[tuple[str, dict[str, Any]]], runs: int, initial_box: tuple[float, ...] | None,
                 divergence_threshold: float, duration: float | None = None,
-                windows: tuple[tuple[float, float], ...] = ()) -> list[FlightTask]:
-    """Every (scenario, estimator, guidance, case, seed) combination, resolved and validated up front."""
+                windows: tuple[tuple[float, float], ...] = (), base_overrides: dict[str, Any] | None = None) -> list[FlightTask]:
+    """Every (scenario, estimator, guidance, case, seed) combination, resolved and validated up front.
+
+    estimator SCENARIO_ESTIMATOR keeps each scenario's own [estimator] and labels the rows with its kind.
+    Overrides apply in this order: base_overrides (a study's), the estimator's, the guidance law's, the case's."""
     tasks = []
     for (scenario, vehicle), estimator, law, (case, overrides) in itertools.product(scenarios, estimators, guidance, cases):
-        combined = {**ESTIMATORS[estimator], **GUIDANCE[law], **overrides}
+        own = estimator == SCENARIO_ESTIMATOR
+        combined = {**(base_overrides or {}), **({} if own else ESTIMATORS[estimator]), **GUIDANCE[law], **overrides}
         if duration is not None:
             combined["simulation.duration"] = duration
             combined["simulation.summary_window"] = min(scenario.simulation.summary_window, duration)
         base = with_overrides(scenario, combined)
-        labels = {"scenario": scenario.name, "estimator": estimator, "guidance": law, "case": case}
+        labels = {"scenario": scenario.name, "estimator": base.estimator.kind if own else estimator, "guidance": law, "case": case}
         for seed in range(1, runs + 1):
             flown = base
             if initial_box is not None:
@@ -393,7 +409,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--runs", type=int, default=None, help="seeded flights per grid point (default 10; 100 for --study estimators, "
                         "20 for --study maneuvering)")
     parser.add_argument("--estimators", nargs="+", choices=list(ESTIMATORS),
-                        help="estimators to compare (default uplkf, or the study's set)")
+                        help="estimators to compare (default: each scenario's own [estimator], or the study's set)")
     parser.add_argument("--guidance", nargs="+", choices=list(GUIDANCE),
                         help="guidance laws to compare (default hng, or the study's set)")
     parser.add_argument("--case", action="append", default=None, metavar="NAME:key=value,...",
@@ -420,7 +436,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         paths = args.scenarios or ([SCENARIOS / f"{name}.toml" for name in study.scenarios] if study else [DEFAULT_SCENARIO])
         scenarios = [load_scenario(path) for path in paths]
-        estimators = args.estimators or (list(study.estimators) if study else ["uplkf"])
+        estimators = args.estimators or (list(study.estimators) if study else [SCENARIO_ESTIMATOR])
         guidance = args.guidance or (list(study.guidance) if study else ["hng"])
         cases = [parse_case(text) for text in args.case] if args.case else (list(study.cases) if study else [("default", {})])
         box = study.initial_box if study else None
@@ -430,7 +446,7 @@ def main(argv: list[str] | None = None) -> int:
                 raise ValueError("--initial-box needs X0,X1,Y0,Y1,Z0,Z1 with each low <= high")
         windows = [parse_window(text) for text in args.error_window] if args.error_window else (list(study.windows) if study else [])
         tasks = build_tasks(scenarios, estimators, guidance, cases, runs, box, args.divergence_threshold, args.duration,
-                            tuple(windows))
+                            tuple(windows), dict(study.overrides) if study else None)
     except (ConfigError, ValueError) as error:
         print(f"bof-montecarlo: {error}", file=sys.stderr)
         return 2

@@ -215,3 +215,23 @@ def test_scenarios_of_different_durations_share_one_series_file(tmp_path):
         assert np.isnan(error[0, 21:]).all() and np.isfinite(error[0, 1:21]).any()
         assert np.isfinite(error[1, 21:]).any()
         np.testing.assert_allclose(series["time"][0], np.arange(31) * 0.2, atol=1e-9)
+
+
+def test_studies_fly_the_right_system_and_a_grid_keeps_each_scenarios_estimator():
+    """The paper's studies fly the paper's system (monitor reporting only); the maneuvering study flies today's
+    defaults (IMM, acting monitor); without --estimators a scenario keeps its own [estimator] and its rows say which."""
+    for name in ("estimators", "guidance", "table2"):
+        study = montecarlo.STUDIES[name]
+        scenarios = [load_scenario(montecarlo.SCENARIOS / f"{s}.toml") for s in study.scenarios]
+        tasks = montecarlo.build_tasks(scenarios, list(study.estimators), list(study.guidance), list(study.cases), 1,
+                                       study.initial_box, 2.0, base_overrides=dict(study.overrides))
+        assert all(task.scenario.health.act is False for task in tasks)
+        assert "imm" not in {task.labels["estimator"] for task in tasks}
+    study = montecarlo.STUDIES["maneuvering"]
+    tasks = montecarlo.build_tasks([load_scenario(montecarlo.SCENARIOS / "circle_5ms.toml")], list(study.estimators),
+                                   ["hng"], list(study.cases), 1, None, 2.0, base_overrides=dict(study.overrides))
+    assert all(t.scenario.estimator.kind == "imm" and t.scenario.health.act is True for t in tasks)
+    own = [load_scenario(montecarlo.SCENARIOS / f"{s}.toml") for s in ("seed003_ekf_rae", "constant_velocity")]
+    tasks = montecarlo.build_tasks(own, [montecarlo.SCENARIO_ESTIMATOR], ["hng"], [("default", {})], 1, None, 2.0)
+    assert [t.labels["estimator"] for t in tasks] == ["ekf_rae", "imm"]
+    assert [t.scenario.estimator.kind for t in tasks] == ["ekf_rae", "imm"]
