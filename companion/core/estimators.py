@@ -224,19 +224,19 @@ def _solve_identity(matrix: np.ndarray) -> tuple[np.ndarray, float, bool]:
 
 
 def _is_positive_semidefinite(covariance: np.ndarray) -> bool:
-    """Whether the symmetric covariance (n, n) is PSD, np.linalg.eigvalsh(covariance)[0] >= 0, cheaply.
+    """Whether the symmetric covariance (n, n) is PSD, i.e. not np.linalg.eigvalsh(covariance)[0] < 0, cheaply.
 
     A Cholesky factorisation (LAPACK dpotrf, lower triangle as eigvalsh reads it) succeeds for a
     positive definite matrix at a sixth of the cost of np.linalg.eigvalsh on a 6x6; when it fails
     (or meets a non-finite entry, which dpotrf lets through) the decision is eigvalsh's exactly,
-    so a positive semi-definite singular matrix is still accepted and a NaN still raises as before.
+    so a positive semi-definite singular matrix is still accepted and a NaN gets eigvalsh's answer (or error) as before.
     The two can disagree only when Cholesky succeeds while eigvalsh's smallest eigenvalue is
     negative at rounding level (|lambda_min| ~ 1e-16 ||P||, where its sign is rounding noise):
     then the short form is kept, a matrix Cholesky-factorisable to working precision."""
     factor, info = dpotrf(covariance, lower=1, clean=0)
     if info == 0 and math.isfinite(float(factor.trace())):
         return True
-    return bool(np.linalg.eigvalsh(covariance)[0] >= 0.0)
+    return not np.linalg.eigvalsh(covariance)[0] < 0.0  # as the old test reads it: a NaN eigenvalue is not negative
 
 
 def _projector_pseudo_inverse(matrix: np.ndarray, null_direction: np.ndarray) -> np.ndarray:
