@@ -446,8 +446,12 @@ class IMMEstimator:
         # (I - g g^T) C (I - g g^T), g the combined predicted line of sight, expanded
         g = relative / predicted_range
         cg = covariance @ g
-        # broadcast products: np.outer's arithmetic without its per-call argument handling
-        covariance = covariance - g[:, None] * cg - cg[:, None] * g + float(g @ cg) * (g[:, None] * g)
+        # broadcast products: np.outer's arithmetic without its per-call argument handling; cg g^T is
+        # (g cg^T)^T exactly (each entry the same product), and the in-place steps keep the order of the sum
+        g_cg = g[:, None] * cg
+        covariance = covariance - g_cg
+        covariance -= g_cg.T
+        covariance += float(g @ cg) * (g[:, None] * g)
         return CorrectionReport(float(np.arccos(cos_angle)), used_predicted, innovation=innovation,
                                 innovation_covariance=0.5 * (covariance + covariance.T), innovation_dof=2)
 
