@@ -21,6 +21,7 @@ from typing import Protocol
 
 import numpy as np
 from scipy.linalg import null_space
+from scipy.linalg.lapack import dgesv, dpotrf
 
 from companion.core.geometry import orthogonal_projection, unit
 from companion.core.messages import BearingMeasurement, TargetEstimate
@@ -117,7 +118,7 @@ def limit_range(target_position: np.ndarray, pursuer_position: np.ndarray) -> np
     """The target position (m, NED, shape (3,)) moved along its line of sight from the
     pursuer (m, shape (3,)) to at most MAX_RANGE away; the same array when already within."""
     relative = target_position - pursuer_position
-    distance = float(np.linalg.norm(relative))
+    distance = math.sqrt(float(relative.dot(relative)))  # np.linalg.norm's own formula, without its wrapper
     if distance <= MAX_RANGE:
         return target_position
     return pursuer_position + (MAX_RANGE / distance) * relative
@@ -195,6 +196,49 @@ SHORTCUT_EIGENVALUE_BAND = (2.0**-10, 2.0**10)
 `_projector_pseudo_inverse` uses the one-inverse shortcut; outside it, the general form."""
 
 
+_EYE3 = np.eye(3)
+_EYE3.flags.writeable = False
+
+
+def _projector(unit_vector: np.ndarray) -> np.ndarray:
+    """I - g g^T for a unit g (3,), shape (3, 3): eq. (5) for an already normalised vector.
+    The same arithmetic as np.eye(3) - np.outer(g, g), without their per-call allocations."""
+    return _EYE3 - unit_vector[:, None] * unit_vector
+
+
+def _solve_identity(matrix: np.ndarray) -> tuple[np.ndarray, float, bool]:
+    """(M^-1, det M, ok) for a 3x3 M by one LAPACK LU solve (dgesv) against the identity.
+
+    np.linalg.inv is this same dgesv solve (M^-1 equal to the last bit: tests/test_estimator_cost_paths.py),
+    at a third of its cost on a 3x3 without numpy's wrapper. The determinant is the product of
+    the LU pivots with the permutation's sign (np.linalg.det forms it through logarithms, so the
+    two agree to rounding). M^-1 comes Fortran-ordered. ok is False when M is exactly singular
+    (det 0, no inverse)."""
+    lu, pivots, inverse, info = dgesv(matrix, _EYE3)
+    if info != 0:
+        return inverse, 0.0, False
+    determinant = float(lu[0, 0] * lu[1, 1] * lu[2, 2])
+    # row interchanges (scipy's pivots are 0-based; the last row is always itself); ints, as numpy bools add as "or"
+    swaps = int(pivots[0] != 0) + int(pivots[1] != 1)
+    return inverse, -determinant if swaps % 2 else determinant, True
+
+
+def _is_positive_semidefinite(covariance: np.ndarray) -> bool:
+    """Whether the symmetric covariance (n, n) is PSD, i.e. not np.linalg.eigvalsh(covariance)[0] < 0, cheaply.
+
+    A Cholesky factorisation (LAPACK dpotrf, lower triangle as eigvalsh reads it) succeeds for a
+    positive definite matrix at a sixth of the cost of np.linalg.eigvalsh on a 6x6; when it fails
+    (or meets a non-finite entry, which dpotrf lets through) the decision is eigvalsh's exactly,
+    so a positive semi-definite singular matrix is still accepted and a NaN gets eigvalsh's answer (or error) as before.
+    The two can disagree only when Cholesky succeeds while eigvalsh's smallest eigenvalue is
+    negative at rounding level (|lambda_min| ~ 1e-16 ||P||, where its sign is rounding noise):
+    then the short form is kept, a matrix Cholesky-factorisable to working precision."""
+    factor, info = dpotrf(covariance, lower=1, clean=0)
+    if info == 0 and math.isfinite(float(factor.trace())):
+        return True
+    return not np.linalg.eigvalsh(covariance)[0] < 0.0  # as the old test reads it: a NaN eigenvalue is not negative
+
+
 def _projector_pseudo_inverse(matrix: np.ndarray, null_direction: np.ndarray) -> np.ndarray:
     """Moore-Penrose pseudo-inverse of a symmetric PSD 3x3 `matrix` S whose kernel is span(g).
 
@@ -212,14 +256,13 @@ def _projector_pseudo_inverse(matrix: np.ndarray, null_direction: np.ndarray) ->
     the 2x2 pseudo-inverse from numpy's SVD, which is defined for any finite S and any
     unit g (a rank-deficient block gives the pseudo-inverse, never an error).
     """
-    outer = np.outer(null_direction, null_direction)
+    outer = null_direction[:, None] * null_direction  # np.outer's arithmetic without its argument handling
     low, high = SHORTCUT_EIGENVALUE_BAND
-    trace = float(np.trace(matrix))
+    trace = float(matrix[0, 0] + matrix[1, 1] + matrix[2, 2])
     if low <= trace <= high:
-        regularized = matrix + outer
-        determinant = float(np.linalg.det(regularized))
-        if determinant >= low * trace:  # smallest eigenvalue >= det / trace >= low
-            return np.linalg.inv(regularized) - outer
+        inverse, determinant, regular = _solve_identity(matrix + outer)  # np.linalg.inv's solve, cheaper
+        if regular and determinant >= low * trace:  # smallest eigenvalue >= det / trace >= low
+            return inverse - outer
     basis = null_space(np.reshape(null_direction, (1, 3)))
     block = basis.T @ matrix @ basis
     return basis @ np.linalg.pinv(0.5 * (block + block.T), hermitian=True) @ basis.T
@@ -639,7 +682,8 @@ class UPLKF:
         q_discrete = self._q_discrete
         if self.adaptive_noise is not None:
             q_discrete = self.adaptive_noise.scale * q_discrete
-        q_discrete = self.process_noise_boost * q_discrete
+        if self.process_noise_boost != 1.0:  # 1.0 * Q is Q exactly: skip the 6x6 product
+            q_discrete = self.process_noise_boost * q_discrete
         self._covariance = self._a @ covariance @ self._a.T + q_discrete
         self._ticks += 1
 
@@ -655,9 +699,10 @@ class UPLKF:
         # at arbitrary times): compare it with the prior mean carried to its time stamp.
         lead = bearing.time - self.time
         relative = state[:3] + lead * state[3:] - bearing.pursuer_position  # p^-_T - p
-        predicted_range = float(np.linalg.norm(relative))
+        predicted_range = math.sqrt(float(relative.dot(relative)))  # np.linalg.norm's formula, without its wrapper
         direction = unit(bearing.direction)
-        cos_angle = float(np.clip(direction @ relative / max(predicted_range, 1e-12), -1.0, 1.0))
+        # min/max on a float clips exactly as np.clip does, without its array machinery
+        cos_angle = min(max(float(direction @ relative / max(predicted_range, 1e-12)), -1.0), 1.0)
         innovation_angle = float(np.arccos(cos_angle))
         if self.restart_when_behind and (cos_angle <= 0.0 or predicted_range < 1e-6):
             self._restart_on(bearing, predicted_range, state[3:])
@@ -679,9 +724,10 @@ class UPLKF:
             if bearing.true_direction is None:
                 raise ValueError("the noise-free (optimal) u-PLKF needs BearingMeasurement.true_direction: simulation only")
             direction = unit(bearing.true_direction)
-        measured_projection = orthogonal_projection(direction)
+        # orthogonal_projection normalises its argument again; so does this, to keep its exact rounding
+        measured_projection = _projector(unit(direction))
         gain_direction = gain_relative / gain_range if use_predicted else direction
-        gain_projection = np.eye(3) - np.outer(gain_direction, gain_direction)
+        gain_projection = _projector(gain_direction)
         # H = [P, 0], so H P^- H^T = P P^-_pp P and P^- H^T = P^-[:, :3] P.
         cross_covariance = p_prior[:, :3] @ gain_projection
         noise_transition = gain_range * gain_projection  # V_k = r^- P_lambda
@@ -693,14 +739,14 @@ class UPLKF:
         gain = cross_covariance @ innovation_inverse
         # x_k = x^-_k - K_k H_k x^-_k, with H_k x^-_k = P_lambda~ (p^-_T - p)
         self._snapshot = None
-        self._state = state - gain @ (measured_projection @ relative)
+        innovation = measured_projection @ relative  # H_k x^-_k, also the report's innovation
+        self._state = state - gain @ innovation
         self._state[:3] = limit_range(self._state[:3], np.asarray(bearing.pursuer_position, dtype=float))
         covariance = p_prior - gain @ (gain_projection @ p_prior[:3])  # (I - K H) P^-
         covariance = 0.5 * (covariance + covariance.T)
-        if np.linalg.eigvalsh(covariance)[0] < 0.0:
+        if not _is_positive_semidefinite(covariance):
             covariance = _joseph_update(p_prior, gain, gain_projection, measurement_covariance)
         self._covariance = covariance
-        innovation = measured_projection @ relative
         if self.adaptive_noise is not None:
             self.adaptive_noise.update(bearing.time, float(innovation @ innovation_inverse @ innovation), 2)
         return CorrectionReport(innovation_angle, use_predicted, innovation=innovation,

@@ -95,9 +95,22 @@ def markov_matrix(count: int, stay_probability: float) -> np.ndarray:
     if count == 1:
         return np.ones((1, 1))
     leave = (1.0 - stay_probability) / (count - 1)
-    matrix = np.full((count, count), leave)
-    np.fill_diagonal(matrix, stay_probability)
-    return matrix
+    # one np.where on a cached identity mask: the same entries as np.full + np.fill_diagonal, at a
+    # fraction of their cost (this runs at nearly every correction: the interval's rounding varies)
+    return np.where(_diagonal_mask(count), stay_probability, leave)
+
+
+_DIAGONAL_MASKS: dict[int, np.ndarray] = {}
+
+
+def _diagonal_mask(count: int) -> np.ndarray:
+    """The boolean identity of size count (read only, cached)."""
+    mask = _DIAGONAL_MASKS.get(count)
+    if mask is None:
+        mask = np.eye(count, dtype=bool)
+        mask.flags.writeable = False
+        _DIAGONAL_MASKS[count] = mask
+    return mask
 
 
 def mix(probabilities: np.ndarray, transition: np.ndarray, states: np.ndarray,
@@ -109,10 +122,12 @@ def mix(probabilities: np.ndarray, transition: np.ndarray, states: np.ndarray,
     c_j = sum_i p_ij mu^i, (n,), and each model's mixed start x0^j (n, d) and P0^j (n, d, d).
     """
     predicted = probabilities @ transition
-    weights = transition * probabilities[:, None] / np.where(predicted > 0.0, predicted, 1.0)[None, :]  # mu^{i|j}
+    everyone = bool((predicted > 0.0).all())  # the method, not np.all: no dispatch overhead on (n,)
+    # dividing by c itself when no c_j is 0 (the usual case) is np.where's arithmetic without the where
+    weights = transition * probabilities[:, None] / (predicted if everyone else np.where(predicted > 0.0, predicted, 1.0))[None, :]  # mu^{i|j}
     # A model with c_j = 0 (p_ij = 0 from every likely model) takes no part in anything until
     # its probability returns; it keeps its own estimate instead of an empty mixture.
-    if not np.all(predicted > 0.0):
+    if not everyone:
         for j in np.flatnonzero(predicted <= 0.0):
             weights[:, j] = 0.0
             weights[j, j] = 1.0
@@ -180,12 +195,14 @@ def rank2_log_likelihoods(innovations: np.ndarray, covariances: np.ndarray, scal
     along = (null_directions * innovations).sum(axis=1)
     quadratic = (np.matmul(covariances, innovations[:, :, None])[:, :, 0] * innovations).sum(axis=1)
     result = []
-    for k in range(len(e1)):
-        if not e2[k] > 0.0:
+    # Python floats from here on (tolist): the same IEEE arithmetic as numpy's scalars, without their overhead
+    for k, (e1_k, e2_k, along_k, quadratic_k, scale_k) in enumerate(zip(e1.tolist(), e2.tolist(), along.tolist(),
+                                                                        quadratic.tolist(), np.asarray(scales).tolist())):
+        if not e2_k > 0.0:
             result.append(-math.inf)
             continue
-        nis = (e1[k] * (float(innovations[k] @ innovations[k]) - along[k] * along[k]) - quadratic[k]) / e2[k]
-        value = -0.5 * (nis + 2.0 * _LOG_TWO_PI + math.log(e2[k])) + 2.0 * math.log(scales[k]) if scales[k] > 0.0 else -math.inf
+        nis = (e1_k * (float(innovations[k] @ innovations[k]) - along_k * along_k) - quadratic_k) / e2_k
+        value = -0.5 * (nis + 2.0 * _LOG_TWO_PI + math.log(e2_k)) + 2.0 * math.log(scale_k) if scale_k > 0.0 else -math.inf
         result.append(float(value) if math.isfinite(value) else -math.inf)
     return np.array(result)
 
@@ -332,9 +349,10 @@ class IMMEstimator:
         model_relative = states[:, :3] + lead * states[:, 3:] - np.asarray(bearing.pursuer_position, dtype=float)
         ranges = np.sqrt((model_relative * model_relative).sum(axis=1))
         relative = self._weights @ model_relative
-        predicted_range = float(np.linalg.norm(relative))
+        predicted_range = math.sqrt(float(relative.dot(relative)))  # np.linalg.norm's formula, without its wrapper
         direction = unit(bearing.direction)
-        cos_angle = float(np.clip(direction @ relative / max(predicted_range, 1e-12), -1.0, 1.0))
+        # min/max on a float clips exactly as np.clip does, without its array machinery
+        cos_angle = min(max(float(direction @ relative / max(predicted_range, 1e-12)), -1.0), 1.0)
         if self.restart_when_behind and (cos_angle <= 0.0 or predicted_range < 1e-6):
             guess = restart_guess(self._initial_guess, predicted_range, self._weights @ states[:, 3:])
             for model_filter in self.filters:
@@ -344,7 +362,7 @@ class IMMEstimator:
 
         reports = [model_filter.correct(bearing) for model_filter in self.filters]
         self._snapshot = None
-        if all(r.innovation is not None and r.innovation_covariance is not None for r in reports) and np.all(ranges > 0.0):
+        if all([r.innovation is not None and r.innovation_covariance is not None for r in reports]) and (ranges > 0.0).all():
             innovations = np.array([r.innovation for r in reports])
             covariances = np.array([r.innovation_covariance for r in reports])
             if reports[0].used_predicted_projection:  # the kernel of each S_j is its model's predicted line of sight
@@ -384,8 +402,8 @@ class IMMEstimator:
         """mu^j = Lambda^j c_j / sum_t Lambda^t c_t, seed 004 eq. (21), in logarithms. With no
         finite likelihood (every model restarted) the predicted probabilities c stand."""
         # plain floats: a handful of models, cheaper than numpy's per-call overhead
-        log_posterior = [float(ll) + math.log(c) if math.isfinite(ll) and c > 0.0 else -math.inf
-                         for ll, c in zip(log_likelihoods, self._weights)]
+        log_posterior = [ll + math.log(c) if math.isfinite(ll) and c > 0.0 else -math.inf
+                         for ll, c in zip(np.asarray(log_likelihoods, dtype=float).tolist(), self._weights.tolist())]
         peak = max(log_posterior)
         if peak == -math.inf:
             return self._weights.copy()
@@ -428,7 +446,12 @@ class IMMEstimator:
         # (I - g g^T) C (I - g g^T), g the combined predicted line of sight, expanded
         g = relative / predicted_range
         cg = covariance @ g
-        covariance = covariance - np.outer(g, cg) - np.outer(cg, g) + float(g @ cg) * np.outer(g, g)
+        # broadcast products: np.outer's arithmetic without its per-call argument handling; cg g^T is
+        # (g cg^T)^T exactly (each entry the same product), and the in-place steps keep the order of the sum
+        g_cg = g[:, None] * cg
+        covariance = covariance - g_cg
+        covariance -= g_cg.T
+        covariance += float(g @ cg) * (g[:, None] * g)
         return CorrectionReport(float(np.arccos(cos_angle)), used_predicted, innovation=innovation,
                                 innovation_covariance=0.5 * (covariance + covariance.T), innovation_dof=2)
 

@@ -1,0 +1,141 @@
+"""The cheaper arithmetic of the u-PLKF and IMM updates changes no result.
+
+Two kinds of evidence:
+- every closed form or shortcut against numpy's general routine on random inputs (hypothesis);
+- whole bearing sequences (a turning target seen at 50 Hz from a weaving pursuer with noisy
+  own position, and filters fed bearings far noisier than their Sigma, which take the general
+  branch of the scale-safe pseudo-inverse; the Joseph-form decision has its own tests) against the states the filters produced before the
+  change, with the correction reports the health monitor reads, recorded in
+  tests/data/estimator_cost_reference.npz by `estimator_cost_sequences.reference_runs` on the
+  pre-change code (see that module to regenerate).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from estimator_cost_sequences import REFERENCE, estimators, reference_runs
+from hypothesis.extra.numpy import arrays
+from paper_reference import floats, unit_vectors
+from scipy.stats import special_ortho_group
+
+from companion.core.estimators import (SHORTCUT_EIGENVALUE_BAND, _is_positive_semidefinite, _projector,
+                                       _projector_pseudo_inverse, _solve_identity)
+from companion.core.imm import markov_matrix
+
+
+# --- the closed forms and shortcuts against numpy's general routines ---------------------------
+
+
+@settings(max_examples=300, deadline=None)
+@given(arrays(np.float64, (3, 3), elements=floats(-10.0, 10.0)), st.integers(-6, 6))
+def test_lapack_solve_is_numpys_inverse_to_the_last_bit(matrix, exponent):
+    """_solve_identity's M^-1 is np.linalg.inv(M) bit for bit (symmetric or not, any scale), its
+    determinant np.linalg.det(M) to rounding, and an exactly singular M is reported, not inverted."""
+    matrix = matrix * 10.0**exponent
+    reference_determinant = np.linalg.det(matrix)
+    inverse, determinant, regular = _solve_identity(matrix)
+    if not regular:
+        assert reference_determinant == 0.0 or abs(reference_determinant) < 1e-300
+        return
+    np.testing.assert_array_equal(inverse, np.linalg.inv(matrix))
+    # both are the LU pivots' product, one through logarithms: they agree to a few ulps of |det|
+    assert abs(determinant - reference_determinant) <= 1e-12 * abs(reference_determinant)
+
+
+def test_lapack_solve_reports_an_exactly_singular_matrix():
+    inverse, determinant, regular = _solve_identity(np.array([[1.0, 2.0, 3.0], [2.0, 4.0, 6.0], [0.0, 1.0, 1.0]]))
+    assert not regular and determinant == 0.0
+
+
+@settings(max_examples=300, deadline=None)
+@given(unit_vectors(), arrays(np.float64, (3, 3), elements=floats(-3.0, 3.0)), floats(1e-4, 1e2))
+def test_pseudo_inverse_shortcut_is_the_numpy_formula_to_the_last_bit(direction, factor, noise_scale):
+    """On the shortcut's band the result is (S + g g^T)^-1 - g g^T with np.linalg.inv and np.outer,
+    bit for bit (the formula the function had before the cost work)."""
+    projection = np.eye(3) - np.outer(direction, direction)
+    innovation = projection @ (factor @ factor.T) @ projection + noise_scale * projection
+    low, high = SHORTCUT_EIGENVALUE_BAND
+    trace = float(np.trace(innovation))
+    outer = np.outer(direction, direction)
+    if not (low <= trace <= high and np.linalg.det(innovation + outer) >= (1.0 + 1e-9) * low * trace):
+        return  # the general branch (SVD), unchanged and covered by tests/test_pseudo_inverse.py
+    np.testing.assert_array_equal(_projector_pseudo_inverse(innovation, direction), np.linalg.inv(innovation + outer) - outer)
+
+
+@settings(max_examples=200, deadline=None)
+@given(unit_vectors())
+def test_projector_is_eye_minus_outer_to_the_last_bit(direction):
+    np.testing.assert_array_equal(_projector(direction), np.eye(3) - np.outer(direction, direction))
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.integers(0, 2**32 - 1), arrays(np.float64, 6, elements=floats(-1.0, 1.0)), st.integers(-8, 8),
+       st.sampled_from(["any", "psd_singular", "tiny_negative"]))
+def test_positive_semidefinite_check_is_eigvalsh_decision(seed, values, exponent, kind):
+    """The Joseph-form decision: the Cholesky-first check says "PSD" exactly when eigvalsh's smallest
+    eigenvalue is >= 0, except possibly when that eigenvalue is negative at rounding level (|lambda_min|
+    below 1e-13 of the largest), where eigvalsh's own sign is rounding noise. Matrices
+    Q diag(l) Q^T with random rotations: any signs, exactly one zero eigenvalue (PSD singular: Cholesky
+    fails, so the decision is eigvalsh's own), one eigenvalue -1e-15 of the largest."""
+    rotation = special_ortho_group.rvs(6, random_state=np.random.default_rng(seed))
+    eigenvalues = values * 10.0**exponent
+    if kind != "any":
+        eigenvalues = np.abs(eigenvalues) + 10.0**exponent
+        eigenvalues[0] = 0.0 if kind == "psd_singular" else -1e-15 * eigenvalues.max()
+    matrix = rotation @ np.diag(eigenvalues) @ rotation.T
+    matrix = 0.5 * (matrix + matrix.T)
+    smallest, largest = np.linalg.eigvalsh(matrix)[[0, -1]]
+    decision = _is_positive_semidefinite(matrix)
+    if decision != (not smallest < 0.0):
+        assert decision and abs(smallest) <= 1e-13 * max(abs(largest), abs(smallest))
+
+
+@pytest.mark.parametrize("entry", [(2, 3), (0, 0), (5, 5), (5, 0)])
+@pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
+def test_positive_semidefinite_check_on_non_finite_entries_is_eigvalsh_decision(entry, value):
+    """dpotrf lets a NaN through; the check then defers to eigvalsh: the same decision, or the same
+    LinAlgError, as the eigvalsh test it replaces."""
+    matrix = np.eye(6)
+    matrix[entry] = matrix[entry[::-1]] = value
+    try:
+        expected = not np.linalg.eigvalsh(matrix)[0] < 0.0  # the test UPLKF.correct used to make
+    except np.linalg.LinAlgError:
+        with pytest.raises(np.linalg.LinAlgError):
+            _is_positive_semidefinite(matrix)
+        return
+    assert _is_positive_semidefinite(matrix) == expected
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(2, 7), floats(0.0, 1.0))
+def test_markov_matrix_is_full_with_the_diagonal_filled(count, stay):
+    leave = (1.0 - stay) / (count - 1)
+    expected = np.full((count, count), leave)
+    np.fill_diagonal(expected, stay)
+    np.testing.assert_array_equal(markov_matrix(count, stay), expected)
+
+
+# --- whole bearing sequences against the pre-change code's record --------------------------------
+
+
+@pytest.fixture(scope="module")
+def runs() -> dict[str, np.ndarray]:
+    return reference_runs()
+
+
+@pytest.mark.parametrize("label,tolerance", [("normal", 1e-12), ("boosted", 1e-12), ("noisy", 1e-9)])
+@pytest.mark.parametrize("name", list(estimators()))
+def test_update_results_are_unchanged(runs, label, tolerance, name):
+    """The u-PLKF forms and the IMMs reproduce the pre-change estimates: on the machine that recorded
+    them to the last bit; the tolerance (relative to each array's largest entry, so 1e-12 m on the
+    ~20 m normal flights) only leaves room for another BLAS's rounding. The noisy sequence (range
+    estimates run to 1e5 m and beyond) amplifies rounding most, hence its looser bound."""
+    recorded = np.load(REFERENCE)
+    for kind in ("states", "covariances", "innovations", "innovation_covariances"):
+        key = f"{label}/{name}/{kind}"
+        expected = recorded[key]
+        np.testing.assert_allclose(runs[key], expected, rtol=0.0, atol=tolerance * float(np.nanmax(np.abs(expected))),
+                                   err_msg=key)
