@@ -230,6 +230,7 @@ def health_config(scenario: Scenario) -> HealthConfig:
     try:
         return HealthConfig(nis_window=h.nis_window, nis_probability=h.nis_probability, nis_scale=h.nis_scale,
                             min_nis_samples=h.min_nis_samples, max_relative_range_std=h.max_relative_range_std,
+                            max_range_std=h.max_range_std,
                             min_range=min_range, max_range=h.max_range, slow_speed=h.slow_speed,
                             unobservable_time=h.unobservable_time, flag_after=h.flag_after, clear_after=h.clear_after)
     except ValueError as error:
@@ -244,7 +245,8 @@ def health_action_config(scenario: Scenario) -> HealthActionConfig:
                               reinitialize_interval=h.reinitialize_interval,
                               reinitialize_relative_std=h.reinitialize_relative_std, excite=h.excite,
                               excitation_low=h.excitation_low, excitation_high=h.excitation_high,
-                              boost_follows_evidence=h.boost_follows_evidence)
+                              boost_follows_evidence=h.boost_follows_evidence,
+                              boost_reasons=tuple(h.boost_reasons))
 
 
 def build_action_excitation(scenario: Scenario) -> RangeExcitation | None:

@@ -722,6 +722,7 @@ class HealthSection(_Strict):
     """The filter-health monitor (companion.core.health: HealthConfig, HealthActionConfig; README "Filter health").
 
     Monitor: nis_window s, nis_probability, nis_scale, min_nis_samples, max_relative_range_std,
+    max_range_std m (sigma_r limit once the range has converged; a large value turns it off),
     min_range m (default guidance.desired_range / 4), max_range m, slow_speed m/s,
     unobservable_time s, flag_after s, clear_after s. Actions while suspect: act (default true since issue 13; false: the
     monitor only reports), process_noise_boost (factor on Q, >= 1) relaxing back to 1 with
@@ -729,7 +730,8 @@ class HealthSection(_Strict):
     with an along-bearing std of reinitialize_relative_std x that range, at most every
     reinitialize_interval s), excite (full range excitation while suspect; without
     [guidance] excitation, also never a stop while sigma_r / r^ > excitation_high, ramping in
-    from excitation_low; lateral laws 'hng' and 'ppg' only), boost_follows_evidence (full boost only
+    from excitation_low; lateral laws 'hng' and 'ppg' only), boost_reasons (the raised conditions that
+    call for the Q boost), boost_follows_evidence (full boost only
     while a condition is raised, relaxing during the SUSPECT tail).
     """
 
@@ -738,6 +740,7 @@ class HealthSection(_Strict):
     nis_scale: Annotated[float, Field(ge=1.0)] = 2.0
     min_nis_samples: Annotated[int, Field(ge=1)] = 10
     max_relative_range_std: Positive = 1.0
+    max_range_std: Positive | None = 2.0
     min_range: NonNegative | None = None
     max_range: Positive = 2000.0
     slow_speed: NonNegative = 1.0
@@ -754,6 +757,7 @@ class HealthSection(_Strict):
     excitation_low: NonNegative = 0.25
     excitation_high: Positive = 0.5
     boost_follows_evidence: bool = True
+    boost_reasons: Annotated[tuple[HealthReasonName, ...], FROM_ARRAY] = ("nis", "behind_sensor", "range_implausible")
 
     @model_validator(mode="after")
     def _ordered(self) -> "HealthSection":

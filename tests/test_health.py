@@ -304,3 +304,23 @@ def test_episode_reasons_gather_every_reason_of_the_current_episode():
     assert monitor.episode_reasons == ("behind_sensor", "range_implausible")
     monitor.update(5.0, **FRONT)
     assert monitor.state is HealthState.OK and monitor.episode_reasons == ()
+
+
+@settings(max_examples=60, deadline=None)
+@given(bound=st.floats(0.5, 5.0), along=st.lists(st.floats(0.01, 10.0), min_size=1, max_size=60))
+def test_the_absolute_range_std_counts_only_once_the_range_has_converged(bound, along):
+    """range_uncertain from the absolute bound: raised exactly when sigma_r (here the along-line-of-sight std of a
+    diagonal covariance, by construction) exceeds max_range_std AND some earlier-or-current correction since the
+    last restart had sigma_r <= max_range_std; a restart forgets the convergence. The relative bound is kept out
+    of the way (10 m range, max_relative_range_std 100)."""
+    monitor = HealthMonitor(HealthConfig(max_range_std=bound, max_relative_range_std=100.0, min_nis_samples=10_000))
+    converged = False
+    for k, sigma in enumerate(along + along):
+        if k == len(along):
+            monitor.restart()
+            converged = False
+        covariance = np.diag([sigma**2, 0.01, 0.01, 1.0, 1.0, 1.0])
+        report = monitor.update(0.1 * k, **{**FRONT, "estimate_covariance": covariance})
+        converged = converged or sigma <= bound
+        assert ("range_uncertain" in report.raised) == (converged and sigma > bound)
+        assert report.relative_range_std == pytest.approx(sigma / 10.0, rel=1e-9)
