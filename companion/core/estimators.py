@@ -572,10 +572,6 @@ class UPLKF:
     judges the estimate unreliable.
     """
 
-    _own_track: OwnPositionTracker | None = None
-    """The PREDICTED form's own-position instrumental variable, created on the first correction
-    with pursuer_position_std > 0 (kept across restarts: it tracks the pursuer, not the target)."""
-
     def __init__(
         self,
         period: float,
@@ -602,9 +598,12 @@ class UPLKF:
             self._a = np.array(transition, dtype=float).reshape(6, 6)
         if discrete_process_noise is not None:
             self._q_discrete = np.array(discrete_process_noise, dtype=float).reshape(6, 6)
-        self.process_noise_boost = 1.0
         self.adaptive_noise = None if adaptive_noise is None else AdaptiveProcessNoise(adaptive_noise)
         self.process_noise_boost: float = 1.0
+        # The PREDICTED form's own-position instrumental variable (kept across restarts: it tracks
+        # the pursuer, not the target); None where it does not apply.
+        self._own_track = (OwnPositionTracker(self.pursuer_position_std)
+                           if self.gain_projection is GainProjection.PREDICTED and self.pursuer_position_std > 0.0 else None)
         self._state: np.ndarray | None = None
         self._covariance: np.ndarray | None = None
         self._start_time = 0.0
@@ -710,11 +709,9 @@ class UPLKF:
 
         use_predicted = self.gain_projection is GainProjection.PREDICTED
         gain_relative, gain_range = relative, predicted_range
-        if use_predicted and self.pursuer_position_std > 0.0:
+        if self._own_track is not None:
             # Errors in variables: the gain's line of sight from an own position that does not
             # carry this sample's error (OwnPositionTracker), the residual from the sample itself.
-            if self._own_track is None:
-                self._own_track = OwnPositionTracker(self.pursuer_position_std)
             reference = self._own_track.reference(bearing.time, bearing.pursuer_position)
             gain_relative = relative + (bearing.pursuer_position - reference)
             gain_range = math.sqrt(float(gain_relative @ gain_relative))
