@@ -34,6 +34,18 @@ def scenario_path() -> Callable[[str], Path]:
     return _path
 
 
+@pytest.fixture
+def app(tmp_path, scenario_path):
+    """A companion app on the constant-velocity scenario: no vehicle and no sockets; its recorder closed after."""
+    from companion.app import CompanionApp
+    from interfaces.scenario import load_scenario
+
+    scenario, vehicle = load_scenario(scenario_path("constant_velocity"))
+    application = CompanionApp(scenario, vehicle, tmp_path / "run")
+    yield application
+    application.recorder.close()
+
+
 class ClockAndFixes:
     """The test's end of the link: a listening session (127.0.0.1, free port) that publishes
     the simulation clock and collects the fixes of one sender."""

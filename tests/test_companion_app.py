@@ -13,14 +13,6 @@ from companion.app import CompanionApp, Phase
 from interfaces.scenario import load_scenario
 
 
-@pytest.fixture
-def app(tmp_path, scenario_path):
-    scenario, vehicle = load_scenario(scenario_path("constant_velocity"))
-    application = CompanionApp(scenario, vehicle, tmp_path / "run")
-    yield application
-    application.recorder.close()
-
-
 def _fix(seq: int, stamp: float, position=(60.0, -20.0, -20.0), sender="target-1", frame="ned") -> bytes:
     return link.encode_target_fix(link.TargetFix(sender, seq, stamp, frame, position))
 

@@ -252,16 +252,6 @@ class _Vehicle:
         self.texts.append((severity, text))
 
 
-@pytest.fixture
-def app(tmp_path, scenario_path):
-    from companion.app import CompanionApp
-
-    scenario, vehicle = load_scenario(scenario_path("constant_velocity"))
-    application = CompanionApp(scenario, vehicle, tmp_path / "run")
-    yield application
-    application.recorder.close()
-
-
 def test_the_follower_announces_each_action_change_and_restart(app):
     from companion.adapters.mavsdk_vehicle import VehicleSample
     from companion.core.messages import PursuerState
