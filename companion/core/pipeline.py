@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -16,9 +17,21 @@ from companion.core.attitude import VehicleLimits, attitude_setpoint
 from companion.core.estimators import CorrectionReport, InitialGuess, TargetEstimator
 from companion.core.geometry import relative_range_std, unit
 from companion.core.guidance import LateralGuidance, RangeController, RangeExcitation
-from companion.core.health import (HealthAction, HealthActionConfig, HealthActionPolicy, HealthConfig, HealthMonitor,
-                                   HealthReport, HealthState)
-from companion.core.messages import AttitudeSetpoint, BearingMeasurement, PursuerState, TargetEstimate
+from companion.core.health import (
+    HealthAction,
+    HealthActionConfig,
+    HealthActionPolicy,
+    HealthConfig,
+    HealthMonitor,
+    HealthReport,
+    HealthState,
+)
+from companion.core.messages import (
+    AttitudeSetpoint,
+    BearingMeasurement,
+    PursuerState,
+    TargetEstimate,
+)
 from companion.core.observability import WindowedObservability
 
 _TIME_EPS = 1e-9
@@ -285,20 +298,27 @@ class FollowingPipeline:
         return True
 
     def _restart_on_bearing(self, bearing: BearingMeasurement) -> None:
-        """Remark 3 again: restart on `bearing` at the current range estimate (the desired range when that is
-        implausible), along-bearing std reinitialize_relative_std x that range, the velocity estimate kept
-        with the initial guess's velocity std."""
-        estimate = self.estimator.estimate.extrapolated(bearing.time)
+        """The health actions' restart: at the current range estimate (the desired range when that is
+        implausible), along-bearing std reinitialize_relative_std x that range."""
         plausible = self.health.config
-        distance = float(np.linalg.norm(estimate.position - bearing.pursuer_position))
-        if not (plausible.min_range <= distance <= plausible.max_range):
-            distance = self.range_controller.desired_range
-        guess = InitialGuess(distance, self.actions.config.reinitialize_relative_std * distance, estimate.velocity,
-                             self.initial_guess.velocity_std)
-        self.estimator.initialize_on_bearing(bearing, guess)
-        self._estimator_ticks = int(np.floor((bearing.time - self._engaged_at) / self.estimator.period + _TIME_EPS))
+
+        def at_range(predicted: float) -> tuple[float, float]:
+            distance = predicted if plausible.min_range <= predicted <= plausible.max_range else self.range_controller.desired_range
+            return distance, self.actions.config.reinitialize_relative_std * distance
+
+        self._restart_estimator(bearing, at_range)
         self.health.restart()
         self.health_reinitializations += 1
+
+    def _restart_estimator(self, bearing: BearingMeasurement, guess_range: Callable[[float], tuple[float, float]]) -> None:
+        """Remark 3 again, on `bearing`: guess_range(predicted range, m) gives the restart's (range, along-bearing
+        std), m; the velocity estimate is kept with the initial guess's velocity std, and the estimator's tick
+        count restarts at the bearing's time."""
+        estimate = self.estimator.estimate.extrapolated(bearing.time)
+        distance, range_std = guess_range(float(np.linalg.norm(estimate.position - bearing.pursuer_position)))
+        self.estimator.initialize_on_bearing(bearing, InitialGuess(distance, range_std, estimate.velocity,
+                                                                   self.initial_guess.velocity_std))
+        self._estimator_ticks = int(np.floor((bearing.time - self._engaged_at) / self.estimator.period + _TIME_EPS))
 
     def _use_bearing(self, bearing: BearingMeasurement) -> tuple[CorrectionReport | None, bool, bool]:
         """Correct with a bearing; after a gap, only if it agrees with the prediction (the gate)."""
@@ -314,13 +334,8 @@ class FollowingPipeline:
             self._set_mode(bearing.time, TrackMode.REACQUIRING)
             return None, True, False
         # The prediction is no longer credible: restart along the new bearing at the predicted range.
-        estimate = self.estimator.estimate.extrapolated(bearing.time)
-        predicted_range = float(np.linalg.norm(estimate.position - bearing.pursuer_position))
-        guess = InitialGuess(predicted_range, self.dropout.restart_range_std, estimate.velocity,
-                             self.initial_guess.velocity_std)
-        self.estimator.initialize_on_bearing(bearing, guess)
+        self._restart_estimator(bearing, lambda predicted: (predicted, self.dropout.restart_range_std))
         self.reinitializations += 1
-        self._estimator_ticks = int(np.floor((bearing.time - self._engaged_at) / self.estimator.period + _TIME_EPS))
         self._rejected_in_row = 0
         self._last_bearing = unit(bearing.direction)
         self._last_bearing_time = bearing.time
