@@ -111,3 +111,81 @@ def write_json(path: Path, document: Any, **dumps: Any) -> None:
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(json.dumps(json_ready(document), allow_nan=False, **dumps) + "\n")
     os.replace(tmp, path)
+
+
+class AggregatingLog:
+    """Bounded logging of repeated records (rejects, refusals) in front of a JSON-lines log.
+
+    For each key (a short code from a bounded set, e.g. a reject reason) the first
+    `verbatim` records are written as given; after that the records of that key are only
+    counted, and at most one line per key and `window` seconds says how many were
+    suppressed::
+
+        {"kind": "suppressed", "key": "stale_seq", "count": 4810, "first": t0, "last": t1}
+
+    (t0, t1: the `now` values of the first and last suppressed record, in whatever clock the
+    caller passes: wall or simulated seconds). So a sender that floods the process can add at
+    most verbatim + (duration / window + 1) lines per key, whatever its rate. Keys beyond
+    `max_keys` distinct ones are counted under "other" (a sender that varies the key cannot
+    grow the log either). `written` and `suppressed` count records per key. Call `flush`
+    (or `close`) at the end so that the last counts are written.
+
+    log: anything with write(record) (JsonLinesLog). verbatim: records per key written
+    in full (>= 0). window: seconds between suppressed-count lines of one key (> 0).
+    """
+
+    def __init__(self, log: Any, verbatim: int = 20, window: float = 1.0, max_keys: int = 64) -> None:
+        if verbatim < 0 or not window > 0 or max_keys < 1:
+            raise ValueError("AggregatingLog: verbatim >= 0, window > 0 and max_keys >= 1")
+        self.log = log
+        self.verbatim = int(verbatim)
+        self.window = float(window)
+        self.max_keys = int(max_keys)
+        self.written: dict[str, int] = {}
+        self.suppressed: dict[str, int] = {}
+        self._pending: dict[str, list] = {}  # key -> [count, first, last, window start]
+        self._lock = threading.Lock()
+
+    def write(self, key: str, record: Mapping[str, Any], now: float) -> None:
+        """Log `record` under `key` (verbatim while under the limit, else counted); now: s."""
+        with self._lock:
+            if key not in self.written and len(self.written) >= self.max_keys:
+                key = "other"
+            written = self.written.get(key, 0)
+            if written < self.verbatim:
+                self.written[key] = written + 1
+                self.log.write(record)
+                return
+            self.written.setdefault(key, written)
+            self.suppressed[key] = self.suppressed.get(key, 0) + 1
+            pending = self._pending.get(key)
+            if pending is None:
+                self._pending[key] = [1, now, now, now]
+            else:
+                pending[0] += 1
+                pending[2] = now
+            self._flush_due(now)
+
+    def _flush_due(self, now: float | None) -> None:
+        for key in list(self._pending):
+            count, first, last, start = self._pending[key]
+            if now is None or now - start >= self.window:
+                self.log.write({"kind": "suppressed", "key": key, "count": count, "first": first, "last": last})
+                del self._pending[key]
+
+    def tick(self, now: float) -> None:
+        """Write the counts whose window has passed (call now and then, so that a flood that
+        stops is still reported before the end)."""
+        with self._lock:
+            self._flush_due(now)
+
+    def flush(self) -> None:
+        """Write every pending count now."""
+        with self._lock:
+            self._flush_due(None)
+
+    def close(self) -> None:
+        self.flush()
+        close = getattr(self.log, "close", None)
+        if close is not None:
+            close()
