@@ -9,8 +9,9 @@ simulated time since boot. Stops on SIGINT/SIGTERM or after --duration simulated
 seconds, closes its sockets and finishes its logs.
 
 Logs (--log-dir): vehicle.csv (true state at --log-rate), events.jsonl (status
-texts, mode changes, every rejected packet), stats.json (counters, pacing),
-rewritten every second and at exit. Lines are flushed as written, so an
+texts, mode changes, rejected packets: the first ones of each reason verbatim, then
+one count line per reason and simulated second), stats.json (exact counters,
+pacing), rewritten every second and at exit. Lines are flushed as written, so an
 interrupted run keeps everything up to the interruption.
 """
 
@@ -27,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, PlantScenario, VehicleConfig, load_plant_scenario
-from interfaces.records import CsvLog, JsonLinesLog, write_json
+from interfaces.records import AggregatingLog, CsvLog, JsonLinesLog, write_json
 from interfaces.link_schema import CLOCK_KEY, ClockTick, encode_clock
 from interfaces.zenoh_transport import LinkError, open_session, publisher, zenoh_config
 from sitl_plant.vehicle.autopilot import Autopilot
@@ -36,6 +37,12 @@ from sitl_plant.vehicle.mavlink_vehicle import COMPANION_STREAMS, GCS_STREAMS, E
 from sitl_plant.vehicle.parameters import ParameterError
 
 DEFAULT_SCENARIO = DEFAULT_SCENARIO
+#: events.jsonl: kinds written as they come (bounded by what the vehicle does, and worth every line).
+VEHICLE_EVENTS = frozenset({"state", "failsafe", "fault", "signing"})
+#: events.jsonl: per key (kind, and reason for rejects) this many records verbatim, then counts.
+EVENTS_VERBATIM = 20
+#: ... except the vehicle's own status texts, which a normal flight has dozens of.
+STATUSTEXT_VERBATIM = 500
 #: When the plant falls this far (simulated seconds) behind the wall clock it stops trying to
 #: catch up and re-anchors; the slip is counted and reported.
 MAX_LAG = 0.25
@@ -49,9 +56,14 @@ def build_vehicle(
     gcs_port: int | None = None,
     seed: int | None = None,
     on_event=None,
+    signing_key: bytes | None = None,
+    sign_cfg: int | None = None,
 ) -> MavlinkVehicle:
     """Autopilot + MAVLink links from a scenario (the plant's sections, load_plant_scenario; a full
-    Scenario has them too); keyword overrides take precedence over [sitl]."""
+    Scenario has them too); keyword overrides take precedence over [sitl].
+
+    signing_key: 32-byte MAVLink signing key for the ground-station link (None: none yet).
+    sign_cfg: MAV_SIGN_CFG override (else [sitl.parameters] or 0)."""
     sitl = scenario.sitl
     speed = sitl.speed_factor if speed_factor is None else speed_factor
     autopilot = Autopilot(
@@ -69,12 +81,40 @@ def build_vehicle(
             autopilot.parameters.set(name, value)
         except ParameterError as error:
             raise ConfigError(f"sitl.parameters.{name}: {error}") from None
+    if sign_cfg is not None:
+        try:
+            autopilot.parameters.set("MAV_SIGN_CFG", sign_cfg)
+        except ParameterError as error:
+            raise ConfigError(f"--mav-sign-cfg: {error}") from None
+    companion = sitl.companion_port if companion_port is None else companion_port
+    gcs = sitl.gcs_port if gcs_port is None else gcs_port
+    if (sitl.companion_host, companion) == (sitl.gcs_host, gcs):
+        raise ConfigError(f"the companion and ground-station links both send to {sitl.gcs_host}:{gcs}; "
+                          "give them different ports")
     links = [
-        LinkSpec("companion", sitl.companion_host, sitl.companion_port if companion_port is None else companion_port,
-                 COMPANION_STREAMS, sitl.bind_host),
-        LinkSpec("gcs", sitl.gcs_host, sitl.gcs_port if gcs_port is None else gcs_port, GCS_STREAMS, sitl.bind_host),
+        LinkSpec("companion", sitl.companion_host, companion, COMPANION_STREAMS, sitl.bind_host),
+        LinkSpec("gcs", sitl.gcs_host, gcs, GCS_STREAMS, sitl.bind_host, signed=True),
     ]
-    return MavlinkVehicle(autopilot, links, Home(*sitl.home), on_event=on_event)
+    vehicle = MavlinkVehicle(autopilot, links, Home(*sitl.home), on_event=on_event)
+    if signing_key is not None:
+        vehicle.set_signing_key(signing_key, source="--signing-key")
+    return vehicle
+
+
+def read_signing_key(path: Path) -> bytes:
+    """A MAVLink signing key file: 64 hexadecimal characters (32 bytes), surrounding whitespace allowed.
+    ConfigError, naming the file but never its content, if it is anything else."""
+    try:
+        text = Path(path).read_text(encoding="ascii").strip()
+    except (OSError, UnicodeDecodeError) as error:
+        raise ConfigError(f"--signing-key {path}: cannot read it ({error.__class__.__name__})") from None
+    if len(text) != 64 or any(c not in "0123456789abcdefABCDEF" for c in text):
+        raise ConfigError(f"--signing-key {path}: want 64 hexadecimal characters (a 32-byte key), "
+                          f"got {len(text)} characters{'' if len(text) != 64 else ' with non-hex ones'}")
+    key = bytes.fromhex(text)
+    if not any(key):
+        raise ConfigError(f"--signing-key {path}: an all-zero key means 'no signing' in MAVLink")
+    return key
 
 
 class RunLog:
@@ -88,17 +128,35 @@ class RunLog:
         self.period = 1.0 / rate_hz if rate_hz > 0 else math.inf
         self._next = 0.0
         self._vehicle = self._events = self._latency = None
+        self._bounded = self._texts = None
         if folder is None:
             return
         self._vehicle = CsvLog(folder / "vehicle.csv", self.COLUMNS)
         self._events = JsonLinesLog(folder / "events.jsonl")
+        # Anything a peer can trigger at its own rate goes through these: a flood adds a bounded number of
+        # lines (first ones verbatim, then one count line per key and simulated second); stats.json is exact.
+        self._bounded = AggregatingLog(self._events, verbatim=EVENTS_VERBATIM, window=1.0)
+        self._texts = AggregatingLog(self._events, verbatim=STATUSTEXT_VERBATIM, window=1.0)
         if latency:
             self._latency = CsvLog(folder / "odometry_sent.csv", ("time_usec", "wall_monotonic_ns"))
 
     def event(self, event: Event) -> None:
-        if self._events is not None:
-            self._events.write({"time": round(event.time, 6), "kind": event.kind, "detail": event.detail,
-                                **event.fields})
+        if self._events is None:
+            return
+        record = {"time": round(event.time, 6), "kind": event.kind, "detail": event.detail, **event.fields}
+        if event.kind in VEHICLE_EVENTS:
+            self._events.write(record)
+        elif event.kind == "statustext":
+            self._texts.write(event.kind, record, event.time)
+        else:
+            reason = event.fields.get("reason")
+            self._bounded.write(f"{event.kind}:{reason}" if reason else event.kind, record, event.time)
+
+    def tick(self, sim_time: float) -> None:
+        """Write the suppressed-count lines that are due (sim_time: s)."""
+        for log in (self._bounded, self._texts):
+            if log is not None:
+                log.tick(sim_time)
 
     def odometry_sent(self, time_usec: int) -> None:
         if self._latency is not None:
@@ -119,6 +177,9 @@ class RunLog:
             write_json(self.folder / "stats.json", stats, indent=2, sort_keys=True)
 
     def close(self) -> None:
+        for log in (self._bounded, self._texts):
+            if log is not None:
+                log.flush()
         for log in (self._vehicle, self._events, self._latency):
             if log is not None:
                 log.close()
@@ -190,9 +251,11 @@ class RealTimeRunner:
             "armed": self.autopilot.armed,
             "setpoints_received": self.autopilot.setpoints_received,
             "links": {link.name: {"bound": list(link.address), "partner": list(link.partner), "sent": link.sent,
-                                  "send_errors": link.send_errors, "dropped_silenced": link.dropped_silenced}
+                                  "send_errors": link.send_errors, "dropped_silenced": link.dropped_silenced,
+                                  "from_strangers": link.from_strangers}
                       for link in self.vehicle.links},
             "mavlink": self.vehicle.stats.as_dict(),
+            "signing": self.vehicle.signing_status(),
         }
 
     def run(self) -> None:
@@ -230,6 +293,7 @@ class RealTimeRunner:
                 select.select(sockets, [], [], (tick - lag) / self.speed)
             if now >= next_stats:
                 next_stats = now + 1.0
+                self.log.tick(ap.time)
                 self.log.write_stats(self.stats())
                 if len(self.tick_cpu) > 20000:
                     del self.tick_cpu[:10000]
@@ -241,18 +305,52 @@ class RealTimeRunner:
         self.log.write_stats(self.stats())
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a bad argument is one line on stderr (no usage block) and exit status 2."""
+
+    def error(self, message: str):  # noqa: D401
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def _number(kind, low: float, high: float = math.inf, low_open: bool = True, what: str = "a number"):
+    """argparse type: a finite number of `kind` in (low, high] (or [low, high] when not low_open)."""
+
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {what}") from None
+        if not math.isfinite(value) or value > high or value < low or (low_open and value == low):
+            bounds = f"{'(' if low_open else '['}{low:g}, {high:g}]"
+            raise argparse.ArgumentTypeError(f"{text} is outside {bounds}")
+        return value
+
+    return parse
+
+
+_port = _number(int, 1, 65535, low_open=False, what="a UDP port")
+_positive = _number(float, 0.0)
+
+
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="sitl-plant", description=__doc__.split("\n\n")[0])
+    parser = _Parser(prog="sitl-plant", description=__doc__.split("\n\n")[0])
     parser.add_argument("--config", type=Path, default=DEFAULT_SCENARIO, help="scenario TOML (default: %(default)s)")
-    parser.add_argument("--speed-factor", type=float, default=None, help="simulated seconds per wall second ([sitl] speed_factor)")
-    parser.add_argument("--companion-port", type=int, default=None, help="UDP port the companion listens on (default 14540)")
-    parser.add_argument("--gcs-port", type=int, default=None, help="UDP port the ground station listens on (default 14550)")
-    parser.add_argument("--duration", type=float, default=None, help="stop after this many simulated seconds")
+    parser.add_argument("--speed-factor", type=_number(float, 0.0, 100.0), default=None,
+                        help="simulated seconds per wall second, in (0, 100] ([sitl] speed_factor)")
+    parser.add_argument("--companion-port", type=_port, default=None, help="UDP port the companion listens on (default 14540)")
+    parser.add_argument("--gcs-port", type=_port, default=None,
+                        help="UDP port the ground station listens on (default 14550 on [sitl] gcs_host, 127.0.0.1)")
+    parser.add_argument("--duration", type=_positive, default=None, help="stop after this many simulated seconds (> 0)")
     parser.add_argument("--seed", type=int, default=None, help="telemetry noise seed ([simulation] seed)")
     parser.add_argument("--log-dir", type=Path, default=None, help="write vehicle.csv, events.jsonl, stats.json here")
-    parser.add_argument("--log-rate", type=float, default=50.0, help="vehicle.csv rows per simulated second")
+    parser.add_argument("--log-rate", type=_positive, default=50.0, help="vehicle.csv rows per simulated second (> 0)")
     parser.add_argument("--latency-log", action="store_true", help="also log wall time of every ODOMETRY sent")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
+    parser.add_argument("--signing-key", type=Path, default=None, metavar="FILE",
+                        help="MAVLink 2 signing key for the ground-station link: a file of 64 hex characters")
+    parser.add_argument("--mav-sign-cfg", type=int, choices=(0, 1), default=None,
+                        help="MAV_SIGN_CFG: 0 signing off, 1 signing required on the ground-station link "
+                             "(default: [sitl.parameters] or 0)")
     parser.add_argument("--zenoh-listen", action="append", default=None, metavar="ENDPOINT",
                         help="publish the simulated clock on Zenoh, listening here (e.g. tcp/127.0.0.1:7447); repeatable")
     parser.add_argument("--zenoh-connect", action="append", default=None, metavar="ENDPOINT",
@@ -263,36 +361,43 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         help="fault injection: the companion link goes silent both ways from START for DURATION "
                              "simulated seconds (adds to [faults.mavlink] blackouts); repeatable")
     parser.add_argument("--no-faults", action="store_true", help="ignore the scenario's [faults.mavlink] blackouts")
-    return parser.parse_args(argv)
+    args = parser.parse_args(argv)
+    if args.companion_port is not None and args.companion_port == args.gcs_port:
+        parser.error(f"--companion-port and --gcs-port are both {args.gcs_port}; the two links need different ports")
+    if not (math.isfinite(args.clock_rate) and args.clock_rate > 0):
+        parser.error(f"argument --clock-rate: {args.clock_rate} is not a positive rate")
+    for start, duration in args.mavlink_blackout or []:
+        if not (math.isfinite(start) and math.isfinite(duration) and start >= 0 and duration > 0):
+            parser.error(f"--mavlink-blackout {start} {duration}: need START >= 0 and DURATION > 0")
+    return args
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = parse_args(argv)
+    try:
+        args = parse_args(argv)
+    except SystemExit as exit_:  # argparse has printed its one line (or the help)
+        return int(exit_.code or 0)
+    log = None
     try:
         scenario, vehicle_config = load_plant_scenario(args.config)
-        for name, port in (("--companion-port", args.companion_port), ("--gcs-port", args.gcs_port)):
-            if port is not None and not 1 <= port <= 65535:
-                raise ConfigError(f"{name}: {port} is not a UDP port")
-        if args.speed_factor is not None and not (0.0 < args.speed_factor <= 100.0):
-            raise ConfigError(f"--speed-factor: {args.speed_factor} outside (0, 100]")
+        key = read_signing_key(args.signing_key) if args.signing_key is not None else None
         log = RunLog(args.log_dir, args.log_rate, args.latency_log)
         vehicle = build_vehicle(scenario, vehicle_config, args.speed_factor, args.companion_port, args.gcs_port,
-                                args.seed, on_event=log.event)
+                                args.seed, on_event=log.event, signing_key=key, sign_cfg=args.mav_sign_cfg)
     except ConfigError as error:
+        if log is not None:
+            log.close()
         print(f"sitl-plant: {error}", file=sys.stderr)
         return 2
     except OSError as error:
+        if log is not None:
+            log.close()
         print(f"sitl-plant: cannot open sockets or logs: {error}", file=sys.stderr)
         return 2
     if args.latency_log:
         vehicle.on_odometry_sent = log.odometry_sent
     windows = [] if args.no_faults else [(b.start, b.start + b.duration) for b in scenario.faults.mavlink.blackouts]
     for start, duration in args.mavlink_blackout or []:
-        if not (math.isfinite(start) and math.isfinite(duration) and start >= 0 and duration > 0):
-            print(f"sitl-plant: --mavlink-blackout {start} {duration}: need START >= 0 and DURATION > 0", file=sys.stderr)
-            vehicle.close()
-            log.close()
-            return 2
         windows.append((start, start + duration))
     vehicle.companion_blackouts = sorted(windows)
     clock = None
@@ -314,6 +419,10 @@ def main(argv: list[str] | None = None) -> int:
     previous = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
     links = ", ".join(f"{link.name} {link.address[0]}:{link.address[1]} -> {link.partner[0]}:{link.partner[1]}"
                       for link in vehicle.links)
+    gcs = next(link for link in vehicle.links if link.name == "gcs")
+    signing = (f"MAV_SIGN_CFG={vehicle.signing_mode}, key {'from ' + vehicle.signing_key_source if vehicle.signing_key_set else 'not set'}")
+    print(f"sitl-plant: ground station (--gcs-port) {gcs.partner[0]}:{gcs.partner[1]}; MAVLink signing: {signing}",
+          flush=True)
     print(f"sitl-plant ready: {scenario.name}, speed x{speed:g}, links: {links}", flush=True)
     try:
         runner.run()

@@ -1,14 +1,26 @@
 """MAVLink 2 around the autopilot: the plant speaks to a companion and a ground station like PX4 SITL.
 
-Each link is one UDP socket, like one PX4 mavlink instance: it sends to the
-partner's port (14540 for the offboard/companion link, 14550 for the ground
-station, both configurable) and follows the partner's address once it hears from
-it. Encoding and parsing are pymavlink's (MAVLink 2, common dialect); this module
-only decides what PX4 would answer.
+Each link is one UDP socket, like one PX4 mavlink instance: it sends everything
+(streams, heartbeats, answers) to its configured partner (14540 for the
+offboard/companion link, 14550 for the ground station, both configurable) and never
+re-targets to whoever sent the last datagram, so a stranger on the port can neither
+steal the stream nor receive answers. Encoding, parsing and MAVLink 2 signing are
+pymavlink's (common dialect); this module only decides what PX4 would answer.
 
-Every incoming packet is either used, ignored as not ours/not needed (counted in
-`ignored`), or rejected as malformed (counted in `rejected` by reason, logged as an
-event). Nothing a peer sends can raise out of `handle_datagram`.
+Every incoming datagram is used, ignored as not ours/not needed (counted per message
+in `ignored`), or rejected: `rejected` counts one per datagram, under the reason of its
+first problem (a fuzzer's datagram counts once however many frames it breaks into);
+`reject_events` counts every problem found. Each reject is an event for the run log.
+Nothing a peer sends can raise out of `handle_datagram`.
+
+Signing (MAV_SIGN_CFG = 1, as PX4's MavlinkSignControl): on the ground-station link
+only frames with a valid signature under the key are used, except RADIO_STATUS,
+ADSB_VEHICLE and COLLISION which PX4 also takes unsigned; unsigned, badly signed and
+replayed frames are refused and counted by reason. Without a key that link refuses
+everything but those three, as PX4 does on a non-USB link. The key comes from a file
+(sitl-plant --signing-key) or a SETUP_SIGNING on the companion link; it is never a
+parameter. The companion link stays unsigned both ways (on an aircraft it is a wire,
+and MAVSDK cannot sign).
 """
 
 from __future__ import annotations
@@ -24,6 +36,7 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 os.environ.setdefault("MAVLINK20", "1")  # before pymavlink is imported anywhere
+from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import common as mavlink  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -31,7 +44,7 @@ import pymap3d  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
 from sitl_plant.vehicle.autopilot import Autopilot, OffboardAttitude, OffboardTrajectory  # noqa: E402
-from sitl_plant.vehicle.parameters import Parameter, ParameterError  # noqa: E402
+from sitl_plant.vehicle.parameters import SIGNING_OFF, Parameter, ParameterError  # noqa: E402
 from sitl_plant.vehicle.px4_modes import (  # noqa: E402
     HOLD,
     LAND,
@@ -44,12 +57,19 @@ from sitl_plant.vehicle.px4_modes import (  # noqa: E402
     mode_from_main_sub,
 )
 
-THRUST_BODY_SET = 32  # ATTITUDE_TARGET_TYPEMASK_THRUST_BODY_SET (not in every pymavlink's enum)
+#: ATTITUDE_TARGET_TYPEMASK_THRUST_BODY_SET. No released pymavlink (2.4.50 included) decodes the
+#: thrust_body field it refers to, so a setpoint with this bit is refused rather than flown on thrust 0.
+THRUST_BODY_SET = 32
 #: A setpoint quaternion whose norm is further than this from 1 is rejected, not renormalised.
 QUATERNION_NORM_TOLERANCE = 0.05
-#: The partner's address is forgotten and the default port used again after this much
-#: wall-clock silence, so a restarted companion is found again.
-PARTNER_TIMEOUT = 5.0
+#: Messages PX4 accepts unsigned when signing is required (MavlinkSignControl's list).
+UNSIGNED_ALLOWED = frozenset({
+    mavlink.MAVLINK_MSG_ID_RADIO_STATUS, mavlink.MAVLINK_MSG_ID_ADSB_VEHICLE, mavlink.MAVLINK_MSG_ID_COLLISION,
+})
+#: Seconds from the Unix epoch to 2015-01-01, the origin of MAVLink signing timestamps (units of 10 us).
+_SIGNING_EPOCH = 1420070400
+#: A new signed stream may start at most this far (10 us units) behind our timestamp (pymavlink: one minute).
+_NEW_STREAM_WINDOW = 6000 * 1000
 
 _SENSORS = (
     mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO
@@ -138,7 +158,10 @@ class Home:
 
 @dataclass
 class LinkSpec:
-    """Where a link sends until it hears from its partner, and where it binds (loopback by default)."""
+    """Where a link sends (its partner, always) and where it binds (loopback by default).
+
+    signed: MAV_SIGN_CFG applies to this link (the ground-station link); signed outgoing traffic
+    whenever a key is set."""
 
     name: str
     partner_host: str
@@ -146,37 +169,104 @@ class LinkSpec:
     streams: dict[int, float]
     bind_host: str = "127.0.0.1"
     bind_port: int = 0
+    signed: bool = False
+
+
+class _SigningHolder:
+    """Lets pymavlink's mavfile.setup_signing/disable_signing act on a bare MAVLink object."""
+
+    def __init__(self, mav: mavlink.MAVLink) -> None:
+        self.mav = mav
+
+
+def signing_timestamp(unix_time: float | None = None) -> int:
+    """MAVLink signing timestamp (10 us units since 2015-01-01 UTC) of a Unix time (s; default now)."""
+    now = time.time() if unix_time is None else unix_time
+    return int(max(now - _SIGNING_EPOCH, 0.0) * 100_000)
 
 
 class Link:
     """One UDP socket speaking MAVLink 2 as system 1 / component 1 (one PX4 mavlink instance)."""
 
-    def __init__(self, spec: LinkSpec, system_id: int, component_id: int) -> None:
+    def __init__(self, spec: LinkSpec, system_id: int, component_id: int, link_id: int = 0) -> None:
         self.spec = spec
         self.name = spec.name
+        self.link_id = link_id  # MAVLink signing link id of our outgoing stream (PX4: the instance number)
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.setblocking(False)
         self.sock.bind((spec.bind_host, spec.bind_port))
         self.address: tuple[str, int] = self.sock.getsockname()
-        self.default_partner = (spec.partner_host, spec.partner_port)
-        self.partner = self.default_partner
-        self.partner_heard_wall = -math.inf
+        self.partner = (spec.partner_host, spec.partner_port)
         self.mav = mavlink.MAVLink(self, srcSystem=system_id, srcComponent=component_id)  # encoder (own sequence)
-        self.parser = self.new_parser()
+        self.parser = mavlink.MAVLink(None)
+        self.parser.robust_parsing = True  # bad frames become BAD_DATA messages
+        # Why the signature of a frame failed (frame bytes -> reason), filled while a datagram is parsed.
+        self.signature_failures: dict[bytes, str] = {}
+        self._install_signature_check()
         self.intervals: dict[int, float] = {mid: (1.0 / hz if hz > 0 else 0.0) for mid, hz in spec.streams.items()}
         self.defaults = dict(self.intervals)
         self.next_due: dict[int, float] = {mid: 0.0 for mid in self.intervals}
         self.sent = 0
         self.send_errors = 0
+        self.from_strangers = 0  # datagrams from an address other than the partner's (used all the same)
         self.silenced = False  # fault injection: the link is down both ways
         self.dropped_silenced = 0
 
-    @staticmethod
-    def new_parser() -> mavlink.MAVLink:
-        """A fresh receive-side parser; robust parsing turns bad frames into BAD_DATA messages."""
-        parser = mavlink.MAVLink(None)
-        parser.robust_parsing = True
-        return parser
+    def reset_parser(self) -> None:
+        """Drop a half-read frame: a fresh parser that keeps the signing state (key, stream timestamps)."""
+        signing = self.parser.signing
+        self.parser = mavlink.MAVLink(None)
+        self.parser.robust_parsing = True
+        self.parser.signing = signing
+        self._install_signature_check()
+
+    def _install_signature_check(self) -> None:
+        parser = self.parser
+        verify = parser.check_signature  # pymavlink's HMAC-SHA-256 check, bound to this parser
+
+        def check_signature(msgbuf: bytearray, src_system: int, src_component: int) -> bool:
+            # pymavlink stores a stream's timestamp before it checks the signature, so one forged frame
+            # with a far-future timestamp would make every genuine frame of that stream look replayed.
+            # Keep the state of a failed check as it was, and note why it failed.
+            signing = parser.signing
+            key = (msgbuf[-13], src_system, src_component)
+            stamp = int.from_bytes(bytes(msgbuf[-12:-6]), "little")
+            previous = signing.stream_timestamps.get(key)
+            own = signing.timestamp
+            if verify(msgbuf, src_system, src_component):
+                return True
+            if previous is None:
+                signing.stream_timestamps.pop(key, None)
+            else:
+                signing.stream_timestamps[key] = previous
+            signing.timestamp = own
+            if previous is not None and stamp <= previous:
+                reason = "signing_replayed"
+            elif previous is None and stamp + _NEW_STREAM_WINDOW < own:
+                reason = "signing_stale_timestamp"
+            else:
+                reason = "signing_bad_signature"
+            if len(self.signature_failures) < 64:
+                self.signature_failures[bytes(msgbuf)] = reason
+            return False
+
+        parser.check_signature = check_signature
+
+    def set_signing(self, key: bytes | None, allow_unsigned, initial_timestamp: int) -> None:
+        """Sign outgoing frames and check incoming ones with `key` (32 bytes), or stop signing (None).
+
+        allow_unsigned(mav, message_id) -> bool: pymavlink's callback for unsigned or badly signed frames."""
+        if key is None:
+            mavutil.mavfile.disable_signing(_SigningHolder(self.mav))
+            mavutil.mavfile.disable_signing(_SigningHolder(self.parser))
+            self.parser.signing.stream_timestamps.clear()
+            return
+        mavutil.mavfile.setup_signing(_SigningHolder(self.mav), key, sign_outgoing=True,
+                                      initial_timestamp=initial_timestamp, link_id=self.link_id)
+        mavutil.mavfile.setup_signing(_SigningHolder(self.parser), key, sign_outgoing=False,
+                                      allow_unsigned_callback=allow_unsigned, initial_timestamp=initial_timestamp,
+                                      link_id=self.link_id)
+        self.parser.signing.stream_timestamps.clear()
 
     def write(self, data: bytes) -> None:
         """pymavlink's file interface: one packet per datagram to the partner."""
@@ -214,11 +304,13 @@ class Event:
 
 @dataclass
 class MavlinkStats:
-    """Per-run counters: packets used per message type, ignored ones, rejected ones by reason."""
+    """Per-run counters: packets used per message type, ignored ones, rejected datagrams by the reason of
+    their first problem (one per datagram), every reject event by reason, commands by name."""
 
     received: collections.Counter = field(default_factory=collections.Counter)
     ignored: collections.Counter = field(default_factory=collections.Counter)
     rejected: collections.Counter = field(default_factory=collections.Counter)
+    reject_events: collections.Counter = field(default_factory=collections.Counter)
     commands: collections.Counter = field(default_factory=collections.Counter)
 
     def as_dict(self) -> dict:
@@ -226,6 +318,7 @@ class MavlinkStats:
             "received": dict(self.received),
             "ignored": dict(self.ignored),
             "rejected": dict(self.rejected),
+            "reject_events": dict(self.reject_events),
             "commands": dict(self.commands),
         }
 
@@ -239,21 +332,21 @@ def validate_attitude_target(msg: mavlink.MAVLink_set_attitude_target_message) -
 
     Attitude and thrust are what the plant flies; body rates are accepted only as
     'ignored' or all zero (this plant has no rate-setpoint mode). Thrust is
-    normalised in [0, 1]; with THRUST_BODY_SET it is -thrust_body z.
+    normalised in [0, 1]. THRUST_BODY_SET is refused: pymavlink does not decode the
+    thrust_body field it points to.
     """
     mask = int(msg.type_mask)
     ignore_attitude = bool(mask & mavlink.ATTITUDE_TARGET_TYPEMASK_ATTITUDE_IGNORE)
     ignore_thrust = bool(mask & mavlink.ATTITUDE_TARGET_TYPEMASK_THROTTLE_IGNORE)
     values = [*msg.q, msg.thrust, msg.body_roll_rate, msg.body_pitch_rate, msg.body_yaw_rate]
-    thrust_body = getattr(msg, "thrust_body", None)
-    if thrust_body is not None:
-        values.extend(thrust_body)
     if not all(math.isfinite(v) for v in values):
         raise Rejected("setpoint_not_finite", f"NaN or inf in {values}")
     rates = (msg.body_roll_rate, msg.body_pitch_rate, msg.body_yaw_rate)
     asked = [rate for bit, rate in zip((1, 2, 4), rates) if not mask & bit and rate != 0.0]
     if asked:
         raise Rejected("setpoint_rates_unsupported", f"type_mask {mask:#x} asks for body rates {rates}")
+    if mask & THRUST_BODY_SET and not ignore_thrust:
+        raise Rejected("setpoint_thrust_body_unsupported", f"type_mask {mask:#x}: THRUST_BODY_SET (no thrust_body field)")
     if ignore_attitude and ignore_thrust:
         raise Rejected("setpoint_empty", f"type_mask {mask:#x} ignores both attitude and thrust")
     quaternion = None
@@ -267,14 +360,7 @@ def validate_attitude_target(msg: mavlink.MAVLink_set_attitude_target_message) -
         quaternion = (w / norm, x / norm, y / norm, z / norm)
     thrust = None
     if not ignore_thrust:
-        if mask & THRUST_BODY_SET:
-            if thrust_body is None:
-                raise Rejected("setpoint_thrust_body_missing", "THRUST_BODY_SET without thrust_body")
-            if thrust_body[0] != 0.0 or thrust_body[1] != 0.0:
-                raise Rejected("setpoint_rates_unsupported", f"thrust_body {tuple(thrust_body)} not along body z")
-            thrust = -float(thrust_body[2])
-        else:
-            thrust = float(msg.thrust)
+        thrust = float(msg.thrust)
         if not 0.0 <= thrust <= 1.0:
             raise Rejected("setpoint_thrust_out_of_range", f"thrust {thrust} outside [0, 1]")
     return OffboardAttitude(quaternion, thrust)
@@ -368,8 +454,11 @@ class MavlinkVehicle:
         self.home = home
         self.system_id = system_id
         self.component_id = component_id
-        self.links = [Link(spec, system_id, component_id) for spec in links]
+        self.links = [Link(spec, system_id, component_id, link_id=index) for index, spec in enumerate(links)]
         self.stats = MavlinkStats()
+        self._signing_key: bytes | None = None  # never a parameter, never logged
+        self.signing_key_source = "none"
+        self._datagram_rejects: list[tuple[str, str]] | None = None
         self.on_event = on_event or (lambda event: None)
         self.unix_epoch = time.time() if unix_epoch is None else unix_epoch
         self._next_heartbeat = 0.0
@@ -394,8 +483,55 @@ class MavlinkVehicle:
         self.on_event(Event(self.autopilot.time, kind, detail, fields))
 
     def _reject(self, link: Link, reason: str, detail: str) -> None:
-        self.stats.rejected[reason] += 1
-        self._event("rejected", f"{link.name}: {reason}: {detail}")
+        """One problem with incoming traffic: an event and a reject_events count; `rejected` counts the
+        datagram once, under its first problem (at the end of handle_datagram)."""
+        self.stats.reject_events[reason] += 1
+        self._event("rejected", f"{link.name}: {reason}: {detail}", reason=reason, link=link.name)
+        if self._datagram_rejects is not None:
+            self._datagram_rejects.append((reason, detail))
+        else:
+            self.stats.rejected[reason] += 1
+
+    # --------------------------------------------------------------- signing
+    @property
+    def signing_mode(self) -> int:
+        """MAV_SIGN_CFG: 0 off, 1 signing required on the ground-station link."""
+        return int(self.autopilot.parameters.value("MAV_SIGN_CFG"))
+
+    @property
+    def signing_key_set(self) -> bool:
+        return self._signing_key is not None
+
+    def set_signing_key(self, key: bytes | None, initial_timestamp: int = 0, source: str = "file") -> None:
+        """Use `key` (32 bytes) on the signed links from now on, or none (None or all zero, as PX4).
+
+        initial_timestamp: signing timestamp (10 us since 2015) to start from; the wall clock's
+        if that is later. The key itself is never logged or served as a parameter."""
+        if key is not None and len(key) != 32:
+            raise ValueError(f"a MAVLink signing key is 32 bytes, got {len(key)}")
+        if key is not None and not any(key) and initial_timestamp == 0:
+            key = None  # PX4: an all-zero key with a zero timestamp clears signing
+        self._signing_key = None if key is None else bytes(key)
+        self.signing_key_source = "none" if key is None else source
+        stamp = max(int(initial_timestamp), signing_timestamp())
+        for link in self.links:
+            if link.spec.signed:
+                link.set_signing(self._signing_key, self._allow_unsigned, stamp)
+        self._event("signing", f"signing key {'set' if key is not None else 'cleared'} ({source})",
+                    key_set=key is not None, source=source)
+
+    def _allow_unsigned(self, mav, message_id: int) -> bool:
+        """pymavlink's allow_unsigned_callback: what a signed link takes without a valid signature."""
+        return self.signing_mode == SIGNING_OFF or message_id in UNSIGNED_ALLOWED
+
+    def signing_status(self) -> dict:
+        """For stats.json: mode, whether a key is set and where from, signature counts per signed link."""
+        return {"MAV_SIGN_CFG": self.signing_mode, "key_set": self.signing_key_set, "key_source": self.signing_key_source,
+                "links": {link.name: {"good_signatures": link.parser.signing.goodsig_count,
+                                      "bad_signatures": link.parser.signing.badsig_count,
+                                      "accepted_unsigned": link.parser.signing.unsigned_count,
+                                      "refused_unsigned": link.parser.signing.reject_count}
+                          for link in self.links if link.spec.signed}}
 
     def close(self) -> None:
         for link in self.links:
@@ -436,38 +572,54 @@ class MavlinkVehicle:
         On UDP a datagram carries whole frames. Bytes left over at its end (a cut-off
         frame, or garbage with a start byte in it) are rejected as 'truncated_frame' and
         dropped with the parser state, so they can never swallow the next datagram.
+        A datagram with any problem counts once in stats.rejected, under its first one.
         """
         if link.silenced:
             link.dropped_silenced += 1
             return
+        if address is not None and address != link.partner:
+            link.from_strangers += 1
+        link.signature_failures.clear()
+        self._datagram_rejects = problems = []
         try:
-            messages = link.parser.parse_buffer(data) or []
-        except Exception as error:  # pymavlink raises for a few corrupt headers even when robust
-            self._reject(link, "bad_data", f"parser error: {error}")
-            link.parser = link.new_parser()
-            return
-        if link.parser.buf_len() > 0:
-            self._reject(link, "truncated_frame", f"{link.parser.buf_len()} bytes of an incomplete frame")
-            link.parser = link.new_parser()
-        for msg in messages:
             try:
-                self.handle_message(link, msg, address)
-            except Rejected as rejected:
-                self._reject(link, rejected.args[0], rejected.args[1])
-            except Exception as error:  # a bug here must not take the vehicle down
-                self._reject(link, "handler_error", f"{msg.get_type()}: {error!r}")
+                messages = link.parser.parse_buffer(data) or []
+            except Exception as error:  # pymavlink raises for a few corrupt headers even when robust
+                self._reject(link, "bad_data", f"parser error: {error}")
+                link.reset_parser()
+                return
+            if link.parser.buf_len() > 0:
+                self._reject(link, "truncated_frame", f"{link.parser.buf_len()} bytes of an incomplete frame")
+                link.reset_parser()
+            for msg in messages:
+                try:
+                    self.handle_message(link, msg, address)
+                except Rejected as rejected:
+                    self._reject(link, rejected.args[0], rejected.args[1])
+                except Exception as error:  # a bug here must not take the vehicle down
+                    self._reject(link, "handler_error", f"{msg.get_type()}: {error!r}")
+        finally:
+            self._datagram_rejects = None
+            if problems:
+                self.stats.rejected[problems[0][0]] += 1
 
     def handle_message(self, link: Link, msg: mavlink.MAVLink_message, address: tuple[str, int] | None) -> None:
         kind = msg.get_type()
         if kind == "BAD_DATA":
             reason = msg.reason.lower()
+            if "invalid signature" in reason:
+                frame = bytes(msg.data)
+                signed = len(frame) > 2 and frame[0] == mavlink.PROTOCOL_MARKER_V2 and frame[2] & mavlink.MAVLINK_IFLAG_SIGNED
+                key = link.signature_failures.get(frame, "signing_bad_signature") if signed else "signing_unsigned"
+                raise Rejected(key, f"{'signed' if signed else 'unsigned'} frame refused ({_frame_message_name(frame)})")
             key = "bad_crc" if "crc" in reason else ("bad_prefix" if "prefix" in reason else "bad_data")
             raise Rejected(key, msg.reason)
         if kind == "UNKNOWN" or isinstance(msg, mavlink.MAVLink_unknown):
             raise Rejected("unknown_message_id", f"message id {msg.get_msgId()}")
-        if address is not None:
-            link.partner = address
-            link.partner_heard_wall = time.monotonic()
+        if (link.spec.signed and self._signing_key is None and self.signing_mode != SIGNING_OFF
+                and msg.get_msgId() not in UNSIGNED_ALLOWED):
+            # PX4 with signing required and no key takes nothing on a non-USB link but the allowed few.
+            raise Rejected("signing_no_key", f"{kind}: signing required and no key set")
         target = getattr(msg, "target_system", None)
         if target is not None and target not in (0, self.system_id):
             self.stats.ignored[f"{kind}:other_system"] += 1
@@ -490,6 +642,14 @@ class MavlinkVehicle:
     def _on_set_position_target_local_ned(self, link: Link, msg) -> None:
         _, _, yaw = _euler(self.autopilot.telemetry().quaternion)
         self.autopilot.offboard_trajectory(validate_position_target(msg, yaw))
+
+    def _on_setup_signing(self, link: Link, msg) -> None:
+        """SETUP_SIGNING sets (or, all zero, clears) the key: taken on the companion link only, which on an
+        aircraft is a wire; on the ground-station link it would let anyone on the network set the key."""
+        if link.spec.signed:
+            raise Rejected("setup_signing_refused", "SETUP_SIGNING is taken on the companion link only")
+        key = bytes(msg.secret_key)
+        self.set_signing_key(key, int(msg.initial_timestamp), source=f"SETUP_SIGNING on the {link.name} link")
 
     def _on_command_long(self, link: Link, msg) -> None:
         params = (msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7)
@@ -524,10 +684,14 @@ class MavlinkVehicle:
                 return ap.disarm(force)
             return CommandResult.DENIED
         if command == mavlink.MAV_CMD_NAV_TAKEOFF:
-            altitude = p[6]
-            return ap.takeoff(None if not math.isfinite(altitude) else altitude - self.home.altitude)
+            return self._takeoff(p[6])
         if command == mavlink.MAV_CMD_NAV_LAND:
             return ap.land()
+        if command == mavlink.MAV_CMD_DO_LAND_START:
+            # PX4 (navigator) starts the mission's landing sequence; with no mission landing it warns on its
+            # console only and answers CANCELLED. The plant has no missions. MAV_CMD_NAV_LAND or Land mode lands.
+            self._event("command_cancelled", f"{link.name}: DO_LAND_START: planned mission landing not available")
+            return CommandResult.CANCELLED
         if command == mavlink.MAV_CMD_DO_SET_MODE:
             if not int(p[0]) & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
                 return CommandResult.UNSUPPORTED
@@ -550,6 +714,26 @@ class MavlinkVehicle:
         if command == mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
             return self._send_once(link, mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
         return CommandResult.UNSUPPORTED
+
+    def _takeoff(self, altitude_amsl: float) -> CommandResult:
+        """MAV_CMD_NAV_TAKEOFF as PX4 takes param7 (m AMSL): unset (NaN) means home + MIS_TAKEOFF_ALT,
+        said in an info text; a value below that is raised to it, with a critical text when more
+        than 0.1 m below (PX4's navigator takeoff); above it, flown as given."""
+        minimum = float(self.autopilot.parameters.value("MIS_TAKEOFF_ALT"))
+        text = None
+        if not math.isfinite(altitude_amsl):
+            relative = minimum
+            text = (Severity.INFO, f"Using minimum takeoff altitude: {minimum:.2f} m")
+        else:
+            relative = altitude_amsl - self.home.altitude
+            if relative < minimum:
+                if relative < minimum - 0.1:
+                    text = (Severity.CRITICAL, f"Using minimum takeoff altitude: {minimum:.2f} m")
+                relative = minimum
+        result = self.autopilot.takeoff(relative)
+        if result == CommandResult.ACCEPTED and text is not None:
+            self._statustext(*text)
+        return result
 
     def _set_message_interval(self, link: Link, message_id: int, interval_us: float) -> CommandResult:
         if message_id not in STREAMABLE or message_id == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
@@ -597,8 +781,7 @@ class MavlinkVehicle:
             self._event("param_set", f"{parameter.name} = {parameter.value:g}")
         except ParameterError as error:
             parameter = table.get(msg.param_id)
-            self.stats.rejected["param_set_refused"] += 1
-            self._event("rejected", f"{link.name}: param_set_refused: {error}")
+            self._reject(link, "param_set_refused", str(error))
             self._statustext(Severity.WARNING, f"Param set refused: {error}")
         for each in self.links:  # PX4 broadcasts the new value on every link
             self._send_param(each, parameter)
@@ -659,12 +842,16 @@ class MavlinkVehicle:
             self._last_mode, self._last_armed = ap.mode, ap.armed
         for severity, text in ap.take_status_texts():
             self._statustext(severity, text)
-        wall = time.monotonic()
-        for link in self.links:
-            if link.partner != link.default_partner and wall - link.partner_heard_wall > PARTNER_TIMEOUT:
-                link.partner = link.default_partner
         if now >= self._next_heartbeat:
             self._next_heartbeat = now + 1.0
+            if self._signing_key is not None:
+                # Our signing clocks follow the wall clock (as a real autopilot's do), so a peer that
+                # restarts takes our new stream and an old captured frame is refused as stale.
+                wall_stamp = signing_timestamp()
+                for link in self.links:
+                    if link.spec.signed:
+                        for mav in (link.mav, link.parser):
+                            mav.signing.timestamp = max(mav.signing.timestamp, wall_stamp)
             for link in self.links:
                 self._send(link, self._heartbeat(link))
         for link in self.links:
@@ -816,6 +1003,18 @@ class MavlinkVehicle:
     def _autopilot_version(self, link: Link):
         return link.mav.autopilot_version_encode(
             CAPABILITIES, FLIGHT_SW_VERSION, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 1)
+
+
+def _frame_message_name(frame: bytes) -> str:
+    """The message name a raw MAVLink frame announces in its header (for log lines)."""
+    if len(frame) >= 10 and frame[0] == mavlink.PROTOCOL_MARKER_V2:
+        message_id = int.from_bytes(frame[7:10], "little")
+    elif len(frame) >= 6 and frame[0] == mavlink.PROTOCOL_MARKER_V1:
+        message_id = frame[5]
+    else:
+        return "?"
+    kind = mavlink.mavlink_map.get(message_id)
+    return kind.msgname if kind is not None else f"id {message_id}"
 
 
 def _i16(value: float) -> int:

@@ -105,6 +105,12 @@ OFFBOARD_LOSS_POSITION = 0
 OFFBOARD_LOSS_LAND = 4
 OFFBOARD_LOSS_HOLD = 5
 
+# MAV_SIGN_CFG values (PX4's parameter). PX4: 0 signing optional, 1 required except on USB, 2 always.
+# The plant has no USB link; 1 requires signing on the ground-station link and leaves the companion link
+# unsigned (the wire to the companion stands where PX4's exemption is USB). 2 is refused, not faked.
+SIGNING_OFF = 0
+SIGNING_REQUIRED_ON_GCS = 1
+
 
 def default_parameters(params: QuadrotorParams, max_tilt_deg: float, speed_factor: float) -> ParameterTable:
     """The plant's parameters, PX4 defaults where PX4 has the parameter."""
@@ -116,7 +122,7 @@ def default_parameters(params: QuadrotorParams, max_tilt_deg: float, speed_facto
         Parameter("MPC_TKO_SPEED", 1.5, "float", "Takeoff climb rate", 0.5, 5.0, unit="m/s"),
         Parameter("MPC_LAND_SPEED", 0.7, "float", "Landing descent rate", 0.3, 3.0, unit="m/s"),
         Parameter("MPC_XY_VEL_MAX", 5.0, "float", "Horizontal speed limit in position modes", 0.5, 20.0, unit="m/s"),
-        Parameter("MIS_TAKEOFF_ALT", 2.5, "float", "Takeoff altitude above home", 0.5, 100.0, unit="m"),
+        Parameter("MIS_TAKEOFF_ALT", 2.5, "float", "Takeoff altitude above home, also the lowest a takeoff command gets", 0.5, 100.0, unit="m"),
         Parameter("COM_OF_LOSS_T", 1.0, "float", "Offboard setpoint loss timeout", 0.1, 60.0, unit="s"),
         Parameter("COM_OBL_RC_ACT", OFFBOARD_LOSS_POSITION, "int",
                   "Offboard loss action: 0 Position (hold), 4 Land, 5 Hold", 0, 7,
@@ -124,6 +130,9 @@ def default_parameters(params: QuadrotorParams, max_tilt_deg: float, speed_facto
         Parameter("COM_DISARM_LAND", 2.0, "float", "Disarm this long after landing; <= 0 never", -1.0, 20.0, unit="s"),
         Parameter("COM_DISARM_PRFLT", 10.0, "float", "Disarm this long after arming without takeoff; <= 0 never",
                   -1.0, 60.0, unit="s"),
+        Parameter("MAV_SIGN_CFG", SIGNING_OFF, "int",
+                  "MAVLink 2 signing: 0 off, 1 required on the ground-station link (the key is not a parameter)",
+                  0, 2, allowed=(SIGNING_OFF, SIGNING_REQUIRED_ON_GCS)),
         Parameter("SIM_SPEED_FACTOR", speed_factor, "float", "Simulation speed over wall clock", writable=False),
         Parameter("SIM_MASS", params.mass, "float", "Vehicle mass", writable=False, unit="kg"),
         Parameter("SIM_IXX", params.inertia[0], "float", "Inertia about body x", writable=False, unit="kg m^2"),

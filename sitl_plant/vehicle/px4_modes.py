@@ -103,6 +103,7 @@ class CommandResult(enum.IntEnum):
     UNSUPPORTED = 3
     FAILED = 4
     IN_PROGRESS = 5
+    CANCELLED = 6
 
 
 class Severity(enum.IntEnum):
