@@ -16,6 +16,8 @@ import struct
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 os.environ["MAVLINK20"] = "1"
@@ -34,6 +36,7 @@ from dataclasses import replace  # noqa: E402
 from sitl_plant.vehicle.params import QuadrotorParams, table1_params  # noqa: E402
 from sitl_plant.vehicle.px4_modes import (  # noqa: E402
     HOLD,
+    LAND,
     OFFBOARD,
     POSITION,
     TAKEOFF,
@@ -360,6 +363,56 @@ def test_takeoff_command_uses_param7_as_amsl_altitude(harness) -> None:
     assert h.autopilot.mode == TAKEOFF
     h.fly_silently(7.0)
     assert -h.autopilot.state.position[2] == pytest.approx(3.5, abs=0.05)
+
+
+TAKEOFF_CASES = [
+    # (param7 in m AMSL, expected height above home in m, STATUSTEXT severity and text PX4's navigator sends, if any)
+    (HOME.altitude + 3.5, 3.5, None),
+    (10.0, 2.5, (Severity.CRITICAL, "Using minimum takeoff altitude: 2.50 m")),  # MAVProxy's `takeoff 10`
+    (math.nan, 2.5, (Severity.INFO, "Using minimum takeoff altitude: 2.50 m")),
+    (HOME.altitude + 2.45, 2.5, None),  # within PX4's 0.1 m of the minimum: raised without a word
+    (HOME.altitude - 50.0, 2.5, (Severity.CRITICAL, "Using minimum takeoff altitude: 2.50 m")),
+]
+
+
+@pytest.mark.parametrize("param7, height, text", TAKEOFF_CASES, ids=["above", "mavproxy-10", "nan", "just-below", "below-home"])
+def test_takeoff_altitude_is_handled_as_px4_does(harness, param7, height, text) -> None:
+    """PX4: param7 is AMSL; unset -> home + MIS_TAKEOFF_ALT; below that minimum -> the minimum (2.5 m default)."""
+    h = harness(params=NOISE_FREE)
+    h.fly_silently(ARMING_READY_AFTER + 0.1)
+    h.command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1.0)
+    h.step(0.01)
+    h.companion.take()
+    h.command_long(mavlink.MAV_CMD_NAV_TAKEOFF, *([math.nan] * 6), param7)
+    h.step(0.01)
+    texts = [(t.severity, t.text) for t in h.companion.of_type("STATUSTEXT")]
+    acks = h.companion.take("COMMAND_ACK")
+    assert [(a.command, a.result) for a in acks] == [(mavlink.MAV_CMD_NAV_TAKEOFF, CommandResult.ACCEPTED)]
+    minimum_texts = [t for t in texts if "minimum takeoff altitude" in t[1]]
+    assert minimum_texts == ([] if text is None else [(int(text[0]), text[1])])
+    h.fly_silently(8.0)
+    assert -h.autopilot.state.position[2] == pytest.approx(height, abs=0.05)
+
+
+def test_do_land_start_without_a_mission_landing_is_cancelled_as_px4_answers_it(harness) -> None:
+    """PX4 answers DO_LAND_START (MAVProxy's `land`) with CANCELLED when no mission has a landing; the
+    vehicle goes on holding. NAV_LAND (or Land mode) is how it lands."""
+    h = harness()
+    h.hover(3.0)
+    h.command_long(mavlink.MAV_CMD_DO_LAND_START, target=(1, 0))
+    single_ack(h, mavlink.MAV_CMD_DO_LAND_START, CommandResult.CANCELLED)
+    assert h.autopilot.mode == HOLD
+    h.command_long(mavlink.MAV_CMD_NAV_LAND)
+    single_ack(h, mavlink.MAV_CMD_NAV_LAND, CommandResult.ACCEPTED)
+    assert h.autopilot.mode == LAND
+
+
+def test_land_mode_by_do_set_mode_as_mavproxy_mode_land_sends_it(harness) -> None:
+    h = harness()
+    h.hover(3.0)
+    h.command_long(mavlink.MAV_CMD_DO_SET_MODE, CUSTOM, MainMode.AUTO, 6.0)
+    single_ack(h, mavlink.MAV_CMD_DO_SET_MODE, CommandResult.ACCEPTED)
+    assert h.autopilot.mode == LAND
 
 
 def test_commands_to_another_system_or_component_are_ignored_without_ack(harness) -> None:
@@ -965,3 +1018,116 @@ def test_unusable_position_targets_are_rejected_by_reason(harness, mask, frame, 
     _position_target(h, mask, frame=frame, **kwargs)
     assert h.vehicle.stats.rejected[key] == 1
     assert h.autopilot.setpoints_received == 0
+
+
+def test_thrust_body_set_is_refused_because_pymavlink_has_no_thrust_body_field(harness) -> None:
+    h = harness()
+    assert "thrust_body" not in mavlink.MAVLink_set_attitude_target_message.fieldnames
+    h.setpoint(type_mask=RATES_IGNORED | 32)  # ATTITUDE_TARGET_TYPEMASK_THRUST_BODY_SET
+    assert h.vehicle.stats.rejected == {"setpoint_thrust_body_unsupported": 1}
+    assert h.autopilot.setpoints_received == 0
+    valid_setpoint_still_works(h)
+
+
+# --------------------------------------------------------------------------- partners, counting, logs
+
+
+def test_the_gcs_stream_stays_with_the_configured_gcs_while_an_intruder_talks(harness) -> None:
+    h = harness()
+    intruder = Client()
+    try:
+        for _ in range(5):
+            data = h.mav.heartbeat_encode(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0).pack(h.mav)
+            h.vehicle.handle_datagram(h.vehicle.links[1], data, intruder.address)
+            h.command_long(mavlink.MAV_CMD_REQUEST_MESSAGE, mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION, link=1)
+            h.vehicle.handle_datagram(h.vehicle.links[1], h.mav.param_request_list_encode(1, 1).pack(h.mav),
+                                      intruder.address)
+            h.step(0.5)
+        intruder.drain(h.autopilot.time, None)
+        assert intruder.received == []
+        kinds = {m.get_type() for m in h.gcs.take()}
+        assert {"HEARTBEAT", "ATTITUDE", "PARAM_VALUE", "AUTOPILOT_VERSION", "COMMAND_ACK"} <= kinds
+        assert h.vehicle.links[1].partner == h.gcs.address
+        assert h.vehicle.links[1].from_strangers == 10
+    finally:
+        intruder.close()
+
+
+def test_a_datagram_with_several_bad_frames_counts_once_under_its_first_reason(harness) -> None:
+    h = harness()
+    good = h.mav.set_attitude_target_encode(0, 1, 1, RATES_IGNORED, list(LEVEL), 0, 0, 0, 0.5).pack(h.mav)
+    bad_crc = bytearray(good)
+    bad_crc[-1] ^= 0xFF
+    not_finite = h.mav.set_attitude_target_encode(0, 1, 1, RATES_IGNORED, [math.nan, 0, 0, 0], 0, 0, 0, 0.5).pack(h.mav)
+    h.deliver(bytes(bad_crc) + b"\x00\x01garbage" + not_finite + good[:9])
+    assert h.vehicle.stats.rejected == {"bad_crc": 1}
+    assert h.vehicle.stats.reject_events["bad_crc"] == 1
+    assert h.vehicle.stats.reject_events["setpoint_not_finite"] == 1
+    assert h.vehicle.stats.reject_events["truncated_frame"] == 1
+    assert sum(h.vehicle.stats.reject_events.values()) >= 4
+    valid_setpoint_still_works(h)
+
+
+def _garbage(rng: np.random.Generator) -> bytes:
+    """A datagram that cannot be a MAVLink frame: it does not start with a frame marker."""
+    data = bytearray(rng.bytes(int(rng.integers(1, 200))))
+    if data[0] in (0xFD, 0xFE):
+        data[0] = 0x00
+    return bytes(data)
+
+
+def test_a_flood_counts_one_reject_per_datagram_and_the_events_log_stays_bounded(harness, tmp_path) -> None:
+    from sitl_plant.sitl import RunLog
+
+    h = harness()
+    log = RunLog(tmp_path, rate_hz=50.0)
+    h.vehicle.on_event = log.event
+    rng = np.random.default_rng(14)
+    sent = 5000
+    for _ in range(sent):
+        h.vehicle.handle_datagram(h.vehicle.links[1], _garbage(rng), ("127.0.0.1", 9))
+    h.step(1.0)
+    log.tick(h.autopilot.time)
+    for _ in range(sent):
+        h.vehicle.handle_datagram(h.vehicle.links[0], _garbage(rng), ("127.0.0.1", 9))
+    log.close()
+    assert sum(h.vehicle.stats.rejected.values()) == 2 * sent
+    lines = (tmp_path / "events.jsonl").read_text().splitlines()
+    rejects = [line for line in lines if '"rejected"' in line]
+    suppressed = [line for line in lines if '"suppressed"' in line]
+    reasons = set(h.vehicle.stats.reject_events)
+    # Per reason: 20 lines verbatim, then one count line per simulated second (two seconds here, plus the close).
+    assert len(rejects) <= 20 * len(reasons)
+    assert len(lines) <= (20 + 3) * len(reasons) < 2 * sent / 50
+    # Every reject event is either written verbatim or counted in a suppressed line.
+    import json
+
+    counted = sum(json.loads(line)["count"] for line in suppressed if json.loads(line)["key"].startswith("rejected:"))
+    assert len(rejects) + counted == sum(h.vehicle.stats.reject_events.values())
+
+
+@settings(max_examples=300, deadline=None)
+@given(data=st.binary(max_size=300), link=st.sampled_from([0, 1]))
+def test_any_datagram_counts_at_most_once_and_never_raises(data: bytes, link: int) -> None:
+    h = _SHARED.get("h")
+    if h is None:
+        h = _SHARED["h"] = Harness()
+    before = sum(h.vehicle.stats.rejected.values())
+    events_before = sum(h.vehicle.stats.reject_events.values())
+    h.vehicle.handle_datagram(h.vehicle.links[link], data, ("127.0.0.1", 9))
+    counted = sum(h.vehicle.stats.rejected.values()) - before
+    events = sum(h.vehicle.stats.reject_events.values()) - events_before
+    assert counted == (1 if events else 0)
+    if data and data[0] not in (0xFD, 0xFE):
+        assert counted == 1  # garbage from its first byte is always a reject
+
+
+_SHARED: dict = {}
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _close_shared():
+    yield
+    h = _SHARED.pop("h", None)
+    if h is not None:
+        h.close()

@@ -93,3 +93,105 @@ def test_sitl_plant_flies_takeoff_hold_land_without_the_companion_package(standa
     assert "standalone: studies cannot be imported" in output
     assert "standalone: loaded from the blocked packages: none" in output
     assert "sitl-plant stopped" in output
+
+
+# --------------------------------------------------------------------------- signing, partners, command line
+
+KEY = bytes(range(200, 232))
+
+
+def test_with_signing_required_a_signed_ground_station_flies_and_an_unsigned_intruder_is_refused(tmp_path):
+    """The standalone plant with MAV_SIGN_CFG=1 and a key file, a pymavlink ground station that signs (and
+    verifies the plant's signed stream with the key), and an unsigned intruder on the same port."""
+    import json
+
+    companion_port, gcs_port = free_port(), free_port()
+    key_file = tmp_path / "signing.key"
+    key_file.write_text(KEY.hex() + "\n")
+    command = [sys.executable, "-c", WRAPPER, "--quiet", "--speed-factor", str(SPEED), "--companion-port",
+               str(companion_port), "--gcs-port", str(gcs_port), "--log-dir", str(tmp_path / "plant"),
+               "--mav-sign-cfg", "1", "--signing-key", str(key_file)]
+    child = ChildProcess(command, tmp_path / "plant.out", ready="sitl-plant ready")
+    gcs = intruder = None
+    try:
+        child.start(timeout=30.0)
+        gcs = MavlinkPeer(gcs_port)
+        gcs.connection.setup_signing(KEY, sign_outgoing=True)  # as MAVProxy's --signing-key / `signing setup`
+        gcs.until(lambda: len(gcs.heartbeats) >= 3, 20.0, "signed heartbeats")  # 3 s simulated: ready to arm
+        assert gcs.connection.mav.signing.goodsig_count >= 3
+        (plant_address,) = gcs.connection.clients  # where the plant's ground-station stream comes from
+        intruder = mavutil.mavlink_connection(f"udpout:{plant_address[0]}:{plant_address[1]}", source_system=255)
+        for _ in range(3):
+            intruder.mav.command_long_send(1, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+            intruder.mav.command_long_send(1, 1, mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 0, 500.0)
+        # The signed request below is answered after the intruder's datagrams were read (one socket, in order).
+        assert gcs.command(mavlink.MAV_CMD_REQUEST_MESSAGE, mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION) == \
+            mavlink.MAV_RESULT_ACCEPTED
+        seen = len(gcs.heartbeats)
+        gcs.until(lambda: len(gcs.heartbeats) > seen, 10.0, "a heartbeat after the intruder")
+        assert not gcs.armed
+        assert [a.command for a in gcs.acks] == [mavlink.MAV_CMD_REQUEST_MESSAGE]
+        assert gcs.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1.0) == mavlink.MAV_RESULT_ACCEPTED
+        gcs.until(lambda: gcs.armed, 10.0, "armed by the signed ground station")
+    finally:
+        for peer in (gcs, intruder):
+            if peer is not None:
+                peer.close()
+        code = child.stop()
+    output = child.output()
+    assert code == 0, output
+    assert f"ground station (--gcs-port) 127.0.0.1:{gcs_port}; MAVLink signing: MAV_SIGN_CFG=1, key from --signing-key" \
+        in output
+    assert KEY.hex() not in output
+    stats = json.loads((tmp_path / "plant" / "stats.json").read_text())
+    assert stats["mavlink"]["rejected"]["signing_unsigned"] == 6
+    assert stats["links"]["gcs"]["from_strangers"] == 6
+    assert stats["signing"]["key_set"] and stats["signing"]["MAV_SIGN_CFG"] == 1
+    assert KEY.hex() not in (tmp_path / "plant" / "events.jsonl").read_text()
+
+
+BAD_ARGUMENTS = [
+    (["--companion-port", "14600", "--gcs-port", "14600"], "both 14600"),
+    (["--gcs-port", "14540"], "different ports"),  # the companion's default port
+    (["--duration", "-3"], "--duration"),
+    (["--duration", "0"], "--duration"),
+    (["--speed-factor", "nan"], "--speed-factor"),
+    (["--speed-factor", "0"], "--speed-factor"),
+    (["--speed-factor", "1000"], "--speed-factor"),
+    (["--log-rate", "-1"], "--log-rate"),
+    (["--clock-rate", "0"], "--clock-rate"),
+    (["--gcs-port", "70000"], "--gcs-port"),
+    (["--mav-sign-cfg", "2"], "--mav-sign-cfg"),
+    (["--signing-key", "/nonexistent/key"], "--signing-key"),
+    (["--mavlink-blackout", "-1", "2"], "--mavlink-blackout"),
+]
+
+
+@pytest.mark.parametrize("arguments, mentions", BAD_ARGUMENTS, ids=[" ".join(a) for a, _ in BAD_ARGUMENTS])
+def test_bad_arguments_are_one_line_errors_with_status_2(arguments, mentions, capsys):
+    from sitl_plant import sitl
+
+    assert sitl.main(arguments) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("sitl-plant"), err
+    assert mentions in err
+
+
+@pytest.mark.parametrize("content", ["abc", "zz" * 32, "00" * 32, KEY.hex() + "ff"])
+def test_a_bad_signing_key_file_is_refused_without_showing_it(content, tmp_path, capsys):
+    from sitl_plant import sitl
+
+    path = tmp_path / "key"
+    path.write_text(content)
+    assert sitl.main(["--signing-key", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--signing-key" in err and content not in err
+
+
+def test_the_cli_error_has_no_traceback_in_a_real_process(tmp_path):
+    import subprocess
+
+    done = subprocess.run([sys.executable, "-m", "sitl_plant.sitl", "--duration", "-3", "--companion-port", "1"],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2
+    assert "Traceback" not in done.stderr and done.stderr.count("\n") == 1, done.stderr

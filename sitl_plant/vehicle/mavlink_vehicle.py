@@ -588,8 +588,8 @@ class MavlinkVehicle:
                 self._reject(link, "bad_data", f"parser error: {error}")
                 link.reset_parser()
                 return
-            if link.parser.buf_len() > 0:
-                self._reject(link, "truncated_frame", f"{link.parser.buf_len()} bytes of an incomplete frame")
+            leftover = link.parser.buf_len()
+            if leftover > 0:
                 link.reset_parser()
             for msg in messages:
                 try:
@@ -598,6 +598,8 @@ class MavlinkVehicle:
                     self._reject(link, rejected.args[0], rejected.args[1])
                 except Exception as error:  # a bug here must not take the vehicle down
                     self._reject(link, "handler_error", f"{msg.get_type()}: {error!r}")
+            if leftover > 0:  # the datagram's tail, so its problem comes after those of the frames before it
+                self._reject(link, "truncated_frame", f"{leftover} bytes of an incomplete frame")
         finally:
             self._datagram_rejects = None
             if problems:
