@@ -252,7 +252,7 @@ class RealTimeRunner:
             "setpoints_received": self.autopilot.setpoints_received,
             "links": {link.name: {"bound": list(link.address), "partner": list(link.partner), "sent": link.sent,
                                   "send_errors": link.send_errors, "dropped_silenced": link.dropped_silenced,
-                                  "from_strangers": link.from_strangers}
+                                  "datagrams": link.datagrams, "from_strangers": link.from_strangers}
                       for link in self.vehicle.links},
             "mavlink": self.vehicle.stats.as_dict(),
             "signing": self.vehicle.signing_status(),

@@ -21,10 +21,15 @@ mavlink = mavutil.mavlink
 
 
 class MavlinkPeer:
-    """A client on `port` (127.0.0.1) with system 245, component 190 (an onboard computer's ids)."""
+    """A client on `port` (127.0.0.1) with system 245, component 190 (an onboard computer's ids).
 
-    def __init__(self, port: int) -> None:
+    signing_key: 32 bytes to sign what it sends and to accept only frames signed with it
+    (pymavlink's setup_signing, as MAVProxy's `signing key`); None: unsigned."""
+
+    def __init__(self, port: int, signing_key: bytes | None = None) -> None:
         self.connection = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=245, source_component=190)
+        if signing_key is not None:
+            self.connection.setup_signing(signing_key, sign_outgoing=True)
         self.mav = self.connection.mav
         self.time = 0.0  # s, simulated, of the latest ODOMETRY
         self.z = 0.0  # m, NED (negative up)

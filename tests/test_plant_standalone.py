@@ -115,8 +115,7 @@ def test_with_signing_required_a_signed_ground_station_flies_and_an_unsigned_int
     gcs = intruder = None
     try:
         child.start(timeout=30.0)
-        gcs = MavlinkPeer(gcs_port)
-        gcs.connection.setup_signing(KEY, sign_outgoing=True)  # as MAVProxy's --signing-key / `signing setup`
+        gcs = MavlinkPeer(gcs_port, signing_key=KEY)  # signs, and takes only frames signed with KEY
         gcs.until(lambda: len(gcs.heartbeats) >= 3, 20.0, "signed heartbeats")  # 3 s simulated: ready to arm
         assert gcs.connection.mav.signing.goodsig_count >= 3
         (plant_address,) = gcs.connection.clients  # where the plant's ground-station stream comes from
@@ -146,6 +145,7 @@ def test_with_signing_required_a_signed_ground_station_flies_and_an_unsigned_int
     stats = json.loads((tmp_path / "plant" / "stats.json").read_text())
     assert stats["mavlink"]["rejected"]["signing_unsigned"] == 6
     assert stats["links"]["gcs"]["from_strangers"] == 6
+    assert stats["links"]["gcs"]["datagrams"] == 6 + 2  # the intruder's and the ground station's two commands
     assert stats["signing"]["key_set"] and stats["signing"]["MAV_SIGN_CFG"] == 1
     assert KEY.hex() not in (tmp_path / "plant" / "events.jsonl").read_text()
 

@@ -208,6 +208,7 @@ class Link:
         self.next_due: dict[int, float] = {mid: 0.0 for mid in self.intervals}
         self.sent = 0
         self.send_errors = 0
+        self.datagrams = 0  # datagrams read (silenced ones excluded)
         self.from_strangers = 0  # datagrams from an address other than the partner's (used all the same)
         self.silenced = False  # fault injection: the link is down both ways
         self.dropped_silenced = 0
@@ -577,6 +578,7 @@ class MavlinkVehicle:
         if link.silenced:
             link.dropped_silenced += 1
             return
+        link.datagrams += 1
         if address is not None and address != link.partner:
             link.from_strangers += 1
         link.signature_failures.clear()
