@@ -38,7 +38,8 @@ from sitl_plant.vehicle.parameters import ParameterError
 
 DEFAULT_SCENARIO = DEFAULT_SCENARIO
 #: events.jsonl: kinds written as they come (bounded by what the vehicle does, and worth every line).
-VEHICLE_EVENTS = frozenset({"state", "failsafe", "fault", "signing"})
+#: Everything else (rejects, status texts, parameter and signing changes...) a peer can cause at its own rate.
+VEHICLE_EVENTS = frozenset({"state", "failsafe", "fault"})
 #: events.jsonl: per key (kind, and reason for rejects) this many records verbatim, then counts.
 EVENTS_VERBATIM = 20
 #: ... except the vehicle's own status texts, which a normal flight has dozens of.
@@ -381,6 +382,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         scenario, vehicle_config = load_plant_scenario(args.config)
         key = read_signing_key(args.signing_key) if args.signing_key is not None else None
+        if key is not None and args.signing_key.stat().st_mode & 0o077:
+            print(f"sitl-plant: warning: --signing-key {args.signing_key} is readable by others (chmod 600 it)",
+                  file=sys.stderr, flush=True)
         log = RunLog(args.log_dir, args.log_rate, args.latency_log)
         vehicle = build_vehicle(scenario, vehicle_config, args.speed_factor, args.companion_port, args.gcs_port,
                                 args.seed, on_event=log.event, signing_key=key, sign_cfg=args.mav_sign_cfg)
