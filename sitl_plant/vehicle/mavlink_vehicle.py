@@ -57,8 +57,9 @@ from sitl_plant.vehicle.px4_modes import (  # noqa: E402
     mode_from_main_sub,
 )
 
-#: ATTITUDE_TARGET_TYPEMASK_THRUST_BODY_SET. No released pymavlink (2.4.50 included) decodes the
-#: thrust_body field it refers to, so a setpoint with this bit is refused rather than flown on thrust 0.
+#: ATTITUDE_TARGET_TYPEMASK_THRUST_BODY_SET. pymavlink's SET_ATTITUDE_TARGET has no thrust_body field
+#: (checked: 2.4.37 and 2.4.50, the newest release), so a setpoint with this bit is refused rather than
+#: flown on a thrust that cannot be read.
 THRUST_BODY_SET = 32
 #: A setpoint quaternion whose norm is further than this from 1 is rejected, not renormalised.
 QUATERNION_NORM_TOLERANCE = 0.05
