@@ -10,7 +10,7 @@ answers travel over loopback UDP to the client sockets.
 from __future__ import annotations
 
 import os
-import socket
+import struct
 import time
 
 import pytest
@@ -212,21 +212,17 @@ def test_an_all_zero_setup_signing_clears_the_key(plant) -> None:
 
 def test_the_key_is_not_a_parameter(plant) -> None:
     h = plant()
-    sink = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    try:
-        h.send(h.mav.param_request_list_encode(1, 1), COMPANION)
-        values = h.companion.take("PARAM_VALUE")
-        names = {v.param_id for v in values}
-        assert len(values) == len(h.autopilot.parameters) and "MAV_SIGN_CFG" in names
-        assert not any("KEY" in name or "SECRET" in name for name in names)
-        # No PARAM_VALUE carries any 4 consecutive bytes of the key.
-        payloads = b"".join(bytes(v.get_msgbuf()) for v in values)
-        assert not any(KEY[i:i + 4] in payloads for i in range(0, 29))
-        # Reading a made-up key parameter gets no answer.
-        h.send(h.mav.param_request_read_encode(1, 1, b"MAV_SIGN_KEY", -1), COMPANION)
-        assert h.companion.take("PARAM_VALUE") == []
-    finally:
-        sink.close()
+    h.send(h.mav.param_request_list_encode(1, 1), COMPANION)
+    values = h.companion.take("PARAM_VALUE")
+    names = {v.param_id for v in values}
+    assert len(values) == len(h.autopilot.parameters) and "MAV_SIGN_CFG" in names
+    assert not any("KEY" in name or "SECRET" in name for name in names)
+    # No PARAM_VALUE carries any 4 consecutive bytes of the key.
+    payloads = b"".join(bytes(v.get_msgbuf()) for v in values)
+    assert not any(KEY[i:i + 4] in payloads for i in range(0, 29))
+    # Reading a made-up key parameter gets no answer.
+    h.send(h.mav.param_request_read_encode(1, 1, b"MAV_SIGN_KEY", -1), COMPANION)
+    assert h.companion.take("PARAM_VALUE") == []
 
 
 def test_mav_sign_cfg_2_is_refused_as_a_parameter(plant) -> None:
@@ -237,8 +233,6 @@ def test_mav_sign_cfg_2_is_refused_as_a_parameter(plant) -> None:
 
 
 def _int_param(value: int) -> tuple[float, int]:
-    import struct
-
     return struct.unpack("<f", struct.pack("<i", value))[0], mavlink.MAV_PARAM_TYPE_INT32
 
 
