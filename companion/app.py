@@ -53,8 +53,12 @@ from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, Vehicle
 __all__ = ["CompanionApp", "Phase", "main"]
 
 DEFAULT_SCENARIO = DEFAULT_SCENARIO
-#: Own-state samples kept for rebuilding bearings at past fix times, s.
-HISTORY_SECONDS = 5.0
+#: Own-state samples kept for rebuilding bearings at past fix times, s of vehicle time. A fix can arrive
+#: late by however long the target's process was starved of CPU, times the speed factor: with 5 s (the old
+#: value) a target stalled for 1 s of wall time at 5x made its catch-up fixes older than the history and
+#: their bearings were dropped as no_own_state (tests/test_full_sitl.py stalls it with SIGSTOP). 30 s
+#: (1500 samples at 50 Hz) covers a 6 s stall at 5x.
+HISTORY_SECONDS = 30.0
 #: Signals that stop the companion in any phase (CompanionApp.request_stop).
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 #: Wall s allowed for handing the vehicle to the autopilot after a stop signal.
@@ -186,7 +190,7 @@ class CompanionApp:
             self.recorder.event(self._vehicle_time(), "stop", "vehicle handed to the autopilot "
                                                               f"({'offboard stopped' if offboard else 'hold'})")
         except (asyncio.TimeoutError, VehicleError) as error:
-            self.recorder.event(self._vehicle_time(), "stop", f"hand-over not acknowledged: {error or 'timeout'}")
+            self.recorder.event(self._vehicle_time(), "stop", f"hand-over not acknowledged: {str(error) or 'timeout'}")
 
     # ------------------------------------------------------------------ zenoh
     def _open_zenoh(self, loop: asyncio.AbstractEventLoop):

@@ -326,8 +326,7 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
                              folder / "companion.out", ready="companion ready")
     duration = scenario.companion.follow_duration or scenario.simulation.duration
     budget = timeout if timeout is not None else (duration + 90.0) / speed + 60.0
-    if not quiet:
-        print(f"bof-sitl: ground station: udp 127.0.0.1:{gcs_port} (the plant streams its telemetry there)", flush=True)
+    print(f"bof-sitl: ground station: udp 127.0.0.1:{gcs_port} (the plant streams its telemetry there)", flush=True)
     station = None
     code = 1
     interrupted: str | None = None
@@ -367,8 +366,10 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
         interrupted_at = stop.received_at if stop is not None else time.monotonic()
         code = 128 + signal_stop.signum
     finally:
-        # The companion first (it hands the vehicle to the autopilot), all together, bounded.
-        companion_code, target_code, plant_code = stop_all((companion, target, plant))
+        # The companion first, while the plant still answers (it hands the vehicle to the autopilot),
+        # then the target and the plant together; each wave bounded by GRACE_PERIOD.
+        companion_code, = stop_all((companion,))
+        target_code, plant_code = stop_all((target, plant))
         if station is not None:
             station.close()
     stopped_after = None if interrupted_at is None else round(time.monotonic() - interrupted_at, 3)
