@@ -261,7 +261,7 @@ def _termination(folder: Path, companion_summary: dict | None, interrupted: str 
     if interrupted is not None:
         return Termination.INTERRUPTED
     events_path = folder / "companion" / "events.jsonl"
-    phases = []
+    phases, gave_up = [], False
     if events_path.exists():
         for line in events_path.read_text().splitlines():
             try:
@@ -270,9 +270,11 @@ def _termination(folder: Path, companion_summary: dict | None, interrupted: str 
                 continue  # a line cut by an interruption
             if event.get("kind") == "phase":
                 phases.append(event.get("phase"))
+            # The autopilot took over (link loss, left offboard) and the companion did not resume.
+            gave_up |= event.get("kind") == "vehicle_link" and str(event.get("detail", "")).startswith("not resuming")
     if "aborting" in phases or (companion_summary or {}).get("abort_requested"):
         return Termination.ABORTED
-    if companion_summary is None or companion_summary.get("phase") != "done":
+    if companion_summary is None or companion_summary.get("phase") != "done" or gave_up or "following" not in phases:
         return Termination.FAILSAFE
     return Termination.COMPLETED
 
