@@ -118,7 +118,7 @@ def sitl(tmp_path, scenario_path):
     running.cleanup()
 
 
-@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT, signal.SIGHUP], ids=["SIGTERM", "SIGINT", "SIGHUP"])
 def test_a_stop_signal_mid_flight_stops_every_process_frees_every_port_and_writes_the_summaries(sitl, sig):
     sitl.wait_until_following()
     ports = sitl.ports()
@@ -142,10 +142,12 @@ def test_a_stop_signal_mid_flight_stops_every_process_frees_every_port_and_write
 def test_sigkill_to_bof_sitl_leaves_no_child_behind(sitl):
     """bof-sitl cannot act on SIGKILL: the kernel's death signal (PR_SET_PDEATHSIG) stops the children."""
     sitl.wait_until_following()
+    killed = time.monotonic()
     sitl.process.kill()
     sitl.process.wait(10.0)
     _wait_until(lambda: not any(_alive(pid) for pid in sitl.children.values()), 20.0,
                 f"the children {sitl.children} to exit")
+    print(f"SIGKILL: every child gone {time.monotonic() - killed:.2f} s after it")
 
 
 def test_sigterm_to_a_companion_waiting_for_its_autopilot_exits_promptly(tmp_path, scenario_path):
@@ -159,8 +161,10 @@ def test_sigterm_to_a_companion_waiting_for_its_autopilot_exits_promptly(tmp_pat
     try:
         child.start(timeout=60.0)
         time.sleep(1.0)  # well into MAVSDK's wait for the first autopilot
+        sent = time.monotonic()
         child.process.send_signal(signal.SIGTERM)
         child.process.wait(15.0)
+        print(f"companion waiting for its autopilot: exited {time.monotonic() - sent:.2f} s after SIGTERM")
         assert child.process.returncode == 128 + signal.SIGTERM, child.output()
         summary = json.loads((log_dir / "summary.json").read_text())
         assert summary["stopped_by"] == "SIGTERM" and summary["phase"] == "waiting"
