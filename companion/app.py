@@ -1,6 +1,6 @@
 """The companion application: target fixes over Zenoh in, attitude/thrust setpoints over MAVLink out.
 
-    companion --config config/scenarios/constant_velocity.toml [--mavlink udpin://0.0.0.0:14540]
+    companion --config config/scenarios/constant_velocity.toml [--mavlink udpin://127.0.0.1:14540]
               [--zenoh-connect tcp/127.0.0.1:7447] [--log-dir runs/companion]
 
 As in the paper's flight experiment (section IX-A, Fig. 16), the target's position
@@ -17,6 +17,11 @@ fixes in, bearings out, link health), companion.follower (Follower: the per-samp
 loop while following), companion.state_publisher (StatePublisher: the companion's state on
 its Zenoh state key, as network B of Fig. 16 did, so a ground station can watch). An
 "abort" command on the companion's command key makes it hold, then land.
+
+SIGINT, SIGTERM and SIGHUP stop it in any phase (waiting for the autopilot, arming, taking off,
+following, landing): the mission is cancelled, an armed vehicle is handed to the autopilot (offboard
+stopped or hold: it holds position), the logs and summary.json are written ("stopped_by"), and the
+process exits with 128 + the signal, within about 2 s of wall time whatever MAVSDK is doing.
 """
 
 from __future__ import annotations
@@ -24,8 +29,10 @@ from __future__ import annotations
 import argparse
 import asyncio
 import math
+import os
 import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -46,8 +53,21 @@ from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, Vehicle
 __all__ = ["CompanionApp", "Phase", "main"]
 
 DEFAULT_SCENARIO = DEFAULT_SCENARIO
-#: Own-state samples kept for rebuilding bearings at past fix times, s.
-HISTORY_SECONDS = 5.0
+#: Own-state samples kept for rebuilding bearings at past fix times, s of vehicle time. A fix can arrive
+#: late by however long the target's process was starved of CPU, times the speed factor: with 5 s (the old
+#: value) a target stalled for 1 s of wall time at 5x made its catch-up fixes older than the history and
+#: their bearings were dropped as no_own_state (tests/test_full_sitl.py stalls it with SIGSTOP). 30 s
+#: (1500 samples at 50 Hz) covers a 6 s stall at 5x.
+HISTORY_SECONDS = 30.0
+#: Signals that stop the companion in any phase (CompanionApp.request_stop).
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+#: Wall s allowed for handing the vehicle to the autopilot after a stop signal.
+HAND_OVER_TIMEOUT = 0.8
+#: Wall s allowed for MAVSDK to close.
+CLOSE_TIMEOUT = 0.5
+#: Wall s after a stop signal at which the process exits whatever a library is still doing (its logs and
+#: summary are written well before: see CompanionApp._shutdown).
+HARD_EXIT_AFTER = 2.0
 
 
 def _percentiles(values: list[float]) -> dict:
@@ -83,6 +103,8 @@ class CompanionApp:
         self.follower = Follower(self.target_link, self.history, self.recorder)
         self._session = None
         self.error: str | None = None
+        self.stopped_by: str | None = None  # the stop signal's name (SIGTERM...), None while not stopped
+        self._mission: asyncio.Task | None = None
 
     @property
     def phase(self) -> Phase:
@@ -91,14 +113,44 @@ class CompanionApp:
     def _vehicle_time(self) -> float | None:
         return self.vehicle.latest.state.time if self.vehicle is not None and self.vehicle.latest else None
 
+    def request_stop(self, signum: int) -> None:
+        """A stop signal (SIGINT, SIGTERM, SIGHUP): end the mission now, whatever the phase. The mission task
+        is cancelled (waiting for the autopilot, arming, taking off, following, landing alike); run() then
+        hands the vehicle to the autopilot (leave offboard or hold: it holds position, bounded by
+        HAND_OVER_TIMEOUT) and writes every log and the summary."""
+        if self.stopped_by is None:
+            self.stopped_by = signal.Signals(signum).name
+            self.recorder.event(self._vehicle_time(), "stop", f"{self.stopped_by}: stopping in phase {self.phase.value}",
+                                signal=self.stopped_by, phase=self.phase.value)
+        self.sequencer.request_stop()
+        if self._mission is not None:
+            self._mission.cancel()
+
     async def run(self) -> int:
-        loop = asyncio.get_running_loop()
         tlog = TlogWriter(self.recorder.folder / "mavlink.tlog").start()
+        code = 1
+        try:
+            if self.stopped_by is None:
+                self._mission = asyncio.create_task(self._fly(tlog))
+                code = await self._mission
+        except asyncio.CancelledError:
+            if self.stopped_by is None:
+                raise
+            await self._hand_over()
+        finally:
+            await self._shutdown(tlog)
+        if self.stopped_by is not None:
+            code = 128 + signal.Signals[self.stopped_by].value
+        return code
+
+    async def _fly(self, tlog: TlogWriter) -> int:
+        """Connect and fly the mission; the exit code (0 when it ended done)."""
+        loop = asyncio.get_running_loop()
         code = 1
         try:
             publisher = self._open_zenoh(loop)
             self.vehicle = MavsdkVehicle(self.mavlink_url, connect_timeout=self.settings.connect_timeout,
-                                         forward_url=f"udpout://127.0.0.1:{tlog.port}")
+                                         on_mavlink=tlog.record)
             # Every odometry sample goes into the own-state history as it arrives, from before take-off:
             # a fix stamped just before the follow loop's first sample still finds its own state.
             self.vehicle.sample_observers.append(self.follower.record_state)
@@ -125,9 +177,20 @@ class CompanionApp:
             self.error = f"{type(error).__name__}: {error}"
             self.sequencer.fail(self.error)
             raise
-        finally:
-            await self._shutdown(tlog)
         return code
+
+    async def _hand_over(self) -> None:
+        """After a stop signal: leave the armed vehicle to the autopilot (offboard stopped, or hold), bounded in time."""
+        vehicle = self.vehicle
+        if vehicle is None or vehicle.action is None or not vehicle.armed:
+            return
+        offboard = self.phase in (Phase.FOLLOWING, Phase.VEHICLE_LOST, Phase.ABORTING)
+        try:
+            await asyncio.wait_for(vehicle.stop_offboard() if offboard else vehicle.hold(), HAND_OVER_TIMEOUT)
+            self.recorder.event(self._vehicle_time(), "stop", "vehicle handed to the autopilot "
+                                                              f"({'offboard stopped' if offboard else 'hold'})")
+        except (asyncio.TimeoutError, VehicleError) as error:
+            self.recorder.event(self._vehicle_time(), "stop", f"hand-over not acknowledged: {str(error) or 'timeout'}")
 
     # ------------------------------------------------------------------ zenoh
     def _open_zenoh(self, loop: asyncio.AbstractEventLoop):
@@ -170,28 +233,57 @@ class CompanionApp:
             "vehicle_status_texts": self.vehicle.status_texts if self.vehicle is not None else [],
             "bad_odometry": self.vehicle.bad_odometry if self.vehicle is not None else 0,
             "health_reasons_at_end": list(control.pipeline.health.episode_reasons) if control.pipeline is not None else [],
+            "stopped_by": self.stopped_by,
+            "abort_requested": mission.abort_requested and self.stopped_by is None,
         }
 
     async def _shutdown(self, tlog: TlogWriter) -> None:
+        """Logs and summary first (nothing is lost if a library then hangs on close), then MAVSDK
+        (bounded: CLOSE_TIMEOUT) and Zenoh."""
         try:
-            if self.vehicle is not None:
-                await self.vehicle.close()
-        finally:
             tlog.stop()
-            if self._session is not None:
-                self._session.close()
             self.recorder.summary(self.summary())
             self.recorder.close()
+        finally:
+            try:
+                if self.vehicle is not None:
+                    await asyncio.wait_for(self.vehicle.close(), CLOSE_TIMEOUT)
+            except asyncio.TimeoutError:
+                pass
+            finally:
+                if self._session is not None:
+                    self._session.close()
+
+
+def _scenario_file(text: str) -> Path:
+    """argparse type: an existing scenario file (a folder or a missing path is a one-line usage error)."""
+    path = Path(text)
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text} is a folder; give one scenario file")
+    if not path.is_file():
+        raise argparse.ArgumentTypeError(f"{text}: no such file")
+    return path
+
+
+def _seed(text: str) -> int:
+    """argparse type: a seed, an integer >= 0."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{value} is negative (seeds are integers >= 0)")
+    return value
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="companion", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--config", type=Path, default=DEFAULT_SCENARIO, help="scenario TOML (default: %(default)s)")
+    parser.add_argument("--config", type=_scenario_file, default=DEFAULT_SCENARIO, help="scenario TOML (default: %(default)s)")
     parser.add_argument("--mavlink", default=None, help="MAVSDK connection URL ([companion] mavlink_url)")
     parser.add_argument("--zenoh-connect", action="append", default=None, help="Zenoh endpoint to connect to (repeatable)")
     parser.add_argument("--zenoh-listen", action="append", default=None, help="Zenoh endpoint to listen on (repeatable)")
     parser.add_argument("--log-dir", type=Path, default=None, help="run folder (default runs/companion-<time>)")
-    parser.add_argument("--seed", type=int, default=None, help="bearing-noise seed ([simulation] seed)")
+    parser.add_argument("--seed", type=_seed, default=None, help="bearing-noise seed, an integer >= 0 ([simulation] seed)")
     return parser.parse_args(argv)
 
 
@@ -210,14 +302,31 @@ def main(argv: list[str] | None = None) -> int:
     log_dir = args.log_dir or Path("runs") / f"companion-{time.strftime('%Y%m%d-%H%M%S')}"
     app = CompanionApp(scenario, vehicle_config, log_dir, args.mavlink, args.zenoh_connect, args.zenoh_listen, args.seed)
 
+    def hard_exit(signum: int) -> None:
+        print(f"companion: still busy {HARD_EXIT_AFTER:g} s after {signal.Signals(signum).name}; exiting now "
+              "(logs and summary already written)", file=sys.stderr, flush=True)
+        sys.stdout.flush()
+        os._exit(128 + signum)
+
+    def on_signal(signum: int) -> None:
+        if app.stopped_by is None:
+            # MAVSDK's blocking calls run in executor threads that asyncio would wait for at exit: bound it.
+            guard = threading.Timer(HARD_EXIT_AFTER, hard_exit, (signum,))
+            guard.daemon = True
+            guard.start()
+        app.request_stop(signum)
+
     async def run() -> int:
         loop = asyncio.get_running_loop()
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            loop.add_signal_handler(sig, app.sequencer.request_stop)
+        for sig in STOP_SIGNALS:
+            loop.add_signal_handler(sig, on_signal, sig)
         print(f"companion ready: {scenario.name}, vehicle {app.mavlink_url}, log {log_dir}", flush=True)
         return await app.run()
 
-    return asyncio.run(run())
+    code = asyncio.run(run())
+    if app.stopped_by is not None:
+        print(f"companion: stopped by {app.stopped_by} in phase {app.phase.value}", flush=True)
+    return code
 
 
 if __name__ == "__main__":

@@ -558,7 +558,7 @@ class CompanionConfig(_Strict):
     "land" (the default, the operator's call) lands instead.
     """
 
-    mavlink_url: str = "udpin://0.0.0.0:14540"
+    mavlink_url: str = "udpin://127.0.0.1:14540"
     engage_altitude: Annotated[float, Field(gt=1.0, le=120.0)] = 20.0
     settle_time: NonNegative = 1.5
     follow_duration: Positive | None = None

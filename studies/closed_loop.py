@@ -33,11 +33,16 @@ from studies.metrics import summarize
 
 
 class Termination(enum.Enum):
-    """Why a simulated flight ended; the value is a sentence for people."""
+    """Why a flight ended (in process or in SITL); the value is a sentence for people. summary.json's
+    "termination" is the lower-case name (studies.metrics.termination_name)."""
 
     COMPLETED = "flew the whole scenario"
     ESTIMATE_NOT_FINITE = "estimator state became NaN or infinite"
     OUT_OF_CONTROL = "out of control: tilted past 90 degrees or faster than 60 m/s"
+    ABORTED = "aborted by the ground station's command: held, then landed"
+    FAILSAFE = "the companion stopped commanding before the end; the autopilot's failsafe was left in charge"
+    INTERRUPTED = "interrupted (a stop signal or the wall-clock timeout); every process was stopped"
+    DIVERGED = "flew the whole scenario, but the health monitor called the estimate suspect at the end"
 
 
 #: track_mode column of the flight log: the pipeline's TrackMode as a number.

@@ -11,6 +11,11 @@ watches the companion's state on Zenoh, prints progress, and sends the target it
 "start" (the paper's action command, Fig. 16 network A) once the companion is
 following. When the companion has landed it stops everything and writes the run folder:
 
+Each child runs in its own process group; SIGINT (Ctrl-C), SIGTERM and SIGHUP to bof-sitl stop
+them all (SIGTERM, SIGKILL after 2.5 s) and still write every summary (termination "interrupted");
+if bof-sitl itself dies, the kernel sends each child SIGTERM (studies.processes). The plant streams
+ground-station telemetry to udp 127.0.0.1:--gcs-port (default 14550), printed at start.
+
     plant/ target/ companion/   each process's own logs (companion/mavlink.tlog included)
     summary.json                the same figures of merit as bof-sim (studies.metrics), from the
                                 truth logs; figures that do not apply are null
@@ -23,6 +28,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import signal
 import socket
 import sys
 import time
@@ -35,8 +41,9 @@ from interfaces import link_schema as link
 from interfaces import zenoh_transport
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, load_scenario
 from studies.closed_loop import Termination
-from studies.metrics import convergence_text, summarize, suspect_warning, write_summary
-from studies.processes import ChildProcess, free_port
+from studies.metrics import convergence_text, summarize, suspect_warning, termination_name, write_summary
+from studies.run_scenario import scenario_file, seed_argument
+from studies.processes import ChildProcess, Interrupted, StopSignals, free_port, stop_all
 
 DEFAULT_SCENARIO = DEFAULT_SCENARIO
 GROUND_STATION_ID = "ground-station"
@@ -222,23 +229,89 @@ def _progress(state: link.CompanionState | None) -> str:
     return text
 
 
+#: Wall-clock seconds the children need to start and the companion to connect, arm and take off at any speed;
+#: --timeout must leave at least this plus the flight's own duration / speed factor.
+STARTUP_ALLOWANCE = 20.0
+#: The ground-station port the plant streams to by default (QGroundControl and MAVProxy listen there).
+DEFAULT_GCS_PORT = 14550
+
+
+def check_faults(scenario: Scenario, target_faults: list[str] | None) -> None:
+    """ConfigError (one line) for an unknown [faults] key or a bad value in --fault KEY=VALUE, exactly as
+    sitl-target would refuse it, before any process or folder exists."""
+    from sitl_plant.world.link_faults import override_faults
+
+    try:
+        override_faults(scenario.faults, target_faults or [])
+    except ConfigError:
+        raise
+    except ValueError as error:
+        raise ConfigError(f"--fault: {error}") from None
+
+
+def minimum_timeout(scenario: Scenario, speed: float) -> float:
+    """The shortest --timeout (wall s) that can let the flight finish: startup plus the flight at `speed`."""
+    duration = scenario.companion.follow_duration or scenario.simulation.duration
+    return STARTUP_ALLOWANCE + duration / speed
+
+
+def _termination(folder: Path, companion_summary: dict | None, interrupted: str | None) -> Termination:
+    """What ended the flight, from bof-sitl's own view and the companion's phase log (before the estimate's
+    verdict, which studies.metrics.summarize adds: a completed flight suspect at the end is DIVERGED)."""
+    if interrupted is not None:
+        return Termination.INTERRUPTED
+    events_path = folder / "companion" / "events.jsonl"
+    phases, gave_up = [], False
+    if events_path.exists():
+        for line in events_path.read_text().splitlines():
+            try:
+                event = json.loads(line)
+            except json.JSONDecodeError:
+                continue  # a line cut by an interruption
+            if event.get("kind") == "phase":
+                phases.append(event.get("phase"))
+            # The autopilot took over (link loss, left offboard) and the companion did not resume.
+            gave_up |= event.get("kind") == "vehicle_link" and str(event.get("detail", "")).startswith("not resuming")
+    if "aborting" in phases or (companion_summary or {}).get("abort_requested"):
+        return Termination.ABORTED
+    if companion_summary is None or companion_summary.get("phase") != "done" or gave_up or "following" not in phases:
+        return Termination.FAILSAFE
+    return Termination.COMPLETED
+
+
 def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, timeout: float | None,
         plots: bool = True, quiet: bool = False, abort_after: float | None = None,
         target_faults: list[str] | None = None,
-        on_state: Callable[[link.CompanionState | None, float | None], None] | None = None) -> tuple[int, Path, dict]:
+        on_state: Callable[[link.CompanionState | None, float | None], None] | None = None,
+        gcs_port: int = DEFAULT_GCS_PORT, stop: StopSignals | None = None) -> tuple[int, Path, dict]:
     """Fly `config` through the three processes; returns (exit code, run folder, summary).
 
-    abort_after: send the companion an abort this many simulated seconds after it engaged.
+    abort_after: send the companion an abort this many simulated seconds after it engaged (> 0).
     target_faults: KEY=VALUE overrides of [faults] for sitl-target (its --fault option).
     on_state: called about every 50 ms of wall time with the companion's latest state payload
     (None before the first) and the vehicle time it engaged at (s; None before), e.g. to show
-    progress while `quiet`."""
+    progress while `quiet`. gcs_port: UDP port on 127.0.0.1 the plant streams ground-station
+    telemetry to. stop: the caller's StopSignals (bof-sitl's main installs one); when it has
+    received SIGINT, SIGTERM or SIGHUP the children are stopped at once (SIGTERM, SIGKILL after
+    studies.processes.GRACE_PERIOD), the summaries are written (termination "interrupted", no
+    plots) and the exit code is 128 + the signal. Arguments are checked (ConfigError) before the
+    run folder is made."""
     scenario, _ = load_scenario(config)
     speed = scenario.sitl.speed_factor if speed_factor is None else speed_factor
     seed = scenario.simulation.seed if seed is None else seed
+    if seed < 0:
+        raise ConfigError(f"--seed {seed} is negative (seeds are integers >= 0)")
+    if abort_after is not None and not (math.isfinite(abort_after) and abort_after > 0):
+        raise ConfigError(f"--abort-after {abort_after:g}: must be > 0 simulated seconds after engagement")
+    if not 1 <= gcs_port <= 65535:
+        raise ConfigError(f"--gcs-port {gcs_port} is not a UDP port")
+    if timeout is not None and not timeout >= minimum_timeout(scenario, speed):
+        raise ConfigError(f"--timeout {timeout:g} s is too short: this flight needs at least "
+                          f"{minimum_timeout(scenario, speed):.0f} s of wall time at x{speed:g}")
+    check_faults(scenario, target_faults)
     folder = out / f"sitl-{scenario.name}-seed{seed}-{time.strftime('%Y%m%d-%H%M%S')}"
     folder.mkdir(parents=True, exist_ok=True)
-    companion_port, gcs_port = free_port(), free_port()
+    companion_port = free_port()
     endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
     python = sys.executable
     plant = ChildProcess([python, "-m", "sitl_plant.sitl", "--config", str(config), "--speed-factor", str(speed),
@@ -255,18 +328,24 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
                              folder / "companion.out", ready="companion ready")
     duration = scenario.companion.follow_duration or scenario.simulation.duration
     budget = timeout if timeout is not None else (duration + 90.0) / speed + 60.0
+    print(f"bof-sitl: ground station: udp 127.0.0.1:{gcs_port} (the plant streams its telemetry there)", flush=True)
     station = None
     code = 1
+    interrupted: str | None = None
+    interrupted_at: float | None = None
     try:
-        plant.start()
-        target.start()
+        plant.start(stop=stop)
+        target.start(stop=stop)
         station = GroundStation(endpoint, scenario)
-        companion.start()
+        companion.start(stop=stop)
         deadline = time.monotonic() + budget
         next_print = 0.0
         while companion.running:
+            if stop is not None:
+                stop.check()
             if time.monotonic() > deadline:
-                raise TimeoutError(f"the flight did not finish within {budget:.0f} s of wall time")
+                interrupted, interrupted_at = f"timeout after {budget:.0f} s of wall time", time.monotonic()
+                break
             state = station.latest
             if state and state.phase == "following" and not station.target_started:
                 station.engaged_stamp = state.stamp
@@ -283,33 +362,49 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
                 if not child.running:
                     raise RuntimeError(f"{child.command[2]} exited early:\n{child.output()[-2000:]}")
             time.sleep(0.05)
-        code = companion.process.returncode
+        code = companion.process.returncode if interrupted is None else 1
+    except Interrupted as signal_stop:
+        interrupted = signal.Signals(signal_stop.signum).name
+        interrupted_at = stop.received_at if stop is not None else time.monotonic()
+        code = 128 + signal_stop.signum
     finally:
-        companion_code = companion.stop()
+        # The companion first, while the plant still answers (it hands the vehicle to the autopilot),
+        # then the target and the plant together; each wave bounded by GRACE_PERIOD.
+        companion_code, = stop_all((companion,))
+        target_code, plant_code = stop_all((target, plant))
         if station is not None:
             station.close()
-        target_code = target.stop()
-        plant_code = plant.stop()
+    stopped_after = None if interrupted_at is None else round(time.monotonic() - interrupted_at, 3)
     summary: dict = {"companion_exit_code": companion_code, "target_exit_code": target_code, "plant_exit_code": plant_code,
-                     "speed_factor": speed, "seed": seed, "run_folder": str(folder),
-                     "abort_sent": station.abort_sent if station is not None else False}
-    companion_summary = json.loads((folder / "companion" / "summary.json").read_text())
+                     "speed_factor": speed, "seed": seed, "run_folder": str(folder), "gcs_port": gcs_port,
+                     "abort_sent": station.abort_sent if station is not None else False,
+                     "interrupted": interrupted, "stopped_after_s": stopped_after}
+    companion_summary = _read_json(folder / "companion" / "summary.json")
     summary["companion"] = companion_summary
-    plant_stats = json.loads((folder / "plant" / "stats.json").read_text())
-    summary["plant"] = {k: plant_stats[k] for k in ("speed_factor_achieved", "late_ticks", "ticks", "slips")}
-    summary["plant"]["mavlink_rejected"] = plant_stats["mavlink"]["rejected"]
+    plant_stats = _read_json(folder / "plant" / "stats.json")
+    if plant_stats is not None:
+        summary["plant"] = {k: plant_stats.get(k) for k in ("speed_factor_achieved", "late_ticks", "ticks", "slips")}
+        summary["plant"]["mavlink_rejected"] = plant_stats.get("mavlink", {}).get("rejected")
+    else:
+        summary["plant"] = None
+    termination = _termination(folder, companion_summary, interrupted)
+    summary["termination"], summary["termination_reason"] = termination_name(termination), termination.value
     try:
+        if companion_summary is None:
+            raise RuntimeError("the companion wrote no summary; see companion.out")
         series, engaged_at = flight_series(folder)
-        summary["flight"] = summarize(series, scenario, Termination.COMPLETED)
+        summary["flight"] = summarize(series, scenario, termination)
         summary["flight"]["engaged_at_sim_time"] = engaged_at
+        summary["termination"], summary["termination_reason"] = (summary["flight"]["termination"],
+                                                                 summary["flight"]["termination_reason"])
         summary["bearing_only"] = bearing_only_check(folder)
-        if plots:
+        if plots and interrupted is None:
             from studies.plots import plot_errors, plot_trajectories
 
             plot_trajectories(series, folder / "trajectory.png", f"{scenario.name} (SITL)")
             plot_errors(series, scenario.guidance.desired_range, folder / "errors.png", f"{scenario.name} (SITL)")
             plot_link(folder, engaged_at, folder / "link.png")
-    except (RuntimeError, FileNotFoundError, KeyError) as error:
+    except (RuntimeError, FileNotFoundError, KeyError, ValueError, IndexError) as error:
         summary["flight"] = None
         summary["flight_error"] = str(error)
         code = code or 1
@@ -317,9 +412,18 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
     return code, folder, summary
 
 
+def _read_json(path: Path) -> dict | None:
+    """A child's JSON summary, or None when it is missing or cut (a child killed before writing it)."""
+    try:
+        return json.loads(path.read_text())
+    except (FileNotFoundError, json.JSONDecodeError):
+        return None
+
+
 def format_summary(summary: dict) -> str:
     flight = summary.get("flight")
-    lines = [f"run folder: {summary['run_folder']}"]
+    lines = [f"run folder: {summary['run_folder']}",
+             f"termination: {summary.get('termination')}, {summary.get('termination_reason')}"]
     if not flight:
         lines.append(f"no flight figures: {summary.get('flight_error')}")
         return "\n".join(lines)
@@ -348,42 +452,51 @@ def format_summary(summary: dict) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="bof-sitl", description=__doc__.split("\n\n")[0])
-    parser.add_argument("config", nargs="?", type=Path, default=DEFAULT_SCENARIO, help="scenario TOML (default: %(default)s)")
+    parser.add_argument("config", nargs="?", type=scenario_file, default=DEFAULT_SCENARIO,
+                        help="scenario TOML (default: %(default)s)")
     parser.add_argument("--speed-factor", type=float, default=None,
                         help="simulated seconds per wall second, within [0.5, 20] (default: the scenario's [sitl] "
                              "speed_factor)")
-    parser.add_argument("--seed", type=int, default=None,
-                        help="seed of the plant's, target's and companion's noise (default: the scenario's "
-                             "[simulation] seed)")
+    parser.add_argument("--seed", type=seed_argument, default=None,
+                        help="seed of the plant's, target's and companion's noise, an integer >= 0 (default: the "
+                             "scenario's [simulation] seed)")
     parser.add_argument("--out", type=Path, default=Path("runs"),
                         help="parent folder: the run folder sitl-<scenario>-seed<seed>-<time>/ is created inside it "
                              "(default: %(default)s)")
     parser.add_argument("--timeout", type=float, default=None,
-                        help="wall-clock limit for the whole flight, s (default: (follow duration + 90 s) / "
-                             "speed factor + 60 s)")
+                        help="wall-clock limit for the whole flight, s, at least 20 s + the flight's duration / speed "
+                             "factor (default: (follow duration + 90 s) / speed factor + 60 s)")
     parser.add_argument("--no-plots", action="store_true",
                         help="skip trajectory.png, errors.png and link.png (default: draw them)")
     parser.add_argument("--fault", action="append", default=None, metavar="KEY=VALUE",
                         help="override a [faults] setting of the target link (sitl-target --fault), e.g. "
-                             "loss_probability=0.3; repeatable (default: the scenario's [faults])")
+                             "loss_probability=0.3; repeatable; checked before anything starts (default: the "
+                             "scenario's [faults])")
     parser.add_argument("--abort-after", type=float, default=None,
-                        help="as the ground station, send the companion 'abort' this many simulated seconds after it "
-                             "engages (default: never)")
+                        help="as the ground station, send the companion 'abort' this many simulated seconds (> 0) "
+                             "after it engages (default: never)")
+    parser.add_argument("--gcs-port", type=int, default=DEFAULT_GCS_PORT,
+                        help="UDP port on 127.0.0.1 the plant streams ground-station telemetry to (QGroundControl, "
+                             "MAVProxy) (default: %(default)s)")
     parser.add_argument("--quiet", action="store_true",
                         help="no progress line every 2 s of wall time, only the final summary (default: print them)")
     args = parser.parse_args(argv)
     if args.speed_factor is not None and not 0.5 <= args.speed_factor <= 20.0:
-        print("bof-sitl: --speed-factor must be within [0.5, 20] (MAVSDK needs heartbeats; the plant tops out near 20x)", file=sys.stderr)
-        return 2
-    try:
-        code, folder, summary = run(args.config, args.out, args.speed_factor, args.seed, args.timeout, not args.no_plots,
-                                    args.quiet, args.abort_after, args.fault)
-    except ConfigError as error:
-        print(f"bof-sitl: {error}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("bof-sitl: interrupted; children stopped, logs kept", file=sys.stderr)
-        return 130
+        parser.error("--speed-factor must be within [0.5, 20] (MAVSDK needs heartbeats; the plant tops out near 20x)")
+    if args.abort_after is not None and not (math.isfinite(args.abort_after) and args.abort_after > 0):
+        parser.error(f"--abort-after {args.abort_after:g}: must be > 0 simulated seconds after engagement")
+    if not 1 <= args.gcs_port <= 65535:
+        parser.error(f"--gcs-port {args.gcs_port} is not a UDP port")
+    with StopSignals() as stop:
+        try:
+            code, folder, summary = run(args.config, args.out, args.speed_factor, args.seed, args.timeout,
+                                        not args.no_plots, args.quiet, args.abort_after, args.fault,
+                                        gcs_port=args.gcs_port, stop=stop)
+        except ConfigError as error:
+            parser.error(str(error))
+    if summary.get("interrupted"):
+        print(f"bof-sitl: {summary['interrupted']}: every process stopped {summary['stopped_after_s']} s after it, "
+              f"summaries written", file=sys.stderr)
     print(format_summary(summary))
     return code
 

@@ -74,12 +74,32 @@ def suspected_divergence(time: np.ndarray, suspect: np.ndarray | None, window: n
     }
 
 
+#: Terminations after which the estimate's verdict still says something (the flight ran as asked, or was
+#: stopped from outside); any other termination is a "failed" verdict.
+FLOWN = ("COMPLETED", "DIVERGED", "ABORTED", "INTERRUPTED")
+
+
+def termination_name(termination: enum.Enum) -> str:
+    """summary.json's "termination": the lower-case name of a studies.closed_loop.Termination (completed,
+    aborted, failsafe, interrupted, diverged, estimate_not_finite, out_of_control)."""
+    return termination.name.lower()
+
+
+def honest_termination(termination: enum.Enum, divergence: dict | None) -> enum.Enum:
+    """A flight that flew to the end while the health monitor called its estimate suspect at the end is
+    DIVERGED, never COMPLETED; any other termination is returned as it is. `termination` is a
+    studies.closed_loop.Termination (looked up by name, so that this module need not import the loop)."""
+    if termination.name == "COMPLETED" and divergence is not None and divergence["at_end"]:
+        return type(termination)["DIVERGED"]
+    return termination
+
+
 def verdict(termination: enum.Enum, divergence: dict | None) -> str:
-    """One word for the flight: "failed" (did not complete), "suspect" (the health monitor still called
-    the estimate suspect at the end: the flight's range may be wrong), "recovered" (it called it suspect
-    at some time and OK again at the end: the range was doubted during the flight, so not a clean
-    success either), else "clean" (never flagged)."""
-    if termination.name not in ("COMPLETED", "INTERRUPTED"):
+    """One word for the flight: "failed" (did not fly as asked: FLOWN lists what did), "suspect" (the health
+    monitor still called the estimate suspect at the end: the flight's range may be wrong), "recovered" (it
+    called it suspect at some time and OK again at the end: the range was doubted during the flight, so not a
+    clean success either), else "clean" (never flagged)."""
+    if termination.name not in FLOWN:
         return "failed"
     if divergence is not None and divergence["at_end"]:
         return "suspect"
@@ -110,7 +130,9 @@ def summarize(series: dict[str, np.ndarray], scenario: Scenario, termination: en
     (see `suspected_divergence`; `verdict` says whether the flight is a clean success).
     range_error: |p_T - p| - r_d (m); range_estimation_error: |p^_T - p| - |p_T - p| (m);
     convergence_time: see `convergence_time` (NaN: did not converge). termination: why the flight
-    ended (studies.closed_loop.Termination; its name and its sentence are copied).
+    ended (studies.closed_loop.Termination); "termination" is its lower-case name and "termination_reason"
+    its sentence, after `honest_termination` (a completed flight whose estimate was suspect at the end is
+    "diverged").
     """
     time = series["time"]
     window = time >= time[-1] - scenario.simulation.summary_window
@@ -121,9 +143,10 @@ def summarize(series: dict[str, np.ndarray], scenario: Scenario, termination: en
     threshold = scenario.simulation.converged_range_error
     heading_error = series["heading_error"][window]
     divergence = suspected_divergence(time, series.get("health_suspect"), window)
+    termination = honest_termination(termination, divergence)
     return {
         "scenario": scenario.name,
-        "termination": termination.name,
+        "termination": termination_name(termination),
         "termination_reason": termination.value,
         "duration": float(time[-1]),
         "summary_window": scenario.simulation.summary_window,

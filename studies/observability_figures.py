@@ -173,8 +173,19 @@ def main(argv: list[str] | None = None) -> int:
                              "PPG and plot the live, windowed FIM of the bearings used (fig_flight_observability.png); "
                              "default: no flight")
     args = parser.parse_args(argv)
+    if args.flight is not None and not args.flight.is_file():
+        parser.error(f"--flight {args.flight}: {'is a folder' if args.flight.is_dir() else 'no such file'}; give a scenario file")
+    if args.seed < 0:
+        parser.error(f"--seed {args.seed} is negative (seeds are integers >= 0)")
     if args.random < 1:
         parser.error("--random must be at least 1")
+    if args.flight is not None:  # check the scenario before any figure or folder is made
+        from interfaces.scenario import ConfigError, load_scenario
+
+        try:
+            load_scenario(args.flight)
+        except ConfigError as error:
+            parser.error(f"--flight: {error}")
     out = args.out / f"observability-{time.strftime('%Y%m%d-%H%M%S')}"
     out.mkdir(parents=True, exist_ok=True)
 

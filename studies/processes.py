@@ -1,19 +1,108 @@
 """Starting and stopping the SITL's processes: free loopback ports, readiness, clean shutdown.
 
 Used by the tests, the benchmarks and the full-SITL command: every child is started
-with its output in a log file, waited for until it prints its ready line, and
-stopped with SIGINT, then SIGTERM, then SIGKILL, so nothing outlives its owner.
+in its own session (so its own process group: a terminal's Ctrl-C reaches only the
+owner, which decides), with its output in a log file, waited for until it prints its
+ready line, and stopped with SIGTERM, then SIGKILL after a grace period, so nothing
+outlives its owner.
+
+When the owner dies without stopping them (SIGKILL, a crash), the kernel tells each
+child: on Linux every child is started through a tiny trampoline (`python -m
+studies.processes --parent PID -- COMMAND...`) that sets PR_SET_PDEATHSIG = SIGTERM
+on itself with prctl(2) and then execs the command, so the child gets SIGTERM the
+moment the thread that started it ends. This is done in the fresh child after fork,
+not in a preexec_fn (unsafe in a parent with threads, such as Zenoh's), and it needs
+no cooperation from the child beyond honouring SIGTERM, which every SITL process does
+(and the companion bounds its exit to about 2 s). A race (the owner dying between fork
+and prctl) is closed by checking the parent pid after prctl. Elsewhere (no prctl) the
+children are started directly and only the owner's own signal handling stops them.
 """
 
 from __future__ import annotations
 
+import ctypes
 import os
 import signal
 import socket
 import subprocess
 import sys
 import time
+from collections.abc import Iterable
 from pathlib import Path
+
+#: Signals that make bof-sitl (or any owner using StopSignals) stop its children and write its summaries.
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+#: s between SIGTERM and SIGKILL when stopping children.
+GRACE_PERIOD = 2.5
+_PR_SET_PDEATHSIG = 1  # linux/prctl.h
+
+
+class Interrupted(Exception):
+    """A stop signal arrived (StopSignals.check); signum says which."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(f"interrupted by {signal.Signals(signum).name}")
+        self.signum = signum
+
+
+class StopSignals:
+    """SIGINT, SIGTERM and SIGHUP recorded instead of killing the process (a context manager, main thread).
+
+    `received` is the first signal number (None before). The owner polls `check()` (raises
+    Interrupted) in its loops, so it is never interrupted in the middle of its own cleanup.
+    The previous handlers are restored on exit.
+    """
+
+    def __init__(self, signals: Iterable[int] = STOP_SIGNALS) -> None:
+        self.signals = tuple(signals)
+        self.received: int | None = None
+        self.received_at: float | None = None  # time.monotonic() of the first signal
+        self._previous: dict = {}
+
+    def _handle(self, signum, frame) -> None:  # noqa: ARG002
+        if self.received is None:
+            self.received, self.received_at = signum, time.monotonic()
+
+    def check(self) -> None:
+        if self.received is not None:
+            raise Interrupted(self.received)
+
+    def __enter__(self) -> "StopSignals":
+        self._previous = {sig: signal.signal(sig, self._handle) for sig in self.signals}
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+
+
+def death_signal_supported() -> bool:
+    """True where children can be told of their owner's death by the kernel (Linux prctl)."""
+    return sys.platform.startswith("linux")
+
+
+def with_death_signal(command: list[str]) -> list[str]:
+    """`command` wrapped in the trampoline that gives it SIGTERM when this process's current thread ends."""
+    if not death_signal_supported():
+        return list(command)
+    return [sys.executable, "-m", "studies.processes", "--parent", str(os.getpid()), "--", *command]
+
+
+def _trampoline(argv: list[str]) -> int:
+    """`--parent PID -- COMMAND...`: set PR_SET_PDEATHSIG = SIGTERM, make sure PID is still the parent, exec."""
+    if len(argv) < 4 or argv[0] != "--parent" or argv[2] != "--":
+        print("usage: python -m studies.processes --parent PID -- COMMAND...", file=sys.stderr)
+        return 2
+    parent = int(argv[1])
+    libc = ctypes.CDLL(None, use_errno=True)
+    if libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0) != 0:
+        print(f"studies.processes: prctl failed: {os.strerror(ctypes.get_errno())}", file=sys.stderr)
+        return 1
+    if os.getppid() != parent:  # the owner died before prctl: nobody would ever stop us
+        return 1
+    command = argv[3:]
+    os.execvp(command[0], command)
+    return 1  # not reached
 
 
 def free_port(kind: int = socket.SOCK_DGRAM, host: str = "127.0.0.1") -> int:
@@ -34,24 +123,29 @@ class ChildProcess:
         self.process: subprocess.Popen | None = None
         self._log = None
 
-    def start(self, timeout: float = 30.0) -> "ChildProcess":
+    def start(self, timeout: float = 30.0, stop: StopSignals | None = None) -> "ChildProcess":
+        """Start it (own session, death signal; see the module) and wait for its ready line; `stop`: give up
+        waiting (Interrupted) when a stop signal arrives."""
         self.log_path.parent.mkdir(parents=True, exist_ok=True)
         self._log = self.log_path.open("w")
         env = dict(os.environ if self.env is None else self.env)
         env.setdefault("PYTHONUNBUFFERED", "1")
-        self.process = subprocess.Popen(self.command, stdout=self._log, stderr=subprocess.STDOUT, env=env,
-                                        start_new_session=True)
+        self.process = subprocess.Popen(with_death_signal(self.command), stdout=self._log, stderr=subprocess.STDOUT,
+                                        env=env, start_new_session=True)
         if self.ready is not None:
-            self.wait_for_line(self.ready, timeout)
+            self.wait_for_line(self.ready, timeout, stop)
         return self
 
     def output(self) -> str:
         return self.log_path.read_text(errors="replace") if self.log_path.exists() else ""
 
-    def wait_for_line(self, prefix: str, timeout: float) -> str:
-        """Block until the child has printed a line starting with prefix; RuntimeError if it dies or times out."""
+    def wait_for_line(self, prefix: str, timeout: float, stop: StopSignals | None = None) -> str:
+        """Block until the child has printed a line starting with prefix; RuntimeError if it dies or times out,
+        Interrupted if `stop` has received a signal."""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
+            if stop is not None:
+                stop.check()
             for line in self.output().splitlines():
                 if line.startswith(prefix):
                     return line
@@ -64,11 +158,11 @@ class ChildProcess:
     def running(self) -> bool:
         return self.process is not None and self.process.poll() is None
 
-    def stop(self, timeout: float = 10.0) -> int | None:
-        """SIGINT, then SIGTERM, then SIGKILL (to the whole process group); returns the exit code."""
+    def stop(self, timeout: float = GRACE_PERIOD) -> int | None:
+        """SIGTERM, then SIGKILL after `timeout` s (to the whole process group); returns the exit code."""
         if self.process is None:
             return None
-        for sig, wait in ((signal.SIGINT, timeout), (signal.SIGTERM, 3.0), (signal.SIGKILL, 3.0)):
+        for sig, wait in ((signal.SIGTERM, timeout), (signal.SIGKILL, 3.0)):
             if self.process.poll() is not None:
                 break
             try:
@@ -85,6 +179,21 @@ class ChildProcess:
             self._log = None
         return code
 
+    def signal_group(self, sig: int) -> bool:
+        """Send `sig` to the child's process group; False if there is none any more."""
+        if self.process is None:
+            return False
+        try:
+            os.killpg(self.process.pid, sig)
+        except (ProcessLookupError, PermissionError):
+            return False
+        return True
+
+    def close_log(self) -> None:
+        if self._log is not None:
+            self._log.close()
+            self._log = None
+
     def kill(self) -> None:
         """SIGKILL at once (a crash, for fault tests)."""
         if self.running:
@@ -96,6 +205,35 @@ class ChildProcess:
 
     def __exit__(self, *exc_info) -> None:
         self.stop()
+
+
+def stop_all(children: Iterable[ChildProcess], grace: float = GRACE_PERIOD) -> list[int | None]:
+    """Stop every child together: SIGTERM to each process group, then SIGKILL to the groups still there
+    after `grace` s of wall time. Returns the exit codes (None for a child never started); a child
+    killed by a signal has a negative code. Takes at most about grace + 1 s."""
+    children = list(children)
+    for child in children:
+        if child.running:
+            child.signal_group(signal.SIGTERM)
+    deadline = time.monotonic() + grace
+    for child in children:
+        if child.process is None:
+            continue
+        try:
+            child.process.wait(max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            pass
+    for child in children:
+        if child.process is None:
+            continue
+        if child.running:  # only while the leader lives: a reaped leader's pid may be reused
+            child.signal_group(signal.SIGKILL)
+        try:
+            child.process.wait(1.0)
+        except subprocess.TimeoutExpired:
+            pass
+        child.close_log()
+    return [child.process.poll() if child.process is not None else None for child in children]
 
 
 def plant_command(config: Path | None = None, speed_factor: float | None = None, companion_port: int | None = None,
@@ -119,3 +257,7 @@ def start_plant(log_dir: Path, config: Path | None = None, speed_factor: float =
     child = ChildProcess(command, Path(log_dir) / "plant.out", ready="sitl-plant ready")
     child.start(timeout)
     return child, companion_port, gcs_port
+
+
+if __name__ == "__main__":
+    sys.exit(_trampoline(sys.argv[1:]))

@@ -63,7 +63,8 @@ def in_process_notes(scenario: Scenario) -> list[str]:
 def format_summary(summary: dict) -> str:
     """A few human lines for the terminal."""
     lines = [
-        f"scenario {summary['scenario']}: {summary['termination_reason']} ({summary['duration']:.1f} s, seed {summary['seed']})",
+        f"scenario {summary['scenario']}: termination {summary['termination']}, {summary['termination_reason']} "
+        f"({summary['duration']:.1f} s, seed {summary['seed']})",
         f"  over the last {summary['summary_window']:.0f} s:",
         f"    range error |p_T - p| - r_d     rms {summary['range_error_rms']:.3f} m, max {summary['range_error_max_abs']:.3f} m (r_d = {summary['desired_range']} m)",
         f"    range-estimation error          rms {summary['range_estimation_error_rms']:.3f} m, max {summary['range_estimation_error_max_abs']:.3f} m",
@@ -78,15 +79,36 @@ def format_summary(summary: dict) -> str:
     return "\n".join(lines)
 
 
+def seed_argument(text: str) -> int:
+    """argparse type: a seed for numpy's SeedSequence, an integer >= 0."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{value} is negative (seeds are integers >= 0)")
+    return value
+
+
+def scenario_file(text: str) -> str:
+    """argparse type: an existing scenario file (not a folder)."""
+    path = Path(text)
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text} is a folder; give one scenario file, e.g. {text.rstrip('/')}/constant_velocity.toml")
+    if not path.is_file():
+        raise argparse.ArgumentTypeError(f"{text}: no such file")
+    return text
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="bof-sim", description="Fly a bearing-only following scenario in the in-process simulator.")
-    parser.add_argument("scenario", nargs="?", default=str(DEFAULT_SCENARIO),
+    parser.add_argument("scenario", nargs="?", type=scenario_file, default=str(DEFAULT_SCENARIO),
                         help="scenario TOML (default: the paper's constant-velocity case, %(default)s)")
     parser.add_argument("--out", default="runs",
                         help="parent folder: the run folder <scenario>-seed<seed>-<time>/ is created inside it "
                              "(default: %(default)s)")
-    parser.add_argument("--seed", type=int, default=None,
-                        help="seed of the flight's noise (default: the scenario's [simulation] seed)")
+    parser.add_argument("--seed", type=seed_argument, default=None,
+                        help="seed of the flight's noise, an integer >= 0 (default: the scenario's [simulation] seed)")
     parser.add_argument("--no-plots", action="store_true",
                         help="write only series.npz and summary.json, no PNG plots or series.csv (default: write them)")
     args = parser.parse_args(argv)

@@ -117,7 +117,7 @@ def test_bof_sim_writes_a_run_folder(tmp_path, scenario_path, capsys):
     for name in ("series.npz", "series.csv", "summary.json", "trajectory.png", "errors.png"):
         assert (folder / name).stat().st_size > 0
     summary = json.loads((folder / "summary.json").read_text())
-    assert summary["seed"] == 3 and summary["termination"] == "COMPLETED"
+    assert summary["seed"] == 3 and summary["termination"] == "completed"
     assert "range-estimation error" in capsys.readouterr().out
 
 

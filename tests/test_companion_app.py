@@ -173,3 +173,102 @@ def test_a_fix_stamped_before_the_follow_loops_first_sample_still_gets_its_beari
     assert [fix.seq for fix, _ in due] == [0] and not app.target_link.health.bearings_dropped
     np.testing.assert_allclose(due[0][1].pursuer_position, [0.75, 0.0, -20.0], atol=1e-9)
     assert app.history.rejected_out_of_order == 0 and len(app.history) == 11
+
+
+def test_the_tlog_path_binds_nothing_outside_loopback_and_relays_nothing_to_the_autopilot(tmp_path):
+    """A pymavlink peer plays the autopilot. The companion's MAVSDK side (the adapter with the tlog writer)
+    opens only loopback sockets; MAVLink sent to each of them from another local socket (system 77: an
+    arm command and a STATUSTEXT) never reaches the autopilot, while the companion's own heartbeats do
+    (the path works) and the autopilot's heartbeats land in the tlog."""
+    import asyncio
+    import os
+    import threading
+    import time
+
+    import psutil
+
+    os.environ.setdefault("MAVLINK20", "1")
+    from pymavlink import mavutil
+
+    from companion.adapters.mavsdk_vehicle import MavsdkVehicle
+    from companion.adapters.recorder import TlogWriter
+    from studies.processes import free_port
+
+    mavlink = mavutil.mavlink
+    port = free_port()
+    autopilot = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=1, source_component=1)
+    heard: list[tuple[int, int, str]] = []  # (system, component, message type) of everything the autopilot got
+    stop = threading.Event()
+
+    def run_autopilot() -> None:
+        next_heartbeat = 0.0
+        while not stop.is_set():
+            if time.monotonic() >= next_heartbeat:
+                next_heartbeat = time.monotonic() + 0.1
+                autopilot.mav.heartbeat_send(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, 0, 0,
+                                             mavlink.MAV_STATE_STANDBY)
+            message = autopilot.recv_match(blocking=True, timeout=0.02)
+            if message is None or message.get_type() == "BAD_DATA":
+                continue
+            heard.append((message.get_srcSystem(), message.get_srcComponent(), message.get_type()))
+            if message.get_type() == "COMMAND_LONG" and message.get_srcSystem() != 77:
+                autopilot.mav.command_ack_send(message.command, mavlink.MAV_RESULT_ACCEPTED)
+
+    own = os.getpid()
+
+    def sockets() -> set[tuple[str, int, int]]:
+        return {(c.laddr.ip, c.laddr.port, c.type) for c in psutil.Process(own).net_connections(kind="inet")}
+
+    thread = threading.Thread(target=run_autopilot, daemon=True)
+    tlog = TlogWriter(tmp_path / "mavlink.tlog")
+    intruder = None
+    try:
+        thread.start()
+        time.sleep(0.3)  # the peer's own socket is bound by its first send
+        before = sockets()
+
+        async def fly() -> set:
+            vehicle = MavsdkVehicle(f"udpin://127.0.0.1:{port}", connect_timeout=20.0, odometry_rate_hz=None,
+                                    on_mavlink=tlog.record)
+            await vehicle.connect()
+            try:
+                opened = sockets() - before
+                nonlocal intruder
+                for _, target_port, kind in opened:
+                    if kind != socket.SOCK_DGRAM:
+                        continue
+                    intruder = mavutil.mavlink_connection(f"udpout:127.0.0.1:{target_port}", source_system=77,
+                                                          source_component=1)
+                    for _ in range(5):
+                        intruder.mav.command_long_send(1, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+                        intruder.mav.statustext_send(mavlink.MAV_SEVERITY_CRITICAL, b"intruder")
+                        await asyncio.sleep(0.05)
+                    intruder.close()
+                    intruder = None
+                await asyncio.sleep(1.5)  # MAVSDK's own heartbeats are 1 Hz: at least one reaches the peer
+                return opened
+            finally:
+                await vehicle.close()
+
+        import socket
+
+        opened = asyncio.run(fly())
+    finally:
+        stop.set()
+        thread.join(5.0)
+        autopilot.close()
+        if intruder is not None:
+            intruder.close()
+        tlog.stop()
+    assert opened and all(ip == "127.0.0.1" for ip, _, _ in opened), opened
+    assert [entry for entry in heard if entry[0] == 77] == []
+    # MAVSDK as a companion computer speaks as system 1 with its own component id (not the autopilot's 1).
+    assert any(kind == "HEARTBEAT" and system == 1 and component != 1 for system, component, kind in heard), heard
+    log = mavutil.mavlink_connection(str(tmp_path / "mavlink.tlog"))
+    recorded = []
+    while (message := log.recv_match()) is not None:
+        recorded.append((message.get_srcSystem(), message.get_type()))
+    log.close()
+    # The tlog records what arrived on the autopilot link (the intruder's datagrams to that port included):
+    # a record, not a relay.
+    assert (1, "HEARTBEAT") in recorded and tlog.packets == len(recorded)

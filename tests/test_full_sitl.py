@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from studies import full_sitl
+from studies.processes import free_port
 
 SPEED = 5.0
 
@@ -25,7 +26,7 @@ SPEED = 5.0
 def flown(tmp_path_factory, scenario_path):
     out = tmp_path_factory.mktemp("sitl")
     code, folder, summary = full_sitl.run(scenario_path("constant_velocity"), out, SPEED, seed=1, timeout=240.0,
-                                          plots=True, quiet=True)
+                                          plots=True, quiet=True, gcs_port=free_port())
     return code, folder, summary
 
 
@@ -40,6 +41,8 @@ def test_every_process_ends_cleanly_and_the_companion_lands(flown):
     assert summary["companion_exit_code"] == 0
     assert summary["target_exit_code"] == 0 and summary["plant_exit_code"] == 0
     assert summary["companion"]["phase"] == "done"
+    assert summary["termination"] == summary["flight"]["termination"] == "completed"
+    assert summary["interrupted"] is None and summary["companion"]["stopped_by"] is None
     events = [json.loads(line) for line in (folder / "companion" / "events.jsonl").read_text().splitlines()]
     phases = [e["phase"] for e in events
               if e["kind"] == "phase" and e["phase"] in ("arming", "taking_off", "ready", "following", "landing", "done")]
@@ -131,9 +134,10 @@ def test_telemetry_log_and_zenoh_log_are_complete(flown):
 
 def test_abort_command_holds_then_lands(tmp_path, scenario_path):
     code, folder, summary = full_sitl.run(scenario_path("constant_velocity"), tmp_path, SPEED, seed=2, timeout=240.0,
-                                          plots=False, quiet=True, abort_after=8.0)
+                                          plots=False, quiet=True, gcs_port=free_port(), abort_after=8.0)
     assert summary["abort_sent"]
     assert code == 0 and summary["companion"]["phase"] == "done"
+    assert summary["termination"] == "aborted", summary["termination"]
     events = [json.loads(line) for line in (folder / "companion" / "events.jsonl").read_text().splitlines()]
     assert any(e["kind"] == "command" and e["command"] == "abort" for e in events)
     phases = [e["phase"] for e in events if e["kind"] == "phase"]
@@ -150,7 +154,7 @@ def test_abort_command_holds_then_lands(tmp_path, scenario_path):
 def test_target_link_blackout_is_survived_in_sitl(tmp_path, scenario_path):
     """5 s without fixes (sitl-target's fault model): coast, safe behaviour, back to tracking."""
     code, folder, summary = full_sitl.run(scenario_path("constant_velocity_dropout"), tmp_path, SPEED, seed=1,
-                                          timeout=240.0, plots=False, quiet=True)
+                                          timeout=240.0, plots=False, quiet=True, gcs_port=free_port())
     assert code == 0 and summary["companion"]["phase"] == "done"
     faults = [json.loads(line) for line in (folder / "target" / "faults.jsonl").read_text().splitlines()]
     assert [f["kind"] for f in faults] == ["blackout_start", "blackout_end"]
@@ -168,7 +172,7 @@ def test_target_link_blackout_is_survived_in_sitl(tmp_path, scenario_path):
 def test_vehicle_link_loss_lets_the_failsafe_act_then_resumes(tmp_path, scenario_path):
     """The MAVLink link is silent for 10 s: the autopilot holds (failsafe), the companion resumes after."""
     code, folder, summary = full_sitl.run(scenario_path("constant_velocity_vehicle_link_loss"), tmp_path, SPEED, seed=1,
-                                          timeout=240.0, plots=False, quiet=True)
+                                          timeout=240.0, plots=False, quiet=True, gcs_port=free_port())
     assert code == 0 and summary["companion"]["phase"] == "done"
     # Detected as a silent link (no odometry for 1 s of wall time) or, on a loaded machine where
     # telemetry resumed first, as the autopilot having left offboard: either way it resumed once.
@@ -193,7 +197,7 @@ def test_seed003_range_sensor_and_ekf_fly_through_the_companion(tmp_path, scenar
     """A baseline through the real processes: the companion rebuilds bearing *and* range from each
     fix (range_noise_std = 1 m) and flies seed 003's range/azimuth/elevation EKF with HNG."""
     code, folder, summary = full_sitl.run(scenario_path("constant_velocity_range_sensor"), tmp_path, SPEED, seed=3,
-                                          timeout=240.0, plots=False, quiet=True)
+                                          timeout=240.0, plots=False, quiet=True, gcs_port=free_port())
     assert code == 0, (folder / "companion.out").read_text()[-3000:]
     flight = summary["flight"]
     assert flight["range_estimation_error_rms"] < 1.0 and flight["range_error_rms"] < 1.0, flight
@@ -220,7 +224,7 @@ def test_a_turning_target_is_followed_end_to_end_with_the_default_estimator(tmp_
     way: verdict "recovered"), the range estimate must be good, the pursuer must keep at least r_d / 2 from the target and within the airframe's tilt limit (the
     plant's attitude loop may overshoot the commanded tilt by a little: 1 deg is allowed)."""
     code, folder, summary = full_sitl.run(scenario_path(TURNING_SCENARIO), tmp_path, SPEED, seed=2,
-                                          timeout=240.0, plots=False, quiet=True)
+                                          timeout=240.0, plots=False, quiet=True, gcs_port=free_port())
     assert code == 0, (folder / "companion.out").read_text()[-3000:]
     assert summary["companion"]["phase"] == "done"
     flight = summary["flight"]
@@ -228,3 +232,37 @@ def test_a_turning_target_is_followed_end_to_end_with_the_default_estimator(tmp_
     assert flight["range_estimation_error_rms"] < 1.0, flight
     assert flight["min_range"] > 0.5 * flight["desired_range"], flight
     assert flight["max_tilt_deg"] < 35.0 + 1.0, flight
+
+
+def test_a_stalled_target_process_costs_no_bearing(tmp_path, scenario_path):
+    """What a loaded machine does to a 5x flight, made certain: the target's process is stopped (SIGSTOP) for
+    1.5 s of wall time, three times while following (7.5 s of vehicle time each). Its catch-up fixes arrive
+    seconds late, and the own-state history must still reach back to their stamps: no bearing is dropped
+    (with the former 5 s history, 40 were, as no_own_state), the flight completes, and the pursuer keeps
+    more than r_d / 2 from the target."""
+    import time
+
+    import psutil
+
+    stalls = []
+
+    def stall_target(state, engaged_at):
+        if state is None or engaged_at is None or len(stalls) >= 3 or state.stamp < engaged_at + 5.0 + 15.0 * len(stalls):
+            return
+        for child in psutil.Process().children(recursive=True):
+            if "sitl_plant.world.target_publisher" in " ".join(child.cmdline()):
+                child.suspend()
+                try:
+                    time.sleep(1.5)
+                finally:
+                    child.resume()
+                stalls.append(state.stamp)
+
+    code, folder, summary = full_sitl.run(scenario_path("constant_velocity"), tmp_path, SPEED, seed=1, timeout=240.0,
+                                          plots=False, quiet=True, gcs_port=free_port(), on_state=stall_target)
+    assert len(stalls) == 3
+    assert code == 0, (folder / "companion.out").read_text()[-3000:]
+    link = summary["companion"]["link"]
+    assert sum(link["bearings_dropped"].values()) == 0, link
+    assert summary["termination"] == "completed"
+    assert summary["flight"]["min_range"] > 0.5 * summary["flight"]["desired_range"]

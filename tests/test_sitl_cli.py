@@ -138,3 +138,90 @@ def test_the_plant_still_checks_its_own_sections(tmp_path, scenario_path):
     path.write_text(path.read_text().replace("[faults]", "[fautls]"))
     with pytest.raises(ConfigError, match="fautls"):
         load_plant_scenario(path)
+
+
+# ------------------------------------------------------------------ bof-sitl, bof-sim, companion, bof-observability
+
+
+def _usage_error(main, argv, capsys) -> str:
+    """Run a CLI's main expecting argparse's usage error: exit status 2, one error line, no traceback."""
+    with pytest.raises(SystemExit) as exited:
+        main(argv)
+    assert exited.value.code == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    return [line for line in err.splitlines() if ": error: " in line][0]
+
+
+@pytest.mark.parametrize(
+    "argv, fragment",
+    [
+        (["--fault", "nonsense=1"], "faults.nonsense"),
+        (["--fault", "los_probability=0.3"], "faults.los_probability"),  # misspelt loss_probability
+        (["--fault", "loss_probability=2"], "faults.loss_probability"),
+        (["--fault", "loss_probability"], "--fault"),
+        (["--timeout", "3"], "--timeout 3 s is too short"),
+        (["--abort-after", "-3"], "--abort-after"),
+        (["--abort-after", "0"], "--abort-after"),
+        (["--seed", "-1"], "--seed"),
+        (["--gcs-port", "0"], "--gcs-port"),
+        (["--speed-factor", "100"], "--speed-factor"),
+        (["config/scenarios"], "is a folder"),
+        (["no/such/scenario.toml"], "no such file"),
+    ],
+)
+def test_bof_sitl_refuses_bad_arguments_in_one_line_before_making_anything(tmp_path, capsys, argv, fragment):
+    from studies import full_sitl
+
+    out = tmp_path / "runs"
+    line = _usage_error(full_sitl.main, [*argv, "--out", str(out)], capsys)
+    assert line.startswith("bof-sitl: error:") and fragment in line, line
+    assert not out.exists()  # no partial run folder
+
+
+@pytest.mark.parametrize(
+    "argv, fragment",
+    [(["--seed", "-1"], "--seed"), (["config/scenarios"], "is a folder"), (["nope.toml"], "no such file")],
+)
+def test_bof_sim_refuses_bad_arguments_in_one_line(tmp_path, capsys, argv, fragment):
+    from studies import run_scenario
+
+    out = tmp_path / "runs"
+    line = _usage_error(run_scenario.main, [*argv, "--out", str(out)], capsys)
+    assert line.startswith("bof-sim: error:") and fragment in line, line
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "argv, fragment",
+    [(["--flight", "nope.toml"], "no such file"), (["--flight", "config/scenarios"], "is a folder"),
+     (["--seed", "-1"], "--seed")],
+)
+def test_bof_observability_refuses_bad_arguments_in_one_line(tmp_path, capsys, argv, fragment):
+    from studies import observability_figures
+
+    out = tmp_path / "runs"
+    line = _usage_error(observability_figures.main, [*argv, "--out", str(out)], capsys)
+    assert line.startswith("bof-observability: error:") and fragment in line, line
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "argv, fragment",
+    [(["--config", "config/scenarios"], "is a folder"), (["--config", "nope.toml"], "no such file"),
+     (["--seed", "-1"], "--seed")],
+)
+def test_companion_refuses_bad_arguments_in_one_line(tmp_path, capsys, argv, fragment):
+    from companion import app
+
+    line = _usage_error(app.main, [*argv, "--log-dir", str(tmp_path / "log")], capsys)
+    assert line.startswith("companion: error:") and fragment in line, line
+    assert not (tmp_path / "log").exists()
+
+
+def test_termination_names_are_the_documented_ones():
+    from studies.closed_loop import Termination
+    from studies.metrics import termination_name
+
+    names = {termination_name(t) for t in Termination}
+    assert {"completed", "aborted", "failsafe", "interrupted", "diverged"} <= names

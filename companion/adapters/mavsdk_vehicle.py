@@ -35,7 +35,9 @@ from scipy.spatial.transform import Rotation
 from companion.core.attitude import VehicleLimits
 from companion.core.messages import AttitudeSetpoint, PursuerState
 
-DEFAULT_URL = "udpin://0.0.0.0:14540"
+#: Loopback only: a companion next to its autopilot (PX4 SITL sends there); give the serial port or the
+#: interface address explicitly to listen elsewhere.
+DEFAULT_URL = "udpin://127.0.0.1:14540"
 
 
 class VehicleError(RuntimeError):
@@ -83,14 +85,20 @@ class MavsdkVehicle:
     url: MAVSDK connection URL (udpin://0.0.0.0:14540 listens where PX4 SITL sends its
     offboard link). connect_timeout: seconds to wait for the autopilot's heartbeat.
     odometry_rate_hz: asked of the autopilot with SET_MESSAGE_INTERVAL (None: its default).
-    forward_url: a second MAVSDK connection the vehicle's traffic is forwarded to (e.g.
-    udpout://127.0.0.1:PORT for a .tlog recorder or a ground station), or None.
+    forward_url: a second MAVSDK connection the vehicle's traffic is forwarded to (e.g. a ground
+    station), or None; one way only: forwarding is on for that connection and off for the autopilot
+    link, so MAVSDK never relays anything received there to the autopilot.
+    on_mavlink: called (on a MAVSDK thread) with every MAVLink packet MAVSDK forwards from the
+    autopilot, as bytes, one packet per call (e.g. a .tlog writer), or None. It uses MAVSDK's
+    raw:// connection, which has no socket: nothing from outside can reach the autopilot through it.
     """
 
     def __init__(self, url: str = DEFAULT_URL, connect_timeout: float = 20.0, odometry_rate_hz: float | None = 50.0,
-                 forward_url: str | None = None) -> None:
+                 forward_url: str | None = None, on_mavlink=None) -> None:
         self.url = url
         self.forward_url = forward_url
+        self.on_mavlink = on_mavlink
+        self._raw_subscription = None
         self.connect_timeout = connect_timeout
         self.odometry_rate_hz = odometry_rate_hz
         self._sdk: Mavsdk | None = None
@@ -126,11 +134,17 @@ class MavsdkVehicle:
         self._sdk = Mavsdk(config)
         await self._sdk.__aenter__()
         try:
-            if self.forward_url is None:
-                await self._sdk.add_any_connection(self.url)
-            else:
-                await self._sdk.add_any_connection(self.url, ForwardingOption.ON)
+            # Forwarding off on the autopilot link: MAVSDK forwards a message received on a connection
+            # only to the other connections with forwarding on, and, with a single such connection,
+            # never what that connection itself received. So the recorder and any forward_url hear the
+            # autopilot, and nothing they (or an intruder on their side) send ever reaches it.
+            await self._sdk.add_any_connection(self.url, ForwardingOption.OFF)
+            if self.forward_url is not None:
                 await self._sdk.add_any_connection(self.forward_url, ForwardingOption.ON)
+            if self.on_mavlink is not None:
+                await self._sdk.add_any_connection("raw://", ForwardingOption.ON)
+                # The synchronous binding underneath the asyncio wrapper has the raw-bytes subscription.
+                self._raw_subscription = self._sdk._mavsdk.subscribe_raw_bytes_to_be_sent(self.on_mavlink)
         except Exception as error:
             await self.close()
             raise VehicleError(f"cannot open MAVLink connection {self.url!r}: {error}") from error
@@ -166,6 +180,9 @@ class MavsdkVehicle:
         self._tasks = []
         if self._sdk is not None:
             sdk, self._sdk = self._sdk, None
+            if self._raw_subscription is not None:
+                subscription, self._raw_subscription = self._raw_subscription, None
+                sdk._mavsdk.unsubscribe_raw_bytes_to_be_sent(subscription)
             await sdk.__aexit__(None, None, None)
 
     async def _follow_odometry(self) -> None:

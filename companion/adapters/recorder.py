@@ -10,13 +10,12 @@ interrupted run keeps everything up to the interruption.
     zenoh_rx.jsonl  every Zenoh message received, with receipt time and verdict
     events.jsonl    phase changes, status texts, errors
     latency.csv     target message received -> setpoint sent (wall clock), per bearing
-    mavlink.tlog    the vehicle's MAVLink traffic as MAVSDK forwards it (standard .tlog:
+    mavlink.tlog    the autopilot's MAVLink traffic as MAVSDK forwards it in process (standard .tlog:
                     8-byte big-endian microsecond timestamp + raw packet)
 """
 
 from __future__ import annotations
 
-import socket
 import struct
 import threading
 import time
@@ -93,39 +92,32 @@ class RunRecorder:
 
 
 class TlogWriter:
-    """Receives the MAVLink packets MAVSDK forwards to a loopback UDP port and appends them to a .tlog.
+    """Appends the MAVLink packets MAVSDK hands over (MavsdkVehicle(on_mavlink=writer.record)) to a .tlog.
 
-    Start it, give MAVSDK `udpout://127.0.0.1:<port>` with forwarding on, stop it at the end.
+    No socket: the packets come from MAVSDK's raw:// connection in process (earlier versions listened
+    on a UDP port, and MAVSDK's forwarding socket on 0.0.0.0 relayed anything it received to the
+    autopilot). record() may be called from any thread; packets after stop() are dropped.
     """
 
     def __init__(self, path: Path) -> None:
         self.path = Path(path)
-        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self._sock.bind(("127.0.0.1", 0))
-        self._sock.settimeout(0.2)
-        self.port = self._sock.getsockname()[1]
         self._file = self.path.open("wb", buffering=0)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="tlog", daemon=True)
+        self._lock = threading.Lock()
         self.packets = 0
 
     def start(self) -> "TlogWriter":
-        self._thread.start()
         return self
 
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            try:
-                data, _ = self._sock.recvfrom(65535)
-            except socket.timeout:
-                continue
-            except OSError:
-                break
-            self._file.write(struct.pack(">Q", int(time.time() * 1e6)) + data)
+    def record(self, packet: bytes) -> None:
+        """One packet: the 8-byte big-endian microsecond wall-clock stamp, then the packet as received."""
+        with self._lock:
+            if self._file is None:
+                return
+            self._file.write(struct.pack(">Q", int(time.time() * 1e6)) + bytes(packet))
             self.packets += 1
 
     def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(2.0)
-        self._sock.close()
-        self._file.close()
+        with self._lock:
+            if self._file is not None:
+                self._file.close()
+                self._file = None
