@@ -33,6 +33,7 @@ import numpy as np
 
 from interfaces import link_schema as link
 from interfaces import zenoh_transport
+from interfaces.pki import make_pki
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, load_scenario
 from studies.closed_loop import Termination
 from studies.metrics import convergence_text, summarize, suspect_warning, write_summary
@@ -172,9 +173,10 @@ def plot_link(run: Path, engaged_at: float, path: Path) -> None:
 class GroundStation:
     """Watches the companion's state on Zenoh and starts the target when the companion follows."""
 
-    def __init__(self, endpoint: str, scenario: Scenario) -> None:
+    def __init__(self, endpoint: str, scenario: Scenario, tls: zenoh_transport.Identity | None = None) -> None:
         self.scenario = scenario
-        self.session = zenoh_transport.open_session(zenoh_transport.zenoh_config("peer", listen=(), connect=(endpoint,)))
+        self.session = zenoh_transport.open_session(zenoh_transport.zenoh_config("peer", listen=(), connect=(endpoint,),
+                                                                                 tls=tls))
         self.latest: link.CompanionState | None = None
         self.states = 0
         self.session.declare_subscriber(link.companion_state_key(scenario.link.companion_id), self._on_state)
@@ -225,33 +227,40 @@ def _progress(state: link.CompanionState | None) -> str:
 def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, timeout: float | None,
         plots: bool = True, quiet: bool = False, abort_after: float | None = None,
         target_faults: list[str] | None = None,
-        on_state: Callable[[link.CompanionState | None, float | None], None] | None = None) -> tuple[int, Path, dict]:
+        on_state: Callable[[link.CompanionState | None, float | None], None] | None = None,
+        secure: bool = False) -> tuple[int, Path, dict]:
     """Fly `config` through the three processes; returns (exit code, run folder, summary).
 
     abort_after: send the companion an abort this many simulated seconds after it engaged.
     target_faults: KEY=VALUE overrides of [faults] for sitl-target (its --fault option).
     on_state: called about every 50 ms of wall time with the companion's latest state payload
     (None before the first) and the vehicle time it engaged at (s; None before), e.g. to show
-    progress while `quiet`."""
+    progress while `quiet`.
+    secure: Zenoh with mutual TLS and access control: a development PKI is made in <run>/pki
+    and every process (this ground station as role gcs) uses its own role's certificate."""
     scenario, _ = load_scenario(config)
     speed = scenario.sitl.speed_factor if speed_factor is None else speed_factor
     seed = scenario.simulation.seed if seed is None else seed
     folder = out / f"sitl-{scenario.name}-seed{seed}-{time.strftime('%Y%m%d-%H%M%S')}"
     folder.mkdir(parents=True, exist_ok=True)
     companion_port, gcs_port = free_port(), free_port()
-    endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+    endpoint = f"{'tls' if secure else 'tcp'}/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+    pki_folder = folder / "pki"
+    tls_args = ["--zenoh-tls", str(pki_folder)] if secure else []
+    if secure:
+        make_pki(pki_folder)
     python = sys.executable
     plant = ChildProcess([python, "-m", "sitl_plant.sitl", "--config", str(config), "--speed-factor", str(speed),
                           "--companion-port", str(companion_port), "--gcs-port", str(gcs_port), "--seed", str(seed),
-                          "--log-dir", str(folder / "plant"), "--zenoh-listen", endpoint, "--quiet"],
+                          "--log-dir", str(folder / "plant"), "--zenoh-listen", endpoint, "--quiet", *tls_args],
                          folder / "plant.out", ready="sitl-plant ready")
     target = ChildProcess([python, "-m", "sitl_plant.world.target_publisher", "--config", str(config), "--zenoh-connect", endpoint,
-                           "--seed", str(seed), "--log-dir", str(folder / "target"), "--wait-for-start",
+                           "--seed", str(seed), "--log-dir", str(folder / "target"), "--wait-for-start", *tls_args,
                            *[arg for fault in (target_faults or []) for arg in ("--fault", fault)]],
                           folder / "target.out", ready="sitl-target ready")
     companion = ChildProcess([python, "-m", "companion", "--config", str(config), "--mavlink",
                               f"udpin://127.0.0.1:{companion_port}", "--zenoh-connect", endpoint, "--seed", str(seed),
-                              "--log-dir", str(folder / "companion")],
+                              "--log-dir", str(folder / "companion"), *tls_args],
                              folder / "companion.out", ready="companion ready")
     duration = scenario.companion.follow_duration or scenario.simulation.duration
     budget = timeout if timeout is not None else (duration + 90.0) / speed + 60.0
@@ -260,7 +269,7 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
     try:
         plant.start()
         target.start()
-        station = GroundStation(endpoint, scenario)
+        station = GroundStation(endpoint, scenario, zenoh_transport.tls_identity(pki_folder, "gcs") if secure else None)
         companion.start()
         deadline = time.monotonic() + budget
         next_print = 0.0
@@ -292,7 +301,11 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
         plant_code = plant.stop()
     summary: dict = {"companion_exit_code": companion_code, "target_exit_code": target_code, "plant_exit_code": plant_code,
                      "speed_factor": speed, "seed": seed, "run_folder": str(folder),
-                     "abort_sent": station.abort_sent if station is not None else False}
+                     "abort_sent": station.abort_sent if station is not None else False,
+                     # Refused TLS handshakes as each child's Zenoh logged them (secure mode only; ACL
+                     # denials are silent at the receiver, see interfaces.zenoh_transport).
+                     "zenoh": {"secure": secure, "tls_refused": {child.log_path.stem: zenoh_transport.count_tls_refusals(
+                         child.output()) for child in (plant, target, companion)} if secure else None}}
     companion_summary = json.loads((folder / "companion" / "summary.json").read_text())
     summary["companion"] = companion_summary
     plant_stats = json.loads((folder / "plant" / "stats.json").read_text())
@@ -320,6 +333,12 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
 def format_summary(summary: dict) -> str:
     flight = summary.get("flight")
     lines = [f"run folder: {summary['run_folder']}"]
+    zenoh = summary.get("zenoh") or {}
+    if zenoh.get("secure"):
+        refused = ", ".join(f"{name} {count}" for name, count in zenoh["tls_refused"].items())
+        lines.append(f"  zenoh: mutual TLS + access control; TLS handshakes refused: {refused}")
+    elif zenoh:
+        lines.append("  zenoh: plain TCP, unauthenticated (--secure for mutual TLS and access control)")
     if not flight:
         lines.append(f"no flight figures: {summary.get('flight_error')}")
         return "\n".join(lines)
@@ -369,6 +388,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--abort-after", type=float, default=None,
                         help="as the ground station, send the companion 'abort' this many simulated seconds after it "
                              "engages (default: never)")
+    parser.add_argument("--secure", action="store_true",
+                        help="Zenoh with mutual TLS and access control: make a development PKI in <run>/pki and run "
+                             "every process with its own certificate (default: plain TCP, unauthenticated)")
     parser.add_argument("--quiet", action="store_true",
                         help="no progress line every 2 s of wall time, only the final summary (default: print them)")
     args = parser.parse_args(argv)
@@ -377,7 +399,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         code, folder, summary = run(args.config, args.out, args.speed_factor, args.seed, args.timeout, not args.no_plots,
-                                    args.quiet, args.abort_after, args.fault)
+                                    args.quiet, args.abort_after, args.fault, secure=args.secure)
     except ConfigError as error:
         print(f"bof-sitl: {error}", file=sys.stderr)
         return 2
