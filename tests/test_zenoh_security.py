@@ -307,6 +307,22 @@ def test_a_certificate_from_another_ca_cannot_join(mesh, certs, foreign_certs, i
     assert intruder.info.links() == []
 
 
+def test_a_plain_tcp_peer_cannot_join_a_tls_listener(mesh, intruders, capfd):
+    endpoint, sessions, inbox, _ = mesh
+    capfd.readouterr()
+    intruder = zenoh.open(_config([], ["tcp/" + endpoint.removeprefix("tls/")], None))
+    intruders.append(intruder)
+    heard = Inbox(intruder, "bof/target/**")
+    refusals = []
+    _until(lambda: refusals.append(count_tls_refusals(capfd.readouterr().out)) or sum(refusals) >= 2,
+           "the plant's Zenoh to log two refused handshakes")
+    for i in range(20):
+        intruder.put(COMMAND_KEY, b"abort over plain TCP")
+        sessions["target"].put(FIX_KEY, f"after-{i}".encode())
+    inbox.wait_for(FIX_KEY, b"after-19")
+    assert inbox.on(COMMAND_KEY) == [] and heard.samples == [] and intruder.info.links() == []
+
+
 def test_the_target_identity_cannot_command_even_without_access_control_of_its_own(mesh, certs, intruders):
     """A peer holding the genuine target certificate (a stolen key, or the target itself) joins,
     and may publish fixes, but the companion's and the target's Zenoh drop its commands on ingress."""
@@ -378,7 +394,7 @@ def test_bof_sitl_secure_flies_and_refuses_intruders(tmp_path):
     scenario = (SCENARIOS_DIR / "constant_velocity.toml").read_text()
     vehicle = (SCENARIOS_DIR / "../vehicles/paper_table1.toml").resolve()
     scenario = scenario.replace('vehicle = "../vehicles/paper_table1.toml"', f'vehicle = "{vehicle}"')
-    scenario = re.sub(r"(?m)^duration = 60\.0$", "duration = 15.0", scenario)
+    scenario = re.sub(r"(?m)^duration = 60\.0$", "duration = 25.0", scenario)
     scenario = re.sub(r"(?m)^summary_window = 20\.0$", "summary_window = 10.0", scenario)
     config = tmp_path / "short.toml"
     config.write_text(scenario)
