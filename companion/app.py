@@ -82,8 +82,9 @@ class CompanionApp:
 
     def __init__(self, scenario: Scenario, vehicle_config: VehicleConfig, log_dir: Path, mavlink_url: str | None = None,
                  zenoh_connect: tuple[str, ...] | None = None, zenoh_listen: tuple[str, ...] | None = None,
-                 seed: int | None = None) -> None:
+                 seed: int | None = None, zenoh_tls: "zenoh_transport.Identity | None" = None) -> None:
         self.scenario = scenario
+        self.zenoh_tls = zenoh_tls  # None: plain TCP, unauthenticated (see zenoh_transport.link_security)
         self.vehicle_config = vehicle_config
         self.settings = scenario.companion
         self.link_settings = scenario.link
@@ -197,8 +198,10 @@ class CompanionApp:
         """Open the session, subscribe fixes (target link) and commands; returns the state publisher."""
         settings = self.link_settings
         config = zenoh_transport.zenoh_config(settings.mode, listen=self.zenoh_listen, connect=self.zenoh_connect,
-                                              overrides=settings.zenoh_overrides)
+                                              overrides=settings.zenoh_overrides, tls=self.zenoh_tls)
         self._session = zenoh_transport.open_session(config)
+        self.recorder.event(None, "zenoh_security", zenoh_transport.link_security(self.zenoh_tls),
+                            role=self.zenoh_tls.role if self.zenoh_tls is not None else None)
         self.target_link.subscribe(self._session, loop)
         self._session.declare_subscriber(link.companion_command_key(settings.companion_id),
                                          lambda sample: loop.call_soon_threadsafe(self.on_command, sample.payload.to_bytes()))
@@ -282,6 +285,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--mavlink", default=None, help="MAVSDK connection URL ([companion] mavlink_url)")
     parser.add_argument("--zenoh-connect", action="append", default=None, help="Zenoh endpoint to connect to (repeatable)")
     parser.add_argument("--zenoh-listen", action="append", default=None, help="Zenoh endpoint to listen on (repeatable)")
+    parser.add_argument("--zenoh-tls", type=Path, default=None, metavar="DIR",
+                        help="mutual TLS and access control on Zenoh as role 'companion', with DIR/ca.pem, "
+                             "DIR/companion.pem, DIR/companion.key (made by bof-certs; endpoints then tls/...). "
+                             "Default: plain TCP, unauthenticated")
     parser.add_argument("--log-dir", type=Path, default=None, help="run folder (default runs/companion-<time>)")
     parser.add_argument("--seed", type=_seed, default=None, help="bearing-noise seed, an integer >= 0 ([simulation] seed)")
     return parser.parse_args(argv)
@@ -299,8 +306,19 @@ def main(argv: list[str] | None = None) -> int:
               "section VIII-B (it needs the true line of sight); it cannot fly. Use 'predicted' or 'measured'.",
               file=sys.stderr)
         return 2
+    try:
+        zenoh_tls = zenoh_transport.tls_identity(args.zenoh_tls, "companion")
+        if zenoh_tls is not None:  # a plain endpoint with --zenoh-tls: say so now, not as a traceback later
+            zenoh_transport.zenoh_config(scenario.link.mode, listen=args.zenoh_listen or scenario.link.listen,
+                                         connect=args.zenoh_connect or scenario.link.connect,
+                                         overrides=scenario.link.zenoh_overrides, tls=zenoh_tls)
+    except zenoh_transport.LinkError as error:
+        print(f"companion: {error}", file=sys.stderr)
+        return 2
+    print(f"companion: {zenoh_transport.link_security(zenoh_tls)}", flush=True)
     log_dir = args.log_dir or Path("runs") / f"companion-{time.strftime('%Y%m%d-%H%M%S')}"
-    app = CompanionApp(scenario, vehicle_config, log_dir, args.mavlink, args.zenoh_connect, args.zenoh_listen, args.seed)
+    app = CompanionApp(scenario, vehicle_config, log_dir, args.mavlink, args.zenoh_connect, args.zenoh_listen, args.seed,
+                       zenoh_tls=zenoh_tls)
 
     def hard_exit(signum: int) -> None:
         print(f"companion: still busy {HARD_EXIT_AFTER:g} s after {signal.Signals(signum).name}; exiting now "

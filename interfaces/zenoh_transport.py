@@ -26,17 +26,44 @@ form a peer mesh; a client has no listener at all), but a client's `zenoh.open` 
 default. Client mode suits a ground station on another machine: gossip hands out the
 peers' loopback addresses, which it could not reach.
 
+Secure links (``zenoh_config(..., tls=identity)``)
+--------------------------------------------------
+Plain TCP is the default: anyone who can reach a port may join and publish anything.
+With an `interfaces.pki.Identity` (``--zenoh-tls DIR`` on the command lines) the session
+uses only Zenoh's own security:
+
+* **mutual TLS** (``transport/link/tls``: ``enable_mtls``, the role's certificate and key
+  on both the listening and the connecting side, ``root_ca_certificate`` the CA, host
+  name checked on connect) and **only** TLS links (``transport/link/protocols = ["tls"]``;
+  endpoints must be ``tls/...``, a peer listens on ``tls/127.0.0.1:0``). A peer without a
+  certificate from the CA never completes a handshake: it receives nothing and delivers
+  nothing. Zenoh logs each refused handshake at the listener as a WARN line of
+  ``zenoh_link_tls`` (e.g. "peer sent no certificates", "invalid peer certificate:
+  BadSignature"), which `zenoh_config` turns on (`count_tls_refusals` counts them).
+* **access control** (``access_control``, `access_control`): default deny; a peer's
+  role is its certificate's common name; every node accepts a ``put`` only from the role
+  that owns the key (`PUBLISH_RIGHTS`) and subscriber declarations on ``bof/**`` from
+  every role. Zenoh enforces it on **ingress at the receiving node** (measured: a peer
+  holding the ``target`` certificate and no access control of its own cannot make the
+  companion hear a command). A denied message is dropped silently: Zenoh reports ACL
+  decisions only at its trace level, together with every allowed message, so the
+  receiver cannot count denials at an acceptable cost.
+
 """
 
 from __future__ import annotations
 
 import ipaddress
 import json
+import os
 import re
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
+from pathlib import Path
 from typing import Literal
 
 import zenoh
+
+from interfaces.pki import Identity, PkiError, identity
 
 
 class LinkError(RuntimeError):
@@ -46,6 +73,25 @@ class LinkError(RuntimeError):
 #: What an empty `listen` gives a peer: a loopback port the kernel picks, so that gossip can
 #: link peers directly (a peer that listens nowhere never hears other non-listening peers).
 LOOPBACK_ANY_PORT = "tcp/127.0.0.1:0"
+#: The same with TLS, the default listen endpoint of a secure peer.
+TLS_LOOPBACK_ANY_PORT = "tls/127.0.0.1:0"
+#: Who may publish what, by role (certificate common name) -> key expressions. Everything
+#: else a peer sends (puts elsewhere, deletes, queries, replies, liveliness) is refused.
+PUBLISH_RIGHTS: dict[str, tuple[str, ...]] = {
+    "plant": ("bof/sim/clock",),
+    "target": ("bof/target/*/fix",),
+    "companion": ("bof/companion/*/state",),
+    "gcs": ("bof/companion/*/command", "bof/target/*/command"),
+}
+#: Key expressions every role may subscribe to (and have publications sent to).
+SUBSCRIBE_RIGHTS = ("bof/**",)
+#: Zenoh's log filter in secure mode, unless RUST_LOG says otherwise: errors, plus the TLS
+#: layer's warnings (one line per refused handshake; Zenoh sleeps 100 ms after each one in
+#: its accept loop, so at most about 10 lines/s per listener) and ACL subject notices.
+SECURE_LOG_FILTER = "error,zenoh_link_tls=warn,zenoh::net::routing::interceptor::access_control=info"
+_TLS_REFUSAL = re.compile(r"\bWARN\b.*\bzenoh_link_tls\b")
+_ANSI = re.compile(r"\x1b\[[0-9;]*m")
+_log_started = False
 _ENDPOINT = re.compile(r"(?P<protocol>[a-z0-9\-]+)/(?P<address>[^?#]+)(?:\?[^#]*)?(?:#.*)?")
 
 
@@ -73,9 +119,77 @@ def _is_loopback(host: str) -> bool:
         return False
 
 
+def _endpoint_protocol(endpoint: str) -> str:
+    return endpoint.split("/", 1)[0]
+
+
+def access_control(rights: Mapping[str, Iterable[str]] = PUBLISH_RIGHTS) -> dict:
+    """Zenoh's ``access_control`` section for `rights` (role -> key expressions it may put on).
+
+    Default deny. Subjects are certificate common names (one subject per role). Ingress:
+    ``put`` only on the role's own keys, ``declare_subscriber`` on SUBSCRIBE_RIGHTS from
+    every role. Egress: ``put`` and ``declare_subscriber`` on SUBSCRIBE_RIGHTS to every
+    role (with default deny Zenoh filters egress too; what leaves is this node's own
+    traffic, to peers that already passed mutual TLS).
+    """
+    rights = {role: tuple(keys) for role, keys in rights.items()}
+    roles = list(rights)
+    rules = [
+        {"id": "subscribe", "messages": ["declare_subscriber"], "flows": ["ingress", "egress"], "permission": "allow",
+         "key_exprs": list(SUBSCRIBE_RIGHTS)},
+        {"id": "send", "messages": ["put"], "flows": ["egress"], "permission": "allow", "key_exprs": list(SUBSCRIBE_RIGHTS)},
+    ]
+    policies = [{"id": "everyone", "rules": ["subscribe", "send"], "subjects": [f"role-{role}" for role in roles]}]
+    for role, keys in rights.items():
+        if keys:
+            rules.append({"id": f"publish-{role}", "messages": ["put"], "flows": ["ingress"], "permission": "allow",
+                          "key_exprs": list(keys)})
+            policies.append({"id": f"{role}-publishes", "rules": [f"publish-{role}"], "subjects": [f"role-{role}"]})
+    return {"enabled": True, "default_permission": "deny", "rules": rules,
+            "subjects": [{"id": f"role-{role}", "cert_common_names": [role]} for role in roles], "policies": policies}
+
+
+def tls_identity(folder: str | Path | None, role: str) -> Identity | None:
+    """The checked identity of `role` in PKI folder `folder` (None: plain mode, returns None).
+
+    LinkError (one line: missing file, wrong common name, not from the CA, expired...) if unusable.
+    """
+    if folder is None:
+        return None
+    try:
+        return identity(Path(folder), role)
+    except PkiError as error:
+        raise LinkError(f"--zenoh-tls: {error}") from None
+
+
+def link_security(tls: Identity | None) -> str:
+    """One line for the process log: who this process is on Zenoh, or that its link is unauthenticated."""
+    if tls is None:
+        return ("Zenoh link UNAUTHENTICATED: plain TCP, no access control (any local process may publish fixes or "
+                "commands); use --zenoh-tls DIR for mutual TLS and access control")
+    return (f"Zenoh link authenticated: mutual TLS as {tls.role!r} (certificate {tls.certificate}, CA {tls.ca}), "
+            f"access control default deny, {tls.role} may publish {', '.join(PUBLISH_RIGHTS.get(tls.role, ())) or 'nothing'}")
+
+
+def count_tls_refusals(text: str) -> int:
+    """TLS connections Zenoh refused or dropped at this process's listeners: its ``zenoh_link_tls``
+    WARN lines in `text` (a process's output in secure mode), one per refused handshake."""
+    return sum(1 for line in text.splitlines() if _TLS_REFUSAL.search(_ANSI.sub("", line)))
+
+
+def _start_secure_log() -> None:
+    """Turn Zenoh's own log on once per process (stdout; SECURE_LOG_FILTER unless RUST_LOG is set)."""
+    global _log_started
+    if not _log_started:
+        os.environ.setdefault("NO_COLOR", "1")
+        zenoh.init_log_from_env_or(SECURE_LOG_FILTER)
+        _log_started = True
+
+
 def zenoh_config(mode: Literal["peer", "client", "router"] = "peer", listen: Iterable[str] = (),
                  connect: Iterable[str] = (), multicast_scouting: bool = False, *,
-                 allow_remote_listen: bool = False, overrides: dict[str, str] | None = None) -> zenoh.Config:
+                 allow_remote_listen: bool = False, overrides: dict[str, str] | None = None,
+                 tls: Identity | None = None) -> zenoh.Config:
     """A Zenoh session configuration (see the module docstring for the topology).
 
     mode: "peer" (default), "client" (no listener; needs `connect`) or "router".
@@ -88,6 +202,10 @@ def zenoh_config(mode: Literal["peer", "client", "router"] = "peer", listen: Ite
     (e.g. TLS: {"transport/link/tls/root_ca_certificate": '"/etc/bof/ca.pem"'}); dots in
     the key path are accepted for slashes. A listen endpoint set here is checked like
     `listen`.
+    tls: this process's identity (`tls_identity`): mutual TLS with its certificate, TLS links
+    only, and the access control of `access_control` (see the module docstring); every
+    endpoint must then be ``tls/...`` (LinkError otherwise) and an empty `listen` gives a
+    peer TLS_LOOPBACK_ANY_PORT. Also turns on Zenoh's log of refused handshakes (stdout).
     """
     listen, connect = list(listen), list(connect)
     if mode not in ("peer", "client", "router"):
@@ -105,13 +223,28 @@ def zenoh_config(mode: Literal["peer", "client", "router"] = "peer", listen: Ite
         if not connect:
             raise LinkError("a Zenoh client needs a connect endpoint (multicast scouting aside)")
     elif not listen:
-        listen = [LOOPBACK_ANY_PORT]
+        listen = [TLS_LOOPBACK_ANY_PORT if tls is not None else LOOPBACK_ANY_PORT]
+    if tls is not None:
+        for endpoint in (*listen, *connect):
+            if _endpoint_protocol(endpoint) != "tls":
+                raise LinkError(f"Zenoh endpoint {endpoint!r} is not TLS; with --zenoh-tls every endpoint must be "
+                                f"tls/<host>:<port>, e.g. tls/127.0.0.1:7447")
     config = zenoh.Config()
     try:
         config.insert_json5("mode", json.dumps(mode))
         config.insert_json5("listen/endpoints", json.dumps(listen))
         config.insert_json5("connect/endpoints", json.dumps(connect))
         config.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast_scouting)))
+        if tls is not None:
+            config.insert_json5("transport/link/protocols", json.dumps(["tls"]))
+            config.insert_json5("transport/link/tls", json.dumps({
+                "root_ca_certificate": str(tls.ca),
+                "enable_mtls": True,
+                "listen_certificate": str(tls.certificate), "listen_private_key": str(tls.key),
+                "connect_certificate": str(tls.certificate), "connect_private_key": str(tls.key),
+                "verify_name_on_connect": True,
+            }))
+            config.insert_json5("access_control", json.dumps(access_control()))
         for key, value in (overrides or {}).items():
             path = key.replace(".", "/")
             if path.startswith("listen") and not allow_remote_listen:
@@ -119,6 +252,8 @@ def zenoh_config(mode: Literal["peer", "client", "router"] = "peer", listen: Ite
             config.insert_json5(path, value)
     except zenoh.ZError as error:
         raise LinkError(f"invalid Zenoh configuration: {error}") from None
+    if tls is not None:
+        _start_secure_log()
     return config
 
 

@@ -30,7 +30,7 @@ import numpy as np
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, PlantScenario, VehicleConfig, load_plant_scenario
 from interfaces.records import AggregatingLog, CsvLog, JsonLinesLog, write_json
 from interfaces.link_schema import CLOCK_KEY, ClockTick, encode_clock
-from interfaces.zenoh_transport import LinkError, open_session, publisher, zenoh_config
+from interfaces.zenoh_transport import LinkError, link_security, open_session, publisher, tls_identity, zenoh_config
 from sitl_plant.vehicle.autopilot import Autopilot
 from sitl_plant.vehicle.params import quadrotor_params
 from sitl_plant.vehicle.mavlink_vehicle import COMPANION_STREAMS, GCS_STREAMS, Event, Home, LinkSpec, MavlinkVehicle
@@ -189,10 +189,10 @@ class RunLog:
 class ClockPublisher:
     """The plant's simulated time on Zenoh (bof/sim/clock), for the target simulator and others."""
 
-    def __init__(self, listen, connect, rate_hz: float, sender: str = "sitl-plant") -> None:
+    def __init__(self, listen, connect, rate_hz: float, sender: str = "sitl-plant", tls=None) -> None:
         if not (math.isfinite(rate_hz) and rate_hz > 0):
             raise ValueError(f"--clock-rate must be positive, got {rate_hz!r}")
-        self.session = open_session(zenoh_config(listen=listen, connect=connect))
+        self.session = open_session(zenoh_config(listen=listen, connect=connect, tls=tls))
         self.publisher = publisher(self.session, CLOCK_KEY)
         self.period = 1.0 / rate_hz
         self.sender = sender
@@ -357,6 +357,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--zenoh-connect", action="append", default=None, metavar="ENDPOINT",
                         help="publish the simulated clock on Zenoh, connecting here; repeatable")
     parser.add_argument("--clock-rate", type=float, default=50.0, help="clock messages per simulated second")
+    parser.add_argument("--zenoh-tls", type=Path, default=None, metavar="DIR",
+                        help="mutual TLS and access control on Zenoh as role 'plant', with DIR/ca.pem, DIR/plant.pem, "
+                             "DIR/plant.key (made by bof-certs; endpoints then tls/...). Default: plain TCP, unauthenticated")
     parser.add_argument("--mavlink-blackout", type=float, nargs=2, action="append", default=None,
                         metavar=("START", "DURATION"),
                         help="fault injection: the companion link goes silent both ways from START for DURATION "
@@ -405,9 +408,13 @@ def main(argv: list[str] | None = None) -> int:
         windows.append((start, start + duration))
     vehicle.companion_blackouts = sorted(windows)
     clock = None
-    if args.zenoh_listen or args.zenoh_connect:
+    if args.zenoh_listen or args.zenoh_connect or args.zenoh_tls:
         try:
-            clock = ClockPublisher(args.zenoh_listen or (), args.zenoh_connect or (), args.clock_rate)
+            if not (args.zenoh_listen or args.zenoh_connect):
+                raise LinkError("--zenoh-tls: give --zenoh-listen or --zenoh-connect as well (tls/<host>:<port>)")
+            tls = tls_identity(args.zenoh_tls, "plant")
+            clock = ClockPublisher(args.zenoh_listen or (), args.zenoh_connect or (), args.clock_rate, tls=tls)
+            print(f"sitl-plant: {link_security(tls)}", flush=True)
         except (LinkError, ValueError) as error:
             vehicle.close()
             log.close()

@@ -26,8 +26,11 @@ ground-station telemetry to udp 127.0.0.1:--gcs-port (default 14550), printed at
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import math
+import os
+import secrets
 import signal
 import socket
 import sys
@@ -39,6 +42,7 @@ import numpy as np
 
 from interfaces import link_schema as link
 from interfaces import zenoh_transport
+from interfaces.pki import make_pki
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, load_scenario
 from studies.closed_loop import Termination
 from studies.metrics import convergence_text, summarize, suspect_warning, termination_name, write_summary
@@ -179,9 +183,10 @@ def plot_link(run: Path, engaged_at: float, path: Path) -> None:
 class GroundStation:
     """Watches the companion's state on Zenoh and starts the target when the companion follows."""
 
-    def __init__(self, endpoint: str, scenario: Scenario) -> None:
+    def __init__(self, endpoint: str, scenario: Scenario, tls: zenoh_transport.Identity | None = None) -> None:
         self.scenario = scenario
-        self.session = zenoh_transport.open_session(zenoh_transport.zenoh_config("peer", listen=(), connect=(endpoint,)))
+        self.session = zenoh_transport.open_session(zenoh_transport.zenoh_config("peer", listen=(), connect=(endpoint,),
+                                                                                 tls=tls))
         self.latest: link.CompanionState | None = None
         self.states = 0
         self.session.declare_subscriber(link.companion_state_key(scenario.link.companion_id), self._on_state)
@@ -283,7 +288,8 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
         plots: bool = True, quiet: bool = False, abort_after: float | None = None,
         target_faults: list[str] | None = None,
         on_state: Callable[[link.CompanionState | None, float | None], None] | None = None,
-        gcs_port: int = DEFAULT_GCS_PORT, stop: StopSignals | None = None) -> tuple[int, Path, dict]:
+        gcs_port: int = DEFAULT_GCS_PORT, stop: StopSignals | None = None,
+        secure: bool = False) -> tuple[int, Path, dict]:
     """Fly `config` through the three processes; returns (exit code, run folder, summary).
 
     abort_after: send the companion an abort this many simulated seconds after it engaged (> 0).
@@ -295,7 +301,9 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
     received SIGINT, SIGTERM or SIGHUP the children are stopped at once (SIGTERM, SIGKILL after
     studies.processes.GRACE_PERIOD), the summaries are written (termination "interrupted", no
     plots) and the exit code is 128 + the signal. Arguments are checked (ConfigError) before the
-    run folder is made."""
+    run folder is made.
+    secure: Zenoh with mutual TLS and access control: a development PKI is made in <run>/pki
+    and every process (this ground station as role gcs) uses its own role's certificate."""
     scenario, _ = load_scenario(config)
     speed = scenario.sitl.speed_factor if speed_factor is None else speed_factor
     seed = scenario.simulation.seed if seed is None else seed
@@ -312,19 +320,26 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
     folder = out / f"sitl-{scenario.name}-seed{seed}-{time.strftime('%Y%m%d-%H%M%S')}"
     folder.mkdir(parents=True, exist_ok=True)
     companion_port = free_port()
-    endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+    endpoint = f"{'tls' if secure else 'tcp'}/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+    pki_folder = folder / "pki"
+    tls_args = ["--zenoh-tls", str(pki_folder)] if secure else []
+    signing_args: list[str] = []
+    if secure:
+        make_pki(pki_folder)
+        signing_args = ["--signing-key", str(make_signing_key(pki_folder)), "--mav-sign-cfg", "1"]
     python = sys.executable
     plant = ChildProcess([python, "-m", "sitl_plant.sitl", "--config", str(config), "--speed-factor", str(speed),
                           "--companion-port", str(companion_port), "--gcs-port", str(gcs_port), "--seed", str(seed),
-                          "--log-dir", str(folder / "plant"), "--zenoh-listen", endpoint, "--quiet"],
+                          "--log-dir", str(folder / "plant"), "--zenoh-listen", endpoint, "--quiet", *tls_args,
+                          *signing_args],
                          folder / "plant.out", ready="sitl-plant ready")
     target = ChildProcess([python, "-m", "sitl_plant.world.target_publisher", "--config", str(config), "--zenoh-connect", endpoint,
-                           "--seed", str(seed), "--log-dir", str(folder / "target"), "--wait-for-start",
+                           "--seed", str(seed), "--log-dir", str(folder / "target"), "--wait-for-start", *tls_args,
                            *[arg for fault in (target_faults or []) for arg in ("--fault", fault)]],
                           folder / "target.out", ready="sitl-target ready")
     companion = ChildProcess([python, "-m", "companion", "--config", str(config), "--mavlink",
                               f"udpin://127.0.0.1:{companion_port}", "--zenoh-connect", endpoint, "--seed", str(seed),
-                              "--log-dir", str(folder / "companion")],
+                              "--log-dir", str(folder / "companion"), *tls_args],
                              folder / "companion.out", ready="companion ready")
     duration = scenario.companion.follow_duration or scenario.simulation.duration
     budget = timeout if timeout is not None else (duration + 90.0) / speed + 60.0
@@ -336,7 +351,7 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
     try:
         plant.start(stop=stop)
         target.start(stop=stop)
-        station = GroundStation(endpoint, scenario)
+        station = GroundStation(endpoint, scenario, zenoh_transport.tls_identity(pki_folder, "gcs") if secure else None)
         companion.start(stop=stop)
         deadline = time.monotonic() + budget
         next_print = 0.0
@@ -378,7 +393,11 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
     summary: dict = {"companion_exit_code": companion_code, "target_exit_code": target_code, "plant_exit_code": plant_code,
                      "speed_factor": speed, "seed": seed, "run_folder": str(folder), "gcs_port": gcs_port,
                      "abort_sent": station.abort_sent if station is not None else False,
-                     "interrupted": interrupted, "stopped_after_s": stopped_after}
+                     "interrupted": interrupted, "stopped_after_s": stopped_after,
+                     # Refused TLS handshakes as each child's Zenoh logged them (secure mode only; ACL
+                     # denials are silent at the receiver, see interfaces.zenoh_transport).
+                     "zenoh": {"secure": secure, "tls_refused": {child.log_path.stem: zenoh_transport.count_tls_refusals(
+                         child.output()) for child in (plant, target, companion)} if secure else None}}
     companion_summary = _read_json(folder / "companion" / "summary.json")
     summary["companion"] = companion_summary
     plant_stats = _read_json(folder / "plant" / "stats.json")
@@ -412,6 +431,22 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
     return code, folder, summary
 
 
+def make_signing_key(folder: Path) -> Path:
+    """A MAVLink 2 signing key for the plant's ground-station link, in `folder` (mode 0600).
+
+    The key is the SHA-256 of a random passphrase, which is how MAVProxy derives its key from
+    `signing key <passphrase>`, so the passphrase (mavlink_signing_passphrase.txt, also 0600) is
+    all a ground station needs. Returns the key file (64 hex characters, sitl-plant --signing-key).
+    """
+    passphrase = secrets.token_urlsafe(24)
+    for name, text in (("mavlink_signing_passphrase.txt", passphrase),
+                       ("mavlink_signing.key", hashlib.sha256(passphrase.encode()).hexdigest())):
+        descriptor = os.open(folder / name, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+        with os.fdopen(descriptor, "w") as handle:
+            handle.write(text + "\n")
+    return folder / "mavlink_signing.key"
+
+
 def _read_json(path: Path) -> dict | None:
     """A child's JSON summary, or None when it is missing or cut (a child killed before writing it)."""
     try:
@@ -424,6 +459,14 @@ def format_summary(summary: dict) -> str:
     flight = summary.get("flight")
     lines = [f"run folder: {summary['run_folder']}",
              f"termination: {summary.get('termination')}, {summary.get('termination_reason')}"]
+    zenoh = summary.get("zenoh") or {}
+    if zenoh.get("secure"):
+        refused = ", ".join(f"{name} {count}" for name, count in zenoh["tls_refused"].items())
+        lines.append(f"  zenoh: mutual TLS + access control; TLS handshakes refused: {refused}")
+        lines.append(f"  MAVLink: signing required on the ground-station link (MAV_SIGN_CFG=1); MAVProxy: "
+                     f"signing key <the passphrase in {summary['run_folder']}/pki/mavlink_signing_passphrase.txt>")
+    elif zenoh:
+        lines.append("  zenoh: plain TCP, unauthenticated (--secure for mutual TLS and access control)")
     if not flight:
         lines.append(f"no flight figures: {summary.get('flight_error')}")
         return "\n".join(lines)
@@ -478,6 +521,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--gcs-port", type=int, default=DEFAULT_GCS_PORT,
                         help="UDP port on 127.0.0.1 the plant streams ground-station telemetry to (QGroundControl, "
                              "MAVProxy) (default: %(default)s)")
+    parser.add_argument("--secure", action="store_true",
+                        help="Zenoh with mutual TLS and access control (a development PKI in <run>/pki, every process "
+                             "with its own certificate) and MAVLink 2 signing required on the plant's ground-station "
+                             "link (key and passphrase in <run>/pki) (default: plain TCP, unauthenticated, unsigned)")
     parser.add_argument("--quiet", action="store_true",
                         help="no progress line every 2 s of wall time, only the final summary (default: print them)")
     args = parser.parse_args(argv)
@@ -491,7 +538,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             code, folder, summary = run(args.config, args.out, args.speed_factor, args.seed, args.timeout,
                                         not args.no_plots, args.quiet, args.abort_after, args.fault,
-                                        gcs_port=args.gcs_port, stop=stop)
+                                        gcs_port=args.gcs_port, stop=stop, secure=args.secure)
         except ConfigError as error:
             parser.error(str(error))
     if summary.get("interrupted"):

@@ -49,7 +49,7 @@ import numpy as np
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, FaultsConfig, TargetConfig, load_plant_scenario
 from interfaces.link_schema import CLOCK_KEY, PayloadError, TargetFix, decode_clock, decode_command, encode_target_fix, target_command_key, target_fix_key
 from interfaces.records import CsvLog, JsonLinesLog
-from interfaces.zenoh_transport import LinkError, open_session, publisher, zenoh_config
+from interfaces.zenoh_transport import LinkError, link_security, open_session, publisher, tls_identity, zenoh_config
 from interfaces.geodesy import ned_to_geodetic
 from sitl_plant.world.link_faults import FaultEvent, LinkFaults, describe, fault_rng, override_faults
 from sitl_plant.world.target import TargetMotion, target_from_config
@@ -283,6 +283,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         help="Zenoh endpoint to connect to, e.g. tcp/127.0.0.1:7447 (the plant); repeatable")
     parser.add_argument("--zenoh-listen", action="append", default=[], metavar="ENDPOINT",
                         help="Zenoh endpoint to listen on, loopback only (default tcp/127.0.0.1:0); repeatable")
+    parser.add_argument("--zenoh-tls", type=Path, default=None, metavar="DIR",
+                        help="mutual TLS and access control on Zenoh as role 'target', with DIR/ca.pem, DIR/target.pem, "
+                             "DIR/target.key (made by bof-certs; endpoints then tls/...). Default: plain TCP, unauthenticated")
     parser.add_argument("--rate", type=float, default=None, help="fixes per simulated second (default: [sensor] rate_hz)")
     parser.add_argument("--frame", choices=("geodetic", "ned"), default=None,
                         help="publish [lat, lon, alt AMSL] or local [n, e, d] m (default: [link] fix_frame)")
@@ -338,7 +341,8 @@ def main(argv: list[str] | None = None) -> int:
         args.sender = scenario.link.target_sender if args.sender is None else args.sender
         _check_args(args)
         faults_config = override_faults(scenario.faults, args.fault) if args.faults == "on" else FaultsConfig()
-        config = zenoh_config(listen=args.zenoh_listen, connect=args.zenoh_connect)
+        tls = tls_identity(args.zenoh_tls, "target")
+        config = zenoh_config(listen=args.zenoh_listen, connect=args.zenoh_connect, tls=tls)
     except (ConfigError, LinkError) as error:
         print(f"sitl-target: {error}", file=sys.stderr)
         return 2
@@ -389,7 +393,8 @@ def main(argv: list[str] | None = None) -> int:
                                  args.duration, faults, fault_log)
         clock = session.declare_subscriber(CLOCK_KEY, on_clock)
         commands = session.declare_subscriber(target_command_key(args.sender), on_command)
-        listen = args.zenoh_listen or ["tcp/127.0.0.1:0"]
+        listen = args.zenoh_listen or ["tcp/127.0.0.1:0" if tls is None else "tls/127.0.0.1:0"]
+        print(f"sitl-target: {link_security(tls)}", flush=True)
         print(f"sitl-target ready: {scenario.name}, publishing {key} at {args.rate:g} Hz ({args.frame}), "
               f"clock {CLOCK_KEY}, zenoh peer listen {listen} connect {args.zenoh_connect}, "
               f"faults: {describe(faults_config) if args.faults == 'on' else 'off'}", flush=True)
