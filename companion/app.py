@@ -84,6 +84,7 @@ class CompanionApp:
                  zenoh_connect: tuple[str, ...] | None = None, zenoh_listen: tuple[str, ...] | None = None,
                  seed: int | None = None, zenoh_tls: "zenoh_transport.Identity | None" = None) -> None:
         self.scenario = scenario
+        self.summary_written = False  # set once _shutdown has written summary.json (the hard exit checks it)
         self.zenoh_tls = zenoh_tls  # None: plain TCP, unauthenticated (see zenoh_transport.link_security)
         self.vehicle_config = vehicle_config
         self.settings = scenario.companion
@@ -246,6 +247,7 @@ class CompanionApp:
         try:
             tlog.stop()
             self.recorder.summary(self.summary())
+            self.summary_written = True
             self.recorder.close()
         finally:
             try:
@@ -321,8 +323,17 @@ def main(argv: list[str] | None = None) -> int:
                        zenoh_tls=zenoh_tls)
 
     def hard_exit(signum: int) -> None:
+        written = "logs and summary already written"
+        if not app.summary_written:
+            # The mission did not unwind in time (a MAVSDK call that ignores cancellation): write the
+            # summary from here, as it stands, rather than leave the run without one.
+            try:
+                app.recorder.summary(app.summary())
+                written = "summary written by the hard exit; logs flushed line by line"
+            except Exception as error:  # the process is about to end either way: say why there is none
+                written = f"NO summary: {type(error).__name__}: {error}"
         print(f"companion: still busy {HARD_EXIT_AFTER:g} s after {signal.Signals(signum).name}; exiting now "
-              "(logs and summary already written)", file=sys.stderr, flush=True)
+              f"({written})", file=sys.stderr, flush=True)
         sys.stdout.flush()
         os._exit(128 + signum)
 

@@ -61,13 +61,13 @@ def _bindable(kind: int, port: int) -> bool:
 class RunningSitl:
     """bof-sitl on constant_velocity at 5x, --gcs-port free, until the companion follows; its children's pids and ports."""
 
-    def __init__(self, tmp_path: Path, scenario: Path) -> None:
+    def __init__(self, tmp_path: Path, scenario: Path, extra: tuple[str, ...] = ()) -> None:
         self.out = tmp_path / "runs"
         self.log = (tmp_path / "bof-sitl.out").open("w")
         self.gcs_port = free_port()
         self.process = subprocess.Popen(
             [sys.executable, "-m", "studies.full_sitl", str(scenario), "--speed-factor", SPEED, "--out", str(self.out),
-             "--no-plots", "--quiet", "--gcs-port", str(self.gcs_port)],
+             "--no-plots", "--quiet", "--gcs-port", str(self.gcs_port), *extra],
             stdout=self.log, stderr=subprocess.STDOUT, start_new_session=True)
         self.children: dict[str, int] = {}
 
@@ -75,14 +75,14 @@ class RunningSitl:
         folders = list(self.out.glob("sitl-*")) if self.out.exists() else []
         return folders[0] if folders else None
 
-    def wait_until_following(self, timeout: float = 120.0) -> None:
+    def wait_until_following(self, timeout: float = 120.0, phase: str = "following") -> None:
         def following() -> bool:
             assert self.process.poll() is None, Path(self.log.name).read_text()
             folder = self.folder()
-            return folder is not None and "companion: following" in (folder / "companion.out").read_text(errors="replace") \
+            return folder is not None and f"companion: {phase}" in (folder / "companion.out").read_text(errors="replace") \
                 if folder is not None and (folder / "companion.out").exists() else False
 
-        _wait_until(following, timeout, "the companion to follow")
+        _wait_until(following, timeout, f"the companion to reach {phase}")
         for child in psutil.Process(self.process.pid).children(recursive=True):
             line = " ".join(child.cmdline())
             for name, module in (("plant", "sitl_plant.sitl"), ("target", "sitl_plant.world.target_publisher"),
@@ -137,6 +137,22 @@ def test_a_stop_signal_mid_flight_stops_every_process_frees_every_port_and_write
     assert (sitl.folder() / "plant" / "stats.json").exists()
     print(f"{sig.name}: children stopped {summary['stopped_after_s']} s after the signal, bof-sitl exited after "
           f"{exited_after:.2f} s")
+
+
+def test_sigterm_while_the_companion_lands_still_writes_its_summary(tmp_path, scenario_path):
+    """Abort 1 s after engaging (the companion holds, then lands), SIGTERM to bof-sitl while it lands:
+    every summary is written, no child is left."""
+    sitl = RunningSitl(tmp_path, scenario_path("constant_velocity"), ("--abort-after", "1"))
+    try:
+        sitl.wait_until_following(phase="landing")
+        sitl.process.send_signal(signal.SIGTERM)
+        sitl.process.wait(30.0)
+        assert [name for name, pid in sitl.children.items() if _alive(pid)] == []
+        companion = json.loads((sitl.folder() / "companion" / "summary.json").read_text())
+        assert companion["stopped_by"] == "SIGTERM" and companion["phase"] in ("landing", "done")
+        assert json.loads((sitl.folder() / "summary.json").read_text())["termination"] == "interrupted"
+    finally:
+        sitl.cleanup()
 
 
 def test_sigkill_to_bof_sitl_leaves_no_child_behind(sitl):
