@@ -236,7 +236,7 @@ def fly(task: FlightTask) -> dict:
     engaged = np.isfinite(series["estimate_position"][:, 0])
     row = {
         **task.labels, "seed": task.seed,
-        "termination": result.termination.name,
+        "termination": summary["termination"],  # studies.metrics: completed, diverged (suspect at the end), ...
         "diverged": bool(not completed or not final_error <= task.divergence_threshold),
         "lost": bool(not completed or not final_range_error <= task.divergence_threshold),
         # the companion's own, truth-free verdict (companion.core.health): suspect at the end of the flight
