@@ -13,6 +13,18 @@ from companion.app import CompanionApp, Phase
 from interfaces.scenario import load_scenario
 
 
+#: The vehicle time the tests' companion sees (the validator's "now", s): fixes stamped 0.6-3.1 s are fresh.
+NOW = 2.6
+
+
+@pytest.fixture
+def app(app):
+    """The conftest app with a vehicle clock standing still at NOW (no vehicle is connected)."""
+    app.target_link.clock = lambda: NOW
+    app._vehicle_time = lambda: NOW
+    return app
+
+
 def _fix(seq: int, stamp: float, position=(60.0, -20.0, -20.0), sender="target-1", frame="ned") -> bytes:
     return link.encode_target_fix(link.TargetFix(sender, seq, stamp, frame, position))
 
@@ -79,9 +91,9 @@ def test_every_malformed_kind_is_counted_under_its_reason_and_never_reaches_the_
         broken, _ = corrupt_payload(_fix(seq, 1.0 + 0.2 * seq), kind, np.array([0.3, 0.6]))
         app.target_link.on_fix(broken, 0)
         expected[reason] = expected.get(reason, 0) + 1
-    app.target_link.on_fix(_fix(50, 9.0, sender="impostor-1"), 0)
+    app.target_link.on_fix(_fix(50, 2.4, sender="impostor-1"), 0)
     app.target_link.on_fix(_fix(0, 1.0), 0)  # a duplicate / stale message
-    app.target_link.on_fix(_fix(51, 9.2, position=(5000.0, 0.0, -20.0)), 0)  # a wild jump
+    app.target_link.on_fix(_fix(7, 2.5, position=(5000.0, 0.0, -20.0)), 0)  # a wild jump
     expected.update(wrong_sender=1, stale_seq=1, implausible_jump=1)
     assert dict(app.target_link.health.rejected) == expected
     assert app.target_link.health.accepted == 1 and len(app.target_link.pending) == 1  # only the valid fix is queued
@@ -91,6 +103,7 @@ def test_every_malformed_kind_is_counted_under_its_reason_and_never_reaches_the_
 def bare_app(tmp_path_factory, scenario_path):
     scenario, vehicle = load_scenario(scenario_path("constant_velocity"))
     application = CompanionApp(scenario, vehicle, tmp_path_factory.mktemp("fuzz"))
+    application.target_link.clock = lambda: NOW
     yield application
     application.recorder.close()
 

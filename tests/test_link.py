@@ -156,7 +156,7 @@ REFUSALS = [
     (decode_target_fix, b"[1, 2]", "not_object"),
     (decode_target_fix, _bytes({k: v for k, v in _fix().items() if k != "schema"}), "missing_field"),
     (decode_target_fix, _bytes({k: v for k, v in _fix().items() if k != "position"}), "missing_field"),
-    (decode_target_fix, _bytes(_fix(schema="bof.target_fix/2")), "wrong_schema"),
+    (decode_target_fix, _bytes(_fix(schema="bof.target_fix/3")), "wrong_schema"),
     (decode_clock, _bytes(_fix()), "wrong_schema"),
     (decode_target_fix, _bytes(_fix(colour="red")), "unknown_field"),
     (decode_target_fix, _bytes(_fix(seq=True)), "wrong_type"),
@@ -421,7 +421,7 @@ def test_the_first_problem_in_the_documented_order_wins(fix, schema_fault, extra
     if schema_fault == "missing":
         document.pop("schema")
     elif schema_fault == "wrong":
-        document["schema"] = "bof.target_fix/2"
+        document["schema"] = "bof.target_fix/3"
     field_reasons = [reason for index, (name, _, reason) in enumerate(FIELD_FAULTS)
                      if index in faulted and name not in dropped]
     expected = ({"missing": "missing_field", "wrong": "wrong_schema"}.get(schema_fault)
