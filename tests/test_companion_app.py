@@ -186,3 +186,57 @@ def test_a_fix_stamped_before_the_follow_loops_first_sample_still_gets_its_beari
     assert [fix.seq for fix, _ in due] == [0] and not app.target_link.health.bearings_dropped
     np.testing.assert_allclose(due[0][1].pursuer_position, [0.75, 0.0, -20.0], atol=1e-9)
     assert app.history.rejected_out_of_order == 0 and len(app.history) == 11
+
+
+def test_before_the_first_odometry_fixes_and_commands_are_refused_as_no_clock(app):
+    app.target_link.clock = lambda: None
+    app._vehicle_time = lambda: None
+    app.target_link.on_fix(_fix(0, 1.0), 0)
+    app.on_command(link.encode_command(link.Command("ground-station", 0, 1.0, "abort", epoch=3)))
+    assert dict(app.target_link.health.rejected) == {"no_clock": 1} and not app.sequencer.abort_requested
+
+
+def test_a_future_or_replayed_message_never_locks_the_genuine_sender_out(app):
+    genuine = [link.TargetFix("target-1", k, 1.0 + 0.2 * k, "ned", (60.0 + 0.5 * k, -20.0, -20.0), epoch=11)
+               for k in range(8)]
+    app.target_link.on_fix(link.encode_target_fix(genuine[0]), 0)
+    forged = [link.TargetFix("target-1", 2**62, 1.1, "ned", (60.0, -20.0, -20.0), epoch=11),
+              link.TargetFix("target-1", 1, 1.0 + 1e6, "ned", (60.0, -20.0, -20.0), epoch=11),
+              link.TargetFix("target-1", 5, 1.1, "ned", (90.0, -20.0, -20.0), epoch=99)]
+    for fix in forged:
+        app.target_link.on_fix(link.encode_target_fix(fix), 0)
+    for fix in genuine[1:]:
+        app.target_link.on_fix(link.encode_target_fix(fix), 0)
+    assert app.target_link.health.accepted == 8
+    assert dict(app.target_link.health.rejected) == {"seq_jump": 1, "future_stamp": 1, "implausible_jump": 1}
+
+
+def test_commands_are_refused_when_replayed_reordered_or_far_in_the_future(app):
+    abort = link.Command("ground-station", 4, 2.5, "abort", epoch=8)
+    app.on_command(link.encode_command(link.Command("ground-station", 3, 2.4, "resume", epoch=8)))
+    app.on_command(link.encode_command(link.Command("ground-station", 9, 2.5 + 1e6, "abort", epoch=8)))
+    assert not app.sequencer.abort_requested
+    app.on_command(link.encode_command(abort))
+    assert app.sequencer.abort_requested
+    app.sequencer.abort_requested = False
+    app.on_command(link.encode_command(abort))  # the same command again: a replay
+    assert not app.sequencer.abort_requested
+    assert dict(app.sequencer.commands.rejected) == {"future_stamp": 1, "stale_seq": 1}
+
+
+def test_a_reject_flood_leaves_the_logs_bounded_and_the_counters_exact(app):
+    from companion.adapters.recorder import REJECTS_VERBATIM
+
+    for k in range(3000):
+        app.target_link.on_fix(b"\xff flood", 0)
+        app.on_command(b"flood")
+    app.recorder.close()
+    assert app.target_link.health.rejected["not_utf8"] == 3000
+    received = [json.loads(line) for line in (app.recorder.folder / "zenoh_rx.jsonl").read_text().splitlines()]
+    events = [json.loads(line) for line in (app.recorder.folder / "events.jsonl").read_text().splitlines()]
+    for records in (received, events):
+        verbatim = [r for r in records if r.get("kind") != "suppressed"]
+        suppressed = [r for r in records if r.get("kind") == "suppressed"]
+        assert len(verbatim) == REJECTS_VERBATIM
+        assert len(verbatim) + sum(r["count"] for r in suppressed) == 3000  # every reject written or counted
+        assert len(records) < REJECTS_VERBATIM + 10  # a few seconds of wall time: a few count lines
