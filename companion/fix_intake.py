@@ -21,7 +21,7 @@ def build_fix_validator(settings: LinkConfig) -> FixValidator:
     policy = FreshnessPolicy(max_future_skew=settings.max_future_skew_s, max_age=settings.max_fix_age_s,
                              max_rate_hz=settings.max_fix_rate_hz)
     return FixValidator(settings.target_sender, max_target_speed=settings.max_target_speed, policy=policy,
-                        silence=settings.reanchor_silence_s)
+                        silence=settings.reanchor_silence_s, epoch_switch=settings.epoch_switch_silence_s)
 
 
 def build_command_validator(settings: LinkConfig) -> CommandValidator:

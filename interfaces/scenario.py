@@ -538,6 +538,8 @@ class LinkConfig(_Strict):
     one publisher epoch (seq_jump). reanchor_silence_s: a track of fixes inconsistent with
     the last accepted one may take over only after the accepted track has been silent this
     long (or when it agrees with the filter's predicted bearing and the old one does not).
+    epoch_switch_silence_s: fixes of another publisher epoch (a restarted target) are taken
+    only once the accepted epoch has been silent this long (other_epoch before).
     max_target_speed: m/s, the plausibility bound between two fixes (plus 5 m of noise).
     """
 
@@ -554,6 +556,7 @@ class LinkConfig(_Strict):
     max_fix_age_s: Positive = 2.0
     max_fix_rate_hz: Positive = 50.0
     reanchor_silence_s: Positive = 2.0
+    epoch_switch_silence_s: NonNegative = 0.5
     max_target_speed: Positive = 30.0
 
 

@@ -26,7 +26,8 @@ r_d / 2, range-estimation error back under 1 m within 10 s of the link returning
 
 Attack patterns (`ATTACK_PATTERNS`: future_seq, future_stamp, replay, target_restart,
 spoof_burst, spoof_steady, and the two spoofs in the target's own overheard epoch:
-spoof_burst_sniffed, spoof_steady_sniffed; the [faults] attacks of sitl_plant.world.link_faults, at 30 s or from
+spoof_burst_sniffed, spoof_steady_sniffed, and spoof_close_sniffed, a spoof close enough to be
+plausible; the [faults] attacks of sitl_plant.world.link_faults, at 30 s or from
 10 s) add per flight, from the in-process link's record of which deliveries were the genuine
 target's (studies.closed_loop.GenuineRecord):
 * lockout: the longest run of rejected genuine fixes, s (from the first of them to the next
@@ -93,10 +94,13 @@ PATTERNS: dict[str, tuple[dict, str]] = {
                             "the spoof burst in the target's own epoch (overheard), seq 2^40 ahead"),
     "spoof_steady_sniffed": ({"spoof_rate_hz": 5.0, "spoof_from": 10.0, "spoof_epoch": "target", "spoof_seq_lead": 1},
                              "the steady spoof in the target's own epoch, seq 1 ahead"),
+    "spoof_close_sniffed": ({"spoof_rate_hz": 5.0, "spoof_from": 10.0, "spoof_epoch": "target", "spoof_seq_lead": 1,
+                             "spoof_offset": [10.0, 0.0, 0.0]},
+                            "the steady spoof 10 m off (plausible), in the target's own epoch, seq 1 ahead, first"),
 }
 #: The attack patterns (issue 14) and their targets (module docstring).
 ATTACK_PATTERNS = ("future_seq", "future_stamp", "replay", "target_restart", "spoof_burst", "spoof_steady",
-                   "spoof_burst_sniffed", "spoof_steady_sniffed")
+                   "spoof_burst_sniffed", "spoof_steady_sniffed", "spoof_close_sniffed")
 #: The patterns the issue sets targets for.
 TARGET_PATTERNS = ("blackout_1s", "blackout_2s", "blackout_5s", "blackout_10s", "loss_30", "bursty_2s")
 
@@ -231,10 +235,10 @@ def markdown(table: list[dict], sitl_rows: list[dict], scenario: Scenario, seeds
                       "message refused and counted):", "", reporting.markdown(lines, headers)]
     if sitl_rows:
         headers = ["pattern", "kept", "min range (m)", "worst error (m)", "re-converge (s)", "fixes rejected",
-                   "attack messages", "longest gap (s)", "targets"]
+                   "attack messages heard", "accepted > 5 m off", "longest gap (s)", "targets"]
         lines = [dict(zip(headers, (r["pattern"], str(r["kept"]), f(r["min_range"], 2), f(r["worst_error"], 2),
                                     f(r["reconverge"], 1), str(r["fixes_rejected"]), str(r.get("attack_messages", "-")),
-                                    f(r.get("lockout", math.nan), 2),
+                                    str(r.get("attack_accepted_far", "-")), f(r.get("lockout", math.nan), 2),
                                     {True: "met", False: "**missed**"}.get(r.get("meets_targets"), "-"))))
                  for r in sitl_rows]
         parts += ["", "Full SITL (real processes, MAVLink, Zenoh; faults injected by sitl-target):", "",
@@ -262,11 +266,11 @@ def _sitl_case(config: Path, name: str, folder: Path, speed: float, show_progres
     link = summary["companion"]["link"]
     row = {"pattern": name, **metrics, "fixes_rejected": sum(link["rejected"].values()), "run_folder": str(run_folder)}
     if name in ATTACK_PATTERNS:
-        row.update(_sitl_attack_figures(Path(run_folder), scenario.sensor.rate_hz))
+        row.update(_sitl_attack_figures(Path(run_folder), scenario.sensor.rate_hz, scenario.sitl.home))
         if "restart_at" in overrides:  # the restart's own silence is no rejection
             row["lockout"] = max(0.0, row["lockout"] - with_faults(scenario, overrides).faults.restart_gap_s)
         row["meets_targets"] = bool(row["kept"] and row["min_range"] >= 0.5 * scenario.guidance.desired_range
-                                    and row["lockout"] <= LOCKOUT_LIMIT
+                                    and row["lockout"] <= LOCKOUT_LIMIT and row["attack_accepted_far"] == 0
                                     and row["attack_messages"] <= row["fixes_rejected"])
     return row
 
@@ -282,16 +286,45 @@ def _jsonl(path: Path) -> list[dict]:
     return records
 
 
-def _sitl_attack_figures(run_folder: Path, rate_hz: float) -> dict:
-    """lockout (longest gap between accepted fixes' stamps while following, less one period, s) and
-    attack_messages (the attack events in the target's faults.jsonl, suppressed counts included)."""
-    events = _jsonl(run_folder / "target" / "faults.jsonl")
-    attack = sum(e.get("count", 1) if e.get("kind") == "suppressed" else 1 for e in events
-                 if str(e.get("kind")).startswith("attack_") or str(e.get("key", "")).startswith("attack_"))
+def _sitl_attack_figures(run_folder: Path, rate_hz: float, home) -> dict:
+    """From the run's logs: lockout (longest gap between accepted fixes' stamps, less one period, s),
+    attack_messages (the attack events in the target's faults.jsonl, suppressed counts included, sent
+    while the companion was still receiving) and attack_accepted_far (accepted fixes more than 5 m
+    from what the genuine target published at that stamp, target.csv)."""
     received = _jsonl(run_folder / "companion" / "zenoh_rx.jsonl")
-    stamps = sorted(r["stamp"] for r in received if r.get("verdict") == "accepted" and isinstance(r.get("stamp"), float))
+    heard_until = max((r["sim_time"] for r in received if isinstance(r.get("sim_time"), float)), default=math.inf)
+    events = _jsonl(run_folder / "target" / "faults.jsonl")
+    attack = 0
+    for e in events:
+        if str(e.get("kind")).startswith("attack_") and e.get("time", 0.0) <= heard_until:
+            attack += 1
+        elif e.get("kind") == "suppressed" and str(e.get("key")).startswith("attack_") and e["first"] <= heard_until:
+            attack += e["count"]
+    accepted = [r for r in received if r.get("verdict") == "accepted" and isinstance(r.get("stamp"), float)]
+    stamps = sorted(r["stamp"] for r in accepted)
     gaps = np.diff(stamps) if len(stamps) > 1 else np.array([0.0])
-    return {"lockout": max(0.0, float(np.max(gaps)) - 1.0 / rate_hz), "attack_messages": attack}
+    published = {}
+    table = run_folder / "target" / "target.csv"
+    if table.exists():
+        import csv
+
+        with table.open() as handle:
+            for line in csv.DictReader(handle):
+                columns = [key for key in line if key.startswith("published_")]
+                published[round(float(line["stamp"]), 6)] = [float(line[key]) for key in columns]
+    far = 0
+    for record in accepted:
+        genuine = published.get(round(record["stamp"], 6))
+        frame = record.get("frame", "ned")
+        position = link_schema.TargetFix("x", 0, 0.0, frame, record["position"])
+        if genuine is None:
+            far += 1
+            continue
+        truth = link_schema.TargetFix("x", 0, 0.0, frame, genuine)
+        distance = np.linalg.norm(link_schema.fix_to_ned(position, home) - link_schema.fix_to_ned(truth, home))
+        far += int(not distance <= 5.0)
+    return {"lockout": max(0.0, float(np.max(gaps)) - 1.0 / rate_hz), "attack_messages": attack,
+            "attack_accepted_far": far}
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:

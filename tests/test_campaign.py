@@ -64,6 +64,9 @@ def test_every_attack_leaves_the_flight_kept_and_the_intruder_refused_and_counte
     assert row["lockout"] <= campaign.LOCKOUT_LIMIT
     if name != "target_restart":
         assert row["attack_messages"] > 0
-    assert row["attack_refused"] == row["attack_messages"] and row["attack_accepted_far"] == 0
-    assert row["fixes_rejected"] >= row["attack_messages"]
-    assert row["reanchors"] == 0
+    # A liar in the overheard epoch, plausible and first, gets exactly one fix in before the conflict shows
+    # (README "Link validation": what it cannot defend); every other attack message is refused.
+    slipped = 1 if name == "spoof_close_sniffed" else 0
+    assert row["attack_refused"] == row["attack_messages"] - slipped and row["attack_accepted_far"] == slipped
+    assert row["fixes_rejected"] >= row["attack_messages"] - slipped
+    assert row["reanchors"] == slipped  # the conflict rule, once

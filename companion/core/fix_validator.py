@@ -21,7 +21,7 @@ import numpy as np
 
 #: Every reason a FixValidator counts besides the decoder's (interfaces.link_schema.REASONS).
 REASONS = ("wrong_sender", "no_clock", "future_stamp", "too_old", "stale_seq", "stale_stamp", "seq_jump",
-           "implausible_jump")
+           "other_epoch", "contested", "implausible_jump")
 
 #: agrees(position NED m (3,), stamp s) -> True/False (does the bearing from the own position at `stamp` to
 #: `position` agree with the filter's prediction?), or None when the filter cannot say (not engaged, no own state).
@@ -69,6 +69,7 @@ class _Order:
         self.policy = policy
         self.states: collections.OrderedDict[tuple, tuple[int, float]] = collections.OrderedDict()
         self.counts: dict[tuple, int] = {}
+        self.contested: set[tuple] = set()  # keys proven to carry two sources (FixValidator, "conflict")
 
     def check(self, key: tuple, seq: int, stamp: float, now: float | None) -> tuple[int, float] | None:
         """FixRejected (freshness, order) or the key's (last seq, last stamp) (None: an epoch not held)."""
@@ -89,6 +90,11 @@ class _Order:
                 raise FixRejected("seq_jump", f"seq {last_seq} -> {seq} in {stamp - last_stamp:.3f} s")
         return last
 
+    def reset(self, key: tuple, seq: int, stamp: float) -> None:
+        """Make (seq, stamp) the key's last accepted message, even if an accepted forgery was ahead of it."""
+        if key in self.states:
+            self.states[key] = (seq, stamp)
+
     def accept(self, key: tuple, seq: int, stamp: float) -> None:
         last = self.states.get(key)
         if last is None or stamp > last[1]:
@@ -99,6 +105,7 @@ class _Order:
             # min() over the insertion order (least recently accepted first) keeps the first of equals.
             victim = min((k for k in self.states if k != key), key=lambda k: self.counts[k])
             del self.states[victim], self.counts[victim]
+            self.contested.discard(victim)
 
 
 @dataclass
@@ -120,14 +127,18 @@ class FixValidator:
     future_stamp / too_old (outside [now - max_age, now + max_future_skew]), stale_seq /
     stale_stamp (not after the last accepted fix of the same epoch, or, from an epoch not
     held, not after the reference), seq_jump (seq advanced faster than the policy allows),
-    implausible_jump (the target would have moved faster than max_target_speed, plus
-    jump_margin metres of noise, since the reference: the last accepted fix).
+    other_epoch (a fix of another epoch than the reference's while the reference's epoch
+    still speaks), implausible_jump (the target would have moved faster than
+    max_target_speed, plus jump_margin metres of noise, since the reference: the last
+    accepted fix), contested (see Conflict).
 
     Order is per epoch (the publisher's boot id): a restarted publisher (new epoch, seq from
-    0) is not stale, but a new epoch earns nothing for being new: its fixes must be fresh,
-    newer than the reference and plausible like any other. Rejected fixes change no order
-    state, so no single message (a seq of 2**62, a stamp 1e6 s ahead, a replay) locks the
-    genuine target out.
+    0) is not stale, but a new epoch earns nothing for being new: the track stays with the
+    reference's epoch while it speaks, and another epoch takes over only once nothing has been
+    accepted for epoch_switch s, with fixes that are fresh, newer than the reference and
+    plausible like any other. Rejected fixes change no order state, so no single message (a
+    seq of 2**62, a stamp 1e6 s ahead, a replay) locks the genuine target out, and a second
+    source inventing its own epoch cannot interleave with the genuine one.
 
     Re-anchor: fixes that are implausible against the reference but consistent with each
     other form a candidate track (at most max_candidates kept). After reanchor_after of
@@ -138,18 +149,31 @@ class FixValidator:
     the track unless it lies along the predicted line of sight (which a bearing-only filter
     cannot see anyway).
 
+    Conflict: a liar who overheard the genuine epoch and speaks first can get a plausible
+    fix in with a seq or stamp just ahead, making the genuine next fix look stale. When a fix
+    of the reference's epoch is stale only because of the reference (in order after the fix
+    accepted before it) and the two are mutually implausible, the epoch carries two
+    sources: it is marked contested, the filter arbitrates (the new fix replaces the
+    reference when its line of sight agrees with the prediction and the reference's does not:
+    rule "conflict"), and from then on a fix of that epoch farther than jump_margin +
+    contested_speed (10 m/s) x dt from the reference extrapolated at its own velocity (last
+    two fixes) is refused (``contested``): the liar, who already meets the looser plausibility
+    bound, no longer interleaves with the genuine track. The liar's first fix, accepted before
+    the conflict showed, is the price.
+
     target_sender: expected sender id. max_target_speed: m/s. jump_margin: m. policy:
-    freshness and order (FreshnessPolicy). silence: s. reanchor_after: fixes.
+    freshness and order (FreshnessPolicy). silence: s. reanchor_after: fixes. epoch_switch: s.
     """
 
     def __init__(self, target_sender: str, max_target_speed: float = 30.0, jump_margin: float = 5.0,
                  policy: FreshnessPolicy | None = None, silence: float = 2.0, reanchor_after: int = 3,
-                 max_candidates: int = 4) -> None:
+                 max_candidates: int = 4, epoch_switch: float = 0.5) -> None:
         self.target_sender = target_sender
         self.max_target_speed = float(max_target_speed)
         self.jump_margin = float(jump_margin)
         self.policy = policy if policy is not None else FreshnessPolicy()
         self.silence = float(silence)
+        self.epoch_switch = float(epoch_switch)
         self.reanchor_after = int(reanchor_after)
         self.max_candidates = int(max_candidates)
         self.rejected: collections.Counter[str] = collections.Counter()
@@ -163,6 +187,9 @@ class FixValidator:
         self._last_accept_time: float | None = None  # `now` (or stamp without a clock) of the last acceptance
         self._order = _Order(self.policy)
         self._candidates: list[_Track] = []
+        self._previous: tuple[int, float] = (-1, -math.inf)  # (seq, stamp) accepted before the reference, same epoch
+        self._previous_position: np.ndarray | None = None
+        self.contested_speed = 10.0  # m/s: velocity change allowed per second of extrapolation in a contested epoch
 
     @property
     def epochs_held(self) -> int:
@@ -196,11 +223,23 @@ class FixValidator:
                now: float | None, agrees: Agreement | None) -> np.ndarray:
         if sender != self.target_sender:
             raise FixRejected("wrong_sender", f"sender {sender!r}, expected {self.target_sender!r}")
-        held = self._order.check((sender, epoch), seq, stamp, now)
-        if held is None and self.last_stamp is not None and stamp <= self.last_stamp:
+        key = (sender, epoch)
+        try:
+            held = self._order.check(key, seq, stamp, now)
+        except FixRejected as error:
+            if error.reason in ("stale_seq", "stale_stamp") and self._conflicts(epoch, seq, stamp, position):
+                return self._arbitrate(key, error, seq, stamp, position, now, agrees)
+            raise
+        if key in self._order.contested and epoch == self.last_epoch and not self._on_track(position, stamp):
+            raise FixRejected("contested", f"epoch {epoch} carries two sources; this fix is off the reference's track")
+        other = self.last_position is not None and epoch != self.last_epoch
+        if (held is None or other) and self.last_stamp is not None and stamp <= self.last_stamp:
             raise FixRejected("stale_stamp", f"stamp {stamp} of epoch {epoch} not after the reference {self.last_stamp}")
         reanchor = False
-        if self.last_position is not None and not self._plausible(position, stamp, self.last_position, self.last_stamp):
+        plausible = self.last_position is None or self._plausible(position, stamp, self.last_position, self.last_stamp)
+        if plausible and other and (stamp if now is None else now) - self._last_accept_time < self.epoch_switch:
+            raise FixRejected("other_epoch", f"epoch {epoch} while the reference's epoch {self.last_epoch} speaks")
+        if not plausible:
             rule = self._candidate(epoch, seq, stamp, position, now, agrees)
             if rule is None:
                 jump = float(np.linalg.norm(position - self.last_position))
@@ -210,10 +249,48 @@ class FixValidator:
             self._candidates.clear()
             reanchor = True
         self.accepted += 1
-        self._order.accept((sender, epoch), seq, stamp)
+        self._order.accept(key, seq, stamp)
         self._last_accept_time = stamp if now is None else now
         if reanchor or self.last_stamp is None or stamp > self.last_stamp:  # the reference never goes back in time
-            self.last_seq, self.last_stamp, self.last_position, self.last_epoch = seq, stamp, position, epoch
+            self._set_reference(epoch, seq, stamp, position)
+        return position
+
+    def _set_reference(self, epoch: int | None, seq: int, stamp: float, position: np.ndarray) -> None:
+        same = self.last_stamp is not None and epoch == self.last_epoch
+        self._previous = (self.last_seq, self.last_stamp) if same else (-1, -math.inf)
+        self._previous_position = self.last_position if same else None
+        self.last_seq, self.last_stamp, self.last_position, self.last_epoch = seq, stamp, position, epoch
+
+    def _on_track(self, position: np.ndarray, stamp: float) -> bool:
+        """In a contested epoch: within jump_margin + contested_speed x dt of the reference extrapolated at the
+        velocity of its last two fixes (a tighter bound than plausibility, which the liar already meets)."""
+        dt = stamp - self.last_stamp
+        velocity = np.zeros(3)
+        if self._previous_position is not None and self.last_stamp - self._previous[1] > 1e-6:
+            velocity = (self.last_position - self._previous_position) / (self.last_stamp - self._previous[1])
+        miss = float(np.linalg.norm(position - self.last_position - velocity * dt))
+        return math.isfinite(miss) and miss <= self.jump_margin + self.contested_speed * abs(dt)
+
+    def _conflicts(self, epoch: int | None, seq: int, stamp: float, position: np.ndarray) -> bool:
+        """Whether an order-stale fix proves a second source in the reference's epoch (class docstring)."""
+        if self.last_position is None or epoch != self.last_epoch:
+            return False
+        previous_seq, previous_stamp = self._previous
+        return (seq > previous_seq and stamp > previous_stamp
+                and not self._plausible(position, stamp, self.last_position, self.last_stamp))
+
+    def _arbitrate(self, key: tuple, error: FixRejected, seq: int, stamp: float, position: np.ndarray,
+                   now: float | None, agrees: Agreement | None) -> np.ndarray:
+        """Two sources in one epoch: the filter decides whether `position` replaces the reference; else `error`."""
+        self._order.contested.add(key)
+        if agrees is None or not (agrees(position, stamp) is True and agrees(self.last_position, self.last_stamp) is False):
+            raise error
+        self._order.reset(key, seq, stamp)
+        self.reanchored += 1
+        self.reanchors.append((stamp, "conflict"))
+        self.accepted += 1
+        self._last_accept_time = stamp if now is None else now
+        self.last_seq, self.last_stamp, self.last_position = seq, stamp, position  # the previous fix stays
         return position
 
     def _candidate(self, epoch: int | None, seq: int, stamp: float, position: np.ndarray, now: float | None,
