@@ -109,7 +109,8 @@ Usage::
 
     session = open_session(zenoh_config(connect=["tcp/127.0.0.1:7447"]))
     fixes = publisher(session, target_fix_key("target-1"))
-    fixes.put(encode_target_fix(TargetFix("target-1", seq, stamp, "ned", (10.0, 5.0, -20.0))))
+    epoch = new_epoch()                         # once per process: its boot id
+    fixes.put(encode_target_fix(TargetFix("target-1", seq, stamp, "ned", (10.0, 5.0, -20.0), epoch=epoch)))
 
     def on_clock(sample):                       # runs on a Zenoh thread
         try:

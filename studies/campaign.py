@@ -82,7 +82,7 @@ PATTERNS: dict[str, tuple[dict, str]] = {
     "stale": ({"stale_probability": 0.2}, "20 % stale (old) messages"),
     "corrupt": ({"corrupt_probability": 0.2}, "20 % corrupted payloads (all kinds)"),
     "impostor": ({"impostor_rate_hz": 5.0}, "a second publisher on the key, 5 Hz"),
-    "future_seq": ({"future_seq_at": ATTACK_AT}, "one copy of a fix with seq + 2^62 at 30 s"),
+    "future_seq": ({"future_seq_at": ATTACK_AT}, "one copy of a fix with seq + 2^62, 10 ms newer, at 30 s"),
     "future_stamp": ({"future_stamp_at": ATTACK_AT}, "one copy of a fix stamped 1e6 s ahead at 30 s"),
     "replay": ({"replay_at": ATTACK_AT}, "the last 25 genuine fixes (5 s) re-sent at 30 s"),
     "target_restart": ({"restart_at": ATTACK_AT}, "the target's publisher restarts at 30 s: 1 s silent, new epoch, seq 0"),

@@ -79,7 +79,8 @@ once; one event per message, kind ``attack_<name>``). They need a fix that decod
 (the latest genuine one offered):
 
 * ``future_seq_at``: at the first fix offered at or after it, one extra copy with seq + 2**62
-  (capped at 2**63 - 1), same epoch and stamp, right after the genuine fix.
+  (capped at 2**63 - 1), same epoch, stamped 10 ms later (so that only its seq is wrong), right
+  after the genuine fix.
 * ``future_stamp_at``: one extra copy stamped 1e6 s ahead, seq + 1.
 * ``replay_at``: the last ``replay_count`` genuine fixes offered (as they were offered, old
   seq and stamp) sent again, back to back.
@@ -138,6 +139,8 @@ FUTURE_SEQ_JUMP = 2**62
 FUTURE_STAMP_JUMP = 1e6
 #: Stamp spacing of a spoof burst, s.
 SPOOF_BURST_SPACING = 0.02
+#: The future_seq copy's stamp lead, s (newer than the genuine fix, well inside any freshness window).
+FUTURE_SEQ_STAMP_LEAD = 0.01
 #: Corruption kind -> the interfaces.link_schema.PayloadError reason decode_target_fix gives it.
 CORRUPTION_REASONS = {
     "invalid_utf8": "not_utf8",
@@ -593,8 +596,8 @@ class LinkFaults:
             return
         self._attack_template = fix
         if self._due_once("future_seq", config.future_seq_at, scenario_time):
-            self._send_attack(now, "attack_future_seq", dataclasses.replace(fix, seq=min(fix.seq + FUTURE_SEQ_JUMP, MAX_SEQ)),
-                              now + TIME_TOLERANCE)
+            self._send_attack(now, "attack_future_seq", dataclasses.replace(
+                fix, seq=min(fix.seq + FUTURE_SEQ_JUMP, MAX_SEQ), stamp=fix.stamp + FUTURE_SEQ_STAMP_LEAD), now + TIME_TOLERANCE)
         if self._due_once("future_stamp", config.future_stamp_at, scenario_time):
             self._send_attack(now, "attack_future_stamp",
                               dataclasses.replace(fix, seq=min(fix.seq + 1, MAX_SEQ), stamp=fix.stamp + FUTURE_STAMP_JUMP),
