@@ -512,3 +512,34 @@ def test_a_steady_spoof_publishes_an_offset_track_at_its_rate_from_its_start():
     by_stamp = {round(fix.stamp, 9): fix for _, fix in fixes if fix.seq < 2**40}
     for fix in spoof[:20]:
         np.testing.assert_allclose(np.array(fix.position) - by_stamp[round(fix.stamp, 9)].position, (0.0, -25.0, 0.0))
+
+
+def test_each_target_publisher_process_has_its_own_epoch_and_counts_seq_from_zero():
+    scenario, _ = load_scenario(SCENARIOS_DIR / "constant_velocity.toml")
+    runs = []
+    for _ in range(2):  # a publisher, then the same publisher restarted
+        sent: list[bytes] = []
+        target = TargetPublisher(TargetTruth(scenario.target), FixSchedule(RATE), sent.append, TargetLog(None, "ned"),
+                                 "target-1", "ned", HOME, 0.0, np.random.default_rng(0), duration=2.0)
+        for seq in range(101):
+            target.on_clock_payload(encode_clock(ClockTick("plant", seq, seq * 0.02)))
+        fixes = [decode_target_fix(payload) for payload in sent]
+        assert all(json.loads(payload)["schema"] == "bof.target_fix/2" for payload in sent)
+        assert {fix.epoch for fix in fixes} == {target.epoch} and [fix.seq for fix in fixes] == list(range(len(fixes)))
+        runs.append(target.epoch)
+    assert runs[0] != runs[1]
+
+
+def test_the_target_refuses_a_start_command_outside_its_clock_window():
+    from interfaces.link_schema import Command, encode_command
+
+    scenario, _ = load_scenario(SCENARIOS_DIR / "constant_velocity.toml")
+    target = TargetPublisher(TargetTruth(scenario.target, start_time=math.inf), FixSchedule(RATE), lambda payload: None,
+                             TargetLog(None, "ned"), "target-1", "ned", HOME, 0.0, np.random.default_rng(0))
+    target.on_clock_payload(encode_clock(ClockTick("plant", 0, 10.0)))
+    target.on_command_payload(encode_command(Command("gcs", 0, 10.0 + 1e6, "start", epoch=1)))
+    target.on_command_payload(encode_command(Command("gcs", 1, 7.0, "start", epoch=1)))
+    assert math.isinf(target.truth.start_time)
+    assert target.rejected == {"command:future_stamp": 1, "command:too_old": 1}
+    target.on_command_payload(encode_command(Command("gcs", 2, 10.2, "start", epoch=1)))
+    assert target.truth.start_time == 10.0
