@@ -42,6 +42,7 @@ from companion.adapters.mavsdk_vehicle import MavsdkVehicle, VehicleError
 from companion.adapters.recorder import RunRecorder, TlogWriter
 from companion.assembly import build_pipeline, build_sensor
 from companion.core.state_history import StateHistory
+from companion.fix_intake import build_command_validator, build_fix_validator
 from companion.follower import Follower
 from companion.mission import MissionSequencer, Phase
 from companion.state_publisher import StatePublisher
@@ -98,10 +99,12 @@ class CompanionApp:
         self.target_link = TargetLink(
             self.link_settings.target_sender, scenario.sitl.home, build_sensor(scenario.sensor),
             np.random.default_rng(scenario.simulation.seed if seed is None else seed), self.history, self.recorder,
-            clock=self._vehicle_time, wants_bearings=lambda: self.sequencer.phase in (Phase.READY, Phase.FOLLOWING))
+            clock=self._vehicle_time, wants_bearings=lambda: self.sequencer.phase in (Phase.READY, Phase.FOLLOWING),
+            validator=build_fix_validator(self.link_settings), pipeline=lambda: self.follower.pipeline)
         self.sequencer = MissionSequencer(self.settings, self.settings.follow_duration or scenario.simulation.duration,
                                           link_up=lambda: self.target_link.health.accepted > 0,
-                                          link_name=self.target_link.key, log=self.recorder)
+                                          link_name=self.target_link.key, log=self.recorder,
+                                          commands=build_command_validator(self.link_settings))
         self.follower = Follower(self.target_link, self.history, self.recorder)
         self._session = None
         self.error: str | None = None
@@ -213,7 +216,11 @@ class CompanionApp:
         try:
             command = link.decode_command(payload)
         except link.PayloadError as error:
-            self.recorder.event(None, "command_rejected", f"{error.reason}: {error}")
+            self.recorder.event(None, "command_rejected", f"{error.reason}: {error}", reason=error.reason)
+            return
+        refusal = self.sequencer.refuse_command(command, self._vehicle_time())
+        if refusal is not None:  # replayed, reordered, stale or far-future: counted, never obeyed
+            self.recorder.event(self._vehicle_time(), "command_rejected", refusal, reason=refusal.split(":")[0])
             return
         self.recorder.event(None, "command", f"{command.command} from {command.sender}", command=command.command,
                             sender=command.sender)

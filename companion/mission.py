@@ -32,6 +32,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
 from companion.adapters.mavsdk_vehicle import VehicleError, VehicleSample
+from companion.core.fix_validator import CommandValidator, FixRejected
 from interfaces.scenario import CompanionConfig
 
 if TYPE_CHECKING:
@@ -105,10 +106,14 @@ class MissionSequencer:
     settings: the scenario's [companion] section. follow_duration: s of vehicle time to follow
     once engaged. link_up: true once a valid target fix has arrived. link_name: the fix key, for
     the timeout message. log: where events go (the run recorder). echo: prints each transition.
+    commands: the freshness and order check of ground-station commands (CommandValidator; its
+    counters say what was refused).
     """
 
     def __init__(self, settings: CompanionConfig, follow_duration: float, link_up: Callable[[], bool], link_name: str,
-                 log: EventLog, echo: Callable[[str], None] = lambda line: print(line, flush=True)) -> None:
+                 log: EventLog, echo: Callable[[str], None] = lambda line: print(line, flush=True),
+                 commands: CommandValidator | None = None) -> None:
+        self.commands = commands if commands is not None else CommandValidator()
         self.settings = settings
         self.follow_duration = follow_duration
         self.link_up = link_up
@@ -142,6 +147,15 @@ class MissionSequencer:
 
     def fail(self, detail: str) -> None:
         self.set_phase(Phase.FAILED, detail)
+
+    def refuse_command(self, command, now: float | None) -> str | None:
+        """Why a decoded command (interfaces.link_schema.Command) must not act ("reason: detail"), or None
+        if it may: order per (sender, epoch) and freshness against vehicle time `now` (s; None: no_clock)."""
+        try:
+            self.commands.check(command.sender, command.epoch, command.seq, command.stamp, now)
+        except FixRejected as error:
+            return str(error)
+        return None
 
     def request_abort(self) -> None:
         """The ground station's abort: hold, then land (before arming: do not take off)."""

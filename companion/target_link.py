@@ -4,8 +4,9 @@ As in the paper's flight experiment (section IX-A, Fig. 16), the target's positi
 over a radio link; the bearing is rebuilt on board from it and the vehicle's own position at
 the fix time, corrupted as the configured sensor would corrupt it. Zenoh delivers samples on
 its own thread: they are handed to the asyncio loop with their receipt time, checked there
-by the FixIntake (decode, geodesy, FixValidator), and queued while the mission wants
-bearings; the follower then asks for the bearings whose fix time the own-state history
+by the FixIntake (decode, geodesy, FixValidator: freshness against the vehicle's clock, order
+per publisher epoch, plausibility, and the re-anchor rule fed with the pipeline's predicted line
+of sight), and queued while the mission wants bearings; the follower then asks for the bearings whose fix time the own-state history
 covers (BearingBuilder). LinkHealth keeps what the link has done so far.
 """
 
@@ -84,14 +85,22 @@ class TargetLink:
     the own-state history (the follower appends to it). recorder: zenoh_rx.jsonl and
     bearings.csv. clock: the newest vehicle time, s, or None (logged with each message).
     wants_bearings: whether the mission is at a point where accepted fixes are queued for
-    bearings (before that they only prove the link is up).
+    bearings (before that they only prove the link is up). validator: the FixValidator
+    (default: the [link] defaults; companion.fix_intake.build_fix_validator makes it from the
+    scenario). pipeline: returns the FollowingPipeline once there is one (its predicted line of
+    sight feeds the validator's re-anchor rule), or None.
+
+    The validator's ``now`` is `clock` (vehicle time, the plant's clock in SITL, the clock the
+    fixes are stamped in); before the first odometry a fix is rejected as ``no_clock``.
     """
 
     def __init__(self, target_sender: str, home: Sequence[float], sensor: BearingSensor, rng: np.random.Generator,
                  history: StateHistory, recorder: RunRecorder, clock: Callable[[], float | None],
-                 wants_bearings: Callable[[], bool]) -> None:
+                 wants_bearings: Callable[[], bool], validator: FixValidator | None = None,
+                 pipeline: Callable[[], object | None] = lambda: None) -> None:
         self.key = link.target_fix_key(target_sender)
-        self.validator = FixValidator(target_sender)
+        self.validator = validator if validator is not None else FixValidator(target_sender)
+        self.pipeline = pipeline
         self.intake = FixIntake(self.validator, home)
         self.health = LinkHealth(self.validator)
         self.history = history
@@ -117,18 +126,31 @@ class TargetLink:
     def on_fix(self, payload: bytes, received_ns: int) -> None:
         """Event loop: check one payload (counted in health either way), log it, queue it if bearings are wanted."""
         self.health.received += 1
-        record = {"received_ns": received_ns, "sim_time": self.clock(), "bytes": len(payload)}
+        now = self.clock()
+        record = {"received_ns": received_ns, "sim_time": now, "bytes": len(payload)}
         try:
-            fix, position = self.intake.check(payload)
+            if now is None:
+                self.validator.reject("no_clock")
+                raise FixRejected("no_clock", "no vehicle time yet to check the fix's stamp against")
+            fix, position = self.intake.check(payload, now=now, agrees=self._agrees)
         except FixRejected as error:
             record.update(verdict="rejected", reason=error.reason, detail=str(error))
             self.recorder.zenoh(record)
             return
         self.health.last_received_wall = time.monotonic()
-        record.update(verdict="accepted", seq=fix.seq, stamp=fix.stamp, frame=fix.frame, position=list(fix.position))
+        record.update(verdict="accepted", seq=fix.seq, epoch=fix.epoch, stamp=fix.stamp, frame=fix.frame,
+                      position=list(fix.position))
         self.recorder.zenoh(record)
         if self.wants_bearings():
             self.pending.append(PendingFix(fix.seq, fix.stamp, position, received_ns))
+
+    def _agrees(self, position: np.ndarray, stamp: float) -> bool | None:
+        """The pipeline's verdict on the line of sight to `position` (NED m) from the own position at `stamp` (s)."""
+        pipeline = self.pipeline()
+        sample = self.history.at(stamp)
+        if pipeline is None or sample is None:
+            return None
+        return pipeline.line_of_sight_agrees(stamp, sample.position, position)
 
     def due_bearings(self, now: float) -> list[tuple[PendingFix, BearingMeasurement]]:
         """(fix, bearing) for the queued fixes whose stamp the own-state history covers at vehicle time

@@ -11,26 +11,43 @@ Key expressions
 key                            payload              published by
 =============================  ===================  ============================
 ``bof/sim/clock``              ``bof.clock/1``      the plant, every tick
-``bof/target/<sender>/fix``    ``bof.target_fix/1`` the target (``sitl-target``)
+``bof/target/<sender>/fix``    ``bof.target_fix/2`` the target (``sitl-target``)
 ``bof/companion/<id>/state``   ``bof.companion_state/1``  the companion
-``bof/companion/<id>/command`` ``bof.command/1``    a ground station (abort)
-``bof/target/<sender>/command`` ``bof.command/1``   a ground station (start)
+``bof/companion/<id>/command`` ``bof.command/2``    a ground station (abort)
+``bof/target/<sender>/command`` ``bof.command/2``   a ground station (start)
 =============================  ===================  ============================
+
+Schema versions (decoders take every version listed; encoders write the newest):
+
+=====================  =======  ===============================================================
+payload                version  fields
+=====================  =======  ===============================================================
+``bof.target_fix``     1        envelope, frame, position, velocity
+``bof.target_fix``     2        v1 + ``epoch`` (required)
+``bof.command``        1        envelope, command, detail
+``bof.command``        2        v1 + ``epoch`` (required)
+=====================  =======  ===============================================================
+
+``epoch`` (int, 0 <= epoch < 2**63) is the publisher's boot id: drawn at random when the
+publishing process starts, so a restarted publisher has a new epoch and its ``seq`` starts
+at 0 again. A receiver orders ``seq`` and ``stamp`` per (sender, epoch) (companion.core.
+fix_validator). A decoded v1 payload has ``epoch`` None; an encoder given an envelope whose
+epoch is None writes v1 (only for senders that have no boot id), else v2.
 
 Payloads are UTF-8 JSON objects (Zenoh encoding ``application/json``), each declared
 as a pydantic model below (strict: no type coercion, no NaN/inf, unknown fields
 refused). Every one carries the `Envelope`: ``schema`` (name/version), ``sender`` (its
 author, 1-64 characters from ``A-Z a-z 0-9 _ . -``, also usable as a key segment),
-``seq`` (int >= 0, +1 per message of that sender and key) and ``stamp`` (float >= 0,
+``seq`` (int >= 0, +1 per message of that sender and key, from 0 in each epoch) and ``stamp`` (float >= 0,
 **simulated seconds** of the sender's clock, i.e. of the plant's ``bof/sim/clock``).
 Any change of fields is a new schema version.
 
-* ``bof.target_fix/1`` (`TargetFixPayload`): ``frame`` is ``"geodetic"`` (``position`` =
+* ``bof.target_fix/2`` (`TargetFixPayloadV2`; v1: `TargetFixPayload`): ``epoch``, ``frame`` is ``"geodetic"`` (``position`` =
   [lat_deg, lon_deg, alt_m_amsl], WGS-84) or ``"ned"`` (``position`` = [n, e, d] m in
   the shared local NED frame, origin at home, z down); optional ``velocity`` = [vn, ve,
   vd] m/s, NED in both frames (as GNSS receivers report it).
 * ``bof.clock/1`` (`ClockPayload`): the envelope only; ``stamp`` is the plant's simulated time.
-* ``bof.command/1`` (`CommandPayload`): ``command`` (one of ``COMMANDS``: ``"abort"``,
+* ``bof.command/2`` (`CommandPayloadV2`; v1: `CommandPayload`): ``epoch``, ``command`` (one of ``COMMANDS``: ``"abort"``,
   ``"resume"`` for a companion, ``"start"`` for a target waiting for its action
   command) and an optional ``detail`` (free text, <= 200 characters, for the logs).
 * ``bof.companion_state/1`` (`CompanionState`): the envelope plus ``phase`` (the
@@ -75,7 +92,7 @@ then missing fields, then field by field in the order listed above):
 ``bad_sender``      ``sender`` empty, too long, or not ``[A-Za-z0-9_.-]``
 ``bad_frame``       ``frame`` is a string other than ``"geodetic"`` / ``"ned"``
 ``unknown_command`` ``command`` is a string not in `COMMANDS`
-``out_of_range``    a number outside its domain: seq < 0 or >= 2**63, stamp < 0 or
+``out_of_range``    a number outside its domain: seq or epoch < 0 or >= 2**63, stamp < 0 or
                     > 1e9 s, latitude outside [-90, 90], longitude outside [-180,
                     180], altitude outside [-1e3, 1e5] m, |NED coordinate| > 1e6 m,
                     |velocity component| > 1e3 m/s, detail longer than 200 chars,
@@ -92,7 +109,8 @@ Usage::
 
     session = open_session(zenoh_config(connect=["tcp/127.0.0.1:7447"]))
     fixes = publisher(session, target_fix_key("target-1"))
-    fixes.put(encode_target_fix(TargetFix("target-1", seq, stamp, "ned", (10.0, 5.0, -20.0))))
+    epoch = new_epoch()                         # once per process: its boot id
+    fixes.put(encode_target_fix(TargetFix("target-1", seq, stamp, "ned", (10.0, 5.0, -20.0), epoch=epoch)))
 
     def on_clock(sample):                       # runs on a Zenoh thread
         try:
@@ -110,6 +128,7 @@ import dataclasses
 import json
 import math
 import re
+import secrets
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal, Protocol, Union, get_args
@@ -157,9 +176,11 @@ def target_command_key(sender: str) -> str:
 
 # --- constants and public value types ----------------------------------------------
 
-TARGET_FIX_SCHEMA = "bof.target_fix/1"
+TARGET_FIX_SCHEMA = "bof.target_fix/2"
+TARGET_FIX_SCHEMA_V1 = "bof.target_fix/1"
 CLOCK_SCHEMA = "bof.clock/1"
-COMMAND_SCHEMA = "bof.command/1"
+COMMAND_SCHEMA = "bof.command/2"
+COMMAND_SCHEMA_V1 = "bof.command/1"
 COMPANION_STATE_SCHEMA = "bof.companion_state/1"
 
 Frame = Literal["geodetic", "ned"]
@@ -177,11 +198,17 @@ REASONS = frozenset({"too_large", "not_utf8", "not_json", "not_object", "missing
 
 MAX_PAYLOAD_BYTES = 65536
 MAX_SEQ = 2**63 - 1
+MAX_EPOCH = 2**63 - 1
 MAX_STAMP = 1e9  # s; 31 years of simulated time
 MAX_NED = 1e6  # m
 ALTITUDE_RANGE = (-1e3, 1e5)  # m above mean sea level
 MAX_SPEED_COMPONENT = 1e3  # m/s
 MAX_DETAIL = 200  # characters
+
+
+def new_epoch() -> int:
+    """A fresh publisher epoch (boot id): uniform in [0, 2**63), from the operating system's random source."""
+    return secrets.randbelow(MAX_EPOCH + 1)
 
 
 class PayloadError(ValueError):
@@ -204,6 +231,7 @@ class TargetFix:
     sender: target name. seq: message counter. stamp: simulated time of the fix, s.
     frame: "geodetic" (position = latitude deg, longitude deg, altitude m AMSL) or
     "ned" (position = north, east, down m about home). velocity: NED m/s or None.
+    epoch: the publisher's boot id (None: a v1 fix, which has none).
     Sequences (numpy arrays too) are stored as tuples of floats.
     """
 
@@ -213,6 +241,7 @@ class TargetFix:
     frame: Frame
     position: Vector3
     velocity: Vector3 | None = None
+    epoch: int | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "position", tuple(float(v) for v in self.position))
@@ -231,13 +260,15 @@ class ClockTick:
 
 @dataclass(frozen=True)
 class Command:
-    """A command to a companion: one of COMMANDS, with an optional human-readable detail."""
+    """A command to a companion: one of COMMANDS, with an optional human-readable detail; epoch: the
+    sender's boot id (None: a v1 command)."""
 
     sender: str
     seq: int
     stamp: float
     command: str
     detail: str = ""
+    epoch: int | None = None
 
 
 # --- payload models ----------------------------------------------------------------
@@ -250,6 +281,7 @@ class _Declared(BaseModel):
 Number = Annotated[float, Strict()]
 Sender = Annotated[str, Field(pattern=f"^{_NAME.pattern}$")]
 Seq = Annotated[int, Field(ge=0, le=MAX_SEQ)]
+Epoch = Annotated[int, Field(ge=0, le=MAX_EPOCH)]
 Stamp = Annotated[float, Field(ge=0.0, le=MAX_STAMP)]
 Latitude = Annotated[Number, Field(ge=-90.0, le=90.0)]  # deg
 Longitude = Annotated[Number, Field(ge=-180.0, le=180.0)]  # deg
@@ -280,7 +312,16 @@ class ClockPayload(Envelope):
 class CommandPayload(Envelope):
     """``bof.command/1``: a command (`COMMANDS`) and optional free text for the logs."""
 
+    schema_: Literal[COMMAND_SCHEMA_V1] = Field(alias="schema")
+    command: CommandName
+    detail: Annotated[str, Field(max_length=MAX_DETAIL)] = ""
+
+
+class CommandPayloadV2(CommandPayload):
+    """``bof.command/2``: v1 plus the sender's ``epoch`` (boot id), between the envelope and the command."""
+
     schema_: Literal[COMMAND_SCHEMA] = Field(alias="schema")
+    epoch: Epoch
     command: CommandName
     detail: Annotated[str, Field(max_length=MAX_DETAIL)] = ""
 
@@ -292,7 +333,7 @@ class TargetFixPayload(Envelope):
     after the fields before it (and unknown/missing fields) have been checked.
     """
 
-    schema_: Literal[TARGET_FIX_SCHEMA] = Field(alias="schema")
+    schema_: Literal[TARGET_FIX_SCHEMA_V1] = Field(alias="schema")
     frame: Frame
     position: Annotated[tuple[Number, Number, Number], Strict(False)]
     velocity: NedVelocity | None = None
@@ -312,10 +353,44 @@ class NedFixPayload(TargetFixPayload):
     position: NedPosition
 
 
+class TargetFixPayloadV2(Envelope):
+    """``bof.target_fix/2``: v1 plus the publisher's ``epoch`` (boot id), checked after the envelope."""
+
+    schema_: Literal[TARGET_FIX_SCHEMA] = Field(alias="schema")
+    epoch: Epoch
+    frame: Frame
+    position: Annotated[tuple[Number, Number, Number], Strict(False)]
+    velocity: NedVelocity | None = None
+
+
+class GeodeticFixPayloadV2(TargetFixPayloadV2):
+    """A v2 fix in WGS-84 (see GeodeticFixPayload)."""
+
+    frame: Literal["geodetic"]
+    position: GeodeticPosition
+
+
+class NedFixPayloadV2(TargetFixPayloadV2):
+    """A v2 fix in the local NED frame (see NedFixPayload)."""
+
+    frame: Literal["ned"]
+    position: NedPosition
+
+
+def _schema_of(document: Any) -> Any:
+    return document.get("schema") if isinstance(document, dict) else getattr(document, "schema_", None)
+
+
 def _frame_tag(document: Any) -> str:
-    """Which fix model checks `document`: its frame's, or TargetFixPayload (which refuses the frame)."""
+    """Which fix model checks `document`: its version's and frame's, or TargetFixPayload[V2] (which refuses the
+    frame). Any schema but v2 goes to the v1 models (which refuse a wrong schema)."""
     frame = document.get("frame") if isinstance(document, dict) else getattr(document, "frame", None)
-    return frame if isinstance(frame, str) and frame in FRAMES else "other"
+    tag = frame if isinstance(frame, str) and frame in FRAMES else "other"
+    return tag + "/2" if _schema_of(document) == TARGET_FIX_SCHEMA else tag
+
+
+def _command_tag(document: Any) -> str:
+    return "2" if _schema_of(document) == COMMAND_SCHEMA else "1"
 
 
 # --- the companion state -----------------------------------------------------------
@@ -428,10 +503,12 @@ class CompanionState(Envelope):
 
 _TARGET_FIX = TypeAdapter(Annotated[
     Union[Annotated[GeodeticFixPayload, Tag("geodetic")], Annotated[NedFixPayload, Tag("ned")],
-          Annotated[TargetFixPayload, Tag("other")]],
+          Annotated[TargetFixPayload, Tag("other")], Annotated[GeodeticFixPayloadV2, Tag("geodetic/2")],
+          Annotated[NedFixPayloadV2, Tag("ned/2")], Annotated[TargetFixPayloadV2, Tag("other/2")]],
     Discriminator(_frame_tag)])
 _CLOCK = TypeAdapter(ClockPayload)
-_COMMAND = TypeAdapter(CommandPayload)
+_COMMAND = TypeAdapter(Annotated[Union[Annotated[CommandPayload, Tag("1")], Annotated[CommandPayloadV2, Tag("2")]],
+                                 Discriminator(_command_tag)])
 _STATE = TypeAdapter(CompanionState)
 
 
@@ -506,9 +583,9 @@ def _parse(payload: Any) -> dict:
 
 
 def decode_target_fix(payload: Payload) -> TargetFix:
-    """Parse and check a ``bof.target_fix/1`` payload; PayloadError (with .reason) if it is refused."""
+    """Parse and check a ``bof.target_fix/2`` (or /1: epoch None) payload; PayloadError (with .reason) if refused."""
     fix = _validate(_TARGET_FIX, _parse(payload), tagged=True)
-    return TargetFix(fix.sender, fix.seq, fix.stamp, fix.frame, fix.position, fix.velocity)
+    return TargetFix(fix.sender, fix.seq, fix.stamp, fix.frame, fix.position, fix.velocity, getattr(fix, "epoch", None))
 
 
 def decode_clock(payload: Payload) -> ClockTick:
@@ -518,9 +595,10 @@ def decode_clock(payload: Payload) -> ClockTick:
 
 
 def decode_command(payload: Payload) -> Command:
-    """Parse and check a ``bof.command/1`` payload; PayloadError (with .reason) if it is refused."""
-    command = _validate(_COMMAND, _parse(payload))
-    return Command(command.sender, command.seq, command.stamp, command.command, command.detail)
+    """Parse and check a ``bof.command/2`` (or /1: epoch None) payload; PayloadError (with .reason) if refused."""
+    command = _validate(_COMMAND, _parse(payload), tagged=True)
+    return Command(command.sender, command.seq, command.stamp, command.command, command.detail,
+                   getattr(command, "epoch", None))
 
 
 def decode_state(payload: Payload) -> CompanionState:
@@ -545,9 +623,19 @@ def _dump(model: Envelope) -> bytes:
     return data
 
 
+def _versioned(envelope: Any, current: str, legacy: str) -> dict:
+    """The document of a dataclass envelope: the current schema with its epoch, or the legacy one without."""
+    document = dataclasses.asdict(envelope)
+    if document["epoch"] is None:
+        del document["epoch"]
+        return {"schema": legacy, **document}
+    return {"schema": current, **document}
+
+
 def encode_target_fix(fix: TargetFix) -> bytes:
-    """The ``bof.target_fix/1`` payload of `fix`; PayloadError if a decoder would refuse it."""
-    return _dump(_validate(_TARGET_FIX, {"schema": TARGET_FIX_SCHEMA, **dataclasses.asdict(fix)}, tagged=True))
+    """The ``bof.target_fix/2`` payload of `fix` (``/1`` if fix.epoch is None); PayloadError if a decoder
+    would refuse it."""
+    return _dump(_validate(_TARGET_FIX, _versioned(fix, TARGET_FIX_SCHEMA, TARGET_FIX_SCHEMA_V1), tagged=True))
 
 
 def encode_clock(tick: ClockTick) -> bytes:
@@ -556,8 +644,9 @@ def encode_clock(tick: ClockTick) -> bytes:
 
 
 def encode_command(command: Command) -> bytes:
-    """The ``bof.command/1`` payload of `command`; PayloadError if a decoder would refuse it."""
-    return _dump(_validate(_COMMAND, {"schema": COMMAND_SCHEMA, **dataclasses.asdict(command)}))
+    """The ``bof.command/2`` payload of `command` (``/1`` if command.epoch is None); PayloadError if a decoder
+    would refuse it."""
+    return _dump(_validate(_COMMAND, _versioned(command, COMMAND_SCHEMA, COMMAND_SCHEMA_V1), tagged=True))
 
 
 def encode_state(state: dict) -> bytes:

@@ -530,6 +530,17 @@ class LinkConfig(_Strict):
     configuration entries (dotted key -> JSON5 value), e.g. TLS certificates:
     {"transport.link.tls.root_ca_certificate" = '"/path/ca.pem"'}. Multicast scouting is
     off unless an override turns it on. The target publishes at sensor.rate_hz.
+
+    Fix and command validation (companion.core.fix_validator; README "Link validation"):
+    max_future_skew_s: a stamp more than this ahead of the receiver's clock is refused
+    (future_stamp). max_fix_age_s: a stamp older than this is refused (too_old).
+    max_fix_rate_hz: seq may advance at most this fast (per stamp second, plus 10) within
+    one publisher epoch (seq_jump). reanchor_silence_s: a track of fixes inconsistent with
+    the last accepted one may take over only after the accepted track has been silent this
+    long (or when it agrees with the filter's predicted bearing and the old one does not).
+    epoch_switch_silence_s: fixes of another publisher epoch (a restarted target) are taken
+    only once the accepted epoch has been silent this long (other_epoch before).
+    max_target_speed: m/s, the plausibility bound between two fixes (plus 5 m of noise).
     """
 
     mode: Literal["peer", "client", "router"] = "peer"
@@ -541,6 +552,12 @@ class LinkConfig(_Strict):
     fix_frame: Literal["geodetic", "ned"] = "geodetic"
     fix_noise_std: NonNegative = 0.0
     state_rate_hz: Positive = 5.0
+    max_future_skew_s: NonNegative = 0.5
+    max_fix_age_s: Positive = 2.0
+    max_fix_rate_hz: Positive = 50.0
+    reanchor_silence_s: Positive = 2.0
+    epoch_switch_silence_s: NonNegative = 0.5
+    max_target_speed: Positive = 30.0
 
 
 class CompanionConfig(_Strict):
@@ -652,6 +669,16 @@ class FaultsConfig(_Strict):
     key as impostor_sender, impostor_offset m (NED) away from the target (0 = off).
     seed: the faults' own seed (None: derived from simulation.seed). mavlink: faults of
     the MAVLink link ([faults.mavlink]).
+
+    Attacks (sitl_plant.world.link_faults documents each; times are scenario s, None = off):
+    future_seq_at: one extra copy of a genuine fix with seq + 2**62. future_stamp_at: one
+    extra copy stamped 1e6 s ahead. replay_at: the last replay_count genuine fixes sent
+    again, back to back. restart_at: the genuine publisher restarts (silent restart_gap_s,
+    then a new epoch, seq from 0). spoof_burst_at: spoof_burst_count fixes as the target,
+    spoof_offset m (NED) off, 20 ms apart. spoof_rate_hz (> 0: on, from spoof_from s): a
+    steady spoofer as the target at that rate, spoof_offset m off the genuine track. The
+    spoofer's seq is the genuine one + spoof_seq_lead; its epoch is its own (spoof_epoch =
+    "own") or the genuine one it overheard ("target").
     """
 
     seed: Annotated[int, Field(ge=0)] | None = None
@@ -672,6 +699,19 @@ class FaultsConfig(_Strict):
     impostor_rate_hz: NonNegative = 0.0
     impostor_sender: SenderName = "impostor-1"
     impostor_offset: Vector3 = (30.0, 0.0, 0.0)
+    future_seq_at: NonNegative | None = None
+    future_stamp_at: NonNegative | None = None
+    replay_at: NonNegative | None = None
+    replay_count: Annotated[int, Field(ge=1, le=10000)] = 25
+    restart_at: NonNegative | None = None
+    restart_gap_s: NonNegative = 1.0
+    spoof_burst_at: NonNegative | None = None
+    spoof_burst_count: Annotated[int, Field(ge=1, le=1000)] = 3
+    spoof_rate_hz: Annotated[float, Field(ge=0.0, le=1000.0)] = 0.0
+    spoof_from: NonNegative = 0.0
+    spoof_offset: Vector3 = (30.0, 0.0, 0.0)
+    spoof_seq_lead: Annotated[int, Field(ge=0, le=2**62)] = 2**40
+    spoof_epoch: Literal["own", "target"] = "own"
     mavlink: MavlinkFaultsConfig = MavlinkFaultsConfig()
 
     @model_validator(mode="after")

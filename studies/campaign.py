@@ -23,6 +23,21 @@ Figures per flight (times are scenario seconds):
 
 Targets (constant-velocity scenario): the target kept in every flight, never closer than
 r_d / 2, range-estimation error back under 1 m within 10 s of the link returning.
+
+Attack patterns (`ATTACK_PATTERNS`: future_seq, future_stamp, replay, target_restart,
+spoof_burst, spoof_steady, and the two spoofs in the target's own overheard epoch:
+spoof_burst_sniffed, spoof_steady_sniffed, and spoof_close_sniffed, a spoof close enough to be
+plausible; the [faults] attacks of sitl_plant.world.link_faults, at 30 s or from
+10 s) add per flight, from the in-process link's record of which deliveries were the genuine
+target's (studies.closed_loop.GenuineRecord):
+* lockout: the longest run of rejected genuine fixes, s (from the first of them to the next
+  accepted one); attack_messages / attack_refused / attack_accepted_far: the attacker's messages
+  delivered, those rejected (they appear in the reject counters), those accepted while more
+  than 5 m off the genuine fix.
+Attack targets, every flight: the target kept, never closer than r_d / 2, lockout <= LOCKOUT_LIMIT
+s, every attack message refused (none accepted far off). In SITL (no genuine/foreign split in
+the companion's log) lockout is the longest gap between accepted fixes less one fix period,
+and the attack's messages (faults.jsonl) must not exceed the companion's reject count.
 """
 
 from __future__ import annotations
@@ -50,6 +65,8 @@ DEFAULT_SCENARIO = DEFAULT_SCENARIO
 CONVERGED = 1.0  # m, range-estimation error
 STEADY_FROM = 20.0  # s, when continuous faults start counting (after the initial convergence)
 BLACKOUT_AT = 30.0  # s, scenario time of the blackouts: steady following
+ATTACK_AT = 30.0  # s, scenario time of the one-shot attacks
+LOCKOUT_LIMIT = 1.0  # s, the longest run of rejected genuine fixes an attack may cause
 
 #: name -> ([faults] overrides, description). Blackouts are in scenario seconds.
 PATTERNS: dict[str, tuple[dict, str]] = {
@@ -65,7 +82,25 @@ PATTERNS: dict[str, tuple[dict, str]] = {
     "stale": ({"stale_probability": 0.2}, "20 % stale (old) messages"),
     "corrupt": ({"corrupt_probability": 0.2}, "20 % corrupted payloads (all kinds)"),
     "impostor": ({"impostor_rate_hz": 5.0}, "a second publisher on the key, 5 Hz"),
+    "future_seq": ({"future_seq_at": ATTACK_AT}, "one copy of a fix with seq + 2^62, 10 ms newer, at 30 s"),
+    "future_stamp": ({"future_stamp_at": ATTACK_AT}, "one copy of a fix stamped 1e6 s ahead at 30 s"),
+    "replay": ({"replay_at": ATTACK_AT}, "the last 25 genuine fixes (5 s) re-sent at 30 s"),
+    "target_restart": ({"restart_at": ATTACK_AT}, "the target's publisher restarts at 30 s: 1 s silent, new epoch, seq 0"),
+    "spoof_burst": ({"spoof_burst_at": ATTACK_AT},
+                    "3 consistent fixes as the target, 30 m off, seq 2^40 ahead, at 30 s"),
+    "spoof_steady": ({"spoof_rate_hz": 5.0, "spoof_from": 10.0},
+                     "a second source as the target from 10 s, 5 Hz, 30 m off, seq 2^40 ahead"),
+    "spoof_burst_sniffed": ({"spoof_burst_at": ATTACK_AT, "spoof_epoch": "target"},
+                            "the spoof burst in the target's own epoch (overheard), seq 2^40 ahead"),
+    "spoof_steady_sniffed": ({"spoof_rate_hz": 5.0, "spoof_from": 10.0, "spoof_epoch": "target", "spoof_seq_lead": 1},
+                             "the steady spoof in the target's own epoch, seq 1 ahead"),
+    "spoof_close_sniffed": ({"spoof_rate_hz": 5.0, "spoof_from": 10.0, "spoof_epoch": "target", "spoof_seq_lead": 1,
+                             "spoof_offset": [10.0, 0.0, 0.0]},
+                            "the steady spoof 10 m off (plausible), in the target's own epoch, seq 1 ahead, first"),
 }
+#: The attack patterns (issue 14) and their targets (module docstring).
+ATTACK_PATTERNS = ("future_seq", "future_stamp", "replay", "target_restart", "spoof_burst", "spoof_steady",
+                   "spoof_burst_sniffed", "spoof_steady_sniffed", "spoof_close_sniffed")
 #: The patterns the issue sets targets for.
 TARGET_PATTERNS = ("blackout_1s", "blackout_2s", "blackout_5s", "blackout_10s", "loss_30", "bursty_2s")
 
@@ -128,7 +163,14 @@ def _fly(task: tuple[str, int, Scenario, VehicleConfig]) -> dict:
                              continuous=bool(overrides) and not overrides.get("blackouts"))
     link = result.summary.get("link", {})
     modes = result.summary.get("track_mode_changes", [])
+    genuine = link.get("genuine", {})
+    attack_messages = sum(count for kind, count in link.get("faults", {}).items() if kind.startswith("attack_"))
     return {"pattern": name, "seed": seed, **metrics,
+            "lockout": genuine.get("longest_rejected_run_s", math.nan),
+            "attack_messages": attack_messages,
+            "attack_refused": genuine.get("foreign_rejected", 0),
+            "attack_accepted_far": genuine.get("foreign_accepted_far", 0),
+            "reanchors": len(link.get("reanchors", [])),
             "fixes_accepted": link.get("accepted", math.nan), "fixes_rejected": sum(link.get("rejected", {}).values()),
             "rejected_by_reason": json.dumps(link.get("rejected", {}), sort_keys=True),
             "degraded_entries": sum(1 for _, mode in modes if mode == "degraded"),
@@ -140,6 +182,8 @@ PATTERN_FIGURES = {
     "flights": ("seed", "size"), "kept": ("kept", "sum"), "min_range": ("min_range", "min"),
     "worst_error_median": ("worst_error", "median"), "worst_error_max": ("worst_error", "max"),
     "reconverge_median": ("reconverge", "median"), "reconverge_max": ("reconverge", "max"),
+    "lockout_max": ("lockout", "max"), "attack_messages": ("attack_messages", "sum"),
+    "attack_refused": ("attack_refused", "sum"), "attack_accepted_far": ("attack_accepted_far", "sum"),
 }
 
 
@@ -152,6 +196,11 @@ def pattern_table(rows: list[dict], desired_range: float) -> list[dict]:
         entry = {"pattern": name, "description": PATTERNS.get(name, ({}, name))[1], "flights": group["flights"],
                  "kept_share": kept / group["flights"],
                  **{key: group[key] for key in PATTERN_FIGURES if key not in ("flights", "kept")}}
+        if name in ATTACK_PATTERNS:
+            entry["meets_targets"] = bool(kept == group["flights"] and entry["min_range"] >= 0.5 * desired_range
+                                          and entry["lockout_max"] <= LOCKOUT_LIMIT
+                                          and entry["attack_refused"] == entry["attack_messages"]
+                                          and entry["attack_accepted_far"] == 0)
         if name in TARGET_PATTERNS:
             reconverge_max = entry["reconverge_max"]
             entry["meets_targets"] = bool(kept == group["flights"] and entry["min_range"] >= 0.5 * desired_range
@@ -174,10 +223,24 @@ def markdown(table: list[dict], sitl_rows: list[dict], scenario: Scenario, seeds
         {True: "met", False: "**missed**"}.get(e.get("meets_targets"), "-")))) for e in table]
     parts = [f"# Link-dropout campaign: {scenario.name}, {seeds} seeds per pattern, r_d = {scenario.guidance.desired_range:g} m",
              "", reporting.markdown(lines, headers)]
+    attacks = [e for e in table if e["pattern"] in ATTACK_PATTERNS]
+    if attacks:
+        headers = ["attack", "flights", "target kept", "min range (m)", "longest genuine lockout, max (s)",
+                   "attack messages", "refused (counted)", "accepted > 5 m off", "targets"]
+        lines = [dict(zip(headers, (
+            f"{e['pattern']} ({e['description']})", str(e["flights"]), f"{100 * e['kept_share']:.0f} %",
+            f(e["min_range"], 2), f(e["lockout_max"], 2), str(int(e["attack_messages"])), str(int(e["attack_refused"])),
+            str(int(e["attack_accepted_far"])), "met" if e["meets_targets"] else "**missed**"))) for e in attacks]
+        parts += ["", f"Attacks (targets: kept, min range >= r_d/2, lockout <= {LOCKOUT_LIMIT:g} s, every attack "
+                      "message refused and counted):", "", reporting.markdown(lines, headers)]
     if sitl_rows:
-        headers = ["pattern", "kept", "min range (m)", "worst error (m)", "re-converge (s)", "fixes rejected"]
+        headers = ["pattern", "kept", "min range (m)", "worst error (m)", "re-converge (s)", "fixes rejected",
+                   "attack messages heard", "accepted > 5 m off", "longest gap (s)", "targets"]
         lines = [dict(zip(headers, (r["pattern"], str(r["kept"]), f(r["min_range"], 2), f(r["worst_error"], 2),
-                                    f(r["reconverge"], 1), str(r["fixes_rejected"])))) for r in sitl_rows]
+                                    f(r["reconverge"], 1), str(r["fixes_rejected"]), str(r.get("attack_messages", "-")),
+                                    str(r.get("attack_accepted_far", "-")), f(r.get("lockout", math.nan), 2),
+                                    {True: "met", False: "**missed**"}.get(r.get("meets_targets"), "-"))))
+                 for r in sitl_rows]
         parts += ["", "Full SITL (real processes, MAVLink, Zenoh; faults injected by sitl-target):", "",
                   reporting.markdown(lines, headers)]
     return "\n".join(parts) + "\n"
@@ -201,7 +264,67 @@ def _sitl_case(config: Path, name: str, folder: Path, speed: float, show_progres
     metrics = flight_metrics(series, scenario, Termination.COMPLETED if code == 0 else Termination.OUT_OF_CONTROL,
                              blackout_windows(overrides), continuous=not overrides.get("blackouts"))
     link = summary["companion"]["link"]
-    return {"pattern": name, **metrics, "fixes_rejected": sum(link["rejected"].values()), "run_folder": str(run_folder)}
+    row = {"pattern": name, **metrics, "fixes_rejected": sum(link["rejected"].values()), "run_folder": str(run_folder)}
+    if name in ATTACK_PATTERNS:
+        row.update(_sitl_attack_figures(Path(run_folder), scenario.sensor.rate_hz, scenario.sitl.home))
+        if "restart_at" in overrides:  # the restart's own silence is no rejection
+            row["lockout"] = max(0.0, row["lockout"] - with_faults(scenario, overrides).faults.restart_gap_s)
+        row["meets_targets"] = bool(row["kept"] and row["min_range"] >= 0.5 * scenario.guidance.desired_range
+                                    and row["lockout"] <= LOCKOUT_LIMIT and row["attack_accepted_far"] == 0
+                                    and row["attack_messages"] <= row["fixes_rejected"])
+    return row
+
+
+def _jsonl(path: Path) -> list[dict]:
+    records = []
+    if path.exists():
+        for line in path.read_text().splitlines():
+            try:
+                records.append(json.loads(line))
+            except ValueError:
+                pass  # a line cut by a kill
+    return records
+
+
+def _sitl_attack_figures(run_folder: Path, rate_hz: float, home) -> dict:
+    """From the run's logs: lockout (longest gap between accepted fixes' stamps, less one period, s),
+    attack_messages (the attack events in the target's faults.jsonl, suppressed counts included, sent
+    while the companion was still receiving) and attack_accepted_far (accepted fixes more than 5 m
+    from what the genuine target published at that stamp, target.csv)."""
+    received = _jsonl(run_folder / "companion" / "zenoh_rx.jsonl")
+    heard_until = max((r["sim_time"] for r in received if isinstance(r.get("sim_time"), float)), default=math.inf)
+    events = _jsonl(run_folder / "target" / "faults.jsonl")
+    attack = 0
+    for e in events:
+        if str(e.get("kind")).startswith("attack_") and e.get("time", 0.0) <= heard_until:
+            attack += 1
+        elif e.get("kind") == "suppressed" and str(e.get("key")).startswith("attack_") and e["first"] <= heard_until:
+            attack += e["count"]
+    accepted = [r for r in received if r.get("verdict") == "accepted" and isinstance(r.get("stamp"), float)]
+    stamps = sorted(r["stamp"] for r in accepted)
+    gaps = np.diff(stamps) if len(stamps) > 1 else np.array([0.0])
+    published = {}
+    table = run_folder / "target" / "target.csv"
+    if table.exists():
+        import csv
+
+        with table.open() as handle:
+            for line in csv.DictReader(handle):
+                columns = [key for key in line if key.startswith("published_")]
+                published[round(float(line["stamp"]), 6)] = [float(line[key]) for key in columns]
+    far = 0
+    for record in accepted:
+        genuine = published.get(round(record["stamp"], 6))
+        frame = record.get("frame", "ned")
+        position = link_schema.TargetFix("x", 0, 0.0, frame, record["position"])
+        if genuine is None:
+            far += 1
+            continue
+        truth = link_schema.TargetFix("x", 0, 0.0, frame, genuine)
+        distance = np.linalg.norm(link_schema.fix_to_ned(position, home) - link_schema.fix_to_ned(truth, home))
+        far += int(not distance <= 5.0)
+    return {"lockout": max(0.0, float(np.max(gaps)) - 1.0 / rate_hz), "attack_messages": attack,
+            "attack_accepted_far": far}
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -266,7 +389,7 @@ def main(argv: list[str] | None = None) -> int:
     write_summary(folder / "summary.json", {"patterns": table, "sitl": sitl_rows})
     print(report)
     print(f"run folder: {folder}")
-    missed = [e["pattern"] for e in table if e.get("meets_targets") is False]
+    missed = [e["pattern"] for e in table + sitl_rows if e.get("meets_targets") is False]
     return 1 if missed else 0
 
 

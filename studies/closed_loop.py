@@ -19,8 +19,8 @@ from companion.assembly import build_sensor, build_pipeline
 from companion.core.bearing_sensor import BearingSensor
 from interfaces.scenario import Scenario, VehicleConfig
 from companion.core.fix_validator import FixRejected, FixValidator
-from companion.fix_intake import FixIntake
-from interfaces.link_schema import TargetFix, encode_target_fix
+from companion.fix_intake import FixIntake, build_fix_validator
+from interfaces.link_schema import MAX_EPOCH, PayloadError, TargetFix, decode_target_fix, encode_target_fix
 from companion.core.messages import BearingMeasurement, PursuerState
 from companion.core.health import REASONS, HealthAction, HealthState
 from companion.core.pipeline import TrackMode
@@ -151,7 +151,7 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
             # bearing is then taken at each delivered fix's time from the pursuer's state then.
             if step % every["sensor"] == 0:
                 link.offer(time, target.position, target.velocity, truth, measured_position)
-            for stamp, fix_position, sample in link.deliver(time):
+            for stamp, fix_position, sample in link.deliver(time, pipeline):
                 bearing = _measure(sensor, stamp, fix_position - sample.true_position, sample.rotation,
                                    sample.measured_position, sensor_rng, range_rng)
                 if bearing is None:
@@ -240,46 +240,136 @@ class _Sample:
 class InProcessLink:
     """The target link of the in-process simulator when [faults] injects something: fixes are
     encoded as on the real link (local NED frame), pass LinkFaults, and are checked by the same
-    FixValidator as the companion's. The pursuer's state at each fix time is kept so a late
-    fix gives the bearing of its own time."""
+    FixValidator as the companion's (now = the loop time; the re-anchor rule asks the pipeline
+    whether a fix's line of sight agrees with its prediction). The pursuer's state at each fix
+    time is kept so a late fix gives the bearing of its own time. The publisher's epoch is
+    drawn from the seed (its own stream), so a flight is reproducible."""
 
     def __init__(self, scenario: Scenario, seed: int) -> None:
         self.faults = LinkFaults(scenario.faults, fault_rng(scenario.faults, seed))
         self.enabled = self.faults.enabled
         self.sender = scenario.link.target_sender
-        self.validator = FixValidator(self.sender)
+        self.epoch = int(np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(0xE90C,))).integers(
+            0, MAX_EPOCH, endpoint=True))
+        self.validator: FixValidator = build_fix_validator(scenario.link)
         self.intake = FixIntake(self.validator, scenario.sitl.home)
         self._seq = 0
         self._samples: dict[int, _Sample] = {}
         self._rate = scenario.sensor.rate_hz
         self.offered = 0
         self.delivered = 0
+        # Which deliveries are the genuine target's (the first delivery of a fix as offered) and which are
+        # someone else's (attacks, replays, copies): for the attack campaign's lockout and intruder figures.
+        self._offered: dict[int, np.ndarray] = {}
+        self.genuine = GenuineRecord()
 
     def offer(self, time: float, position: np.ndarray, velocity: np.ndarray, truth: RigidBodyState,
               measured_position: np.ndarray) -> None:
-        payload = encode_target_fix(TargetFix(self.sender, self._seq, time, "ned", position, velocity))
+        payload = encode_target_fix(TargetFix(self.sender, self._seq, time, "ned", position, velocity, self.epoch))
         self._seq += 1
         key = round(time * self._rate)
         self._samples[key] = _Sample(truth.position, truth.rotation, measured_position)
         self._samples.pop(key - round(30.0 * self._rate), None)  # keep 30 s for stale fixes
+        self._offered[key] = np.asarray(position, dtype=float).copy()
+        self._offered.pop(key - round(30.0 * self._rate), None)
         self.faults.offer(time, payload, time)
         self.offered += 1
 
-    def deliver(self, time: float):
-        """(stamp, NED position, pursuer sample at the stamp) of each valid fix due now."""
+    def deliver(self, time: float, pipeline=None):
+        """(stamp, NED position, pursuer sample at the stamp) of each valid fix due now (s); pipeline: the
+        FollowingPipeline whose predicted line of sight the validator's re-anchor rule consults."""
+        def agrees(position: np.ndarray, stamp: float) -> bool | None:
+            sample = self._samples.get(round(stamp * self._rate))
+            if pipeline is None or sample is None:
+                return None
+            return pipeline.line_of_sight_agrees(stamp, sample.measured_position, position)
+
         for payload in self.faults.due(time):
             self.delivered += 1
+            genuine, off_truth = self._origin(payload)
             try:
-                fix, position = self.intake.check(payload)
+                fix, position = self.intake.check(payload, now=time, agrees=agrees)
             except FixRejected:
+                self.genuine.note(time, genuine, False, off_truth)
                 continue
+            self.genuine.note(time, genuine, True, off_truth)
             sample = self._samples.get(round(fix.stamp * self._rate))
             if sample is not None:
                 yield fix.stamp, position, sample
 
+    def _origin(self, payload: bytes) -> tuple[bool | None, float]:
+        """(genuine?, distance m of its position from the offered fix of its stamp) of a delivered payload:
+        genuine is the first delivery of an offered fix, unchanged; None for bytes that do not decode."""
+        try:
+            fix = decode_target_fix(payload)
+        except PayloadError:
+            return None, math.nan
+        key = round(fix.stamp * self._rate)
+        offered = self._offered.get(key)
+        if offered is None or abs(fix.stamp - key / self._rate) > 1e-6 or fix.frame != "ned":
+            return False, math.inf
+        distance = float(np.linalg.norm(np.array(fix.position) - offered))
+        genuine = distance == 0.0 and fix.sender == self.sender and key not in self.genuine.seen
+        if genuine:
+            self.genuine.seen.add(key)
+            if len(self.genuine.seen) > 4 * round(30.0 * self._rate):
+                self.genuine.seen = {k for k in self.genuine.seen if k > key - round(30.0 * self._rate)}
+        return genuine, distance
+
     def summary(self) -> dict:
-        return {"offered": self.offered, "delivered": self.delivered, "accepted": self.validator.accepted,
-                "rejected": dict(self.validator.rejected), "faults": dict(self.faults.counters)}
+        return {"offered": self.offered, "genuine": self.genuine.summary(), "delivered": self.delivered, "accepted": self.validator.accepted,
+                "rejected": dict(self.validator.rejected), "faults": dict(self.faults.counters),
+                "reanchors": [(round(stamp, 3), rule) for stamp, rule in self.validator.reanchors]}
+
+
+class GenuineRecord:
+    """What became of the genuine target's fixes and of everyone else's, as delivered.
+
+    Genuine: accepted / rejected counts and the longest run of consecutive rejected genuine fixes
+    (count, and s of loop time from the first of them to the next accepted one, or to the last
+    delivery when none came). Foreign (attacks, replays, copies): accepted, rejected, and
+    accepted_far (accepted while more than FAR m from the genuine fix of its stamp).
+    """
+
+    FAR = 5.0  # m
+
+    def __init__(self) -> None:
+        self.seen: set[int] = set()
+        self.accepted = self.rejected = 0
+        self.foreign_accepted = self.foreign_rejected = self.foreign_accepted_far = 0
+        self.longest_run = 0
+        self.longest_run_s = 0.0
+        self._run = 0
+        self._run_start: float | None = None
+        self._last_time = 0.0
+
+    def note(self, time: float, genuine: bool | None, accepted: bool, off_truth: float) -> None:
+        self._last_time = time
+        if genuine is None:
+            return
+        if not genuine:
+            if accepted:
+                self.foreign_accepted += 1
+                self.foreign_accepted_far += int(not off_truth <= self.FAR)
+            else:
+                self.foreign_rejected += 1
+            return
+        if accepted:
+            self.accepted += 1
+            if self._run_start is not None:
+                self.longest_run_s = max(self.longest_run_s, time - self._run_start)
+            self._run, self._run_start = 0, None
+        else:
+            self.rejected += 1
+            self._run += 1
+            self._run_start = time if self._run_start is None else self._run_start
+            self.longest_run = max(self.longest_run, self._run)
+
+    def summary(self) -> dict:
+        open_run = 0.0 if self._run_start is None else self._last_time - self._run_start
+        return {"accepted": self.accepted, "rejected": self.rejected, "longest_rejected_run": self.longest_run,
+                "longest_rejected_run_s": max(self.longest_run_s, open_run), "foreign_accepted": self.foreign_accepted,
+                "foreign_rejected": self.foreign_rejected, "foreign_accepted_far": self.foreign_accepted_far}
 
 
 def _log_tick(log: FlightLog, time: float, truth: RigidBodyState, target: TargetMotion, output,

@@ -13,6 +13,18 @@ from companion.app import CompanionApp, Phase
 from interfaces.scenario import load_scenario
 
 
+#: The vehicle time the tests' companion sees (the validator's "now", s): fixes stamped 0.6-3.1 s are fresh.
+NOW = 2.6
+
+
+@pytest.fixture
+def app(app):
+    """The conftest app with a vehicle clock standing still at NOW (no vehicle is connected)."""
+    app.target_link.clock = lambda: NOW
+    app._vehicle_time = lambda: NOW
+    return app
+
+
 def _fix(seq: int, stamp: float, position=(60.0, -20.0, -20.0), sender="target-1", frame="ned") -> bytes:
     return link.encode_target_fix(link.TargetFix(sender, seq, stamp, frame, position))
 
@@ -79,9 +91,9 @@ def test_every_malformed_kind_is_counted_under_its_reason_and_never_reaches_the_
         broken, _ = corrupt_payload(_fix(seq, 1.0 + 0.2 * seq), kind, np.array([0.3, 0.6]))
         app.target_link.on_fix(broken, 0)
         expected[reason] = expected.get(reason, 0) + 1
-    app.target_link.on_fix(_fix(50, 9.0, sender="impostor-1"), 0)
+    app.target_link.on_fix(_fix(50, 2.4, sender="impostor-1"), 0)
     app.target_link.on_fix(_fix(0, 1.0), 0)  # a duplicate / stale message
-    app.target_link.on_fix(_fix(51, 9.2, position=(5000.0, 0.0, -20.0)), 0)  # a wild jump
+    app.target_link.on_fix(_fix(7, 2.5, position=(5000.0, 0.0, -20.0)), 0)  # a wild jump
     expected.update(wrong_sender=1, stale_seq=1, implausible_jump=1)
     assert dict(app.target_link.health.rejected) == expected
     assert app.target_link.health.accepted == 1 and len(app.target_link.pending) == 1  # only the valid fix is queued
@@ -91,6 +103,7 @@ def test_every_malformed_kind_is_counted_under_its_reason_and_never_reaches_the_
 def bare_app(tmp_path_factory, scenario_path):
     scenario, vehicle = load_scenario(scenario_path("constant_velocity"))
     application = CompanionApp(scenario, vehicle, tmp_path_factory.mktemp("fuzz"))
+    application.target_link.clock = lambda: NOW
     yield application
     application.recorder.close()
 
@@ -272,3 +285,57 @@ def test_the_tlog_path_binds_nothing_outside_loopback_and_relays_nothing_to_the_
     # The tlog records what arrived on the autopilot link (the intruder's datagrams to that port included):
     # a record, not a relay.
     assert (1, "HEARTBEAT") in recorded and tlog.packets == len(recorded)
+
+
+def test_before_the_first_odometry_fixes_and_commands_are_refused_as_no_clock(app):
+    app.target_link.clock = lambda: None
+    app._vehicle_time = lambda: None
+    app.target_link.on_fix(_fix(0, 1.0), 0)
+    app.on_command(link.encode_command(link.Command("ground-station", 0, 1.0, "abort", epoch=3)))
+    assert dict(app.target_link.health.rejected) == {"no_clock": 1} and not app.sequencer.abort_requested
+
+
+def test_a_future_or_replayed_message_never_locks_the_genuine_sender_out(app):
+    genuine = [link.TargetFix("target-1", k, 1.0 + 0.2 * k, "ned", (60.0 + 0.5 * k, -20.0, -20.0), epoch=11)
+               for k in range(8)]
+    app.target_link.on_fix(link.encode_target_fix(genuine[0]), 0)
+    forged = [link.TargetFix("target-1", 2**62, 1.1, "ned", (60.0, -20.0, -20.0), epoch=11),
+              link.TargetFix("target-1", 1, 1.0 + 1e6, "ned", (60.0, -20.0, -20.0), epoch=11),
+              link.TargetFix("target-1", 5, 1.1, "ned", (90.0, -20.0, -20.0), epoch=99)]
+    for fix in forged:
+        app.target_link.on_fix(link.encode_target_fix(fix), 0)
+    for fix in genuine[1:]:
+        app.target_link.on_fix(link.encode_target_fix(fix), 0)
+    assert app.target_link.health.accepted == 8
+    assert dict(app.target_link.health.rejected) == {"seq_jump": 1, "future_stamp": 1, "implausible_jump": 1}
+
+
+def test_commands_are_refused_when_replayed_reordered_or_far_in_the_future(app):
+    abort = link.Command("ground-station", 4, 2.5, "abort", epoch=8)
+    app.on_command(link.encode_command(link.Command("ground-station", 3, 2.4, "resume", epoch=8)))
+    app.on_command(link.encode_command(link.Command("ground-station", 9, 2.5 + 1e6, "abort", epoch=8)))
+    assert not app.sequencer.abort_requested
+    app.on_command(link.encode_command(abort))
+    assert app.sequencer.abort_requested
+    app.sequencer.abort_requested = False
+    app.on_command(link.encode_command(abort))  # the same command again: a replay
+    assert not app.sequencer.abort_requested
+    assert dict(app.sequencer.commands.rejected) == {"future_stamp": 1, "stale_seq": 1}
+
+
+def test_a_reject_flood_leaves_the_logs_bounded_and_the_counters_exact(app):
+    from companion.adapters.recorder import REJECTS_VERBATIM
+
+    for k in range(3000):
+        app.target_link.on_fix(b"\xff flood", 0)
+        app.on_command(b"flood")
+    app.recorder.close()
+    assert app.target_link.health.rejected["not_utf8"] == 3000
+    received = [json.loads(line) for line in (app.recorder.folder / "zenoh_rx.jsonl").read_text().splitlines()]
+    events = [json.loads(line) for line in (app.recorder.folder / "events.jsonl").read_text().splitlines()]
+    for records in (received, events):
+        verbatim = [r for r in records if r.get("kind") != "suppressed"]
+        suppressed = [r for r in records if r.get("kind") == "suppressed"]
+        assert len(verbatim) == REJECTS_VERBATIM
+        assert len(verbatim) + sum(r["count"] for r in suppressed) == 3000  # every reject written or counted
+        assert len(records) < REJECTS_VERBATIM + 10  # a few seconds of wall time: a few count lines

@@ -29,7 +29,10 @@ def _position(seq: int) -> np.ndarray:
 @functools.cache
 def _fix(seq: int, frame: str = "ned") -> bytes:
     position = _position(seq) if frame == "ned" else ned_to_geodetic(_position(seq), HOME)
-    return encode_target_fix(TargetFix("target-1", seq, seq / RATE, frame, position, (3.0, 4.0, 0.0)))
+    return encode_target_fix(TargetFix("target-1", seq, seq / RATE, frame, position, (3.0, 4.0, 0.0), EPOCH))
+
+
+EPOCH = 424242  # the genuine publisher's epoch in these streams
 
 
 def _faults(seed: int = 7, **settings) -> LinkFaults:
@@ -329,6 +332,15 @@ def _scenario_with(tmp_path: Path, faults_toml: str) -> Path:
     ("seed = -1", "faults.seed"),
     ("mavlink = { blackouts = [{ start = 1, duration = 5 }, { start = 2, duration = 1 }] }", "mavlink.blackouts: windows"),
     ("los_probability = 0.1", "faults.los_probability: unknown key"),
+    ("future_seq_at = -1", "faults.future_seq_at"),
+    ("future_stamp_at = nan", "faults.future_stamp_at"),
+    ("replay_count = 0", "faults.replay_count"),
+    ("restart_gap_s = -0.5", "faults.restart_gap_s"),
+    ("spoof_burst_count = 0", "faults.spoof_burst_count"),
+    ("spoof_rate_hz = -5", "faults.spoof_rate_hz"),
+    ("spoof_offset = [1, 2, inf]", "faults.spoof_offset"),
+    ("spoof_seq_lead = -1", "faults.spoof_seq_lead"),
+    ("spoof_epoch = 'mine'", "faults.spoof_epoch"),
 ])
 def test_bad_faults_are_rejected_naming_the_key(tmp_path, faults_toml, key):
     path = _scenario_with(tmp_path, faults_toml)
@@ -434,3 +446,100 @@ def test_target_process_with_a_blackout_loss_and_an_impostor_end_to_end(tmp_path
             assert np.allclose(np.array(impostor.position) - by_stamp[impostor.stamp].position, (30.0, 0.0, 0.0))
     summary = next(line for line in output.splitlines() if line.startswith("sitl-target faults:"))
     assert "'blackout_drop': 10" in summary and f"'loss': {len(lost)}" in summary
+
+
+# --- attacks -------------------------------------------------------------------------------
+
+def _decoded(delivered):
+    return [(time, decode_target_fix(payload)) for time, payload in delivered]
+
+
+def test_future_seq_and_future_stamp_are_one_extra_copy_each_right_after_the_genuine_fix():
+    faults = _faults(future_seq_at=2.0, future_stamp_at=3.0)
+    fixes = _decoded(_run(faults, 30))
+    genuine = [fix for _, fix in fixes if fix.seq < 30 and fix.stamp < 100]
+    assert [fix.seq for fix in genuine] == list(range(30))
+    forged = [(time, fix) for time, fix in fixes if fix.seq >= 30 or fix.stamp >= 100]
+    assert len(forged) == 2
+    (t1, seq_copy), (t2, stamp_copy) = forged
+    assert t1 == 2.0 and seq_copy.seq == 10 + 2**62 and seq_copy.stamp == pytest.approx(2.01) and seq_copy.epoch == EPOCH
+    assert t2 == 3.0 and stamp_copy.seq == 16 and stamp_copy.stamp == 3.0 + 1e6
+    np.testing.assert_array_equal(seq_copy.position, _position(10))
+    assert faults.counters["attack_future_seq"] == 1 and faults.counters["attack_future_stamp"] == 1
+
+
+def test_replay_resends_the_last_genuine_payloads_byte_for_byte():
+    faults = _faults(replay_at=4.0, replay_count=5)
+    delivered = _run(faults, 30)
+    at_attack = [payload for time, payload in delivered if time == 4.0]
+    assert at_attack == [_fix(15), _fix(16), _fix(17), _fix(18), _fix(19), _fix(20)]  # the replay, then seq 20 itself
+    assert faults.counters["attack_replay"] == 5
+
+
+def test_a_restarted_target_is_silent_for_the_gap_then_counts_from_zero_in_a_new_epoch():
+    faults = _faults(restart_at=2.0, restart_gap_s=1.0)
+    fixes = [fix for _, fix in _decoded(_run(faults, 30))]
+    before = [fix for fix in fixes if fix.stamp < 2.0]
+    after = [fix for fix in fixes if fix.stamp >= 2.0]
+    assert all(fix.epoch == EPOCH for fix in before) and len(before) == 10
+    assert after[0].stamp == pytest.approx(3.0)  # 2.0-2.8 s not sent
+    assert {fix.epoch for fix in after} != {EPOCH} and len({fix.epoch for fix in after}) == 1
+    assert [fix.seq for fix in after] == list(range(len(after)))
+    np.testing.assert_array_equal(after[0].position, _position(15))
+    assert faults.counters["restart_drop"] == 5
+
+
+@pytest.mark.parametrize("epoch", ["own", "target"])
+def test_a_spoof_burst_is_consistent_offset_and_seq_ahead(epoch):
+    faults = _faults(spoof_burst_at=2.0, spoof_epoch=epoch)
+    fixes = _decoded(_run(faults, 30))
+    burst = [(time, fix) for time, fix in fixes if fix.seq >= 2**40]
+    assert len(burst) == 3
+    for k, (time, fix) in enumerate(burst):
+        assert fix.sender == "target-1" and fix.seq == 10 + 2**40 + k
+        assert fix.stamp == pytest.approx(2.0 + 0.02 * k) and time == 2.0  # back to back
+        np.testing.assert_allclose(np.array(fix.position) - _position(10), (30.0, 0.0, 0.0))
+        assert (fix.epoch == EPOCH) == (epoch == "target")
+
+
+def test_a_steady_spoof_publishes_an_offset_track_at_its_rate_from_its_start():
+    faults = _faults(spoof_rate_hz=5.0, spoof_from=2.0, spoof_offset=(0.0, -25.0, 0.0))
+    fixes = _decoded(_run(faults, 30, tick=0.02))
+    spoof = [fix for _, fix in fixes if fix.seq >= 2**40]
+    stamps = np.array([fix.stamp for fix in spoof])  # it goes on after the target's last fix, as the clock runs
+    np.testing.assert_allclose(stamps, np.arange(10, 10 + len(spoof)) / 5.0, atol=1e-9)
+    assert all(b.seq > a.seq for a, b in zip(spoof, spoof[1:])) and len({fix.epoch for fix in spoof}) == 1
+    by_stamp = {round(fix.stamp, 9): fix for _, fix in fixes if fix.seq < 2**40}
+    for fix in spoof[:20]:
+        np.testing.assert_allclose(np.array(fix.position) - by_stamp[round(fix.stamp, 9)].position, (0.0, -25.0, 0.0))
+
+
+def test_each_target_publisher_process_has_its_own_epoch_and_counts_seq_from_zero():
+    scenario, _ = load_scenario(SCENARIOS_DIR / "constant_velocity.toml")
+    runs = []
+    for _ in range(2):  # a publisher, then the same publisher restarted
+        sent: list[bytes] = []
+        target = TargetPublisher(TargetTruth(scenario.target), FixSchedule(RATE), sent.append, TargetLog(None, "ned"),
+                                 "target-1", "ned", HOME, 0.0, np.random.default_rng(0), duration=2.0)
+        for seq in range(101):
+            target.on_clock_payload(encode_clock(ClockTick("plant", seq, seq * 0.02)))
+        fixes = [decode_target_fix(payload) for payload in sent]
+        assert all(json.loads(payload)["schema"] == "bof.target_fix/2" for payload in sent)
+        assert {fix.epoch for fix in fixes} == {target.epoch} and [fix.seq for fix in fixes] == list(range(len(fixes)))
+        runs.append(target.epoch)
+    assert runs[0] != runs[1]
+
+
+def test_the_target_refuses_a_start_command_outside_its_clock_window():
+    from interfaces.link_schema import Command, encode_command
+
+    scenario, _ = load_scenario(SCENARIOS_DIR / "constant_velocity.toml")
+    target = TargetPublisher(TargetTruth(scenario.target, start_time=math.inf), FixSchedule(RATE), lambda payload: None,
+                             TargetLog(None, "ned"), "target-1", "ned", HOME, 0.0, np.random.default_rng(0))
+    target.on_clock_payload(encode_clock(ClockTick("plant", 0, 10.0)))
+    target.on_command_payload(encode_command(Command("gcs", 0, 10.0 + 1e6, "start", epoch=1)))
+    target.on_command_payload(encode_command(Command("gcs", 1, 7.0, "start", epoch=1)))
+    assert math.isinf(target.truth.start_time)
+    assert target.rejected == {"command:future_stamp": 1, "command:too_old": 1}
+    target.on_command_payload(encode_command(Command("gcs", 2, 10.2, "start", epoch=1)))
+    assert target.truth.start_time == 10.0

@@ -156,7 +156,7 @@ REFUSALS = [
     (decode_target_fix, b"[1, 2]", "not_object"),
     (decode_target_fix, _bytes({k: v for k, v in _fix().items() if k != "schema"}), "missing_field"),
     (decode_target_fix, _bytes({k: v for k, v in _fix().items() if k != "position"}), "missing_field"),
-    (decode_target_fix, _bytes(_fix(schema="bof.target_fix/2")), "wrong_schema"),
+    (decode_target_fix, _bytes(_fix(schema="bof.target_fix/3")), "wrong_schema"),
     (decode_clock, _bytes(_fix()), "wrong_schema"),
     (decode_target_fix, _bytes(_fix(colour="red")), "unknown_field"),
     (decode_target_fix, _bytes(_fix(seq=True)), "wrong_type"),
@@ -421,7 +421,7 @@ def test_the_first_problem_in_the_documented_order_wins(fix, schema_fault, extra
     if schema_fault == "missing":
         document.pop("schema")
     elif schema_fault == "wrong":
-        document["schema"] = "bof.target_fix/2"
+        document["schema"] = "bof.target_fix/3"
     field_reasons = [reason for index, (name, _, reason) in enumerate(FIELD_FAULTS)
                      if index in faulted and name not in dropped]
     expected = ({"missing": "missing_field", "wrong": "wrong_schema"}.get(schema_fault)
@@ -551,3 +551,58 @@ def test_ground_station_progress_line_shows_missing_figures_as_dashes():
     line = _progress(link.decode_state(encode_state(_state(estimate=estimate))))
     assert "range^=- m" in line and "sigma_p=- m" in line
     assert _progress(None) == "waiting for the companion"
+
+
+# --- schema v2: the publisher epoch ------------------------------------------------------------
+
+V2_FIX = {"schema": "bof.target_fix/2", "sender": "target-1", "seq": 0, "stamp": 1.2, "epoch": 2**63 - 1,
+          "frame": "ned", "position": [10.0, -5.0, -20.0]}
+V2_COMMAND = {"schema": "bof.command/2", "sender": "gcs", "seq": 0, "stamp": 3.0, "epoch": 0, "command": "abort"}
+
+
+def test_v2_is_what_encoders_write_and_v1_still_decodes():
+    fix = TargetFix("target-1", 0, 1.2, "ned", (10.0, -5.0, -20.0), epoch=2**63 - 1)
+    assert json.loads(encode_target_fix(fix)) == V2_FIX  # the documented document, field for field
+    assert decode_target_fix(_bytes(V2_FIX)) == fix
+    command = Command("gcs", 0, 3.0, "abort", epoch=0)
+    assert json.loads(encode_command(command)) == V2_COMMAND
+    assert decode_command(_bytes(V2_COMMAND)) == command
+    # v1 documents (no epoch) decode with epoch None; an envelope without epoch is written as v1.
+    assert decode_target_fix(_bytes(_fix())).epoch is None
+    v1_command = {key: value for key, value in V2_COMMAND.items() if key != "epoch"} | {"schema": "bof.command/1"}
+    assert decode_command(_bytes(v1_command)) == Command("gcs", 0, 3.0, "abort")
+    assert json.loads(encode_target_fix(TargetFix("t", 0, 0.0, "ned", (0.0, 0.0, 0.0))))["schema"] == "bof.target_fix/1"
+
+
+@pytest.mark.parametrize("decode, document, reason", [
+    (decode_target_fix, {k: v for k, v in V2_FIX.items() if k != "epoch"}, "missing_field"),
+    (decode_target_fix, {**V2_FIX, "epoch": -1}, "out_of_range"),
+    (decode_target_fix, {**V2_FIX, "epoch": 2**63}, "out_of_range"),
+    (decode_target_fix, {**V2_FIX, "epoch": True}, "wrong_type"),
+    (decode_target_fix, {**V2_FIX, "epoch": 1.0}, "wrong_type"),
+    (decode_target_fix, {**_fix(), "epoch": 5}, "unknown_field"),  # v1 has no epoch
+    (decode_target_fix, {**V2_FIX, "frame": "enu"}, "bad_frame"),
+    (decode_target_fix, {**V2_FIX, "position": [1e7, 0.0, 0.0]}, "out_of_range"),
+    (decode_command, {k: v for k, v in V2_COMMAND.items() if k != "epoch"}, "missing_field"),
+    (decode_command, {**V2_COMMAND, "epoch": "7"}, "wrong_type"),
+    (decode_command, {**V2_COMMAND, "schema": "bof.command/3"}, "wrong_schema"),
+    (decode_command, {**V2_COMMAND, "command": "land"}, "unknown_command"),
+])
+def test_v2_refusals_have_their_reasons(decode, document, reason):
+    with pytest.raises(PayloadError) as error:
+        decode(_bytes(document))
+    assert error.value.reason == reason
+
+
+@FUZZ
+@given(st.integers(0, 2**63 - 1), st.integers(0, 2**63 - 1), st.sampled_from(["geodetic", "ned"]))
+def test_any_epoch_survives_encoding(epoch, seq, frame):
+    position = (47.0, 8.0, 500.0) if frame == "geodetic" else (1.0, 2.0, 3.0)
+    fix = TargetFix("target-1", seq, 5.0, frame, position, epoch=epoch)
+    assert decode_target_fix(encode_target_fix(fix)) == fix
+    assert decode_command(encode_command(Command("gcs", seq, 5.0, "start", epoch=epoch))).epoch == epoch
+
+
+def test_new_epochs_are_in_range_and_differ():
+    epochs = {link.new_epoch() for _ in range(100)}
+    assert len(epochs) == 100 and all(0 <= e < 2**63 for e in epochs)

@@ -7,8 +7,12 @@ interrupted run keeps everything up to the interruption.
                     model_right, model_left; companion.core.imm)
     bearings.csv    every bearing given to the estimator (its only measurement input; a range
                     column is filled only when a range sensor is configured)
-    zenoh_rx.jsonl  every Zenoh message received, with receipt time and verdict
-    events.jsonl    phase changes, status texts, errors
+    zenoh_rx.jsonl  every Zenoh message received, with receipt time and verdict; rejected ones
+                    through an AggregatingLog (the first REJECTS_VERBATIM per reason in full, then
+                    one {"kind": "suppressed", "key": reason, "count", "first", "last"} line per
+                    reason per second, times in wall seconds), so no sender can fill the disk
+    events.jsonl    phase changes, status texts, errors; "*_rejected" events (refused commands)
+                    aggregated the same way, keyed by kind and reason
     latency.csv     target message received -> setpoint sent (wall clock), per bearing
     mavlink.tlog    the autopilot's MAVLink traffic as MAVSDK forwards it in process (standard .tlog:
                     8-byte big-endian microsecond timestamp + raw packet)
@@ -21,7 +25,7 @@ import threading
 import time
 from pathlib import Path
 
-from interfaces.records import CsvLog, JsonLinesLog, fmt, write_json
+from interfaces.records import AggregatingLog, CsvLog, JsonLinesLog, fmt, write_json
 
 SERIES_COLUMNS = (
     "time", "phase", "track_mode", "bearing_age",
@@ -35,6 +39,8 @@ SERIES_COLUMNS = (
 )
 BEARING_COLUMNS = ("time", "direction_x", "direction_y", "direction_z", "pursuer_x", "pursuer_y", "pursuer_z",
                    "fix_seq", "range")
+#: Rejected messages / refused commands logged in full per reason before only counts are written.
+REJECTS_VERBATIM = 20
 LATENCY_COLUMNS = ("fix_seq", "fix_stamp", "received_ns", "setpoint_sent_ns", "latency_ms")
 
 
@@ -57,6 +63,8 @@ class RunRecorder:
         self._events = JsonLinesLog(self.folder / "events.jsonl")
         self._bearings = CsvLog(self.folder / "bearings.csv", BEARING_COLUMNS)
         self._latency = CsvLog(self.folder / "latency.csv", LATENCY_COLUMNS)
+        self._zenoh_rejects = AggregatingLog(self._zenoh, verbatim=REJECTS_VERBATIM)
+        self._event_rejects = AggregatingLog(self._events, verbatim=REJECTS_VERBATIM)
 
     def series(self, row: dict) -> None:
         """One own-state sample: SERIES_COLUMNS -> value; floats with 6 significant digits, NaN left empty."""
@@ -64,13 +72,24 @@ class RunRecorder:
                             for column, value in row.items()})
 
     def zenoh(self, record: dict) -> None:
-        self._zenoh.write(record)
+        """One received message; a rejected one (verdict "rejected") is aggregated by its reason."""
+        if record.get("verdict") == "rejected":
+            self._zenoh_rejects.write(str(record.get("reason")), record, time.monotonic())
+        else:
+            self._zenoh.write(record)
+            self._zenoh_rejects.tick(time.monotonic())
 
     def event(self, sim_time: float | None, kind: str, detail: str, **fields) -> None:
         """One event: simulated time (s, None before telemetry), kind, human-readable detail, and the
-        event's figures as structured fields (e.g. phase="following", bearing_age=0.4)."""
-        self._events.write({"time": None if sim_time is None else round(sim_time, 4), "wall": round(time.time(), 3),
-                            "kind": kind, "detail": detail, **fields})
+        event's figures as structured fields (e.g. phase="following", bearing_age=0.4). Kinds ending in
+        "_rejected" are aggregated per (kind, reason field) so that a flood of refusals stays bounded."""
+        record = {"time": None if sim_time is None else round(sim_time, 4), "wall": round(time.time(), 3),
+                  "kind": kind, "detail": detail, **fields}
+        if kind.endswith("_rejected"):
+            self._event_rejects.write(f"{kind}:{fields.get('reason', '')}", record, time.monotonic())
+        else:
+            self._events.write(record)
+            self._event_rejects.tick(time.monotonic())
 
     def bearing(self, bearing, fix_seq: int) -> None:
         """One estimator input: the bearing (its time, direction, projection centre), the fix it came from,
@@ -87,6 +106,8 @@ class RunRecorder:
         write_json(self.folder / "summary.json", summary, indent=2, sort_keys=True)
 
     def close(self) -> None:
+        self._zenoh_rejects.flush()
+        self._event_rejects.flush()
         for log in (self._series, self._zenoh, self._events, self._latency, self._bearings):
             log.close()
 

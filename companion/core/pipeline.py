@@ -7,6 +7,7 @@ this same object. It owns no clock: every call says what time it is.
 from __future__ import annotations
 
 import dataclasses
+import math
 import enum
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -349,6 +350,19 @@ class FollowingPipeline:
         if distance > 1e-6:
             self.observability.add(bearing.time, unit(bearing.direction), distance)
             self._observability_measure = self.observability.measure()
+
+    def line_of_sight_agrees(self, time: float, pursuer_position: np.ndarray, target_position: np.ndarray) -> bool | None:
+        """Whether the line of sight from `pursuer_position` to `target_position` (NED m, (3,)) at `time` (s)
+        agrees with the estimator's prediction, within the re-acquisition gate (dropout gate_sigma); None
+        before engagement or for a degenerate geometry. For the fix validator's re-anchor rule: it reads the
+        estimate, never changes it."""
+        if self._engaged_at is None:
+            return None
+        relative = np.asarray(target_position, dtype=float) - np.asarray(pursuer_position, dtype=float)
+        distance = float(np.linalg.norm(relative))
+        if not math.isfinite(distance) or distance < 1e-6:
+            return None
+        return self._agrees_with_prediction(BearingMeasurement(time, relative / distance, np.asarray(pursuer_position, dtype=float)))
 
     def _agrees_with_prediction(self, bearing: BearingMeasurement) -> bool:
         estimate = self.estimator.estimate.extrapolated(bearing.time)

@@ -73,6 +73,32 @@ impostor's sender, its own seq (from 0), the tick as stamp and the position move
 another transmitter: blackouts, loss, delay and corruption do not touch it; it is
 delivered at its tick. One ``impostor`` event per message.
 
+**Attacks** (each off by default; times in scenario seconds, like blackouts; each attack
+message is another transmitter's: no loss, delay or corruption touches it, it is delivered at
+once; one event per message, kind ``attack_<name>``). They need a fix that decodes to copy
+(the latest genuine one offered):
+
+* ``future_seq_at``: at the first fix offered at or after it, one extra copy with seq + 2**62
+  (capped at 2**63 - 1), same epoch, stamped 10 ms later (so that only its seq is wrong), right
+  after the genuine fix.
+* ``future_stamp_at``: one extra copy stamped 1e6 s ahead, seq + 1.
+* ``replay_at``: the last ``replay_count`` genuine fixes offered (as they were offered, old
+  seq and stamp) sent again, back to back.
+* ``restart_at``: the genuine publisher restarts: its fixes offered in
+  [restart_at, restart_at + restart_gap_s) are not sent (counters["restart_drop"]), the
+  later ones carry a new epoch (drawn from the "attack" stream) and seq from 0 (the first one
+  sent after the gap). This rewrites the genuine stream before every other fault, as a real
+  restart would (event ``target_restart``).
+* ``spoof_burst_at``: ``spoof_burst_count`` fixes as the target's sender, at the latest
+  genuine position + ``spoof_offset`` (NED m), stamped now + 20 ms x k.
+* ``spoof_rate_hz`` > 0: a steady spoofer as the target's sender from scenario time
+  ``spoof_from`` on, at ticks k / spoof_rate_hz of simulated time: the latest genuine
+  position + ``spoof_offset``, the tick as stamp (a plausible-looking track beside the real one).
+
+The spoofer's seq is the latest genuine seq + ``spoof_seq_lead`` (then +1 per message at
+least); its epoch is its own (``spoof_epoch = "own"``, drawn once) or the genuine one it
+overheard (``"target"``).
+
 Events and counters: every injected fault is a `FaultEvent` (simulated time of the
 `offer`/`due` call that injected or noticed it, kind, a human-readable detail, and its
 figures as fields: ``seq`` of the message affected (None when the payload is no JSON
@@ -101,11 +127,20 @@ from dataclasses import dataclass, field
 import numpy as np
 from interfaces.overrides import apply_overrides, parse_assignment
 from interfaces.scenario import FaultsConfig
-from interfaces.link_schema import PayloadError, TargetFix, decode_target_fix, encode_target_fix
+import dataclasses
+
+from interfaces.link_schema import MAX_EPOCH, MAX_SEQ, PayloadError, TargetFix, decode_target_fix, encode_target_fix
 from interfaces.geodesy import ned_to_geodetic
 
 #: One child generator per fault kind, in this order (append new kinds at the end: the others keep their draws).
-STREAMS = ("loss", "burst", "corrupt", "delay", "reorder", "duplicate", "stale", "impostor")
+STREAMS = ("loss", "burst", "corrupt", "delay", "reorder", "duplicate", "stale", "impostor", "attack")
+#: The future_seq attack's seq jump, and the future_stamp attack's stamp jump (s).
+FUTURE_SEQ_JUMP = 2**62
+FUTURE_STAMP_JUMP = 1e6
+#: Stamp spacing of a spoof burst, s.
+SPOOF_BURST_SPACING = 0.02
+#: The future_seq copy's stamp lead, s (newer than the genuine fix, well inside any freshness window).
+FUTURE_SEQ_STAMP_LEAD = 0.01
 #: Corruption kind -> the interfaces.link_schema.PayloadError reason decode_target_fix gives it.
 CORRUPTION_REASONS = {
     "invalid_utf8": "not_utf8",
@@ -153,7 +188,14 @@ def injects_anything(config: FaultsConfig) -> bool:
     return bool(config.loss_probability > 0 or (burst is not None and (burst.loss_in_good > 0 or burst.loss_in_bad > 0))
                 or any(window.duration > 0 for window in config.blackouts) or config.latency_s > 0
                 or config.jitter_s > 0 or config.reorder_probability > 0 or config.duplicate_probability > 0
-                or config.stale_probability > 0 or config.corrupt_probability > 0 or config.impostor_rate_hz > 0)
+                or config.stale_probability > 0 or config.corrupt_probability > 0 or config.impostor_rate_hz > 0
+                or attacks_anything(config))
+
+
+def attacks_anything(config: FaultsConfig) -> bool:
+    """Whether `config` injects an attack (module docstring, Attacks)."""
+    return bool(any(at is not None for at in (config.future_seq_at, config.future_stamp_at, config.replay_at,
+                                              config.restart_at, config.spoof_burst_at)) or config.spoof_rate_hz > 0)
 
 
 def describe(config: FaultsConfig) -> str:
@@ -274,6 +316,14 @@ class LinkFaults:
         self._order = 0
         self._reset_state()
         self._impostor_seq = 0
+        self._attacks_done: set[str] = set()
+        self._replayable: deque[bytes] = deque(maxlen=config.replay_count)
+        self._attack_template: TargetFix | None = None
+        self._restart_epoch: int | None = None
+        self._restart_seq0 = 0
+        self._spoof_epoch: int | None = None
+        self._spoof_seq = -1
+        self._spoof_next: int | None = None
 
     @property
     def enabled(self) -> bool:
@@ -309,6 +359,10 @@ class LinkFaults:
         if not self._enabled:
             self._push(now, payload)
             return
+        payload = self._restarted(now, payload, scenario_time)
+        if payload is None:
+            return
+        self._attack(now, payload, scenario_time)
         dt = None if self._last_offer is None else max(0.0, now - self._last_offer)
         self._last_offer = now
         if math.isfinite(scenario_time):
@@ -360,6 +414,7 @@ class LinkFaults:
         """Messages whose delivery time (s) is at or before simulated time `now`, in delivery order."""
         if self._enabled:
             self._run_impostor(now)
+            self._run_spoof(now)
             if self._scenario_offset is not None:
                 self._advance_blackouts(now, now - self._scenario_offset)
         delivered = []
@@ -476,3 +531,110 @@ class LinkFaults:
         self._log(now, "impostor", f"seq={self._impostor_seq} as {config.impostor_sender} at t={stamp:.3f} s",
                   seq=self._impostor_seq, sender=config.impostor_sender, stamp=stamp)
         self._impostor_seq += 1
+
+    # --- attacks (module docstring) -------------------------------------------------
+
+    def _draw_epoch(self) -> int:
+        return int(self._streams["attack"].integers(0, MAX_EPOCH, endpoint=True))
+
+    def _due_once(self, name: str, at: float | None, scenario_time: float) -> bool:
+        """Whether the one-shot attack `name` fires now (scenario time reached `at`, not fired yet)."""
+        if at is None or name in self._attacks_done or not math.isfinite(scenario_time):
+            return False
+        if scenario_time < at - TIME_TOLERANCE:
+            return False
+        self._attacks_done.add(name)
+        return True
+
+    def _restarted(self, now: float, payload: bytes, scenario_time: float) -> bytes | None:
+        """The genuine payload as a publisher restarted at restart_at sends it (None: not sent, in the gap)."""
+        config = self.config
+        at = config.restart_at
+        if at is None or not math.isfinite(scenario_time) or scenario_time < at - TIME_TOLERANCE:
+            return payload
+        if scenario_time < at + config.restart_gap_s - TIME_TOLERANCE:
+            if "restart_gap" not in self._attacks_done:
+                self._attacks_done.add("restart_gap")
+                self._log(now, "target_restart", f"publisher down for {config.restart_gap_s:g} s", gap_s=config.restart_gap_s)
+            self.counters["restart_drop"] += 1
+            return None
+        try:
+            fix = decode_target_fix(payload)
+        except PayloadError:
+            return payload
+        if self._restart_epoch is None:
+            self._restart_epoch, self._restart_seq0 = self._draw_epoch(), fix.seq
+            self._log(now, "target_restart", f"back with epoch {self._restart_epoch}, seq from 0",
+                      epoch=self._restart_epoch, seq=0)
+        return encode_target_fix(dataclasses.replace(fix, epoch=self._restart_epoch, seq=fix.seq - self._restart_seq0))
+
+    def _send_attack(self, now: float, kind: str, fix: TargetFix, delivery: float | None = None) -> None:
+        try:
+            payload = encode_target_fix(fix)
+        except PayloadError as error:
+            self._log(now, f"{kind}_skipped", f"cannot encode: {error}")
+            return
+        self._push(now if delivery is None else delivery, payload)
+        self._log(now, kind, f"seq={fix.seq} epoch={fix.epoch} stamp={fix.stamp:.3f} as {fix.sender}", seq=fix.seq,
+                  epoch=fix.epoch, stamp=fix.stamp, sender=fix.sender)
+
+    def _attack(self, now: float, payload: bytes, scenario_time: float) -> None:
+        """Note the genuine payload for the attacks and fire the one-shot attacks that are due."""
+        config = self.config
+        if not attacks_anything(config):
+            return
+        if config.replay_at is not None and "replay" not in self._attacks_done:
+            if self._due_once("replay", config.replay_at, scenario_time):
+                for old in list(self._replayable):
+                    self._push(now, old)
+                    self._log(now, "attack_replay", f"{_SeqLabel(old)} sent again", seq=_seq_of(old))
+            else:
+                self._replayable.append(payload)
+        try:
+            fix = decode_target_fix(payload)
+        except PayloadError:
+            return
+        self._attack_template = fix
+        if self._due_once("future_seq", config.future_seq_at, scenario_time):
+            self._send_attack(now, "attack_future_seq", dataclasses.replace(
+                fix, seq=min(fix.seq + FUTURE_SEQ_JUMP, MAX_SEQ), stamp=fix.stamp + FUTURE_SEQ_STAMP_LEAD), now + TIME_TOLERANCE)
+        if self._due_once("future_stamp", config.future_stamp_at, scenario_time):
+            self._send_attack(now, "attack_future_stamp",
+                              dataclasses.replace(fix, seq=min(fix.seq + 1, MAX_SEQ), stamp=fix.stamp + FUTURE_STAMP_JUMP),
+                              now + TIME_TOLERANCE)
+        if self._due_once("spoof_burst", config.spoof_burst_at, scenario_time):
+            for k in range(config.spoof_burst_count):
+                self._send_attack(now, "attack_spoof_burst", self._spoofed(now + SPOOF_BURST_SPACING * k))
+        self._run_spoof(now)
+
+    def _spoofed(self, stamp: float) -> TargetFix:
+        """The spoofer's fix stamped `stamp` (s): the latest genuine fix moved by spoof_offset, as the target."""
+        config, template = self.config, self._attack_template
+        offset = np.array(config.spoof_offset)
+        if template.frame == "geodetic":
+            position = ned_to_geodetic(offset, template.position)
+        else:
+            position = tuple(np.array(template.position) + offset)
+        if config.spoof_epoch == "target":
+            epoch = template.epoch
+        else:
+            if self._spoof_epoch is None:
+                self._spoof_epoch = self._draw_epoch()
+            epoch = self._spoof_epoch
+        self._spoof_seq = min(max(self._spoof_seq + 1, template.seq + config.spoof_seq_lead), MAX_SEQ)
+        return TargetFix(template.sender, self._spoof_seq, stamp, template.frame, position, template.velocity, epoch)
+
+    def _run_spoof(self, now: float) -> None:
+        """The steady spoofer's messages of the ticks k / spoof_rate_hz up to simulated time `now` (s)."""
+        rate = self.config.spoof_rate_hz
+        if rate <= 0 or self._attack_template is None or self._scenario_offset is None:
+            return
+        start = self._scenario_offset + self.config.spoof_from  # simulated s
+        if now < start - TIME_TOLERANCE:
+            return
+        if self._spoof_next is None:
+            self._spoof_next = math.ceil(max(now, start) * rate - TIME_TOLERANCE * rate)
+        while self._spoof_next / rate <= now + TIME_TOLERANCE:
+            tick = max(self._spoof_next / rate, 0.0)
+            self._spoof_next += 1
+            self._send_attack(now, "attack_spoof", self._spoofed(tick), tick)

@@ -6,8 +6,9 @@ Stands in for the target of the paper's flight experiment, whose GNSS position r
 the pursuer over a Zigbee radio. The target flies the scenario's [target] (constant
 velocity plus scheduled turns or a named motion model, sitl_plant.world.target) on the **plant's clock**:
 it subscribes to ``bof/sim/clock`` and, whenever simulated time reaches the next
-multiple of 1/rate, publishes a ``bof.target_fix/1`` on ``bof/target/<sender>/fix``
-stamped with that multiple (several fixes, each with its own stamp, if one clock tick
+multiple of 1/rate, publishes a ``bof.target_fix/2`` on ``bof/target/<sender>/fix``
+stamped with that multiple, with this process's epoch (a random boot id drawn at start: a
+restarted sitl-target has a new epoch and counts seq from 0 again) (several fixes, each with its own stamp, if one clock tick
 covers several). It never runs ahead of the clock, and waits (saying so once) until a
 clock arrives. Before --start-time (simulated s) the target hovers at its initial
 position; after it, scenario time = simulated time - start time.
@@ -27,7 +28,9 @@ overrides one setting. The faults' seed is [faults] seed, else derived from the 
 Log (--log-dir): target.csv, one row per fix produced, before the link faults (seq,
 stamp, scenario time, true NED position and velocity, published position in the
 published frame), and faults.jsonl, one line per injected fault ({"time": simulated s,
-"kind", "detail", and the fault's fields such as "seq"}), both flushed line by line. A one-line count of the faults is
+"kind", "detail", and the fault's fields such as "seq"}; past FAULTS_VERBATIM lines of one kind,
+one count line per kind per simulated second: interfaces.records.AggregatingLog), both flushed
+line by line. A one-line count of the faults is
 printed at exit. SIGINT/SIGTERM, or reaching --duration simulated seconds, closes the session,
 finishes the log and exits 0; bad arguments exit 2.
 """
@@ -47,8 +50,9 @@ from pathlib import Path
 import numpy as np
 
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, FaultsConfig, TargetConfig, load_plant_scenario
-from interfaces.link_schema import CLOCK_KEY, PayloadError, TargetFix, decode_clock, decode_command, encode_target_fix, target_command_key, target_fix_key
-from interfaces.records import CsvLog, JsonLinesLog
+from interfaces.link_schema import (CLOCK_KEY, PayloadError, TargetFix, decode_clock, decode_command, encode_target_fix,
+                                    new_epoch, target_command_key, target_fix_key)
+from interfaces.records import AggregatingLog, CsvLog, JsonLinesLog
 from interfaces.zenoh_transport import LinkError, link_security, open_session, publisher, tls_identity, zenoh_config
 from interfaces.geodesy import ned_to_geodetic
 from sitl_plant.world.link_faults import FaultEvent, LinkFaults, describe, fault_rng, override_faults
@@ -62,6 +66,11 @@ MAX_CLOCK_JUMP = 10.0
 #: Say once that we wait for the clock when none came within this many wall seconds.
 WAIT_NOTICE_AFTER = 0.5
 CLOCK_QUEUE_SIZE = 10000
+#: faults.jsonl: events of one kind written in full before only counts are (a steady spoof is 5 a second).
+FAULTS_VERBATIM = 1000
+#: A start command stamped further ahead of / behind the clock than this (s) is refused.
+COMMAND_MAX_SKEW = 0.5
+COMMAND_MAX_AGE = 2.0
 
 
 class FixSchedule:
@@ -148,12 +157,13 @@ class FaultLog:
     written (no file without a folder)."""
 
     def __init__(self, folder: Path | None) -> None:
-        self._log = JsonLinesLog(folder / "faults.jsonl") if folder is not None else None
+        self._log = AggregatingLog(JsonLinesLog(folder / "faults.jsonl"), verbatim=FAULTS_VERBATIM) \
+            if folder is not None else None
 
     def write(self, events: list[FaultEvent]) -> None:
         if self._log is not None:
             for event in events:
-                self._log.write(event.record())
+                self._log.write(event.kind, event.record(), event.time)
 
     def close(self) -> None:
         if self._log is not None:
@@ -171,8 +181,9 @@ class TargetPublisher:
     def __init__(self, truth: TargetTruth, schedule: FixSchedule, send, log: TargetLog, sender: str, frame: str,
                  home: tuple[float, float, float], noise_std: float, rng: np.random.Generator,
                  duration: float | None = None, faults: LinkFaults | None = None,
-                 fault_log: FaultLog | None = None) -> None:
+                 fault_log: FaultLog | None = None, epoch: int | None = None) -> None:
         self.truth = truth
+        self.epoch = new_epoch() if epoch is None else epoch  # this process's boot id
         self.schedule = schedule
         self.send = send  # callable(bytes)
         self.log = log
@@ -248,6 +259,10 @@ class TargetPublisher:
         if command.command != "start":
             self.ignored[f"command:{command.command}"] += 1
             return
+        if self.clock_time is not None and not (
+                self.clock_time - COMMAND_MAX_AGE <= command.stamp <= self.clock_time + COMMAND_MAX_SKEW):
+            self.rejected["command:future_stamp" if command.stamp > self.clock_time else "command:too_old"] += 1
+            return
         if math.isinf(self.truth.start_time):
             self.truth.start_time = self.clock_time if self.clock_time is not None else command.stamp
             print(f"sitl-target: start command from {command.sender}; scenario starts at t={self.truth.start_time:.3f} s",
@@ -260,7 +275,7 @@ class TargetPublisher:
         scenario_time, position, velocity = self.truth.at(stamp)
         measured = position + self.rng.normal(0.0, self.noise_std, 3) if self.noise_std > 0 else position
         published = ned_to_geodetic(measured, self.home) if self.frame == "geodetic" else measured
-        fix = TargetFix(self.sender, self.seq, stamp, self.frame, published, velocity)
+        fix = TargetFix(self.sender, self.seq, stamp, self.frame, published, velocity, self.epoch)
         try:
             payload = encode_target_fix(fix)
         except PayloadError as error:  # e.g. the target flew out of the schema's ranges
@@ -396,7 +411,7 @@ def main(argv: list[str] | None = None) -> int:
         listen = args.zenoh_listen or ["tcp/127.0.0.1:0" if tls is None else "tls/127.0.0.1:0"]
         print(f"sitl-target: {link_security(tls)}", flush=True)
         print(f"sitl-target ready: {scenario.name}, publishing {key} at {args.rate:g} Hz ({args.frame}), "
-              f"clock {CLOCK_KEY}, zenoh peer listen {listen} connect {args.zenoh_connect}, "
+              f"epoch {target.epoch}, clock {CLOCK_KEY}, zenoh peer listen {listen} connect {args.zenoh_connect}, "
               f"faults: {describe(faults_config) if args.faults == 'on' else 'off'}", flush=True)
         started = time.monotonic()
         said_waiting = False
