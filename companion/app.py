@@ -83,9 +83,11 @@ class CompanionApp:
 
     def __init__(self, scenario: Scenario, vehicle_config: VehicleConfig, log_dir: Path, mavlink_url: str | None = None,
                  zenoh_connect: tuple[str, ...] | None = None, zenoh_listen: tuple[str, ...] | None = None,
-                 seed: int | None = None, zenoh_tls: "zenoh_transport.Identity | None" = None) -> None:
+                 seed: int | None = None, zenoh_tls: "zenoh_transport.Identity | None" = None,
+                 zenoh_namespace: str | None = None) -> None:
         self.scenario = scenario
         self.summary_written = False  # set once _shutdown has written summary.json (the hard exit checks it)
+        self.zenoh_namespace = zenoh_namespace  # None: keys as they are (zenoh_transport.check_namespace)
         self.zenoh_tls = zenoh_tls  # None: plain TCP, unauthenticated (see zenoh_transport.link_security)
         self.vehicle_config = vehicle_config
         self.settings = scenario.companion
@@ -202,7 +204,8 @@ class CompanionApp:
         """Open the session, subscribe fixes (target link) and commands; returns the state publisher."""
         settings = self.link_settings
         config = zenoh_transport.zenoh_config(settings.mode, listen=self.zenoh_listen, connect=self.zenoh_connect,
-                                              overrides=settings.zenoh_overrides, tls=self.zenoh_tls)
+                                              overrides=settings.zenoh_overrides, tls=self.zenoh_tls,
+                                              namespace=self.zenoh_namespace)
         self._session = zenoh_transport.open_session(config)
         self.recorder.event(None, "zenoh_security", zenoh_transport.link_security(self.zenoh_tls),
                             role=self.zenoh_tls.role if self.zenoh_tls is not None else None)
@@ -298,6 +301,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         help="mutual TLS and access control on Zenoh as role 'companion', with DIR/ca.pem, "
                              "DIR/companion.pem, DIR/companion.key (made by bof-certs; endpoints then tls/...). "
                              "Default: plain TCP, unauthenticated")
+    parser.add_argument("--zenoh-namespace", default=None, metavar="NAME",
+                        help="Zenoh session namespace: every key is prefixed with it on the wire, so runs with different "
+                             "namespaces never hear each other (isolation, not authentication). Default: none")
     parser.add_argument("--log-dir", type=Path, default=None, help="run folder (default runs/companion-<time>)")
     parser.add_argument("--seed", type=_seed, default=None, help="bearing-noise seed, an integer >= 0 ([simulation] seed)")
     return parser.parse_args(argv)
@@ -317,6 +323,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         zenoh_tls = zenoh_transport.tls_identity(args.zenoh_tls, "companion")
+        if args.zenoh_namespace is not None:
+            zenoh_transport.check_namespace(args.zenoh_namespace)
         if zenoh_tls is not None:  # a plain endpoint with --zenoh-tls: say so now, not as a traceback later
             zenoh_transport.zenoh_config(scenario.link.mode, listen=args.zenoh_listen or scenario.link.listen,
                                          connect=args.zenoh_connect or scenario.link.connect,
@@ -327,7 +335,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"companion: {zenoh_transport.link_security(zenoh_tls)}", flush=True)
     log_dir = args.log_dir or Path("runs") / f"companion-{time.strftime('%Y%m%d-%H%M%S')}"
     app = CompanionApp(scenario, vehicle_config, log_dir, args.mavlink, args.zenoh_connect, args.zenoh_listen, args.seed,
-                       zenoh_tls=zenoh_tls)
+                       zenoh_tls=zenoh_tls, zenoh_namespace=args.zenoh_namespace)
 
     def hard_exit(signum: int) -> None:
         written = "logs and summary already written"

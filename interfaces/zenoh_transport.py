@@ -186,10 +186,29 @@ def _start_secure_log() -> None:
         _log_started = True
 
 
+_NAMESPACE = re.compile(r"[A-Za-z0-9_.\-]{1,64}(/[A-Za-z0-9_.\-]{1,64}){0,7}")
+
+
+def check_namespace(namespace: str) -> str:
+    """`namespace` if it is a valid session namespace (1-8 segments of 1-64 characters from
+    ``A-Z a-z 0-9 _ . -`` joined by "/"), LinkError otherwise.
+
+    Why runs need one: in plain mode a peer that learnt, by gossip, the loopback address of a
+    peer of an earlier run keeps trying it; when a new run's process gets that port from the
+    kernel, the two meshes join and, with the same keys, one run's ground station could abort
+    another run's companion (seen once while several SITL runs shared a machine). bof-sitl
+    therefore gives each plain run its own namespace. Anyone who knows it can still join: it is
+    isolation, not security; that is what --zenoh-tls is for.
+    """
+    if not isinstance(namespace, str) or _NAMESPACE.fullmatch(namespace) is None:
+        raise LinkError(f"Zenoh namespace {namespace!r}: expected segments of A-Z a-z 0-9 _ . - joined by '/'")
+    return namespace
+
+
 def zenoh_config(mode: Literal["peer", "client", "router"] = "peer", listen: Iterable[str] = (),
                  connect: Iterable[str] = (), multicast_scouting: bool = False, *,
                  allow_remote_listen: bool = False, overrides: dict[str, str] | None = None,
-                 tls: Identity | None = None) -> zenoh.Config:
+                 tls: Identity | None = None, namespace: str | None = None) -> zenoh.Config:
     """A Zenoh session configuration (see the module docstring for the topology).
 
     mode: "peer" (default), "client" (no listener; needs `connect`) or "router".
@@ -206,8 +225,14 @@ def zenoh_config(mode: Literal["peer", "client", "router"] = "peer", listen: Ite
     only, and the access control of `access_control` (see the module docstring); every
     endpoint must then be ``tls/...`` (LinkError otherwise) and an empty `listen` gives a
     peer TLS_LOOPBACK_ANY_PORT. Also turns on Zenoh's log of refused handshakes (stdout).
+    namespace: Zenoh's session namespace (segments of ``A-Z a-z 0-9 _ . -`` joined by "/"): every
+    key this session publishes or subscribes is prefixed with it on the wire, so sessions with
+    another namespace never exchange samples even when their meshes touch. It isolates runs; it
+    does not authenticate anyone (see `check_namespace`).
     """
     listen, connect = list(listen), list(connect)
+    if namespace is not None:
+        check_namespace(namespace)
     if mode not in ("peer", "client", "router"):
         raise LinkError(f"Zenoh mode {mode!r}: expected 'peer', 'client' or 'router'")
     for endpoint in connect:
@@ -245,6 +270,8 @@ def zenoh_config(mode: Literal["peer", "client", "router"] = "peer", listen: Ite
                 "verify_name_on_connect": True,
             }))
             config.insert_json5("access_control", json.dumps(access_control()))
+        if namespace is not None:
+            config.insert_json5("namespace", json.dumps(namespace))
         for key, value in (overrides or {}).items():
             path = key.replace(".", "/")
             if path.startswith("listen") and not allow_remote_listen:

@@ -189,10 +189,11 @@ class RunLog:
 class ClockPublisher:
     """The plant's simulated time on Zenoh (bof/sim/clock), for the target simulator and others."""
 
-    def __init__(self, listen, connect, rate_hz: float, sender: str = "sitl-plant", tls=None) -> None:
+    def __init__(self, listen, connect, rate_hz: float, sender: str = "sitl-plant", tls=None,
+                 namespace: str | None = None) -> None:
         if not (math.isfinite(rate_hz) and rate_hz > 0):
             raise ValueError(f"--clock-rate must be positive, got {rate_hz!r}")
-        self.session = open_session(zenoh_config(listen=listen, connect=connect, tls=tls))
+        self.session = open_session(zenoh_config(listen=listen, connect=connect, tls=tls, namespace=namespace))
         self.publisher = publisher(self.session, CLOCK_KEY)
         self.period = 1.0 / rate_hz
         self.sender = sender
@@ -360,6 +361,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--zenoh-tls", type=Path, default=None, metavar="DIR",
                         help="mutual TLS and access control on Zenoh as role 'plant', with DIR/ca.pem, DIR/plant.pem, "
                              "DIR/plant.key (made by bof-certs; endpoints then tls/...). Default: plain TCP, unauthenticated")
+    parser.add_argument("--zenoh-namespace", default=None, metavar="NAME",
+                        help="Zenoh session namespace: every key is prefixed with it on the wire, so runs with different "
+                             "namespaces never hear each other (isolation, not authentication). Default: none")
     parser.add_argument("--mavlink-blackout", type=float, nargs=2, action="append", default=None,
                         metavar=("START", "DURATION"),
                         help="fault injection: the companion link goes silent both ways from START for DURATION "
@@ -413,7 +417,8 @@ def main(argv: list[str] | None = None) -> int:
             if not (args.zenoh_listen or args.zenoh_connect):
                 raise LinkError("--zenoh-tls: give --zenoh-listen or --zenoh-connect as well (tls/<host>:<port>)")
             tls = tls_identity(args.zenoh_tls, "plant")
-            clock = ClockPublisher(args.zenoh_listen or (), args.zenoh_connect or (), args.clock_rate, tls=tls)
+            clock = ClockPublisher(args.zenoh_listen or (), args.zenoh_connect or (), args.clock_rate, tls=tls,
+                                   namespace=args.zenoh_namespace)
             print(f"sitl-plant: {link_security(tls)}", flush=True)
         except (LinkError, ValueError) as error:
             vehicle.close()

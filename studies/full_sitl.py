@@ -183,16 +183,18 @@ def plot_link(run: Path, engaged_at: float, path: Path) -> None:
 class GroundStation:
     """Watches the companion's state on Zenoh and starts the target when the companion follows."""
 
-    def __init__(self, endpoint: str, scenario: Scenario, tls: zenoh_transport.Identity | None = None) -> None:
+    def __init__(self, endpoint: str, scenario: Scenario, tls: zenoh_transport.Identity | None = None,
+                 namespace: str | None = None) -> None:
         self.scenario = scenario
         self.session = zenoh_transport.open_session(zenoh_transport.zenoh_config("peer", listen=(), connect=(endpoint,),
-                                                                                 tls=tls))
+                                                                                 tls=tls, namespace=namespace))
         self.latest: link.CompanionState | None = None
         self.states = 0
         self.session.declare_subscriber(link.companion_state_key(scenario.link.companion_id), self._on_state)
         self._target_command = zenoh_transport.publisher(self.session, link.target_command_key(scenario.link.target_sender))
         self._companion_command = zenoh_transport.publisher(self.session, link.companion_command_key(scenario.link.companion_id))
         self._seq = 0
+        self.epoch = link.new_epoch()  # this ground station's boot id: its commands are bof.command/2
         self.target_started = False
         self.abort_sent = False
         self.engaged_stamp: float | None = None
@@ -207,12 +209,12 @@ class GroundStation:
     def abort_companion(self, stamp: float) -> None:
         self._seq += 1
         self._companion_command.put(link.encode_command(link.Command(GROUND_STATION_ID, self._seq, stamp, "abort",
-                                                                     "ground station --abort-after")))
+                                                                     "ground station --abort-after", epoch=self.epoch)))
         self.abort_sent = True
 
     def start_target(self, stamp: float) -> None:
         self._seq += 1
-        self._target_command.put(link.encode_command(link.Command(GROUND_STATION_ID, self._seq, stamp, "start")))
+        self._target_command.put(link.encode_command(link.Command(GROUND_STATION_ID, self._seq, stamp, "start", epoch=self.epoch)))
         self.target_started = True
 
     def close(self) -> None:
@@ -323,6 +325,11 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
     endpoint = f"{'tls' if secure else 'tcp'}/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
     pki_folder = folder / "pki"
     tls_args = ["--zenoh-tls", str(pki_folder)] if secure else []
+    # A plain run gets a namespace of its own, so that it never hears another run on this machine
+    # (zenoh_transport.check_namespace says why); a secure run is isolated by its own CA already.
+    namespace = None if secure else f"bof-sitl-{secrets.token_hex(4)}"
+    if namespace is not None:
+        tls_args = ["--zenoh-namespace", namespace]
     signing_args: list[str] = []
     if secure:
         make_pki(pki_folder)
@@ -344,6 +351,8 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
     duration = scenario.companion.follow_duration or scenario.simulation.duration
     budget = timeout if timeout is not None else (duration + 90.0) / speed + 60.0
     print(f"bof-sitl: ground station: udp 127.0.0.1:{gcs_port} (the plant streams its telemetry there)", flush=True)
+    print(f"bof-sitl: zenoh {endpoint}, " + ("mutual TLS and access control (pki in the run folder)" if secure else
+          f"plain TCP, unauthenticated, namespace {namespace} (other processes join with --zenoh-namespace)"), flush=True)
     station = None
     code = 1
     interrupted: str | None = None
@@ -351,7 +360,8 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
     try:
         plant.start(stop=stop)
         target.start(stop=stop)
-        station = GroundStation(endpoint, scenario, zenoh_transport.tls_identity(pki_folder, "gcs") if secure else None)
+        station = GroundStation(endpoint, scenario, zenoh_transport.tls_identity(pki_folder, "gcs") if secure else None,
+                                namespace=namespace)
         companion.start(stop=stop)
         deadline = time.monotonic() + budget
         next_print = 0.0
@@ -396,7 +406,7 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
                      "interrupted": interrupted, "stopped_after_s": stopped_after,
                      # Refused TLS handshakes as each child's Zenoh logged them (secure mode only; ACL
                      # denials are silent at the receiver, see interfaces.zenoh_transport).
-                     "zenoh": {"secure": secure, "tls_refused": {child.log_path.stem: zenoh_transport.count_tls_refusals(
+                     "zenoh": {"secure": secure, "endpoint": endpoint, "namespace": namespace, "tls_refused": {child.log_path.stem: zenoh_transport.count_tls_refusals(
                          child.output()) for child in (plant, target, companion)} if secure else None}}
     companion_summary = _read_json(folder / "companion" / "summary.json")
     summary["companion"] = companion_summary
@@ -466,7 +476,8 @@ def format_summary(summary: dict) -> str:
         lines.append(f"  MAVLink: signing required on the ground-station link (MAV_SIGN_CFG=1); MAVProxy: "
                      f"signing key <the passphrase in {summary['run_folder']}/pki/mavlink_signing_passphrase.txt>")
     elif zenoh:
-        lines.append("  zenoh: plain TCP, unauthenticated (--secure for mutual TLS and access control)")
+        lines.append(f"  zenoh: plain TCP, unauthenticated, namespace {zenoh.get('namespace')} "
+                     "(--secure for mutual TLS and access control)")
     if not flight:
         lines.append(f"no flight figures: {summary.get('flight_error')}")
         return "\n".join(lines)

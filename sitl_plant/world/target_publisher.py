@@ -301,6 +301,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--zenoh-tls", type=Path, default=None, metavar="DIR",
                         help="mutual TLS and access control on Zenoh as role 'target', with DIR/ca.pem, DIR/target.pem, "
                              "DIR/target.key (made by bof-certs; endpoints then tls/...). Default: plain TCP, unauthenticated")
+    parser.add_argument("--zenoh-namespace", default=None, metavar="NAME",
+                        help="Zenoh session namespace: every key is prefixed with it on the wire, so runs with different "
+                             "namespaces never hear each other (isolation, not authentication). Default: none")
     parser.add_argument("--rate", type=float, default=None, help="fixes per simulated second (default: [sensor] rate_hz)")
     parser.add_argument("--frame", choices=("geodetic", "ned"), default=None,
                         help="publish [lat, lon, alt AMSL] or local [n, e, d] m (default: [link] fix_frame)")
@@ -357,7 +360,8 @@ def main(argv: list[str] | None = None) -> int:
         _check_args(args)
         faults_config = override_faults(scenario.faults, args.fault) if args.faults == "on" else FaultsConfig()
         tls = tls_identity(args.zenoh_tls, "target")
-        config = zenoh_config(listen=args.zenoh_listen, connect=args.zenoh_connect, tls=tls)
+        config = zenoh_config(listen=args.zenoh_listen, connect=args.zenoh_connect, tls=tls,
+                              namespace=args.zenoh_namespace)
     except (ConfigError, LinkError) as error:
         print(f"sitl-target: {error}", file=sys.stderr)
         return 2
