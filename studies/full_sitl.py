@@ -43,6 +43,7 @@ import numpy as np
 from interfaces import link_schema as link
 from interfaces import zenoh_transport
 from interfaces.pki import make_pki
+from interfaces.records import write_json
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, load_scenario
 from studies.closed_loop import Termination
 from studies.metrics import convergence_text, summarize, suspect_warning, termination_name, write_summary
@@ -334,6 +335,11 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
     if secure:
         make_pki(pki_folder)
         signing_args = ["--signing-key", str(make_signing_key(pki_folder)), "--mav-sign-cfg", "1"]
+    # Where a ground station or a tester joins this run while it flies (the summary comes only at the end).
+    write_json(folder / "links.json", {"zenoh": {"endpoint": endpoint, "namespace": namespace, "secure": secure,
+                                                 "pki": str(pki_folder) if secure else None},
+                                       "mavlink": {"gcs_port": gcs_port, "companion_port": companion_port,
+                                                   "signing_required": secure}}, indent=2)
     python = sys.executable
     plant = ChildProcess([python, "-m", "sitl_plant.sitl", "--config", str(config), "--speed-factor", str(speed),
                           "--companion-port", str(companion_port), "--gcs-port", str(gcs_port), "--seed", str(seed),
