@@ -338,10 +338,12 @@ MALFORMED: dict[str, bytes] = {
 
 
 def zenoh_flood(session: zenoh.Session, target_sender: str, companion_id: str, *, rate_hz: float = 500.0,
-                duration: float = 10.0, seed: int = 0, match_timeout: float = 5.0) -> Sent:
+                duration: float = 10.0, seed: int = 0, match_timeout: float = 5.0,
+                stop: threading.Event | None = None) -> Sent:
     """At most rate_hz messages/s for `duration` s of wall time (so at most rate_hz*duration + 1 in all):
     malformed payloads (MALFORMED) and well-formed-but-wrong ones (fixes from another sender on the
-    target's key, an unknown command on the companion's command key), cycled. kinds counts each."""
+    target's key, an unknown command on the companion's command key), cycled. kinds counts each.
+    `stop` (set by another thread) ends it early."""
     fixes, _ = _fix_publisher(session, target_sender, match_timeout)
     commands = publisher(session, link.companion_command_key(companion_id))
     wait_matched(commands, 1.0)
@@ -362,21 +364,22 @@ def zenoh_flood(session: zenoh.Session, target_sender: str, companion_id: str, *
         sent.put(pub, build(i), keep=False)
         sent.kinds[kind] = sent.kinds.get(kind, 0) + 1
 
-    _paced(math.inf, rate_hz, duration, one)
+    _paced(math.inf, rate_hz, duration, one, stop)
     fixes.undeclare()
     commands.undeclare()
     return sent
 
 
-def _paced(count: float, rate_hz: float, duration: float, action: Callable[[int], None]) -> int:
+def _paced(count: float, rate_hz: float, duration: float, action: Callable[[int], None],
+           stop: threading.Event | None = None) -> int:
     """Call action(i) for i = 0, 1, ... at most `count` times, the i-th no earlier than i/rate_hz s after the
     start, none after `duration` s. Never faster than rate_hz on average (it falls behind, never catches up
-    in a burst beyond the schedule). Returns how many calls were made."""
+    in a burst beyond the schedule); `stop` set ends it early. Returns how many calls were made."""
     if not (rate_hz > 0 and math.isfinite(rate_hz)):
         raise ValueError(f"rate must be positive, got {rate_hz!r}")
     start = time.monotonic()
     i = 0
-    while i < count:
+    while i < count and not (stop is not None and stop.is_set()):
         due = start + i / rate_hz
         now = time.monotonic()
         if due - start > duration or now - start > duration:
@@ -495,11 +498,11 @@ def mavlink_arm(url: str, *, signing_key: bytes | None = None, takeoff_altitude:
 
 
 def mavlink_flood(host: str, port: int, *, rate_hz: float = 500.0, duration: float = 10.0, seed: int = 0,
-                  other_system: int = 42) -> MavlinkResult:
+                  other_system: int = 42, stop: threading.Event | None = None) -> MavlinkResult:
     """At most rate_hz UDP datagrams/s for `duration` s of wall time to (host, port): garbage (random
     bytes, some starting with the MAVLink 2 magic 0xFD and a broken CRC) and valid-but-unwanted MAVLink
     2 messages (HEARTBEAT of another system, COMMAND_LONG and MANUAL_CONTROL for system `other_system`,
-    STATUSTEXT), cycled. sent counts each kind."""
+    STATUSTEXT), cycled. sent counts each kind. `stop` (set by another thread) ends it early."""
     from pymavlink.dialects.v20 import common as mav
 
     rng = random.Random(seed)
@@ -533,7 +536,7 @@ def mavlink_flood(host: str, port: int, *, rate_hz: float = 500.0, duration: flo
                 kind = "send_error"
             result.sent[kind] = result.sent.get(kind, 0) + 1
 
-        _paced(math.inf, rate_hz, duration, one)
+        _paced(math.inf, rate_hz, duration, one, stop)
     return result
 
 
@@ -595,10 +598,18 @@ class Observer:
         self.session.close()
 
     def genuine(self, since: float = -math.inf) -> list[tuple[float, link.TargetFix, bytes]]:
-        """Fixes heard from the target's key since `since` (monotonic s), those an attack sent left out."""
+        """Fixes heard from the target's key since `since` (monotonic s): those an attack sent (`exclude`) left
+        out, and each payload only the first time it was heard (a replay repeats genuine payloads verbatim)."""
+        seen: set[bytes] = set()
+        out = []
         with self._lock:
-            return [item for item in self.fixes if item[0] >= since and item[2] not in self.exclude
-                    and item[1].sender == self.target_sender]
+            for item in self.fixes:
+                if item[2] in seen or item[2] in self.exclude or item[1].sender != self.target_sender:
+                    continue
+                seen.add(item[2])
+                if item[0] >= since:
+                    out.append(item)
+        return out
 
     def latest_genuine(self) -> link.TargetFix | None:
         fixes = self.genuine()
@@ -630,11 +641,14 @@ class Observer:
         return geodetic_to_ned(fix.position, self.home)
 
     def row(self, attack: str, sent: int, start: float, end: float, desired_range: float = 8.0,
-            refused_baseline: link.CompanionState | None = None, notes: Sequence[str] = ()) -> Row:
+            refused_baseline: link.CompanionState | None = None, notes: Sequence[str] = (),
+            spoofed: Sequence[bytes] = ()) -> Row:
         """The table row of an attack that started at monotonic time `start`, observed until `end`.
 
-        refused: the companion's rejected-fix count during the window (its own counters) minus the genuine
-        fixes the observer heard that the companion did not accept (those are lockout, not refusal).
+        refused: of the `sent` messages, those the companion rejected, estimated from its own counters (state
+        payloads carry counts, not verdicts per fix): the rejects in the window minus the genuine fixes heard
+        but not accepted, within [0, sent - spoofs seen accepted]. A spoofed fix (`spoofed`: the attack's fix
+        payloads) counts as accepted when the companion's last_seq/last_stamp ever equals its seq/stamp.
         lockout: longest stretch of simulated time, from the state before `start` to the last state, in which
         the companion's last accepted fix was never a new genuine one. min range: min over the window of
         |pursuer - genuine target| at the state's time (target interpolated between genuine fixes).
@@ -650,11 +664,22 @@ class Observer:
             return Row(attack, sent, None, None, None, None, "; ".join(notes + ["no companion state heard"]))
         last = window[-1]
         refused = None
+        spoof_ids = set()
+        for payload in spoofed:
+            try:
+                fix = link.decode_target_fix(payload)
+            except link.PayloadError:
+                continue
+            spoof_ids.add((fix.seq, fix.stamp))
+        spoofs_accepted = len({(s.link.last_seq, s.link.last_stamp) for s in window} & spoof_ids)
+        if spoof_ids:
+            notes.append(f"spoofs seen accepted {spoofs_accepted}")
         if before is not None:
             rejected = sum(last.link.rejected.values()) - sum(before.link.rejected.values())
             heard = [fix for t, fix, _ in genuine if start <= t <= end]
             accepted = last.link.accepted - before.link.accepted
-            refused = max(0, rejected - max(0, len(heard) - accepted))
+            genuine_accepted = max(0, accepted - spoofs_accepted)
+            refused = min(max(0, sent - spoofs_accepted), max(0, rejected - max(0, len(heard) - genuine_accepted)))
             reasons = {k: v - before.link.rejected.get(k, 0) for k, v in last.link.rejected.items()
                        if v - before.link.rejected.get(k, 0) > 0}
             notes.append(f"rejects {reasons or 'none'}; genuine heard {len(heard)}, accepted {accepted}")
@@ -687,7 +712,11 @@ class Observer:
                     kept = (abs(estimate.range - ranges[-1]) < 1.0
                             and desired_range / 2 <= ranges[-1] <= 2 * desired_range)
                     notes.append(f"end: range {ranges[-1]:.1f} m, estimated {estimate.range:.1f} m")
-        notes.append(f"phase {last.phase}")
+        phases = [(before or window[0]).phase]
+        for state in window:
+            if state.phase != phases[-1]:
+                phases.append(state.phase)
+        notes.append(f"phase {'->'.join(phases)}")
         return Row(attack, sent, refused, kept, round(lockout, 2), None if min_range is None else round(min_range, 2),
                    "; ".join(notes))
 
@@ -808,13 +837,14 @@ def run_zenoh_attack(args: argparse.Namespace, endpoints: SitlEndpoints) -> dict
             else:
                 sent = zenoh_flood(session, target_sender, companion_id, rate_hz=args.rate or 500.0,
                                    duration=args.duration)
-        observer.exclude.update(sent.payloads)
+        if args.attack != "replay":  # replayed payloads are genuine ones, heard first from the target
+            observer.exclude.update(sent.payloads)
         time.sleep(args.observe)
         ours = set(sent.payloads)
         delivered = sum(1 for _, _, p in list(observer.fixes) if p in ours)
         row = observer.row(args.attack, sent.count, start, time.monotonic(), desired_range, baseline,
                            notes=[f"schema {link.TARGET_FIX_SCHEMA}", f"matched {sent.matched}",
-                                  f"delivered to observer {delivered}"])
+                                  f"delivered to observer {delivered}"], spoofed=sent.payloads)
         return {"row": row.as_dict(), "sent": sent.summary(), "plant_before": plant_before,
                 "endpoints": {"zenoh": endpoints.zenoh, "run": str(endpoints.run) if endpoints.run else None}}
     finally:

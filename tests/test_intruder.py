@@ -50,12 +50,13 @@ def _local_offset(position, reference) -> tuple[float, float, float]:
 class Listener:
     """The test's own Zenoh peer: listens on a free loopback port and keeps every sample on bof/** (key, bytes)."""
 
-    def __init__(self) -> None:
+    def __init__(self, subscribe: bool = True) -> None:
         self.endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
         self.session = open_session(zenoh_config(listen=[self.endpoint]))
         self.samples: list[tuple[str, bytes]] = []
         self._lock = threading.Lock()
-        self.session.declare_subscriber("bof/**", self._on_sample)
+        if subscribe:
+            self.session.declare_subscriber("bof/**", self._on_sample)
 
     def _on_sample(self, sample) -> None:
         with self._lock:
@@ -366,7 +367,7 @@ def _state(seq: int, stamp: float, pursuer, accepted: int, rejected: dict, last_
 def test_observer_row_gives_the_refusals_lockout_and_min_range_of_a_scripted_window():
     """A scripted companion: a fixed target at (0, 0, -20), the pursuer 10 m north then 6 m north, genuine fixes
     accepted at stamps 0-2 and 5-6 (none between: a 3 s lockout), 4 spoofs rejected as stale_seq."""
-    listener = Listener()
+    listener = Listener(subscribe=False)  # so that the publishers match the observer's subscribers only
     publisher_fix = listener.session.declare_publisher(link.target_fix_key(SENDER))
     publisher_state = listener.session.declare_publisher(link.companion_state_key(COMPANION))
     observer = intruder.Observer(listener.endpoint, SENDER, COMPANION)
