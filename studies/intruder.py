@@ -52,6 +52,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
+from typing import Union
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -154,6 +155,18 @@ def _epoch(reference: link.TargetFix, epoch: int | str | None) -> int | None:
     return int(epoch)
 
 
+Reference = Union[link.TargetFix, Callable[[], "link.TargetFix | None"]]
+
+
+def _resolve(reference: Reference) -> link.TargetFix:
+    """The fix to imitate: `reference` itself, or the latest genuine fix when it is a callable. Called once the
+    publisher is matched, just before sending, so that the spoof is newer than what the companion last took."""
+    fix = reference() if callable(reference) else reference
+    if fix is None:
+        raise ValueError("no genuine fix to imitate yet")
+    return fix
+
+
 @dataclass
 class Sent:
     """What an attack sent: attack name, key, count, the payloads (bytes, in order), when (monotonic s,
@@ -191,10 +204,14 @@ def _fix_publisher(session: zenoh.Session, sender: str, match_timeout: float) ->
 
 # --- Zenoh attacks -----------------------------------------------------------------------
 
-def spoof_future_seq(session: zenoh.Session, reference: link.TargetFix, *, seq: int = FUTURE_SEQ,
-                     stamp_step: float = 0.01, epoch: int | str | None = None, match_timeout: float = 5.0) -> Sent:
-    """One fix as `reference.sender`, seq `seq` (2**62), at the reference position, stamp + stamp_step s."""
-    pub, matched = _fix_publisher(session, reference.sender, match_timeout)
+def spoof_future_seq(session: zenoh.Session, reference: Reference, *, seq: int = FUTURE_SEQ,
+                     stamp_step: float = 0.01, epoch: int | str | None = None, match_timeout: float = 5.0,
+                     sender: str | None = None) -> Sent:
+    """One fix as the reference's sender, seq `seq` (2**62), at the reference position, stamp + stamp_step s.
+    reference: a fix, or a callable giving the latest genuine one (then `sender` names the key to declare
+    first, default: the callable's current fix's sender)."""
+    pub, matched = _fix_publisher(session, sender or _resolve(reference).sender, match_timeout)
+    reference = _resolve(reference)
     stamp = reference.stamp + stamp_step
     sent = Sent("future-seq", str(pub.key_expr), matched=matched,
                 promised={"seq": seq, "stamp": stamp, "position": list(reference.position)})
@@ -204,10 +221,12 @@ def spoof_future_seq(session: zenoh.Session, reference: link.TargetFix, *, seq: 
     return sent
 
 
-def spoof_future_stamp(session: zenoh.Session, reference: link.TargetFix, *, offset: float = FUTURE_STAMP_OFFSET,
+def spoof_future_stamp(session: zenoh.Session, reference: Reference, *, offset: float = FUTURE_STAMP_OFFSET,
                        epoch: int | str | None = None, match_timeout: float = 5.0) -> Sent:
-    """One fix as `reference.sender`, seq + 1, stamped `offset` s (1e6) after the reference, at its position."""
-    pub, matched = _fix_publisher(session, reference.sender, match_timeout)
+    """One fix as the reference's sender (a fix or a callable, as spoof_future_seq), seq + 1, stamped `offset` s
+    (1e6) after the reference, at its position."""
+    pub, matched = _fix_publisher(session, _resolve(reference).sender, match_timeout)
+    reference = _resolve(reference)
     seq, stamp = reference.seq + 1, reference.stamp + offset
     sent = Sent("future-stamp", str(pub.key_expr), matched=matched,
                 promised={"seq": seq, "stamp": stamp, "position": list(reference.position)})
@@ -227,12 +246,14 @@ def replay(session: zenoh.Session, sender: str, recorded: Sequence[bytes], *, ra
     return sent
 
 
-def spoof_burst(session: zenoh.Session, reference: link.TargetFix, *, offset_ned: Sequence[float] = (0.0, BURST_OFFSET, 0.0),
+def spoof_burst(session: zenoh.Session, reference: Reference, *, offset_ned: Sequence[float] = (0.0, BURST_OFFSET, 0.0),
                 count: int = BURST_COUNT, seq_lead: int = BURST_SEQ_LEAD, stamp_step: float = 0.01,
                 epoch: int | str | None = None, match_timeout: float = 5.0) -> Sent:
     """`count` (3) back-to-back fixes `offset_ned` (30 m east) off the reference position, consistent with each
-    other (same place, stamps stamp_step s apart), seq `seq_lead` (1e6) ahead of the reference's."""
-    pub, matched = _fix_publisher(session, reference.sender, match_timeout)
+    other (same place, stamps stamp_step s apart), seq `seq_lead` (1e6) ahead of the reference's.
+    reference: a fix, or a callable giving the latest genuine one (read just before sending)."""
+    pub, matched = _fix_publisher(session, _resolve(reference).sender, match_timeout)
+    reference = _resolve(reference)
     epoch_value = _epoch(reference, epoch)
     position = offset_position(reference, offset_ned)
     seqs = [reference.seq + seq_lead + i for i in range(count)]
@@ -642,8 +663,12 @@ class Observer:
 
     def row(self, attack: str, sent: int, start: float, end: float, desired_range: float = 8.0,
             refused_baseline: link.CompanionState | None = None, notes: Sequence[str] = (),
-            spoofed: Sequence[bytes] = ()) -> Row:
+            spoofed: Sequence[bytes] = (), rx_log: Path | None = None) -> Row:
         """The table row of an attack that started at monotonic time `start`, observed until `end`.
+
+        With `rx_log` (the companion's zenoh_rx.jsonl: a verdict per fix, with its receipt time on the
+        same monotonic clock), spoofs accepted and the lockout come from its accepted records, fix by fix
+        (refused = sent - spoofs accepted); otherwise from the state payloads (5 Hz), as below.
 
         refused: of the `sent` messages, those the companion rejected, estimated from its own counters (state
         payloads carry counts, not verdicts per fix): the rejects in the window minus the genuine fixes heard
@@ -696,6 +721,11 @@ class Observer:
                 lockout = max(lockout, state.link.last_stamp - since)
                 since, last_id = state.link.last_stamp, ident
         lockout = max(lockout, last.stamp - since)
+        exact = _rx_accounting(rx_log, start, end, spoof_ids, genuine_ids, last.stamp) if rx_log else None
+        if exact is not None:
+            spoofs_accepted, lockout = exact
+            refused = max(0, sent - spoofs_accepted) if spoof_ids else refused
+            notes.append(f"from zenoh_rx.jsonl: spoofs accepted {spoofs_accepted}")
         min_range = kept = None
         if len(genuine) >= 2:
             stamps = np.array([fix.stamp for _, fix, _ in genuine])
@@ -719,6 +749,39 @@ class Observer:
         notes.append(f"phase {'->'.join(phases)}")
         return Row(attack, sent, refused, kept, round(lockout, 2), None if min_range is None else round(min_range, 2),
                    "; ".join(notes))
+
+
+def _rx_accounting(rx_log: Path, start: float, end: float, spoof_ids: set, genuine_ids: set,
+                   end_stamp: float) -> tuple[int, float] | None:
+    """(spoofs accepted, lockout s) from the companion's per-fix log, None if it cannot be read.
+
+    A fix accepted within [start, end] (monotonic s) whose (seq, stamp) an attack sent is a spoof (a replay
+    repeats genuine ids, but only its copies arrive in the window); lockout is the longest gap between the
+    stamps of successive accepted genuine fixes, from the last one before `start` to `end_stamp`."""
+    try:
+        lines = Path(rx_log).read_text(errors="replace").splitlines()
+    except OSError:
+        return None
+    accepted = []
+    for line in lines:
+        try:
+            record = json.loads(line)
+        except ValueError:
+            continue  # a line cut by the writer
+        if isinstance(record, dict) and record.get("verdict") == "accepted" and "received_ns" in record:
+            accepted.append((record["received_ns"] * 1e-9, (record.get("seq"), record.get("stamp"))))
+    inside = [(t, ident) for t, ident in accepted if start <= t <= end]
+    spoofs = sum(1 for _, ident in inside if ident in spoof_ids)
+    before = [ident for t, ident in accepted if t < start and ident in genuine_ids]
+    if not before:
+        return None
+    since = before[-1][1]
+    lockout = 0.0
+    for _, ident in inside:
+        if ident in genuine_ids and ident not in spoof_ids and ident[1] > since:
+            lockout = max(lockout, ident[1] - since)
+            since = ident[1]
+    return spoofs, max(lockout, end_stamp - since)
 
 
 # --- finding a running SITL ------------------------------------------------------------------
@@ -821,13 +884,13 @@ def run_zenoh_attack(args: argparse.Namespace, endpoints: SitlEndpoints) -> dict
             session = open_peer(endpoints.zenoh, intruder_tls)
             ref = observer.latest_genuine()
             if args.attack == "future-seq":
-                sent = spoof_future_seq(session, ref, epoch=args.epoch)
+                sent = spoof_future_seq(session, observer.latest_genuine, epoch=args.epoch)
             elif args.attack == "future-stamp":
-                sent = spoof_future_stamp(session, ref, epoch=args.epoch)
+                sent = spoof_future_stamp(session, observer.latest_genuine, epoch=args.epoch)
             elif args.attack == "replay":
                 sent = replay(session, target_sender, recorded)
             elif args.attack == "burst":
-                sent = spoof_burst(session, ref, seq_lead=args.seq_lead if args.seq_lead is not None else BURST_SEQ_LEAD,
+                sent = spoof_burst(session, observer.latest_genuine, seq_lead=args.seq_lead if args.seq_lead is not None else BURST_SEQ_LEAD,
                                    epoch=args.epoch)
             elif args.attack == "steady-spoof":
                 sent = spoof_steady(session, observer.latest_genuine, rate_hz=args.rate or fix_rate, duration=args.duration,
@@ -844,7 +907,8 @@ def run_zenoh_attack(args: argparse.Namespace, endpoints: SitlEndpoints) -> dict
         delivered = sum(1 for _, _, p in list(observer.fixes) if p in ours)
         row = observer.row(args.attack, sent.count, start, time.monotonic(), desired_range, baseline,
                            notes=[f"schema {link.TARGET_FIX_SCHEMA}", f"matched {sent.matched}",
-                                  f"delivered to observer {delivered}"], spoofed=sent.payloads)
+                                  f"delivered to observer {delivered}"], spoofed=sent.payloads,
+                           rx_log=endpoints.run / "companion" / "zenoh_rx.jsonl" if endpoints.run else None)
         return {"row": row.as_dict(), "sent": sent.summary(), "plant_before": plant_before,
                 "endpoints": {"zenoh": endpoints.zenoh, "run": str(endpoints.run) if endpoints.run else None}}
     finally:

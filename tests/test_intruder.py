@@ -105,10 +105,11 @@ def _epoch_kept(fix: link.TargetFix, reference: link.TargetFix) -> bool:
     return getattr(fix, "epoch", None) == getattr(reference, "epoch", None)
 
 
-def test_future_seq_delivers_one_fix_with_seq_2_62_at_the_target_position(zenoh_pair):
+@pytest.mark.parametrize("late", [False, True], ids=["fix", "latest-genuine-callable"])
+def test_future_seq_delivers_one_fix_with_seq_2_62_at_the_target_position(zenoh_pair, late):
     listener, attacker = zenoh_pair
     reference = _reference()
-    sent = intruder.spoof_future_seq(attacker, reference)
+    sent = intruder.spoof_future_seq(attacker, (lambda: reference) if late else reference)
     delivered = listener.wait_for(link.target_fix_key(SENDER), 1)
     assert sent.count == 1 and sent.matched and len(delivered) == 1
     fix = link.decode_target_fix(delivered[0])
@@ -424,3 +425,18 @@ def test_tls_overrides_name_zenohs_own_tls_settings(tmp_path):
     assert "transport/link/tls/connect_certificate" not in no_cert
     config = zenoh_config(connect=["tls/127.0.0.1:7447"], overrides=overrides)  # zenoh accepts the keys
     assert json.loads(config.get_json("transport/link/tls/enable_mtls")) is True
+
+
+def test_rx_log_accounting_counts_accepted_spoofs_and_the_gap_between_accepted_genuine_fixes(tmp_path):
+    """A scripted zenoh_rx.jsonl: genuine fixes every 0.2 s; the spoof (seq 2**62) accepted at t = 10.1 s,
+    then genuine fixes rejected until stamp 3.0, accepted again from 3.2: the lockout is 3.2 - 1.0 = 2.2 s."""
+    ns = lambda t: int(t * 1e9)  # noqa: E731
+    records = [{"received_ns": ns(9.0 + 0.2 * k), "verdict": "accepted", "seq": k, "stamp": 0.2 * k} for k in range(6)]
+    records.append({"received_ns": ns(10.11), "verdict": "accepted", "seq": 2**62, "stamp": 1.01})
+    records += [{"received_ns": ns(9.0 + 0.2 * k), "verdict": "rejected", "reason": "stale_seq"} for k in range(6, 16)]
+    records += [{"received_ns": ns(9.0 + 0.2 * k), "verdict": "accepted", "seq": k, "stamp": 0.2 * k} for k in range(16, 20)]
+    log = tmp_path / "zenoh_rx.jsonl"
+    log.write_text("\n".join(json.dumps(r) for r in records) + "\n{\"cut")
+    genuine = {(k, 0.2 * k) for k in range(20)}
+    spoofs, lockout = intruder._rx_accounting(log, 10.05, 13.0, {(2**62, 1.01)}, genuine, end_stamp=3.8)
+    assert spoofs == 1 and lockout == pytest.approx(3.2 - 1.0)
