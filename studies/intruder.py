@@ -317,10 +317,11 @@ def send_abort(session: zenoh.Session, companion_id: str, *, sender: str = INTRU
     return sent
 
 
-def unknown_peer(endpoint: str, tls: Tls | None, reference: link.TargetFix | None, *, listen_s: float = 3.0,
+def unknown_peer(endpoint: str, tls: Tls | None, reference: Reference | None, *, listen_s: float = 3.0,
                  sender: str | None = None, match_timeout: float = 3.0) -> Sent:
-    """A peer nobody vouches for (plain, or `tls` with no or a foreign certificate): it subscribes to
-    ``bof/**`` for `listen_s` s and publishes one future-seq fix. promised['seen'] counts what it heard;
+    """A peer nobody vouches for (plain, or `tls` with no or a foreign certificate): it publishes one future-seq
+    fix (once a subscriber matches, or after match_timeout), then subscribes to ``bof/**`` for `listen_s` s.
+    promised['seen'] counts what it heard;
     the fix is in payloads (the observer tells whether it was delivered). With mTLS both should be zero."""
     sent = Sent("unknown-peer", "bof/**", promised={"seen": 0, "session": "opened"})
     try:
@@ -331,14 +332,17 @@ def unknown_peer(endpoint: str, tls: Tls | None, reference: link.TargetFix | Non
         return sent
     seen = [0]
     try:
-        session.declare_subscriber("bof/**", lambda sample: seen.__setitem__(0, seen[0] + 1))
+        # Publish before subscribing: a local subscriber on bof/** would match the publisher at once, before
+        # any route to the other peers exists, and the fix would go nowhere.
         if reference is not None or sender is not None:
-            fix = reference or make_fix(sender, FUTURE_SEQ, 1.0, "ned", (0.0, 0.0, -20.0))
+            fix = _resolve(reference) if reference is not None else make_fix(sender, 0, 1.0, "ned", (0.0, 0.0, -20.0))
             pub, matched = _fix_publisher(session, fix.sender, match_timeout)
+            fix = _resolve(reference) if reference is not None else fix
             sent.key = str(pub.key_expr)
             sent.matched = matched
             sent.put(pub, link.encode_target_fix(make_fix(fix.sender, FUTURE_SEQ, fix.stamp + 0.01, fix.frame,
                                                           fix.position, None, getattr(fix, "epoch", None))))
+        session.declare_subscriber("bof/**", lambda sample: seen.__setitem__(0, seen[0] + 1))
         time.sleep(listen_s)
     finally:
         session.close()
@@ -879,7 +883,7 @@ def run_zenoh_attack(args: argparse.Namespace, endpoints: SitlEndpoints) -> dict
         start = time.monotonic()
         baseline = observer.latest_state()
         if args.attack == "unknown-peer":
-            sent = unknown_peer(endpoints.zenoh, intruder_tls, observer.latest_genuine(), listen_s=args.duration)
+            sent = unknown_peer(endpoints.zenoh, intruder_tls, observer.latest_genuine, listen_s=args.duration)
         else:
             session = open_peer(endpoints.zenoh, intruder_tls)
             ref = observer.latest_genuine()
@@ -926,8 +930,10 @@ def run_mavlink_attack(args: argparse.Namespace, endpoints: SitlEndpoints) -> di
         key = read_signing_key(args.signing_key) if args.signing_key else None
         result = mavlink_arm(url, signing_key=key, takeoff_altitude=args.takeoff, observe_s=args.observe)
     else:
-        host, port = url.split(":", 1)[1].rsplit(":", 1)
-        result = mavlink_flood(host, int(port), rate_hz=args.rate or 500.0, duration=args.duration)
+        match = re.fullmatch(r"udpout:([^:]+):(\d+)", url)
+        if match is None:  # a udpin URL names where the plant sends, not the plant's own socket
+            raise ValueError(f"mavlink-flood needs the plant's socket: --mavlink udpout:HOST:PORT or --run, not {url}")
+        result = mavlink_flood(match.group(1), int(match.group(2)), rate_hz=args.rate or 500.0, duration=args.duration)
     after = plant_counters(endpoints.run)
     out = {"result": dataclasses.asdict(result), "url": url}
     if before is not None and after is not None:
@@ -936,10 +942,8 @@ def run_mavlink_attack(args: argparse.Namespace, endpoints: SitlEndpoints) -> di
                         "commands": _delta(after["commands"], before["commands"]),
                         "armed_before": before["armed"], "armed_after": after["armed"], "mode_after": after["mode"]}
     refused = sum(out["plant"]["rejected"].values()) if "plant" in out else None
-    kept = None
-    if args.attack == "arm":
-        kept = not result.armed_after if not result.armed_before else None
-    out["row"] = Row(args.attack + (" (signed)" if result.signed else ""), sum(result.sent.values()), refused, kept,
+    # target kept / lockout / min range are the companion's business; a MAVLink row says whether the vehicle armed.
+    out["row"] = Row(args.attack + (" (signed)" if result.signed else ""), sum(result.sent.values()), refused, None,
                      None, None, "; ".join([f"acks {result.acks}", f"armed {result.armed_before}->{result.armed_after}",
                                             f"max rel alt {result.max_relative_alt}", *result.notes])).as_dict()
     return out
