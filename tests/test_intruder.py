@@ -440,3 +440,104 @@ def test_rx_log_accounting_counts_accepted_spoofs_and_the_gap_between_accepted_g
     genuine = {(k, 0.2 * k) for k in range(20)}
     spoofs, lockout = intruder._rx_accounting(log, 10.05, 13.0, {(2**62, 1.01)}, genuine, end_stamp=3.8)
     assert spoofs == 1 and lockout == pytest.approx(3.2 - 1.0)
+
+
+# --- mutual TLS: an unknown peer against a secure mesh ------------------------------------------
+
+def _pki(folder: Path, roles: tuple[str, ...]) -> Path:
+    """A throwaway CA (folder/ca.pem) and, per role, folder/<role>.pem/.key signed by it (common name = role,
+    SAN 127.0.0.1 and localhost), made with `cryptography` (independent of the project's own PKI command)."""
+    import datetime
+    import ipaddress
+
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+    from cryptography.x509.oid import NameOID
+
+    folder.mkdir(parents=True, exist_ok=True)
+    now = datetime.datetime.now(datetime.timezone.utc)
+    ca_key = ec.generate_private_key(ec.SECP256R1())
+    ca_name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, f"test-ca-{folder.name}")])
+    ca = (x509.CertificateBuilder().subject_name(ca_name).issuer_name(ca_name).public_key(ca_key.public_key())
+          .serial_number(x509.random_serial_number()).not_valid_before(now - datetime.timedelta(minutes=5))
+          .not_valid_after(now + datetime.timedelta(days=1))
+          .add_extension(x509.BasicConstraints(ca=True, path_length=None), critical=True)
+          .add_extension(x509.KeyUsage(False, False, False, False, False, True, True, False, False), critical=True)
+          .sign(ca_key, hashes.SHA256()))
+    (folder / "ca.pem").write_bytes(ca.public_bytes(serialization.Encoding.PEM))
+    for name in roles:
+        key = ec.generate_private_key(ec.SECP256R1())
+        cert = (x509.CertificateBuilder()
+                .subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, name)])).issuer_name(ca_name)
+                .public_key(key.public_key()).serial_number(x509.random_serial_number())
+                .not_valid_before(now - datetime.timedelta(minutes=5)).not_valid_after(now + datetime.timedelta(days=1))
+                .add_extension(x509.SubjectAlternativeName([x509.DNSName("localhost"),
+                                                            x509.IPAddress(ipaddress.ip_address("127.0.0.1"))]),
+                               critical=False)
+                .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
+                .sign(ca_key, hashes.SHA256()))
+        (folder / f"{name}.pem").write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+        (folder / f"{name}.key").write_bytes(key.private_bytes(serialization.Encoding.PEM,
+                                                               serialization.PrivateFormat.PKCS8,
+                                                               serialization.NoEncryption()))
+    return folder
+
+
+class SecureListener(Listener):
+    """The test's peer, listening with mutual TLS (role `plant` of the test PKI), publishing a clock at 50 Hz."""
+
+    def __init__(self, pki: Path) -> None:
+        self.endpoint = f"tls/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+        self.session = open_session(zenoh_config(listen=[self.endpoint],
+                                                 overrides=intruder.Tls.from_dir(pki, "plant").overrides()))
+        self.samples = []
+        self._lock = threading.Lock()
+        self.session.declare_subscriber("bof/**", self._on_sample)
+        self._stop = threading.Event()
+        clock = self.session.declare_publisher(link.CLOCK_KEY)
+
+        def tick() -> None:
+            k = 0
+            while not self._stop.wait(0.02):
+                clock.put(link.encode_clock(link.ClockTick("sitl-plant", k, 0.02 * k)))
+                k += 1
+
+        self._thread = threading.Thread(target=tick, daemon=True)
+        self._thread.start()
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(5.0)
+        self.session.close()
+
+
+@pytest.fixture
+def secure_mesh(tmp_path):
+    pki = _pki(tmp_path / "pki", ("plant", "gcs"))
+    foreign = _pki(tmp_path / "foreign", ("target",))
+    listener = SecureListener(pki)
+    try:
+        yield listener, pki, foreign
+    finally:
+        listener.close()
+
+
+def test_a_trusted_tls_peer_hears_the_mesh_and_delivers(secure_mesh):
+    """The positive control: Tls's overrides make a working mTLS peer (so the refusals below are mTLS's doing)."""
+    listener, pki, _ = secure_mesh
+    sent = intruder.unknown_peer(listener.endpoint, intruder.Tls.from_dir(pki, "gcs"), _reference(), listen_s=1.0)
+    delivered = listener.wait_for(link.target_fix_key(SENDER), 1)
+    assert sent.promised["seen"] > 0 and delivered == sent.payloads
+
+
+@pytest.mark.parametrize("who", ["no certificate", "foreign CA", "plain TCP"])
+def test_an_unknown_peer_sees_and_delivers_nothing_on_a_mutual_tls_mesh(secure_mesh, who):
+    listener, pki, foreign = secure_mesh
+    tls = {"no certificate": intruder.Tls(pki / "ca.pem"), "foreign CA": intruder.Tls.from_dir(foreign, "target"),
+           "plain TCP": None}[who]
+    endpoint = listener.endpoint if tls is not None else listener.endpoint.replace("tls/", "tcp/")
+    sent = intruder.unknown_peer(endpoint, tls, _reference(), listen_s=1.5, match_timeout=1.0)
+    time.sleep(0.5)
+    assert sent.promised["seen"] == 0 and not sent.matched
+    assert listener.on(link.target_fix_key(SENDER)) == []
