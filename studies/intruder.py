@@ -852,6 +852,49 @@ ZENOH_ATTACKS = ("future-seq", "future-stamp", "replay", "burst", "steady-spoof"
 MAVLINK_ATTACKS = ("arm", "mavlink-flood")
 
 
+@dataclass
+class AttackOptions:
+    """What `run_attack` needs besides the endpoints; the defaults are bof-intruder's (see its --help).
+
+    attack: one of ZENOH_ATTACKS + MAVLINK_ATTACKS. config: the SITL's scenario (None: bof-sitl's default).
+    zenoh_tls/role: the intruder's TLS folder and certificate (role None: no certificate). observer_tls/
+    observer_role: the observing ground station's. epoch: 'genuine', 'new' or an int. Times in wall seconds."""
+
+    attack: str
+    config: Path | None = None
+    target_sender: str | None = None
+    companion_id: str | None = None
+    mavlink: str | None = None
+    zenoh_tls: Path | None = None
+    role: str | None = None
+    observer_tls: Path | None = None
+    observer_role: str = "gcs"
+    epoch: str | None = None
+    seq_lead: int | None = None
+    rate: float | None = None
+    duration: float = 10.0
+    record: float = 5.0
+    observe: float = 15.0
+    wait: float = 120.0
+    settle: float = 2.0
+    when_following: bool = False
+    signing_key: Path | None = None
+    takeoff: float | None = None
+
+
+def run_attack(endpoints: SitlEndpoints, options: AttackOptions) -> dict:
+    """Run one attack against the SITL at `endpoints` and observe it; returns {"row": Row as a dict, ...}
+    (what was sent, the plant's counters, the endpoints). For bof-campaign --sitl: start bof-sitl, find its
+    run folder (find_run), then run_attack(discover(folder), AttackOptions("burst", when_following=True))."""
+    if options.attack in ZENOH_ATTACKS:
+        if endpoints.zenoh is None:
+            raise ValueError("no Zenoh endpoint: pass --zenoh or --run")
+        return run_zenoh_attack(options, endpoints)
+    if options.attack in MAVLINK_ATTACKS:
+        return run_mavlink_attack(options, endpoints)
+    raise ValueError(f"unknown attack {options.attack!r}; expected one of {ZENOH_ATTACKS + MAVLINK_ATTACKS}")
+
+
 def _home_and_ids(config: Path | None) -> tuple[Sequence[float] | None, str, str, float, float]:
     from interfaces.scenario import DEFAULT_SCENARIO, load_scenario
 
@@ -860,7 +903,7 @@ def _home_and_ids(config: Path | None) -> tuple[Sequence[float] | None, str, str
             scenario.guidance.desired_range, scenario.sensor.rate_hz)
 
 
-def run_zenoh_attack(args: argparse.Namespace, endpoints: SitlEndpoints) -> dict:
+def run_zenoh_attack(args: AttackOptions, endpoints: SitlEndpoints) -> dict:
     home, target_sender, companion_id, desired_range, fix_rate = _home_and_ids(args.config)
     target_sender = args.target_sender or target_sender
     companion_id = args.companion_id or companion_id
@@ -921,7 +964,7 @@ def run_zenoh_attack(args: argparse.Namespace, endpoints: SitlEndpoints) -> dict
         observer.close()
 
 
-def run_mavlink_attack(args: argparse.Namespace, endpoints: SitlEndpoints) -> dict:
+def run_mavlink_attack(args: AttackOptions, endpoints: SitlEndpoints) -> dict:
     url = args.mavlink or (f"udpout:{endpoints.gcs[0]}:{endpoints.gcs[1]}" if endpoints.gcs else None)
     if url is None:
         raise RuntimeError("no MAVLink target: pass --mavlink URL or --run with a plant/stats.json")
@@ -998,12 +1041,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         endpoints = discover(args.run) if args.run else SitlEndpoints()
         endpoints.zenoh = args.zenoh or endpoints.zenoh
-        if args.attack in ZENOH_ATTACKS:
-            if endpoints.zenoh is None:
-                parser.error("no Zenoh endpoint: pass --zenoh or --run")
-            result = run_zenoh_attack(args, endpoints)
-        else:
-            result = run_mavlink_attack(args, endpoints)
+        result = run_attack(endpoints, AttackOptions(**{f.name: getattr(args, f.name)
+                                                        for f in dataclasses.fields(AttackOptions)}))
     except (RuntimeError, LinkError, FileNotFoundError, ValueError, link.PayloadError) as error:
         print(f"bof-intruder: {error}", file=sys.stderr)
         return 1

@@ -541,3 +541,34 @@ def test_an_unknown_peer_sees_and_delivers_nothing_on_a_mutual_tls_mesh(secure_m
     time.sleep(0.5)
     assert sent.promised["seen"] == 0 and not sent.matched
     assert listener.on(link.target_fix_key(SENDER)) == []
+
+
+def test_the_command_line_attacks_a_scripted_sitl_and_writes_its_row(tmp_path):
+    """bof-intruder future-seq against a scripted mesh (genuine NED fixes at 10 Hz, a companion state at 10 Hz):
+    the intruder's fix reaches the mesh with seq 2**62 and the JSON row says one was sent."""
+    listener = Listener()
+    fixes = listener.session.declare_publisher(link.target_fix_key(SENDER))
+    states = listener.session.declare_publisher(link.companion_state_key(COMPANION))
+    stop = threading.Event()
+
+    def scripted() -> None:
+        k = 0
+        while not stop.wait(0.1):
+            fixes.put(link.encode_target_fix(intruder.make_fix(SENDER, k, 0.1 * k, "ned", (0.3 * k, 0.0, -20.0), epoch=5)))
+            states.put(_state(k, 0.1 * k, (0.3 * k - 8.0, 0.0, -20.0), k + 1, {}, k, 0.1 * k, 8.0))
+            k += 1
+
+    thread = threading.Thread(target=scripted, daemon=True)
+    thread.start()
+    out = tmp_path / "row.json"
+    try:
+        code = intruder.main(["--zenoh", listener.endpoint, "--wait", "10", "--settle", "0.3", "--observe", "1",
+                              "future-seq", "--json", str(out)])
+    finally:
+        stop.set()
+        thread.join(5.0)
+        listener.session.close()
+    result = json.loads(out.read_text())
+    spoofs = [link.decode_target_fix(p) for p in listener.on(link.target_fix_key(SENDER))]
+    assert code == 0 and result["row"]["attack"] == "future-seq" and result["row"]["sent"] == 1
+    assert [fix.seq for fix in spoofs if fix.seq == 2**62] == [2**62]
