@@ -141,11 +141,14 @@ def stop_group(process: subprocess.Popen, others: dict[int, int], timeout: float
 # --- the run ------------------------------------------------------------------------------------
 
 def soak_scenario(config: Path, duration: float, path: Path) -> Path:
-    """`config` with [simulation] duration = `duration` s (and its vehicle file by absolute path), written to `path`."""
+    """`config` with [simulation] duration (and [companion] follow_duration if set) = `duration` s, its vehicle file
+    by absolute path, written to `path`."""
     with open(config, "rb") as handle:
         document = tomllib.load(handle)
     document["vehicle"] = str((config.parent / document.get("vehicle", "../vehicles/paper_table1.toml")).resolve())
     document.setdefault("simulation", {})["duration"] = float(duration)
+    if "follow_duration" in document.get("companion", {}):  # it would cut the flight short
+        document["companion"]["follow_duration"] = float(duration)
     lines = [format_assignment(k, v) for k, v in document.items() if not isinstance(v, dict)]
     for name, table in document.items():
         if isinstance(table, dict):

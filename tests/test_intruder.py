@@ -313,6 +313,7 @@ def test_signing_key_file_must_be_64_hex_characters(tmp_path):
 def test_mavlink_flood_respects_its_bound_and_never_commands_the_vehicle():
     datagrams: list[bytes] = []
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sink:
+        sink.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
         sink.bind(("127.0.0.1", 0))
         sink.settimeout(0.5)
         done = threading.Event()
@@ -331,7 +332,8 @@ def test_mavlink_flood_respects_its_bound_and_never_commands_the_vehicle():
         result = intruder.mavlink_flood("127.0.0.1", sink.getsockname()[1], rate_hz=rate, duration=duration)
         done.set()
         reader.join(10.0)
-    assert 0 < len(datagrams) == sum(result.sent.values()) <= rate * duration + 1
+    # UDP may drop on a loaded machine, never duplicate: what arrives is at most what was sent, within the bound.
+    assert 0 < len(datagrams) <= sum(result.sent.values()) <= rate * duration + 1
     parser = mav.MAVLink(None)
     parser.robust_parsing = True
     for data in datagrams:
