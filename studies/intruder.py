@@ -102,13 +102,14 @@ class Tls:
         return {k: json.dumps(v) for k, v in values.items()}
 
 
-def open_peer(endpoint: str, tls: Tls | None = None) -> zenoh.Session:
+def open_peer(endpoint: str, tls: Tls | None = None, namespace: str | None = None) -> zenoh.Session:
     """A Zenoh peer session connected to `endpoint` (listening on a loopback port, as every SITL peer).
 
-    With `tls`, the session listens on a loopback TLS port instead of TCP. LinkError if it cannot open."""
+    With `tls`, the session listens on a loopback TLS port instead of TCP. namespace: the run's Zenoh
+    namespace (a plain bof-sitl run has one: links.json), None for none. LinkError if it cannot open."""
     listen = ["tls/127.0.0.1:0"] if tls is not None else []
     return open_session(zenoh_config("peer", listen=listen, connect=[endpoint],
-                                     overrides=tls.overrides() if tls is not None else None))
+                                     overrides=tls.overrides() if tls is not None else None, namespace=namespace))
 
 
 def wait_matched(pub: zenoh.Publisher, timeout: float) -> bool:
@@ -318,14 +319,14 @@ def send_abort(session: zenoh.Session, companion_id: str, *, sender: str = INTRU
 
 
 def unknown_peer(endpoint: str, tls: Tls | None, reference: Reference | None, *, listen_s: float = 3.0,
-                 sender: str | None = None, match_timeout: float = 3.0) -> Sent:
+                 sender: str | None = None, match_timeout: float = 3.0, namespace: str | None = None) -> Sent:
     """A peer nobody vouches for (plain, or `tls` with no or a foreign certificate): it publishes one future-seq
     fix (once a subscriber matches, or after match_timeout), then subscribes to ``bof/**`` for `listen_s` s.
     promised['seen'] counts what it heard;
     the fix is in payloads (the observer tells whether it was delivered). With mTLS both should be zero."""
     sent = Sent("unknown-peer", "bof/**", promised={"seen": 0, "session": "opened"})
     try:
-        session = open_peer(endpoint, tls)
+        session = open_peer(endpoint, tls, namespace)
     except LinkError as error:
         sent.promised["session"] = f"refused: {error}"
         sent.matched = False
@@ -592,13 +593,13 @@ class Observer:
     counted as genuine. Thread-safe: Zenoh calls back on its own threads."""
 
     def __init__(self, endpoint: str, target_sender: str, companion_id: str, home: Sequence[float] | None = None,
-                 tls: Tls | None = None) -> None:
+                 tls: Tls | None = None, namespace: str | None = None) -> None:
         self.target_sender, self.companion_id, self.home = target_sender, companion_id, home
         self._lock = threading.Lock()
         self.states: list[tuple[float, link.CompanionState]] = []  # (monotonic s, state)
         self.fixes: list[tuple[float, link.TargetFix, bytes]] = []  # every payload heard on the target's key
         self.exclude: set[bytes] = set()
-        self.session = open_peer(endpoint, tls)
+        self.session = open_peer(endpoint, tls, namespace)
         self.session.declare_subscriber(link.companion_state_key(companion_id), self._on_state)
         self.session.declare_subscriber(link.target_fix_key(target_sender), self._on_fix)
 
@@ -795,6 +796,7 @@ class SitlEndpoints:
     """Where a running SITL is: the Zenoh endpoint, the plant's ground-station socket (host, port) and run folder."""
 
     zenoh: str | None = None
+    namespace: str | None = None
     gcs: tuple[str, int] | None = None
     gcs_partner: tuple[str, int] | None = None
     run: Path | None = None
@@ -816,7 +818,11 @@ def discover(run: Path) -> SitlEndpoints:
     (target.out's ready line) and the plant's ground-station link (plant/stats.json, rewritten every s)."""
     run = find_run(run)
     found = SitlEndpoints(run=run)
-    match = re.search(r"connect \[['\"]((?:tcp|tls)/[^'\"]+)['\"]", (run / "target.out").read_text(errors="replace"))
+    links = run / "links.json"  # written by bof-sitl at start: endpoint, namespace, ports
+    if links.exists():
+        zenoh_links = json.loads(links.read_text())["zenoh"]
+        found.zenoh, found.namespace = zenoh_links["endpoint"], zenoh_links["namespace"]
+    match = None if found.zenoh else re.search(r"connect \[['\"]((?:tcp|tls)/[^'\"]+)['\"]", (run / "target.out").read_text(errors="replace"))
     if match:
         found.zenoh = match.group(1)
     stats = run / "plant" / "stats.json"
@@ -911,7 +917,7 @@ def run_zenoh_attack(args: AttackOptions, endpoints: SitlEndpoints) -> dict:
     intruder_tls = None
     if args.zenoh_tls:
         intruder_tls = Tls.from_dir(args.zenoh_tls, args.role) if args.role else Tls(Path(args.zenoh_tls) / "ca.pem")
-    observer = Observer(endpoints.zenoh, target_sender, companion_id, home, observer_tls)
+    observer = Observer(endpoints.zenoh, target_sender, companion_id, home, observer_tls, endpoints.namespace)
     session = None
     try:
         if not observer.wait(lambda: observer.latest_genuine() is not None and observer.latest_state() is not None,
@@ -926,9 +932,10 @@ def run_zenoh_attack(args: AttackOptions, endpoints: SitlEndpoints) -> dict:
         start = time.monotonic()
         baseline = observer.latest_state()
         if args.attack == "unknown-peer":
-            sent = unknown_peer(endpoints.zenoh, intruder_tls, observer.latest_genuine, listen_s=args.duration)
+            sent = unknown_peer(endpoints.zenoh, intruder_tls, observer.latest_genuine, listen_s=args.duration,
+                                namespace=endpoints.namespace)
         else:
-            session = open_peer(endpoints.zenoh, intruder_tls)
+            session = open_peer(endpoints.zenoh, intruder_tls, endpoints.namespace)
             ref = observer.latest_genuine()
             if args.attack == "future-seq":
                 sent = spoof_future_seq(session, observer.latest_genuine, epoch=args.epoch)
@@ -999,6 +1006,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="a running bof-sitl's run folder, or its parent (the newest sitl-* inside): the Zenoh "
                              "endpoint and the plant's ground-station socket are read from it (default: none)")
     parser.add_argument("--zenoh", default=None, help="Zenoh endpoint to connect to, e.g. tcp/127.0.0.1:7447 (default: from --run)")
+    parser.add_argument("--zenoh-namespace", default=None, metavar="NAME",
+                        help="the run's Zenoh namespace (default: from --run's links.json; a plain bof-sitl run has one)")
     parser.add_argument("--mavlink", default=None,
                         help="pymavlink URL of the plant's ground-station link, e.g. udpout:127.0.0.1:PORT or "
                              "udpin:127.0.0.1:14550 (default: udpout to the socket in --run's plant/stats.json)")
@@ -1041,6 +1050,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         endpoints = discover(args.run) if args.run else SitlEndpoints()
         endpoints.zenoh = args.zenoh or endpoints.zenoh
+        endpoints.namespace = args.zenoh_namespace or endpoints.namespace
         result = run_attack(endpoints, AttackOptions(**{f.name: getattr(args, f.name)
                                                         for f in dataclasses.fields(AttackOptions)}))
     except (RuntimeError, LinkError, FileNotFoundError, ValueError, link.PayloadError) as error:
