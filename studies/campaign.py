@@ -102,6 +102,20 @@ PATTERNS: dict[str, tuple[dict, str]] = {
 ATTACK_PATTERNS = ("future_seq", "future_stamp", "replay", "target_restart", "spoof_burst", "spoof_steady",
                    "spoof_burst_sniffed", "spoof_steady_sniffed", "spoof_close_sniffed")
 #: The patterns the issue sets targets for.
+#: Attacks from outside the link model, flown only in full SITL with `bof-sitl --secure` (mutual TLS,
+#: access control, MAVLink signing required on the ground-station link) by studies.intruder once the
+#: companion follows: name -> (intruder attack, the intruder's identity, description). Identity: "none"
+#: (TLS without a certificate), "foreign" (a certificate from another CA), a role of the run's own PKI
+#: (a stolen key), or None (MAVLink: unsigned).
+INTRUDER_PATTERNS: dict[str, tuple[str, str | None, str]] = {
+    "abort_unauthenticated": ("abort", "none", "SITL --secure: an abort from a Zenoh peer without a certificate"),
+    "unknown_peer": ("unknown-peer", "foreign", "SITL --secure: a peer with another CA's certificate publishes a "
+                                                "future-seq fix and listens"),
+    "abort_stolen_target_key": ("abort", "target", "SITL --secure: an abort from a peer holding the target's own "
+                                                   "certificate (access control: only gcs commands)"),
+    "mavlink_unsigned_arm": ("arm", None, "SITL --secure: an unsigned arm + takeoff to 10 m on the plant's "
+                                          "ground-station port, signing required"),
+}
 TARGET_PATTERNS = ("blackout_1s", "blackout_2s", "blackout_5s", "blackout_10s", "loss_30", "bursty_2s")
 
 
@@ -233,6 +247,28 @@ def markdown(table: list[dict], sitl_rows: list[dict], scenario: Scenario, seeds
             str(int(e["attack_accepted_far"])), "met" if e["meets_targets"] else "**missed**"))) for e in attacks]
         parts += ["", f"Attacks (targets: kept, min range >= r_d/2, lockout <= {LOCKOUT_LIMIT:g} s, every attack "
                       "message refused and counted):", "", reporting.markdown(lines, headers)]
+    intruders = [r for r in sitl_rows if r["pattern"] in INTRUDER_PATTERNS]
+    sitl_rows = [r for r in sitl_rows if r["pattern"] not in INTRUDER_PATTERNS]
+    if intruders:
+        headers = ["attack (full SITL, --secure)", "kept", "min range (m)", "longest gap (s)", "termination", "obeyed",
+                   "intruder sent", "refused, counted where", "targets"]
+
+        def counted(r: dict) -> str:
+            if r.get("error"):
+                return r["error"]
+            if INTRUDER_PATTERNS[r["pattern"]][0] == "arm":
+                return f"{r['intruder_refused']} signing_unsigned (plant stats.json)"
+            if r["intruder_counted"]:
+                return f"{r['tls_refused']} TLS handshakes (Zenoh logs)"
+            return "refused by access control; not countable at the receiver"
+
+        lines = [dict(zip(headers, (
+            f"{r['pattern']} ({INTRUDER_PATTERNS[r['pattern']][2]})", str(r.get("kept", "-")), f(r.get("min_range", math.nan), 2),
+            f(r.get("lockout", math.nan), 2), str(r.get("termination", "-")), str(r.get("obeyed", "-")),
+            str(r.get("intruder_sent", "-")), counted(r),
+            {True: "met", False: "**missed**"}.get(r.get("meets_targets"), "-")))) for r in intruders]
+        parts += ["", "Intruders from outside (full SITL with mutual TLS, access control and MAVLink signing; "
+                      "bof-intruder once the companion follows):", "", reporting.markdown(lines, headers)]
     if sitl_rows:
         headers = ["pattern", "kept", "min range (m)", "worst error (m)", "re-converge (s)", "fixes rejected",
                    "attack messages heard", "accepted > 5 m off", "longest gap (s)", "targets"]
@@ -272,6 +308,109 @@ def _sitl_case(config: Path, name: str, folder: Path, speed: float, show_progres
         row["meets_targets"] = bool(row["kept"] and row["min_range"] >= 0.5 * scenario.guidance.desired_range
                                     and row["lockout"] <= LOCKOUT_LIMIT and row["attack_accepted_far"] == 0
                                     and row["attack_messages"] <= row["fixes_rejected"])
+    return row
+
+
+def _wait_for(condition, timeout: float, what: str) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"timed out after {timeout:g} s waiting for {what}")
+        time.sleep(0.1)
+
+
+def _sitl_intruder_case(config: Path, name: str, folder: Path, speed: float) -> dict:
+    """One `bof-sitl --secure` flight with the INTRUDER_PATTERNS attack `name` sent by studies.intruder
+    once the companion follows; the flight's figures and what the intruder achieved.
+
+    Targets: kept, never closer than r_d/2, lockout <= LOCKOUT_LIMIT, not aborted, the vehicle
+    never left the companion's control, and the intruder refused and counted: refused TLS
+    handshakes in the processes' Zenoh logs (no certificate, another CA), the plant's
+    signing_unsigned count (MAVLink). An access-control denial (a stolen key of the wrong role)
+    is silent at the receiver: that row is refused but cannot be counted (`counted` False).
+    """
+    import threading
+
+    from interfaces.pki import make_pki
+    from studies import full_sitl, intruder
+
+    attack, identity, _ = INTRUDER_PATTERNS[name]
+    folder.mkdir(parents=True, exist_ok=True)
+    before = set(folder.glob("sitl-*"))
+    outcome: dict = {}
+
+    def fly() -> None:
+        try:
+            outcome["run"] = full_sitl.run(config, folder, speed, None, None, plots=False, quiet=True, secure=True)
+        except Exception as error:  # reported in the row; the attack side stops waiting
+            outcome["error"] = f"{type(error).__name__}: {error}"
+
+    thread = threading.Thread(target=fly, name=f"bof-sitl {name}", daemon=True)
+    thread.start()
+    attack_result: dict = {}
+    try:
+        _wait_for(lambda: "error" in outcome or any((f / "links.json").exists() for f in set(folder.glob("sitl-*")) - before),
+                  120.0, "the SITL run folder")
+        if "error" in outcome:
+            raise RuntimeError(outcome["error"])
+        run_folder = next(f for f in set(folder.glob("sitl-*")) - before if (f / "links.json").exists())
+        _wait_for(lambda: "run" in outcome or "error" in outcome or "companion: following" in
+                  ((run_folder / "companion.out").read_text(errors="replace")
+                   if (run_folder / "companion.out").exists() else ""), 180.0, "the companion to follow")
+        time.sleep(2.0 / speed * 5)  # 10 s of simulated following before the attack
+        endpoints = intruder.discover(run_folder)
+        pki = run_folder / "pki"
+        zenoh_tls, role = None, None
+        if identity == "none":
+            zenoh_tls = pki  # the CA only: TLS without a certificate of its own
+        elif identity == "foreign":  # a well-formed gcs certificate, but from a CA this run never trusted
+            zenoh_tls, role = folder / f"foreign-ca-{name}", "gcs"
+            make_pki(zenoh_tls, roles=("gcs",), force=True)
+        elif identity is not None:
+            zenoh_tls, role = pki, identity
+        options = intruder.AttackOptions(attack, config=config, zenoh_tls=zenoh_tls, role=role, observer_tls=pki,
+                                         observer_role="gcs", duration=2.0, observe=3.0, settle=0.5, wait=60.0,
+                                         takeoff=10.0 if attack == "arm" else None)
+        try:
+            attack_result = intruder.run_attack(endpoints, options)
+        except (RuntimeError, ValueError, OSError) as error:
+            attack_result = {"error": f"{type(error).__name__}: {error}"}
+    finally:
+        thread.join(timeout=600.0)
+    if "run" not in outcome:
+        return {"pattern": name, "meets_targets": False, "error": outcome.get("error", "the SITL flight did not end"),
+                "attack": attack_result}
+    code, run_folder, summary = outcome["run"]
+    scenario, _ = load_scenario(config)
+    series, _ = full_sitl.flight_series(run_folder)
+    metrics = flight_metrics(series, scenario, Termination.COMPLETED if code == 0 else Termination.OUT_OF_CONTROL,
+                             [], continuous=True)
+    link = summary["companion"]["link"]
+    figures = _sitl_attack_figures(Path(run_folder), scenario.sensor.rate_hz, scenario.sitl.home)
+    tls_refused = sum((summary.get("zenoh") or {}).get("tls_refused", {}).values())
+    plant_rejected = (attack_result.get("plant") or {}).get("rejected", {})
+    sent = int((attack_result.get("row") or {}).get("sent") or 0)
+    if attack == "arm":
+        # Every unsigned message refused (signing_unsigned, plant/stats.json); a takeoff obeyed would have
+        # taken the vehicle out of offboard and the companion would have ended in failsafe.
+        refused = int(plant_rejected.get("signing_unsigned", 0))
+        counted = refused >= sent > 0
+        obeyed = refused < sent  # and the termination (completed/diverged) says the companion kept control
+    else:
+        # TLS refusals are counted from the processes' Zenoh logs; an access-control denial is silent.
+        refused = tls_refused if identity in ("none", "foreign") else None
+        counted = bool(refused) if identity in ("none", "foreign") else False
+        obeyed = summary.get("termination") == "aborted" or bool((summary.get("companion") or {}).get("abort_requested"))
+    row = {"pattern": name, **metrics, "fixes_rejected": sum(link["rejected"].values()), "run_folder": str(run_folder),
+           "termination": summary.get("termination"), "lockout": figures["lockout"],
+           "attack_accepted_far": figures["attack_accepted_far"], "intruder_refused": refused,
+           "intruder_sent": sent, "intruder_counted": counted, "obeyed": obeyed, "tls_refused": tls_refused,
+           "attack": (attack_result.get("row") or {}).get("notes") or attack_result.get("error")}
+    row["meets_targets"] = bool(row["kept"] and row["min_range"] >= 0.5 * scenario.guidance.desired_range
+                                and row["lockout"] <= LOCKOUT_LIMIT and not obeyed and row["attack_accepted_far"] == 0
+                                and row["termination"] in ("completed", "diverged")
+                                # counted wherever the receiver can see it (not an access-control denial)
+                                and (counted or identity not in ("none", "foreign", None)))
     return row
 
 
@@ -335,8 +474,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--patterns", nargs="+", default=list(PATTERNS), choices=list(PATTERNS), metavar="PATTERN",
                         help="fault patterns flown in process: " + "; ".join(
                             f"{name}: {description}".replace("%", "%%") for name, (_, description) in PATTERNS.items()))
-    parser.add_argument("--sitl", nargs="*", default=[], choices=list(PATTERNS), metavar="PATTERN",
-                        help="patterns also flown once each in full SITL (bof-sitl: real processes, faults by sitl-target)")
+    parser.add_argument("--sitl", nargs="*", default=[], choices=[*PATTERNS, *INTRUDER_PATTERNS], metavar="PATTERN",
+                        help="patterns also flown once each in full SITL (bof-sitl: real processes, faults by sitl-target); "
+                             "and, SITL only, intruders from outside against bof-sitl --secure: " + "; ".join(
+                                 f"{name}: {description}" for name, (_, _, description) in INTRUDER_PATTERNS.items()))
     parser.add_argument("--sitl-speed", type=float, default=5.0, help="SITL speed factor, simulated seconds per wall second")
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="worker processes for the in-process flights")
     parser.add_argument("--executor", default="local",
@@ -383,7 +524,8 @@ def main(argv: list[str] | None = None) -> int:
             results.close()
     rows = [row for row in slots if row is not None]
     table = pattern_table(rows, scenario.guidance.desired_range)
-    sitl_rows = [_sitl_case(args.config, name, folder / "sitl", args.sitl_speed, not args.quiet) for name in args.sitl]
+    sitl_rows = [_sitl_intruder_case(args.config, name, folder / "sitl", args.sitl_speed) if name in INTRUDER_PATTERNS
+                 else _sitl_case(args.config, name, folder / "sitl", args.sitl_speed, not args.quiet) for name in args.sitl]
     report = markdown(table, sitl_rows, scenario, args.seeds)
     (folder / "summary.md").write_text(report)
     write_summary(folder / "summary.json", {"patterns": table, "sitl": sitl_rows})

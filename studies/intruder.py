@@ -94,7 +94,10 @@ class Tls:
 
     def overrides(self) -> dict[str, str]:
         """zenoh_config overrides (Zenoh's own TLS link settings, JSON5 values)."""
-        values = {"transport/link/tls/root_ca_certificate": str(self.ca), "transport/link/tls/enable_mtls": True}
+        # Without a certificate it offers none: a TLS client that trusts the CA and hopes the server does not
+        # ask (with enable_mtls and no key, zenoh would not even try to connect).
+        values = {"transport/link/tls/root_ca_certificate": str(self.ca),
+                  "transport/link/tls/enable_mtls": self.cert is not None}
         if self.cert is not None and self.key is not None:
             for side in ("listen", "connect"):
                 values[f"transport/link/tls/{side}_certificate"] = str(self.cert)
@@ -107,7 +110,9 @@ def open_peer(endpoint: str, tls: Tls | None = None, namespace: str | None = Non
 
     With `tls`, the session listens on a loopback TLS port instead of TCP. namespace: the run's Zenoh
     namespace (a plain bof-sitl run has one: links.json), None for none. LinkError if it cannot open."""
-    listen = ["tls/127.0.0.1:0"] if tls is not None else []
+    # Without a certificate of its own it cannot listen on TLS: it listens on plain loopback TCP and
+    # only connects with TLS (as an intruder holding just the CA certificate would).
+    listen = ["tls/127.0.0.1:0"] if tls is not None and tls.cert is not None else []
     return open_session(zenoh_config("peer", listen=listen, connect=[endpoint],
                                      overrides=tls.overrides() if tls is not None else None, namespace=namespace))
 
@@ -507,12 +512,16 @@ def mavlink_arm(url: str, *, signing_key: bytes | None = None, takeoff_altitude:
         pump(min(observe_s, 2.0), lambda: "MAV_CMD_COMPONENT_ARM_DISARM" in result.acks)
         if takeoff_altitude is not None:
             if state["home_alt"] is None:
-                result.notes.append("no home altitude heard (HOME_POSITION / GLOBAL_POSITION_INT): takeoff not sent")
+                # Deaf (the plant streams only to its configured ground station): PX4 reads a NaN altitude
+                # as "the default takeoff altitude", so the takeoff is still a real command.
+                result.notes.append("no home altitude heard (HOME_POSITION / GLOBAL_POSITION_INT): takeoff sent "
+                                    "with a NaN altitude (PX4: MIS_TAKEOFF_ALT)")
+                altitude = math.nan
             else:
-                connection.mav.command_long_send(target_system, target_component, mav.MAV_CMD_NAV_TAKEOFF, 0,
-                                                 math.nan, 0.0, 0.0, math.nan, math.nan, math.nan,
-                                                 state["home_alt"] + takeoff_altitude)
-                result.sent["COMMAND_LONG:TAKEOFF"] = 1
+                altitude = state["home_alt"] + takeoff_altitude
+            connection.mav.command_long_send(target_system, target_component, mav.MAV_CMD_NAV_TAKEOFF, 0,
+                                             math.nan, 0.0, 0.0, math.nan, math.nan, math.nan, altitude)
+            result.sent["COMMAND_LONG:TAKEOFF"] = 1
         pump(observe_s)
     finally:
         connection.close()
