@@ -161,9 +161,9 @@ def soak_scenario(config: Path, duration: float, path: Path) -> Path:
 class StateWatcher:
     """The companion's latest state on Zenoh (plain session: a soak of a secure SITL is for later)."""
 
-    def __init__(self, endpoint: str, companion_id: str) -> None:
+    def __init__(self, endpoint: str, companion_id: str, namespace: str | None = None) -> None:
         self.latest: link.CompanionState | None = None
-        self.session = intruder.open_peer(endpoint)
+        self.session = intruder.open_peer(endpoint, namespace=namespace)
         self.session.declare_subscriber(link.companion_state_key(companion_id), self._on_state)
 
     def _on_state(self, sample) -> None:
@@ -265,12 +265,12 @@ def main(argv: list[str] | None = None) -> int:
                     endpoints = None
                 if endpoints is not None and endpoints.zenoh and endpoints.gcs:
                     run = endpoints.run
-                    watcher = StateWatcher(endpoints.zenoh, scenario.link.companion_id)
+                    watcher = StateWatcher(endpoints.zenoh, scenario.link.companion_id, endpoints.namespace)
             if (flood_started is None and watcher is not None and watcher.latest is not None
                     and watcher.latest.phase == "following"):
                 flood_started = time.monotonic()
                 endpoints = intruder.discover(run)
-                session = intruder.open_peer(endpoints.zenoh)
+                session = intruder.open_peer(endpoints.zenoh, namespace=endpoints.namespace)  # the run's own
 
                 def zenoh_flood() -> None:
                     try:
