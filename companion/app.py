@@ -245,6 +245,7 @@ class CompanionApp:
             "latency_fix_to_setpoint_ms": _percentiles(control.latencies_ms),
             "link": self.target_link.health.as_dict(time.monotonic()),
             "vehicle_status_texts": self.vehicle.status_texts if self.vehicle is not None else [],
+            "vehicle_status_texts_dropped": self.vehicle.status_texts_dropped if self.vehicle is not None else 0,
             "bad_odometry": self.vehicle.bad_odometry if self.vehicle is not None else 0,
             "health_reasons_at_end": list(control.pipeline.health.episode_reasons) if control.pipeline is not None else [],
             "stopped_by": self.stopped_by,

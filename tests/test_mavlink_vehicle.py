@@ -1131,3 +1131,22 @@ def _close_shared():
     h = _SHARED.pop("h", None)
     if h is not None:
         h.close()
+
+
+def test_a_flood_of_peer_status_texts_is_passed_on_at_a_bounded_rate_and_the_rest_counted(harness) -> None:
+    """A peer's STATUSTEXTs go to the other links at most 5 per simulated second (a burst of 5): 100 at one
+    instant give 5 relayed and 95 counted; one second later 5 more may pass."""
+    h = harness()
+    h.step(0.01)
+    h.gcs.take()
+    for k in range(100):
+        h.send(h.mav.statustext_encode(mavlink.MAV_SEVERITY_INFO, f"flood {k}".encode()))
+    relayed = [t.text for t in h.gcs.take("STATUSTEXT") if t.text.startswith("flood")]
+    assert relayed == [f"flood {k}" for k in range(5)]
+    assert h.vehicle.stats.statustext_not_relayed["companion"] == 95
+    h.step(1.0)
+    for k in range(100, 110):
+        h.send(h.mav.statustext_encode(mavlink.MAV_SEVERITY_INFO, f"flood {k}".encode()))
+    relayed = [t.text for t in h.gcs.take("STATUSTEXT") if t.text.startswith("flood")]
+    assert relayed == [f"flood {k}" for k in range(100, 105)]
+    assert h.vehicle.stats.statustext_not_relayed["companion"] == 100

@@ -37,6 +37,8 @@ from companion.core.messages import AttitudeSetpoint, PursuerState
 
 #: Loopback only: a companion next to its autopilot (PX4 SITL sends there); give the serial port or the
 #: interface address explicitly to listen elsewhere.
+#: Status texts kept for the summary; later ones are only counted (memory and summary stay bounded).
+MAX_STATUS_TEXTS = 200
 DEFAULT_URL = "udpin://127.0.0.1:14540"
 
 
@@ -116,7 +118,8 @@ class MavsdkVehicle:
         self._flight_mode: FlightMode | None = None
         self._in_air: bool | None = None
         self._armed: bool | None = None
-        self.status_texts: list[str] = []
+        self.status_texts: list[str] = []  # the first MAX_STATUS_TEXTS the autopilot sent, in order
+        self.status_texts_dropped = 0  # and how many more came (a peer may flood them through the autopilot)
         self.bad_odometry = 0
         self._tasks: list[asyncio.Task] = []
 
@@ -205,7 +208,10 @@ class MavsdkVehicle:
 
     async def _follow_status_text(self) -> None:
         async for status in self.telemetry.subscribe_status_text():
-            self.status_texts.append(status.text)
+            if len(self.status_texts) < MAX_STATUS_TEXTS:
+                self.status_texts.append(status.text)
+            else:
+                self.status_texts_dropped += 1
 
     # ----------------------------------------------------------------- state
     @property

@@ -314,6 +314,8 @@ class MavlinkStats:
     rejected: collections.Counter = field(default_factory=collections.Counter)
     reject_events: collections.Counter = field(default_factory=collections.Counter)
     commands: collections.Counter = field(default_factory=collections.Counter)
+    #: peers' STATUSTEXTs not passed on to the other links (over STATUSTEXT_RELAY_RATE), by source link
+    statustext_not_relayed: collections.Counter = field(default_factory=collections.Counter)
 
     def as_dict(self) -> dict:
         return {
@@ -322,7 +324,12 @@ class MavlinkStats:
             "rejected": dict(self.rejected),
             "reject_events": dict(self.reject_events),
             "commands": dict(self.commands),
+            "statustext_not_relayed": dict(self.statustext_not_relayed),
         }
+
+
+#: Peers' STATUSTEXTs passed on to the other links, per simulated second and source link (token bucket).
+STATUSTEXT_RELAY_RATE = 5.0
 
 
 class Rejected(Exception):
@@ -465,6 +472,7 @@ class MavlinkVehicle:
         self.unix_epoch = time.time() if unix_epoch is None else unix_epoch
         self._next_heartbeat = 0.0
         self._statustext_id = 0
+        self._relay_tokens: dict[str, tuple[float, float]] = {}  # link name -> (tokens, simulated time s)
         self._last_mode = autopilot.mode
         self._last_armed = autopilot.armed
         self.on_odometry_sent: Callable[[int], None] | None = None
@@ -802,9 +810,20 @@ class MavlinkVehicle:
             self._send(link, link.mav.timesync_encode(int(self.autopilot.time * 1e9), msg.ts1))
 
     def _on_statustext(self, link: Link, msg) -> None:
-        """A peer's STATUSTEXT (the companion's): logged and passed on to the other links, as PX4 does."""
+        """A peer's STATUSTEXT (the companion's): logged and passed on to the other links, as PX4 does, at
+        most STATUSTEXT_RELAY_RATE per simulated second from each link (a burst of STATUSTEXT_RELAY_RATE
+        passes): a peer that floods status texts must not flood the other side (the companion's MAVSDK
+        prints every one it gets). Texts not relayed are counted (stats statustext_not_relayed)."""
         text = msg.text if isinstance(msg.text, str) else bytes(msg.text).decode("utf-8", "replace")
         self._event("peer_statustext", f"{link.name} [{msg.severity}] {text}")
+        now = self.autopilot.time
+        tokens, last = self._relay_tokens.get(link.name, (STATUSTEXT_RELAY_RATE, now))
+        tokens = min(STATUSTEXT_RELAY_RATE, tokens + (now - last) * STATUSTEXT_RELAY_RATE)
+        if tokens < 1.0:
+            self._relay_tokens[link.name] = (tokens, now)
+            self.stats.statustext_not_relayed[link.name] += 1
+            return
+        self._relay_tokens[link.name] = (tokens - 1.0, now)
         for other in self.links:
             if other is not link:
                 self._send(other, other.mav.statustext_encode(msg.severity, text.encode("utf-8")[:50]))
