@@ -49,6 +49,7 @@ from companion.state_publisher import StatePublisher
 from companion.target_link import TargetLink
 from interfaces import link_schema as link
 from interfaces import zenoh_transport
+from interfaces.cli import scenario_file, seed_argument
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, VehicleConfig, load_scenario
 
 __all__ = ["CompanionApp", "Phase", "main"]
@@ -271,30 +272,9 @@ class CompanionApp:
                     self._session.close()
 
 
-def _scenario_file(text: str) -> Path:
-    """argparse type: an existing scenario file (a folder or a missing path is a one-line usage error)."""
-    path = Path(text)
-    if path.is_dir():
-        raise argparse.ArgumentTypeError(f"{text} is a folder; give one scenario file")
-    if not path.is_file():
-        raise argparse.ArgumentTypeError(f"{text}: no such file")
-    return path
-
-
-def _seed(text: str) -> int:
-    """argparse type: a seed, an integer >= 0."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{value} is negative (seeds are integers >= 0)")
-    return value
-
-
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="companion", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--config", type=_scenario_file, default=DEFAULT_SCENARIO, help="scenario TOML (default: %(default)s)")
+    parser.add_argument("--config", type=scenario_file, default=DEFAULT_SCENARIO, help="scenario TOML (default: %(default)s)")
     parser.add_argument("--mavlink", default=None, help="MAVSDK connection URL ([companion] mavlink_url)")
     parser.add_argument("--zenoh-connect", action="append", default=None, help="Zenoh endpoint to connect to (repeatable)")
     parser.add_argument("--zenoh-listen", action="append", default=None, help="Zenoh endpoint to listen on (repeatable)")
@@ -306,7 +286,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         help="Zenoh session namespace: every key is prefixed with it on the wire, so runs with different "
                              "namespaces never hear each other (isolation, not authentication). Default: none")
     parser.add_argument("--log-dir", type=Path, default=None, help="run folder (default runs/companion-<time>)")
-    parser.add_argument("--seed", type=_seed, default=None, help="bearing-noise seed, an integer >= 0 ([simulation] seed)")
+    parser.add_argument("--seed", type=seed_argument, default=None, help="bearing-noise seed, an integer >= 0 ([simulation] seed)")
     return parser.parse_args(argv)
 
 

@@ -60,7 +60,7 @@ from studies.closed_loop import Termination, simulate
 from studies import reporting
 from studies.executors import make_executor
 from studies.metrics import write_summary
-from studies.run_scenario import scenario_file
+from interfaces.cli import scenario_file
 
 DEFAULT_SCENARIO = DEFAULT_SCENARIO
 CONVERGED = 1.0  # m, range-estimation error
@@ -470,7 +470,7 @@ def _sitl_attack_figures(run_folder: Path, rate_hz: float, home) -> dict:
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="bof-campaign", description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    parser.add_argument("config", nargs="?", type=lambda text: Path(scenario_file(text)), default=DEFAULT_SCENARIO, help="scenario TOML")
+    parser.add_argument("config", nargs="?", type=scenario_file, default=DEFAULT_SCENARIO, help="scenario TOML")
     parser.add_argument("--seeds", type=int, default=10, help="in-process flights per pattern (seeds 1..N)")
     parser.add_argument("--patterns", nargs="+", default=list(PATTERNS), choices=list(PATTERNS), metavar="PATTERN",
                         help="fault patterns flown in process: " + "; ".join(

@@ -47,7 +47,7 @@ from interfaces.records import write_json
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, load_scenario
 from studies.closed_loop import Termination
 from studies.metrics import convergence_text, summarize, suspect_warning, termination_name, write_summary
-from studies.run_scenario import scenario_file, seed_argument
+from interfaces.cli import scenario_file, seed_argument
 from studies.processes import ChildProcess, Interrupted, StopSignals, free_port, stop_all
 
 DEFAULT_SCENARIO = DEFAULT_SCENARIO

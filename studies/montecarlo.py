@@ -54,7 +54,7 @@ from studies.closed_loop import Termination, simulate
 from studies import reporting
 from studies.executors import make_executor
 from studies.metrics import write_summary
-from studies.run_scenario import scenario_file
+from interfaces.cli import scenario_file
 
 SCENARIOS = SCENARIOS_DIR
 DEFAULT_SCENARIO = SCENARIOS / "constant_velocity.toml"
@@ -404,7 +404,7 @@ def stack_series(series: list[dict | None]) -> dict[str, np.ndarray]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="bof-montecarlo", description=__doc__.split("\n\n")[0])
-    parser.add_argument("scenarios", nargs="*", type=lambda text: Path(scenario_file(text)), help=f"scenario files (default {DEFAULT_SCENARIO.name})")
+    parser.add_argument("scenarios", nargs="*", type=scenario_file, help=f"scenario files (default {DEFAULT_SCENARIO.name})")
     parser.add_argument("--study", choices=list(STUDIES), help="a preset grid: the paper's comparisons (estimators, guidance, table2) or issue 13's "
                         "maneuvering targets")
     parser.add_argument("--runs", type=int, default=None, help="seeded flights per grid point (default 10; 100 for --study estimators, "

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from interfaces.cli import scenario_file, seed_argument
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, load_scenario
 from studies.closed_loop import SimulationResult, simulate
 from studies.metrics import convergence_text, suspect_warning, write_summary
@@ -79,30 +80,9 @@ def format_summary(summary: dict) -> str:
     return "\n".join(lines)
 
 
-def seed_argument(text: str) -> int:
-    """argparse type: a seed for numpy's SeedSequence, an integer >= 0."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{value} is negative (seeds are integers >= 0)")
-    return value
-
-
-def scenario_file(text: str) -> str:
-    """argparse type: an existing scenario file (not a folder)."""
-    path = Path(text)
-    if path.is_dir():
-        raise argparse.ArgumentTypeError(f"{text} is a folder; give one scenario file, e.g. {text.rstrip('/')}/constant_velocity.toml")
-    if not path.is_file():
-        raise argparse.ArgumentTypeError(f"{text}: no such file")
-    return text
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="bof-sim", description="Fly a bearing-only following scenario in the in-process simulator.")
-    parser.add_argument("scenario", nargs="?", type=scenario_file, default=str(DEFAULT_SCENARIO),
+    parser.add_argument("scenario", nargs="?", type=scenario_file, default=DEFAULT_SCENARIO,
                         help="scenario TOML (default: the paper's constant-velocity case, %(default)s)")
     parser.add_argument("--out", default="runs",
                         help="parent folder: the run folder <scenario>-seed<seed>-<time>/ is created inside it "

@@ -1,0 +1,33 @@
+"""argparse types every command shares (the companion, the plant's tools and the studies).
+
+    parser.add_argument("config", type=scenario_file)    # an existing scenario file, as a Path
+    parser.add_argument("--seed", type=seed_argument)     # an integer >= 0
+
+Each raises argparse.ArgumentTypeError, which argparse turns into one usage line and exit status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def scenario_file(text: str) -> Path:
+    """argparse type: an existing scenario file (not a folder, not a missing path)."""
+    path = Path(text)
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text} is a folder; give one scenario file, e.g. {text.rstrip('/')}/constant_velocity.toml")
+    if not path.is_file():
+        raise argparse.ArgumentTypeError(f"{text}: no such file")
+    return path
+
+
+def seed_argument(text: str) -> int:
+    """argparse type: a seed for numpy's SeedSequence, an integer >= 0."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{value} is negative (seeds are integers >= 0)")
+    return value
