@@ -49,7 +49,7 @@ from companion.state_publisher import StatePublisher
 from companion.target_link import TargetLink
 from interfaces import link_schema as link
 from interfaces import zenoh_transport
-from interfaces.cli import scenario_file, seed_argument
+from interfaces.cli import add_zenoh_security_arguments, scenario_file, seed_argument
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, VehicleConfig, load_scenario
 
 __all__ = ["CompanionApp", "Phase", "main"]
@@ -278,13 +278,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--mavlink", default=None, help="MAVSDK connection URL ([companion] mavlink_url)")
     parser.add_argument("--zenoh-connect", action="append", default=None, help="Zenoh endpoint to connect to (repeatable)")
     parser.add_argument("--zenoh-listen", action="append", default=None, help="Zenoh endpoint to listen on (repeatable)")
-    parser.add_argument("--zenoh-tls", type=Path, default=None, metavar="DIR",
-                        help="mutual TLS and access control on Zenoh as role 'companion', with DIR/ca.pem, "
-                             "DIR/companion.pem, DIR/companion.key (made by bof-certs; endpoints then tls/...). "
-                             "Default: plain TCP, unauthenticated")
-    parser.add_argument("--zenoh-namespace", default=None, metavar="NAME",
-                        help="Zenoh session namespace: every key is prefixed with it on the wire, so runs with different "
-                             "namespaces never hear each other (isolation, not authentication). Default: none")
+    add_zenoh_security_arguments(parser, "companion")
     parser.add_argument("--log-dir", type=Path, default=None, help="run folder (default runs/companion-<time>)")
     parser.add_argument("--seed", type=seed_argument, default=None, help="bearing-noise seed, an integer >= 0 ([simulation] seed)")
     return parser.parse_args(argv)

@@ -31,3 +31,18 @@ def seed_argument(text: str) -> int:
     if value < 0:
         raise argparse.ArgumentTypeError(f"{value} is negative (seeds are integers >= 0)")
     return value
+
+
+def add_zenoh_security_arguments(parser: argparse.ArgumentParser, role: str) -> None:
+    """--zenoh-tls DIR and --zenoh-namespace NAME, as every Zenoh process of the project takes them.
+
+    role: the process's identity in a bof-certs folder (plant, target, companion): its certificate
+    and key are DIR/<role>.pem and DIR/<role>.key (interfaces.zenoh_transport.tls_identity).
+    """
+    parser.add_argument("--zenoh-tls", type=Path, default=None, metavar="DIR",
+                        help=f"mutual TLS and access control on Zenoh as role '{role}', with DIR/ca.pem, DIR/{role}.pem, "
+                             f"DIR/{role}.key (made by bof-certs; endpoints then tls/...). Default: plain TCP, "
+                             "unauthenticated")
+    parser.add_argument("--zenoh-namespace", default=None, metavar="NAME",
+                        help="Zenoh session namespace: every key is prefixed with it on the wire, so runs with different "
+                             "namespaces never hear each other (isolation, not authentication). Default: none")

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from interfaces.cli import add_zenoh_security_arguments
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, PlantScenario, VehicleConfig, load_plant_scenario
 from interfaces.records import AggregatingLog, CsvLog, JsonLinesLog, write_json
 from interfaces.link_schema import CLOCK_KEY, ClockTick, encode_clock
@@ -358,12 +359,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--zenoh-connect", action="append", default=None, metavar="ENDPOINT",
                         help="publish the simulated clock on Zenoh, connecting here; repeatable")
     parser.add_argument("--clock-rate", type=float, default=50.0, help="clock messages per simulated second")
-    parser.add_argument("--zenoh-tls", type=Path, default=None, metavar="DIR",
-                        help="mutual TLS and access control on Zenoh as role 'plant', with DIR/ca.pem, DIR/plant.pem, "
-                             "DIR/plant.key (made by bof-certs; endpoints then tls/...). Default: plain TCP, unauthenticated")
-    parser.add_argument("--zenoh-namespace", default=None, metavar="NAME",
-                        help="Zenoh session namespace: every key is prefixed with it on the wire, so runs with different "
-                             "namespaces never hear each other (isolation, not authentication). Default: none")
+    add_zenoh_security_arguments(parser, "plant")
     parser.add_argument("--mavlink-blackout", type=float, nargs=2, action="append", default=None,
                         metavar=("START", "DURATION"),
                         help="fault injection: the companion link goes silent both ways from START for DURATION "

@@ -49,6 +49,7 @@ from pathlib import Path
 
 import numpy as np
 
+from interfaces.cli import add_zenoh_security_arguments
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, FaultsConfig, TargetConfig, load_plant_scenario
 from interfaces.link_schema import (CLOCK_KEY, PayloadError, TargetFix, decode_clock, decode_command, encode_target_fix,
                                     new_epoch, target_command_key, target_fix_key)
@@ -298,12 +299,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         help="Zenoh endpoint to connect to, e.g. tcp/127.0.0.1:7447 (the plant); repeatable")
     parser.add_argument("--zenoh-listen", action="append", default=[], metavar="ENDPOINT",
                         help="Zenoh endpoint to listen on, loopback only (default tcp/127.0.0.1:0); repeatable")
-    parser.add_argument("--zenoh-tls", type=Path, default=None, metavar="DIR",
-                        help="mutual TLS and access control on Zenoh as role 'target', with DIR/ca.pem, DIR/target.pem, "
-                             "DIR/target.key (made by bof-certs; endpoints then tls/...). Default: plain TCP, unauthenticated")
-    parser.add_argument("--zenoh-namespace", default=None, metavar="NAME",
-                        help="Zenoh session namespace: every key is prefixed with it on the wire, so runs with different "
-                             "namespaces never hear each other (isolation, not authentication). Default: none")
+    add_zenoh_security_arguments(parser, "target")
     parser.add_argument("--rate", type=float, default=None, help="fixes per simulated second (default: [sensor] rate_hz)")
     parser.add_argument("--frame", choices=("geodetic", "ned"), default=None,
                         help="publish [lat, lon, alt AMSL] or local [n, e, d] m (default: [link] fix_frame)")
