@@ -553,7 +553,7 @@ class LinkConfig(_Strict):
     fix_noise_std: NonNegative = 0.0
     state_rate_hz: Positive = 5.0
     max_future_skew_s: NonNegative = 0.5
-    max_fix_age_s: Positive = 2.0
+    max_fix_age_s: Positive = 10.0
     max_fix_rate_hz: Positive = 50.0
     reanchor_silence_s: Positive = 2.0
     epoch_switch_silence_s: NonNegative = 0.5
