@@ -39,6 +39,9 @@ class BearingMeasurement:
     true_direction: the noise-free unit line of sight, shape (3,). Simulation only: the
     in-process simulator fills it for the "optimal u-PLKF" benchmark of section VIII-B;
     the networked companion never does.
+    source: who took the bearing: 0 is this vehicle's own sensor (the default); a neighbour
+    pursuer's shared bearing carries that pursuer's id (>= 1), with its pursuer_position
+    at its own time stamp (cooperative following, seeds 002 and 004).
     """
 
     time: float
@@ -46,6 +49,7 @@ class BearingMeasurement:
     pursuer_position: np.ndarray
     range: float | None = None
     true_direction: np.ndarray | None = None
+    source: int = 0
 
 
 @dataclass(frozen=True)
