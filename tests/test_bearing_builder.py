@@ -149,9 +149,10 @@ def test_only_the_bearing_leaves_the_builder():
     the outputs carry directions and the own position only."""
     assert {field.name for field in dataclasses.fields(BuildResult)} == {"bearing", "reason", "true_line_of_sight"}
     assert {field.name for field in dataclasses.fields(BearingMeasurement)} == {
-        "time", "direction", "pursuer_position", "range", "true_direction"}
+        "time", "direction", "pursuer_position", "range", "true_direction", "source"}
     result = _builder(model="additive", noise_std=0.0).build(_position(STAMP) + np.array([30.0, 40.0, 0.0]), STAMP)
     assert result.bearing.range is None and result.bearing.true_direction is None
+    assert result.bearing.source == 0  # the own sensor's
     assert np.linalg.norm(result.bearing.direction) == pytest.approx(1.0)  # a direction, not the 50 m offset
     assert np.linalg.norm(result.true_line_of_sight) == pytest.approx(1.0)
 

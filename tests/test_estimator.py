@@ -331,36 +331,97 @@ def test_without_the_guard_a_prior_behind_the_sensor_is_pulled_onto_the_mirrored
 # --------------------------------------------------------------------------- bearing between ticks
 
 
+def _transition(lead: float) -> np.ndarray:
+    """F(tau) of the constant-velocity model, written out (eq. (1) over tau s): [[I, tau I], [0, I]]."""
+    return np.block([[np.eye(3), lead * np.eye(3)], [np.zeros((3, 3)), np.eye(3)]])
+
+
 @pytest.mark.parametrize("form", FLYABLE)
-def test_bearing_between_ticks_is_compared_with_the_extrapolated_mean(form: GainProjection) -> None:
+def test_bearing_between_ticks_is_the_correction_at_its_own_time(form: GainProjection) -> None:
+    """A bearing tau s after the estimator's tick measures p_T(t + tau) = p_T + tau v_T: without process
+    noise the correction at the tick, carried by F(tau), is the Kalman correction of the prior carried to
+    the bearing's stamp (mean F x, covariance F P F^T), exactly: a linear Gaussian model's update does not
+    depend on the time at which its state is written."""
     period, lead = 0.02, 0.013  # bearing 13 ms after the estimator tick
     position, velocity = np.array([20.0, 5.0, -12.0]), np.array([3.0, -2.0, 1.0])
-    covariance = np.diag([4.0, 4.0, 4.0, 1.0, 1.0, 1.0])
+    covariance = np.diag([4.0, 4.0, 4.0, 1.0, 1.0, 1.0]) + 0.3 * np.eye(6)[:, ::-1]
     pursuer = np.array([1.0, 0.0, -10.0])
     true_target = np.array([20.4, 5.6, -11.9]) + velocity * lead  # somewhat off the prior
     bearing = BearingMeasurement(1.0 + lead, unit(true_target - pursuer) + np.array([0.0, 0.002, -0.001]), pursuer)
 
-    off_tick = make_filter(form, period=period)
+    off_tick = make_filter(form, period=period, q=0.0)
     off_tick.initialize(1.0, position, velocity, covariance)
-    # Reference: the same prior carried to the bearing's stamp, corrected on its own tick.
-    on_tick = make_filter(form, period=period)
-    on_tick.initialize(1.0 + lead, position + lead * velocity, velocity, covariance)
+    transition = _transition(lead)
+    on_tick = make_filter(form, period=period, q=0.0)
+    on_tick.initialize(1.0 + lead, position + lead * velocity, velocity, transition @ covariance @ transition.T)
 
     report_off = off_tick.correct(bearing)
     report_on = on_tick.correct(bearing)
     assert report_off.innovation_angle == pytest.approx(report_on.innovation_angle, rel=1e-12, abs=1e-15)
-    # Same innovation, same gain: the same increment of [p_T, v_T].
-    np.testing.assert_allclose(
-        off_tick.estimate.position - position, on_tick.estimate.position - (position + lead * velocity), atol=1e-12
-    )
-    np.testing.assert_allclose(off_tick.estimate.velocity, on_tick.estimate.velocity, atol=1e-12)
-    np.testing.assert_allclose(off_tick.estimate.covariance, on_tick.estimate.covariance, atol=1e-12)
+    np.testing.assert_allclose(report_off.innovation_covariance, report_on.innovation_covariance, atol=1e-12)
+    carried = off_tick.estimate
+    state = transition @ np.concatenate([carried.position, carried.velocity])
+    np.testing.assert_allclose(state[:3], on_tick.estimate.position, atol=1e-10)
+    np.testing.assert_allclose(state[3:], on_tick.estimate.velocity, atol=1e-10)
+    np.testing.assert_allclose(transition @ carried.covariance @ transition.T, on_tick.estimate.covariance, atol=1e-10)
     assert off_tick.estimate.time == 1.0  # the estimate stays on the estimator's own tick
 
     # Ignoring the stamp (comparing with the un-extrapolated mean) would give another innovation.
     stale = make_filter(form, period=period)
     stale.initialize(1.0 + lead, position, velocity, covariance)
     assert abs(stale.correct(bearing).innovation_angle - report_on.innovation_angle) > 1e-4
+
+
+@PROPERTY
+@given(st.sampled_from(FLYABLE), st.integers(1, 400), st.data(), vectors(30.0), vectors(5.0), covariances)
+def test_a_late_bearing_is_the_correction_it_would_have_been_on_time(form, ticks, data, offset, velocity, covariance):
+    """A bearing that arrives `ticks - taken` estimator periods late (a stalled link, a neighbour's shared
+    bearing): without process noise, correcting the current prior with it gives exactly the estimate that
+    correcting on time and predicting on would have given (the u-PLKF's H = P_lambda [I, tau I] for a bearing
+    tau s before the filter's time). With the former H = [P_lambda, 0] a bearing 7.5 s late made the filter
+    move its current position as if it were the position 7.5 s before, and a 0.5 s latency diverged a flight."""
+    taken = data.draw(st.integers(0, ticks - 1))
+    period = 0.02
+    pursuer = np.array([0.0, 0.0, -10.0])
+    start = pursuer + np.array([15.0, -5.0, 3.0]) + 0.2 * offset
+    target_then = start + taken * period * velocity + np.array([0.7, -0.4, 0.3])  # somewhat off the prior
+    assume(np.linalg.norm(target_then - pursuer) > 3.0)
+    bearing = BearingMeasurement(1.0 + taken * period, unit(target_then - pursuer), pursuer)
+
+    late = make_filter(form, period=period, q=0.0, restart_when_behind=False)
+    late.initialize(1.0, start, velocity, covariance)
+    on_time = make_filter(form, period=period, q=0.0, restart_when_behind=False)
+    on_time.initialize(1.0, start, velocity, covariance)
+    for _ in range(ticks):
+        late.predict()
+    for _ in range(taken):
+        on_time.predict()
+    on_time.correct(bearing)
+    for _ in range(ticks - taken):
+        on_time.predict()
+    late.correct(bearing)
+    scale = 1.0 + float(np.abs(covariance).max()) * (1.0 + (ticks * period) ** 2)
+    np.testing.assert_allclose(late.estimate.position, on_time.estimate.position, atol=1e-8 * scale)
+    np.testing.assert_allclose(late.estimate.velocity, on_time.estimate.velocity, atol=1e-8 * scale)
+    np.testing.assert_allclose(late.estimate.covariance, on_time.estimate.covariance, atol=1e-8 * scale)
+
+
+def test_a_late_bearing_is_trusted_less_with_process_noise() -> None:
+    """With process noise the target may have manoeuvred since a late bearing was taken: its innovation
+    covariance gains the position variance q |tau|^3 / 3 of a white-noise acceleration of density
+    q = Q Delta t (Q = 0.1 (m/s^2)^2, Delta t = 0.02 s) over |tau| = 5 s, projected across the bearing."""
+    period, q = 0.02, Q_TARGET
+    pursuer = np.zeros(3)
+    direction = np.array([1.0, 0.0, 0.0])
+    covariance = np.eye(6)
+    with_noise = make_filter(GainProjection.PREDICTED, period=period, q=q)
+    without = make_filter(GainProjection.PREDICTED, period=period, q=0.0)
+    for estimator in (with_noise, without):
+        estimator.initialize(10.0, np.array([20.0, 0.0, 0.0]), np.zeros(3), covariance)  # on the bearing
+    bearing = BearingMeasurement(5.0, direction, pursuer)
+    difference = with_noise.correct(bearing).innovation_covariance - without.correct(bearing).innovation_covariance
+    expected = q * period * 5.0**3 / 3.0 * orthogonal_projection(direction)
+    np.testing.assert_allclose(difference, expected, atol=1e-12)
 
 
 def test_exact_bearing_between_ticks_for_a_correct_prior_needs_no_correction() -> None:

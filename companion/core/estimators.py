@@ -239,6 +239,11 @@ def _is_positive_semidefinite(covariance: np.ndarray) -> bool:
     return not np.linalg.eigvalsh(covariance)[0] < 0.0  # as the old test reads it: a NaN eigenvalue is not negative
 
 
+#: |bearing time - filter time| (s) below which a bearing counts as taken at the filter's time: the in-process
+#: simulator's bearings fall on estimator ticks to rounding, and take exactly the paper's H = [P_lambda, 0].
+_LEAD_EPSILON = 1e-9
+
+
 def _projector_pseudo_inverse(matrix: np.ndarray, null_direction: np.ndarray) -> np.ndarray:
     """Moore-Penrose pseudo-inverse of a symmetric PSD 3x3 `matrix` S whose kernel is span(g).
 
@@ -268,8 +273,10 @@ def _projector_pseudo_inverse(matrix: np.ndarray, null_direction: np.ndarray) ->
     return basis @ np.linalg.pinv(0.5 * (block + block.T), hermitian=True) @ basis.T
 
 
-def _joseph_update(prior: np.ndarray, gain: np.ndarray, projection: np.ndarray, measurement_covariance: np.ndarray) -> np.ndarray:
-    """Joseph form of the covariance update, P = (I - K H) P^- (I - K H)^T + K R K^T, H = [P_lambda, 0].
+def _joseph_update(prior: np.ndarray, gain: np.ndarray, projection: np.ndarray, measurement_covariance: np.ndarray,
+                   lead: float = 0.0) -> np.ndarray:
+    """Joseph form of the covariance update, P = (I - K H) P^- (I - K H)^T + K R K^T, H = [P_lambda, 0]
+    (H = P_lambda [I, tau I] for a bearing `lead` = tau s away from the filter's time, UPLKF.correct).
 
     The short form (I - K H) P^- of section IV-C is the same matrix in exact arithmetic and is
     what the filter uses; with a prior of condition number beyond ~1e12 (only a filter fed
@@ -278,7 +285,7 @@ def _joseph_update(prior: np.ndarray, gain: np.ndarray, projection: np.ndarray, 
     PSD matrices, so it stays PSD to rounding. prior: P^-, (6, 6). gain: K, (6, 3).
     projection: P_lambda of H, (3, 3). measurement_covariance: R_k, (3, 3). Returns (6, 6).
     """
-    h = np.hstack([projection, np.zeros((3, 3))])
+    h = np.hstack([projection, np.zeros((3, 3))]) if lead == 0.0 else np.hstack([projection, lead * projection])
     i_kh = np.eye(6) - gain @ h
     covariance = i_kh @ prior @ i_kh.T + gain @ measurement_covariance @ gain.T
     return 0.5 * (covariance + covariance.T)
@@ -725,13 +732,21 @@ class UPLKF:
         measured_projection = _projector(unit(direction))
         gain_direction = gain_relative / gain_range if use_predicted else direction
         gain_projection = _projector(gain_direction)
+        late = abs(lead) > _LEAD_EPSILON
         # H = [P, 0], so H P^- H^T = P P^-_pp P and P^- H^T = P^-[:, :3] P.
-        cross_covariance = p_prior[:, :3] @ gain_projection
+        # A bearing taken tau = lead s away from the filter's time (a late fix, a neighbour's shared
+        # bearing) measures p_T(t + tau) = p_T + tau v_T + w_tau: H = P [I, tau I], and w_tau, the
+        # target's own acceleration over |tau|, adds its position variance to the measurement noise.
+        position_rows = p_prior[:, :3] + lead * p_prior[:, 3:] if late else p_prior[:, :3]  # P^- M^T, M = [I, tau I]
+        cross_covariance = position_rows @ gain_projection
         noise_transition = gain_range * gain_projection  # V_k = r^- P_lambda
         measurement_covariance = noise_transition @ self.measurement_noise @ noise_transition.T
         if self.pursuer_position_std > 0.0:
             measurement_covariance = measurement_covariance + self.pursuer_position_std**2 * gain_projection
-        innovation_covariance = gain_projection @ cross_covariance[:3] + measurement_covariance
+        if late:
+            measurement_covariance = measurement_covariance + gain_projection @ self._lead_noise(lead) @ gain_projection
+        prior_rows = cross_covariance[:3] + lead * cross_covariance[3:] if late else cross_covariance[:3]  # M P^- M^T P
+        innovation_covariance = gain_projection @ prior_rows + measurement_covariance
         innovation_inverse = _projector_pseudo_inverse(innovation_covariance, gain_direction)
         gain = cross_covariance @ innovation_inverse
         # x_k = x^-_k - K_k H_k x^-_k, with H_k x^-_k = P_lambda~ (p^-_T - p)
@@ -739,15 +754,25 @@ class UPLKF:
         innovation = measured_projection @ relative  # H_k x^-_k, also the report's innovation
         self._state = state - gain @ innovation
         self._state[:3] = limit_range(self._state[:3], np.asarray(bearing.pursuer_position, dtype=float))
-        covariance = p_prior - gain @ (gain_projection @ p_prior[:3])  # (I - K H) P^-
+        measured_rows = p_prior[:3] + lead * p_prior[3:] if late else p_prior[:3]  # M P^-
+        covariance = p_prior - gain @ (gain_projection @ measured_rows)  # (I - K H) P^-
         covariance = 0.5 * (covariance + covariance.T)
         if not _is_positive_semidefinite(covariance):
-            covariance = _joseph_update(p_prior, gain, gain_projection, measurement_covariance)
+            covariance = _joseph_update(p_prior, gain, gain_projection, measurement_covariance, lead if late else 0.0)
         self._covariance = covariance
         if self.adaptive_noise is not None:
             self.adaptive_noise.update(bearing.time, float(innovation @ innovation_inverse @ innovation), 2)
         return CorrectionReport(innovation_angle, use_predicted, innovation=innovation,
                                 innovation_covariance=innovation_covariance, innovation_dof=2)
+
+    def _lead_noise(self, lead: float) -> np.ndarray:
+        """Covariance of w_tau, the target position's departure from p_T + tau v_T over |tau| = |lead| s, m^2,
+        shape (3, 3): q |tau|^3 / 3 of a continuous white-noise acceleration whose density q = Q Delta t is
+        the one this filter's discrete model accumulates per second (velocity variance Delta t^2 Q per
+        period), with the same adaptive scale and boost as the predictions. The correlation of w_tau with
+        the current state (Bar-Shalom's exact out-of-sequence update) is left out."""
+        scale = self.process_noise_boost * (1.0 if self.adaptive_noise is None else self.adaptive_noise.scale)
+        return (scale * self.period * abs(lead) ** 3 / 3.0) * self.process_noise
 
     def _restart_on(self, bearing: BearingMeasurement, predicted_range: float, velocity: np.ndarray) -> None:
         self.initialize_on_bearing(bearing, restart_guess(self._initial_guess, predicted_range, velocity))

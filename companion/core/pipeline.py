@@ -326,8 +326,7 @@ class FollowingPipeline:
         if self.mode == TrackMode.TRACKING or self._agrees_with_prediction(bearing):
             self._rejected_in_row = 0
             correction = self.estimator.correct(bearing)
-            self._last_bearing = unit(bearing.direction)
-            self._last_bearing_time = bearing.time
+            self._note_bearing(bearing)
             self._observe(bearing)
             return correction, False, False
         self._rejected_in_row += 1
@@ -338,10 +337,16 @@ class FollowingPipeline:
         self._restart_estimator(bearing, lambda predicted: (predicted, self.dropout.restart_range_std))
         self.reinitializations += 1
         self._rejected_in_row = 0
-        self._last_bearing = unit(bearing.direction)
-        self._last_bearing_time = bearing.time
+        self._note_bearing(bearing)
         self._observe(bearing)
         return None, False, True
+
+    def _note_bearing(self, bearing: BearingMeasurement) -> None:
+        """The newest bearing used, for the measured line of sight and the bearing age: a late bearing
+        (older than one already used) corrects the estimate but does not make the track older."""
+        if self._last_bearing_time is None or bearing.time >= self._last_bearing_time:
+            self._last_bearing = unit(bearing.direction)
+            self._last_bearing_time = bearing.time
 
     def _observe(self, bearing: BearingMeasurement) -> None:
         """Feed the windowed FIM (section V, eq. (7)) with a bearing used, at the estimated range."""
