@@ -393,7 +393,11 @@ class FollowingPipeline:
         if gap >= policy.coast_limit or (gap >= policy.coast_after and position_std > policy.max_position_std):
             mode = TrackMode.DEGRADED
         elif gap >= policy.coast_after:
-            mode = TrackMode.COASTING if self.mode != TrackMode.DEGRADED else TrackMode.DEGRADED
+            # Degraded stays degraded while the bearings stay old, unless they are late but keep the
+            # estimate tight (a link with a steady latency above coast_after): then it coasts, with
+            # hysteresis (half the std that made it degraded), rather than hold the safe range forever.
+            recovered = position_std <= 0.5 * policy.max_position_std
+            mode = TrackMode.DEGRADED if self.mode == TrackMode.DEGRADED and not recovered else TrackMode.COASTING
         elif self.mode == TrackMode.REACQUIRING and self._rejected_in_row > 0:
             mode = TrackMode.REACQUIRING
         else:
