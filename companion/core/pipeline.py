@@ -247,8 +247,7 @@ class FollowingPipeline:
                 return PipelineOutput(time, None, False, None, None, None)
             self.estimator.initialize_on_bearing(bearing, self.initial_guess)
             self._engaged_at = bearing.time
-            self._last_bearing = unit(bearing.direction)
-            self._last_bearing_time = bearing.time
+            self._note_bearing(bearing)
             self._observe(bearing)
         else:
             self._advance_estimator(time)
@@ -343,9 +342,11 @@ class FollowingPipeline:
 
     def _note_bearing(self, bearing: BearingMeasurement) -> None:
         """The newest bearing used, for the measured line of sight and the bearing age: a late bearing
-        (older than one already used) corrects the estimate but does not make the track older."""
+        (older than one already used) corrects the estimate but does not make the track older. A
+        neighbour's bearing (source != 0) keeps the track fresh but is no line of sight from here."""
         if self._last_bearing_time is None or bearing.time >= self._last_bearing_time:
-            self._last_bearing = unit(bearing.direction)
+            if bearing.source == 0:
+                self._last_bearing = unit(bearing.direction)
             self._last_bearing_time = bearing.time
 
     def _observe(self, bearing: BearingMeasurement) -> None:
