@@ -829,8 +829,9 @@ PursuerIdent = Annotated[int, Field(ge=1, le=MAX_PURSUERS)]
 class SwarmPursuerConfig(_Strict):
     """One [[swarm.pursuers]] entry (the k-th entry is pursuer k): where it starts (m, m/s, NED) and the
     position its estimator's range guess is taken from (default: [estimator] initial_position). Pursuer 1
-    may leave initial_position / initial_velocity out to take [pursuer]'s; every other pursuer must give
-    initial_position (initial_velocity defaults to rest)."""
+    may leave initial_position / initial_velocity out to take [pursuer]'s (when both give one and [pursuer]
+    is not at its defaults, they must agree); every other pursuer must give initial_position
+    (initial_velocity defaults to rest)."""
 
     initial_position: Vector3 | None = None
     initial_velocity: Vector3 | None = None
@@ -994,7 +995,8 @@ class SwarmConfig(_Strict):
     @model_validator(mode="after")
     def _consistent(self) -> "SwarmConfig":
         for table, (key, value) in _SWARM_SUBTABLES.items():
-            if table in self.model_fields_set and getattr(self, key) != value:
+            # compared with the defaults, not "was it written": a dumped and re-validated config (overrides) has all
+            if getattr(self, key) != value and getattr(self, table) != type(self).model_fields[table].default:
                 raise ValueError(f"[swarm.{table}] applies to {key} = {value!r} only, not to {key} = "
                                  f"{getattr(self, key)!r}")
         for index, pursuer in enumerate(self.pursuers[1:], start=2):
@@ -1049,7 +1051,8 @@ def _check_swarm(scenario: "Scenario | PlantScenario") -> None:
     if swarm is None:
         return
     first = swarm.pursuers[0]
-    if "pursuer" in scenario.model_fields_set:
+    # [pursuer] at its defaults counts as not given (a dumped and re-validated config has every section)
+    if scenario.pursuer != PursuerConfig():
         for key in ("initial_position", "initial_velocity"):
             given = getattr(first, key)
             if given is not None and tuple(given) != tuple(getattr(scenario.pursuer, key)):

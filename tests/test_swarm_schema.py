@@ -510,6 +510,29 @@ def test_blackout_ids_must_name_a_pursuer(count, windows):
             Scenario.model_validate(document)
 
 
+def test_a_swarm_scenario_survives_overrides_and_a_dump(tmp_path):
+    """Campaigns re-validate a dumped scenario with overrides merged (interfaces.overrides): every sub-table
+    and [pursuer] is then present, which must not read as "written by the user"."""
+    from interfaces.overrides import apply_overrides
+
+    for name in SWARM_FILES:
+        scenario, _ = load_scenario(SCENARIOS_DIR / f"{name}.toml")
+        assert Scenario.model_validate(scenario.model_dump()) == scenario
+        changed = apply_overrides(scenario, {"swarm.link.loss_probability": 0.25, "simulation.seed": 9}, "--set")
+        assert changed.swarm.link.loss_probability == 0.25 and changed.swarm.pursuers == scenario.swarm.pursuers
+    # pursuer 1 given only in [swarm] (no [pursuer]): its start is the swarm entry's, also after a dump
+    text = BASE.replace("[pursuer]\ninitial_position = [0.0, 0.0, 0.0]\ninitial_velocity = [2.0, 0.0, 0.0]\n", "")
+    only_swarm = _load(tmp_path, text + THREE.replace("[[swarm.pursuers]]\n\n[[swarm.pursuers]]",
+                                                      "[[swarm.pursuers]]\ninitial_position = [5.0, 5.0, -20.0]\n\n"
+                                                      "[[swarm.pursuers]]", 1))
+    assert "pursuer" not in only_swarm.model_fields_set
+    assert pursuer_starts(only_swarm)[0].initial_position == (5.0, 5.0, -20.0)
+    again = Scenario.model_validate(only_swarm.model_dump())
+    assert pursuer_starts(again) == pursuer_starts(only_swarm)
+    with pytest.raises(ConfigError, match=r"\[swarm.standoff\] applies to guidance = 'standoff' only"):
+        apply_overrides(only_swarm, {"swarm.standoff.radius": 30.0}, "--set")
+
+
 # --- the scenario files --------------------------------------------------------------
 
 @pytest.mark.parametrize("name", SWARM_FILES)
