@@ -105,7 +105,8 @@ then missing fields, then field by field in the order listed above):
 ``wrong_type``      a field has the wrong JSON type or length (booleans are not numbers),
                     or a health ``state``/``reasons`` string not in its list
 ``not_finite``      NaN or +-Infinity where a number is required
-``bad_sender``      ``sender`` empty, too long, or not ``[A-Za-z0-9_.-]``
+``bad_sender``      ``sender`` empty, too long, or not ``[A-Za-z0-9_.-]``; a pursuer share's
+                    ``sender`` outside [1, `MAX_PURSUER_ID`]
 ``bad_frame``       ``frame`` is a string other than ``"geodetic"`` / ``"ned"``
 ``unknown_command`` ``command`` is a string not in `COMMANDS`
 ``bad_covariance``  a shared estimate's covariance is not symmetric or not positive semidefinite
@@ -113,9 +114,9 @@ then missing fields, then field by field in the order listed above):
                     > 1e9 s, latitude outside [-90, 90], longitude outside [-180,
                     180], altitude outside [-1e3, 1e5] m, |NED coordinate| > 1e6 m,
                     |velocity component| > 1e3 m/s, detail longer than 200 chars,
-                    a count < 0, an integer too large for a float; in a pursuer share, a sender
-                    id outside [1, 255] (``bad_sender``), a bearing norm outside its bounds, a
-                    bearing or estimate stamped after the share, |covariance entry| > 1e12
+                    a count < 0, an integer too large for a float; in a pursuer share, a bearing
+                    norm outside [1e-2, 1e2], a bearing or estimate stamped after the share,
+                    |covariance entry| > 1e12
 ==================  ==============================================================
 
 The ``encode_*`` functions check their input with the same models, so nothing a
@@ -803,9 +804,12 @@ def decode_state(payload: Payload) -> CompanionState:
 def decode_pursuer_share(payload: Payload) -> PursuerShare:
     """Parse and check a ``bof.pursuer_share/1`` payload; PayloadError (with .reason) if it is refused."""
     share = _validate(_SHARE, _parse(payload))
-    bearing = share.bearing and SharedBearing(share.bearing.stamp, share.bearing.direction, share.bearing.position)
-    estimate = share.estimate and SharedEstimate(share.estimate.stamp, share.estimate.position,
-                                                 share.estimate.velocity, share.estimate.covariance)
+    bearing = estimate = None
+    if share.bearing is not None:
+        bearing = SharedBearing(share.bearing.stamp, share.bearing.direction, share.bearing.position)
+    if share.estimate is not None:
+        estimate = SharedEstimate(share.estimate.stamp, share.estimate.position, share.estimate.velocity,
+                                  share.estimate.covariance)
     return PursuerShare(share.sender, share.seq, share.stamp, share.epoch, share.position, share.velocity,
                         bearing, estimate)
 
