@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import json
 import math
+import socket
+import threading
+import time
 import tomllib
+from collections import Counter
 
 import numpy as np
 import pytest
@@ -15,8 +19,9 @@ from hypothesis import strategies as st
 from interfaces import link_schema as link
 from interfaces.link_schema import (REASONS, PayloadError, PursuerShare, SharedBearing, SharedEstimate,
                                     decode_pursuer_share, encode_pursuer_share, pursuer_share_key)
-from interfaces.scenario import (SCENARIOS_DIR, VEHICLES_DIR, ConfigError, Scenario, load_plant_scenario,
-                                 load_scenario, pursuer_starts, share_rate_hz)
+from interfaces.neighbour_link import NeighbourLink
+from interfaces.scenario import (SCENARIOS_DIR, VEHICLES_DIR, ConfigError, Scenario, SwarmLinkConfig,
+                                 load_plant_scenario, load_scenario, pursuer_starts, share_rate_hz)
 
 FUZZ = settings(max_examples=300, deadline=None, database=None, suppress_health_check=[HealthCheck.too_slow])
 SWARM_FILES = ("swarm_circumnavigation", "seed002_circumnavigation", "seed004_standoff")
@@ -152,6 +157,66 @@ def test_the_encoder_refuses_what_the_decoder_would():
             encode_pursuer_share(share)
         assert error.value.reason == reason
     assert decode_pursuer_share(encode_pursuer_share(good)) == good
+
+
+def _wait(condition, timeout: float) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return True
+        time.sleep(0.01)
+    return condition()
+
+
+def test_shares_cross_a_real_loopback_session_and_a_broken_one_is_only_counted():
+    """Pursuers 2 and 3 publish on their keys; pursuer 1 hears both on the wildcard, refuses a broken payload
+    with its reason and passes each share through its NeighbourLink on receipt."""
+    from interfaces.zenoh_transport import open_session, publisher, zenoh_config
+    from studies.processes import free_port
+
+    endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+    listener = open_session(zenoh_config(listen=[endpoint]))
+    talker = None
+    try:
+        talker = open_session(zenoh_config(connect=[endpoint]))
+        received, refused, lock = [], Counter(), threading.Lock()
+
+        def on_share(sample):
+            try:
+                share = decode_pursuer_share(sample.payload)
+            except PayloadError as error:
+                with lock:
+                    refused[error.reason] += 1
+                return
+            with lock:
+                received.append((str(sample.key_expr), share))
+
+        subscriber = listener.declare_subscriber(link.PURSUER_SHARE_ALL, on_share)
+        outlets = {ident: publisher(talker, pursuer_share_key(ident)) for ident in (2, 3)}
+        assert _wait(lambda: all(o.matching_status.matching for o in outlets.values()), 10.0), "no subscriber seen"
+        sent, where = [], {2: (10.0, 0.0, -10.0), 3: (30.0, 0.0, -10.0)}   # 14.1 m and 31.6 m from pursuer 1
+        for seq in range(20):
+            for ident, outlet in outlets.items():
+                share = PursuerShare(ident, seq, 0.2 * seq, 40 + ident, where[ident], (1.0, 0.0, 0.0),
+                                     SharedBearing(0.2 * seq, (0.6, -0.8, 0.0), where[ident]))
+                outlet.put(encode_pursuer_share(share))
+                sent.append(share)
+        outlets[2].put(_bytes(_with(("estimate", "covariance", 1), 0.5)))
+        assert _wait(lambda: len(received) >= len(sent) and refused, 10.0), f"{len(received)} of {len(sent)}"
+        subscriber.undeclare()
+        with lock:
+            by_sender = sorted(received, key=lambda item: (item[1].sender, item[1].seq))
+            assert by_sender == [(pursuer_share_key(s.sender), s) for s in sorted(sent, key=lambda s: (s.sender, s.seq))]
+            assert refused == {"bad_covariance": 1}
+        # on receipt, pursuer 1 at the origin decides each share with its link (radius 25 m: pursuer 3 is out of reach)
+        neighbour_link = NeighbourLink(SwarmLinkConfig(radius=25.0), pursuers=3)
+        fates = Counter(neighbour_link.transmit(share.stamp, share.sender, 1, np.array(share.position),
+                                                np.zeros(3)).reason or "delivered" for _, share in received)
+        assert fates == {"delivered": 20, "out_of_radius": 20}
+    finally:
+        if talker is not None:
+            talker.close()
+        listener.close()
 
 
 # Valid shares, drawn from the documented domain (module docstring of interfaces.link_schema).
