@@ -12,6 +12,11 @@ neighbour's share, with the same decisions:
         deliver_at(delivery.time, share)          # the harness queues it; a companion holds it until then
     link.counters                                 # Counter: offered, delivered, blackout, out_of_radius, loss
 
+A companion calls it on receipt with the share's own stamp as the time, the share's position as the
+sender's and its own latest position as the receiver's, and uses the share once its clock reaches the
+delivery time (the real network's delay comes on top). `NeighbourLink.from_scenario` builds it from a
+scenario's [swarm].
+
 Times are scenario seconds (s since the scenario started), as [faults] blackouts are; positions are
 NED m, shape (3,). What happens to one share, in this order (the first reason that applies is counted):
 
@@ -40,7 +45,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from interfaces.scenario import SwarmLinkConfig
+from interfaces.scenario import Scenario, SwarmLinkConfig
 
 #: Derived link seeds: SeedSequence(simulation seed, spawn_key=(NEIGHBOUR_SPAWN_KEY, sender, receiver)).
 NEIGHBOUR_SPAWN_KEY = 0x5A4E
@@ -81,6 +86,13 @@ class NeighbourLink:
         self._generators: dict[tuple[int, int], np.random.Generator] = {}
         self.counters: Counter = Counter()
         self.pair_counters: dict[tuple[int, int], Counter] = {}
+
+    @classmethod
+    def from_scenario(cls, scenario: "Scenario") -> "NeighbourLink":
+        """The link of `scenario`'s [swarm.link] for its N pursuers; ValueError if it has no [swarm]."""
+        if scenario.swarm is None:
+            raise ValueError(f"scenario {scenario.name!r} has no [swarm]: one pursuer, no share link")
+        return cls(scenario.swarm.link, scenario.swarm.count, scenario.simulation.seed)
 
     def generator(self, sender: int, receiver: int) -> np.random.Generator:
         """The pair's own generator (created on first use; module docstring, Randomness)."""

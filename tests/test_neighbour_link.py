@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from scipy import stats
 
 from interfaces.neighbour_link import DROP_REASONS, NeighbourLink
-from interfaces.scenario import SwarmLinkConfig
+from interfaces.scenario import SCENARIOS_DIR, SwarmLinkConfig, load_scenario
 
 NEAR = (np.zeros(3), np.array([5.0, 0.0, 0.0]))
 
@@ -171,3 +171,13 @@ def test_a_callers_mistake_is_a_value_error_and_not_counted():
         _link(pursuers=2, blackouts=[{"pursuer": 3, "start": 0.0, "end": 1.0}])
     with pytest.raises(ValueError, match="pursuers must be"):
         _link(pursuers=0)
+
+
+def test_built_from_a_scenario():
+    scenario, _ = load_scenario(SCENARIOS_DIR / "seed002_circumnavigation.toml")
+    link = NeighbourLink.from_scenario(scenario)
+    assert link.pursuers == 5 and link.config.radius == 100.0
+    far = link.transmit(0.0, 1, 5, np.zeros(3), np.array([0.0, 100.5, 0.0]))
+    assert far.reason == "out_of_radius"
+    with pytest.raises(ValueError, match="no \\[swarm\\]"):
+        NeighbourLink.from_scenario(load_scenario(SCENARIOS_DIR / "constant_velocity.toml")[0])
