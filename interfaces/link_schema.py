@@ -15,6 +15,7 @@ key                            payload              published by
 ``bof/companion/<id>/state``   ``bof.companion_state/1``  the companion
 ``bof/companion/<id>/command`` ``bof.command/2``    a ground station (abort)
 ``bof/target/<sender>/command`` ``bof.command/2``   a ground station (start)
+``bof/swarm/<pursuer>/share``  ``bof.pursuer_share/1``  pursuer <pursuer>'s companion
 =============================  ===================  ============================
 
 Schema versions (decoders take every version listed; encoders write the newest):
@@ -26,6 +27,8 @@ payload                version  fields
 ``bof.target_fix``     2        v1 + ``epoch`` (required)
 ``bof.command``        1        envelope, command, detail
 ``bof.command``        2        v1 + ``epoch`` (required)
+``bof.pursuer_share``  1        envelope (integer sender), epoch, position, velocity, bearing,
+                                estimate
 =====================  =======  ===============================================================
 
 ``epoch`` (int, 0 <= epoch < 2**63) is the publisher's boot id: drawn at random when the
@@ -74,6 +77,19 @@ Any change of fields is a new schema version.
   number may be ``null`` ("no value", e.g. log_det of a singular information
   matrix): `encode_state` turns NaN and +-inf into null.
 
+* ``bof.pursuer_share/1`` (`PursuerSharePayload`, decoded as `PursuerShare`): what one pursuer of several
+  tells the others (issue 15; README "Several pursuers: configuration"). ``sender`` is the pursuer id, an
+  integer in [1, `MAX_PURSUER_ID`] (not a name: it is also the key segment), then ``epoch``, ``seq``,
+  ``stamp`` (s, the sender's vehicle clock) as for a fix; ``position`` and ``velocity`` (NED m, m/s: the
+  sender's own state at ``stamp``); ``bearing``: null (no bearing yet) or {``stamp`` (s, when it was
+  taken, <= the envelope's stamp), ``direction`` (NED, the measured line of sight as the sensor gave it:
+  not necessarily unit, its norm in [`MIN_BEARING_NORM`, `MAX_BEARING_NORM`]), ``position`` (NED m, the
+  sender's own position at the bearing's stamp: the projection centre a receiver must use)}; optional
+  ``estimate`` {``stamp`` (s, <= the envelope's), ``position``, ``velocity`` (NED m, m/s: the sender's
+  target estimate), ``covariance`` (6 x 6 over [position, velocity], m^2, m^2/s, (m/s)^2: a flat list of 36
+  numbers row by row, or 6 lists of 6; symmetric to a relative 1e-9 and positive semidefinite, each entry
+  within +-`MAX_COVARIANCE`; refused as ``bad_covariance`` otherwise)}. The encoder writes the flat form.
+
 Decoding bytes never raises anything but `PayloadError`, whose ``reason`` is one of
 `REASONS`; the first problem found wins (size, UTF-8, JSON, object, schema, unknown
 then missing fields, then field by field in the order listed above):
@@ -89,14 +105,18 @@ then missing fields, then field by field in the order listed above):
 ``wrong_type``      a field has the wrong JSON type or length (booleans are not numbers),
                     or a health ``state``/``reasons`` string not in its list
 ``not_finite``      NaN or +-Infinity where a number is required
-``bad_sender``      ``sender`` empty, too long, or not ``[A-Za-z0-9_.-]``
+``bad_sender``      ``sender`` empty, too long, or not ``[A-Za-z0-9_.-]``; a pursuer share's
+                    ``sender`` outside [1, `MAX_PURSUER_ID`]
 ``bad_frame``       ``frame`` is a string other than ``"geodetic"`` / ``"ned"``
 ``unknown_command`` ``command`` is a string not in `COMMANDS`
+``bad_covariance``  a shared estimate's covariance is not symmetric or not positive semidefinite
 ``out_of_range``    a number outside its domain: seq or epoch < 0 or >= 2**63, stamp < 0 or
                     > 1e9 s, latitude outside [-90, 90], longitude outside [-180,
                     180], altitude outside [-1e3, 1e5] m, |NED coordinate| > 1e6 m,
                     |velocity component| > 1e3 m/s, detail longer than 200 chars,
-                    a count < 0, an integer too large for a float
+                    a count < 0, an integer too large for a float; in a pursuer share, a bearing
+                    norm outside [1e-2, 1e2], a bearing or estimate stamped after the share,
+                    |covariance entry| > 1e12
 ==================  ==============================================================
 
 The ``encode_*`` functions check their input with the same models, so nothing a
@@ -135,7 +155,8 @@ from typing import Annotated, Any, Literal, Protocol, Union, get_args
 
 import numpy as np
 from pydantic import (BaseModel, BeforeValidator, ConfigDict, Discriminator, Field, Strict, Tag, TypeAdapter,
-                      ValidationError, ValidationInfo)
+                      ValidationError, ValidationInfo, field_validator)
+from pydantic_core import PydanticCustomError
 
 from interfaces.geodesy import geodetic_to_ned
 
@@ -174,6 +195,19 @@ def target_command_key(sender: str) -> str:
     return f"bof/target/{_segment(sender, 'target sender')}/command"
 
 
+#: Every pursuer's shares (subscribe with this to hear all neighbours; drop your own id on receipt).
+PURSUER_SHARE_ALL = "bof/swarm/*/share"
+#: The largest pursuer id (ids are 1..N; MAVLink system ids stop at 255).
+MAX_PURSUER_ID = 255
+
+
+def pursuer_share_key(pursuer: int) -> str:
+    """``bof/swarm/<pursuer>/share``: where pursuer `pursuer` (id 1..MAX_PURSUER_ID) publishes its `PursuerShare`."""
+    if isinstance(pursuer, bool) or not isinstance(pursuer, (int, np.integer)) or not 1 <= pursuer <= MAX_PURSUER_ID:
+        raise ValueError(f"pursuer id {pursuer!r}: use an integer 1..{MAX_PURSUER_ID} (it is a Zenoh key segment)")
+    return f"bof/swarm/{int(pursuer)}/share"
+
+
 # --- constants and public value types ----------------------------------------------
 
 TARGET_FIX_SCHEMA = "bof.target_fix/2"
@@ -182,6 +216,7 @@ CLOCK_SCHEMA = "bof.clock/1"
 COMMAND_SCHEMA = "bof.command/2"
 COMMAND_SCHEMA_V1 = "bof.command/1"
 COMPANION_STATE_SCHEMA = "bof.companion_state/1"
+PURSUER_SHARE_SCHEMA = "bof.pursuer_share/1"
 
 Frame = Literal["geodetic", "ned"]
 FRAMES = get_args(Frame)
@@ -194,7 +229,7 @@ HealthReason = Literal["nis", "range_uncertain", "behind_sensor", "range_implaus
 HEALTH_REASONS = get_args(HealthReason)
 REASONS = frozenset({"too_large", "not_utf8", "not_json", "not_object", "missing_field", "wrong_schema",
                      "unknown_field", "wrong_type", "not_finite", "bad_sender", "bad_frame", "unknown_command",
-                     "out_of_range"})
+                     "out_of_range", "bad_covariance"})
 
 MAX_PAYLOAD_BYTES = 65536
 MAX_SEQ = 2**63 - 1
@@ -204,6 +239,13 @@ MAX_NED = 1e6  # m
 ALTITUDE_RANGE = (-1e3, 1e5)  # m above mean sea level
 MAX_SPEED_COMPONENT = 1e3  # m/s
 MAX_DETAIL = 200  # characters
+MAX_COVARIANCE = 1e12  # |entry| of a shared covariance (m^2, m^2/s, (m/s)^2)
+#: Bounds on the norm of a shared bearing direction (a noisy bearing is not unit; a zero one means nothing).
+MIN_BEARING_NORM = 1e-2
+MAX_BEARING_NORM = 1e2
+#: Relative tolerances of the covariance checks: |P - P^T| <= tol max(1, max|P|); eigenvalues >= -tol max(1, max|P|).
+COVARIANCE_SYMMETRY_TOLERANCE = 1e-9
+COVARIANCE_PSD_TOLERANCE = 1e-9
 
 
 def new_epoch() -> int:
@@ -269,6 +311,67 @@ class Command:
     command: str
     detail: str = ""
     epoch: int | None = None
+
+
+@dataclass(frozen=True)
+class SharedBearing:
+    """A pursuer's latest bearing as it shares it: stamp, s (its vehicle clock, when the bearing was taken);
+    direction, NED, the measured line of sight as the sensor gave it (not necessarily unit); position, m,
+    NED, the sender's own position at `stamp` (the bearing's projection centre)."""
+
+    stamp: float
+    direction: Vector3
+    position: Vector3
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "direction", tuple(float(v) for v in self.direction))
+        object.__setattr__(self, "position", tuple(float(v) for v in self.position))
+
+
+@dataclass(frozen=True)
+class SharedEstimate:
+    """A pursuer's target estimate as it shares it: stamp, s; position m and velocity m/s, NED, shape (3,);
+    covariance over [position, velocity], 6 x 6 (stored as a tuple of 6 rows; a flat 36-sequence or a
+    (6, 6) array is accepted; ValueError if it has another size)."""
+
+    stamp: float
+    position: Vector3
+    velocity: Vector3
+    covariance: tuple[tuple[float, ...], ...]
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "position", tuple(float(v) for v in self.position))
+        object.__setattr__(self, "velocity", tuple(float(v) for v in self.velocity))
+        matrix = np.reshape(np.asarray(self.covariance, dtype=float), (6, 6))
+        object.__setattr__(self, "covariance", tuple(tuple(float(v) for v in row) for row in matrix))
+
+    @property
+    def covariance_matrix(self) -> np.ndarray:
+        """The covariance as an array, shape (6, 6)."""
+        return np.array(self.covariance, dtype=float)
+
+
+@dataclass(frozen=True)
+class PursuerShare:
+    """``bof.pursuer_share/1``: what pursuer `sender` (id >= 1) tells its neighbours (module docstring).
+
+    seq: per (sender, epoch), from 0. stamp: s, the sender's vehicle clock. epoch: the sender's boot id.
+    position m, velocity m/s: the sender's own state at `stamp`, NED. bearing: its latest bearing or
+    None (none yet). estimate: its target estimate or None. Sequences are stored as tuples of floats.
+    """
+
+    sender: int
+    seq: int
+    stamp: float
+    epoch: int
+    position: Vector3
+    velocity: Vector3
+    bearing: SharedBearing | None = None
+    estimate: SharedEstimate | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "position", tuple(float(v) for v in self.position))
+        object.__setattr__(self, "velocity", tuple(float(v) for v in self.velocity))
 
 
 # --- payload models ----------------------------------------------------------------
@@ -501,6 +604,90 @@ class CompanionState(Envelope):
     model_probabilities: Annotated[dict[ModelName, Probability], Field(max_length=16)] | None = None
 
 
+# --- the pursuer share -------------------------------------------------------------
+
+def _covariance_rows(value: Any) -> Any:
+    """A covariance given as 6 lists of 6 (or a (6, 6) array) flattened row by row; anything else as it is."""
+    value = _plain(value)
+    if isinstance(value, (list, tuple)) and len(value) == 6 and all(isinstance(row, (list, tuple)) for row in value):
+        if any(len(row) != 6 for row in value):
+            raise PydanticCustomError("covariance_shape", "give 36 numbers or 6 lists of 6 numbers")
+        return [entry for row in value for entry in row]
+    return value
+
+
+BearingComponent = Annotated[Number, Field(ge=-MAX_BEARING_NORM, le=MAX_BEARING_NORM)]
+CovarianceEntry = Annotated[Number, Field(ge=-MAX_COVARIANCE, le=MAX_COVARIANCE)]
+Covariance = Annotated[tuple[CovarianceEntry, ...], Strict(False), Field(min_length=36, max_length=36),
+                       BeforeValidator(_covariance_rows)]
+PursuerId = Annotated[int, Field(ge=1, le=MAX_PURSUER_ID)]
+
+
+def _not_after(section_stamp: float, info: ValidationInfo, what: str) -> None:
+    stamp = info.data.get("stamp")
+    if stamp is not None and section_stamp > stamp:
+        raise PydanticCustomError("after_share", f"{what} stamp {section_stamp!r} is after the share's stamp {stamp!r}")
+
+
+class SharedBearingSection(_Declared):
+    """A share's ``bearing``: stamp s, direction (NED, norm in [MIN_BEARING_NORM, MAX_BEARING_NORM]), position m."""
+
+    stamp: Stamp
+    direction: Annotated[tuple[BearingComponent, BearingComponent, BearingComponent], Strict(False)]
+    position: NedPosition
+
+    @field_validator("direction")
+    @classmethod
+    def _unit_ish(cls, direction: tuple[float, float, float]) -> tuple[float, float, float]:
+        norm = math.sqrt(sum(component * component for component in direction))
+        if not MIN_BEARING_NORM <= norm <= MAX_BEARING_NORM:
+            raise PydanticCustomError("bearing_norm", f"norm {norm:g} outside [{MIN_BEARING_NORM:g}, "
+                                      f"{MAX_BEARING_NORM:g}]: not a line of sight")
+        return direction
+
+
+class SharedEstimateSection(_Declared):
+    """A share's ``estimate``: stamp s, position m, velocity m/s (NED), covariance (36 entries, row by row)."""
+
+    stamp: Stamp
+    position: NedPosition
+    velocity: NedVelocity
+    covariance: Covariance
+
+    @field_validator("covariance")
+    @classmethod
+    def _symmetric_psd(cls, entries: tuple[float, ...]) -> tuple[float, ...]:
+        matrix = np.array(entries, dtype=float).reshape(6, 6)
+        scale = max(1.0, float(np.max(np.abs(matrix))))
+        asymmetry = float(np.max(np.abs(matrix - matrix.T)))
+        if asymmetry > COVARIANCE_SYMMETRY_TOLERANCE * scale:
+            raise PydanticCustomError("bad_covariance", f"not symmetric (max |P - P^T| = {asymmetry:.3g})")
+        smallest = float(np.linalg.eigvalsh(0.5 * (matrix + matrix.T))[0])
+        if smallest < -COVARIANCE_PSD_TOLERANCE * scale:
+            raise PydanticCustomError("bad_covariance", f"not positive semidefinite (smallest eigenvalue "
+                                      f"{smallest:.3g})")
+        return entries
+
+
+class PursuerSharePayload(Envelope):
+    """``bof.pursuer_share/1``: one pursuer's own state, latest bearing and optional target estimate."""
+
+    schema_: Literal[PURSUER_SHARE_SCHEMA] = Field(alias="schema")
+    sender: PursuerId
+    epoch: Epoch
+    position: NedPosition
+    velocity: NedVelocity
+    bearing: SharedBearingSection | None = None
+    estimate: SharedEstimateSection | None = None
+
+    @field_validator("bearing", "estimate")
+    @classmethod
+    def _not_after_share(cls, section: Any, info: ValidationInfo) -> Any:
+        if section is not None:
+            _not_after(section.stamp, info, info.field_name)
+        return section
+
+
 _TARGET_FIX = TypeAdapter(Annotated[
     Union[Annotated[GeodeticFixPayload, Tag("geodetic")], Annotated[NedFixPayload, Tag("ned")],
           Annotated[TargetFixPayload, Tag("other")], Annotated[GeodeticFixPayloadV2, Tag("geodetic/2")],
@@ -510,13 +697,16 @@ _CLOCK = TypeAdapter(ClockPayload)
 _COMMAND = TypeAdapter(Annotated[Union[Annotated[CommandPayload, Tag("1")], Annotated[CommandPayloadV2, Tag("2")]],
                                  Discriminator(_command_tag)])
 _STATE = TypeAdapter(CompanionState)
+_SHARE = TypeAdapter(PursuerSharePayload)
 
 
 # --- pydantic's errors as reason codes ---------------------------------------------
 
 _REASON_OF_ERROR = {"extra_forbidden": "unknown_field", "missing": "missing_field", "finite_number": "not_finite",
                     "string_pattern_mismatch": "bad_sender", "greater_than_equal": "out_of_range",
-                    "less_than_equal": "out_of_range", "string_too_long": "out_of_range"}
+                    "less_than_equal": "out_of_range", "string_too_long": "out_of_range",
+                    "bad_covariance": "bad_covariance", "covariance_shape": "wrong_type", "bearing_norm": "out_of_range",
+                    "after_share": "out_of_range"}
 _REASON_OF_LITERAL = {"schema": "wrong_schema", "frame": "bad_frame", "command": "unknown_command"}
 _PRECEDENCE = {"unknown_field": 1, "missing_field": 2}  # then field by field (3), in pydantic's order
 _MESSAGES = {("out_of_range", "float_type"): "too large for a float", ("wrong_type", "missing"): "too few items"}
@@ -531,6 +721,8 @@ def _reason(kind: str, loc: tuple, value: Any) -> str:
         return "wrong_type"
     if kind == "float_type" and type(value) is int:  # an integer no float can hold
         return "out_of_range"
+    if loc == ("sender",) and kind in ("greater_than_equal", "less_than_equal"):  # a pursuer id outside 1..255
+        return "bad_sender"
     return _REASON_OF_ERROR.get(kind, "wrong_type")  # every *_type, too_long, ... error
 
 
@@ -609,6 +801,19 @@ def decode_state(payload: Payload) -> CompanionState:
     return _validate(_STATE, _parse(payload))
 
 
+def decode_pursuer_share(payload: Payload) -> PursuerShare:
+    """Parse and check a ``bof.pursuer_share/1`` payload; PayloadError (with .reason) if it is refused."""
+    share = _validate(_SHARE, _parse(payload))
+    bearing = estimate = None
+    if share.bearing is not None:
+        bearing = SharedBearing(share.bearing.stamp, share.bearing.direction, share.bearing.position)
+    if share.estimate is not None:
+        estimate = SharedEstimate(share.estimate.stamp, share.estimate.position, share.estimate.velocity,
+                                  share.estimate.covariance)
+    return PursuerShare(share.sender, share.seq, share.stamp, share.epoch, share.position, share.velocity,
+                        bearing, estimate)
+
+
 # --- encoding ----------------------------------------------------------------------
 
 def _dump(model: Envelope) -> bytes:
@@ -647,6 +852,21 @@ def encode_command(command: Command) -> bytes:
     """The ``bof.command/2`` payload of `command` (``/1`` if command.epoch is None); PayloadError if a decoder
     would refuse it."""
     return _dump(_validate(_COMMAND, _versioned(command, COMMAND_SCHEMA, COMMAND_SCHEMA_V1), tagged=True))
+
+
+def encode_pursuer_share(share: PursuerShare) -> bytes:
+    """The ``bof.pursuer_share/1`` payload of `share` (covariance written flat, row by row); PayloadError if a
+    decoder would refuse it."""
+    document: dict[str, Any] = {"schema": PURSUER_SHARE_SCHEMA, "sender": share.sender, "seq": share.seq,
+                                "stamp": share.stamp, "epoch": share.epoch, "position": share.position,
+                                "velocity": share.velocity}
+    if share.bearing is not None:
+        document["bearing"] = dataclasses.asdict(share.bearing)
+    if share.estimate is not None:
+        estimate = share.estimate
+        document["estimate"] = {"stamp": estimate.stamp, "position": estimate.position, "velocity": estimate.velocity,
+                                "covariance": [entry for row in estimate.covariance for entry in row]}
+    return _dump(_validate(_SHARE, document))
 
 
 def encode_state(state: dict) -> bytes:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import math
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -26,7 +27,9 @@ FIGURES = ("range_error_rms", "range_error_max_abs", "range_estimation_error_rms
 
 
 def test_every_shipped_scenario_has_a_reference():
-    assert sorted(path.stem for path in SCENARIOS_DIR.glob("*.toml")) == sorted(REFERENCE)
+    # Scenarios with a [swarm] table fly several pursuers (issue 15); the reference holds single-pursuer flights.
+    single = [path.stem for path in SCENARIOS_DIR.glob("*.toml") if "swarm" not in tomllib.loads(path.read_text())]
+    assert sorted(single) == sorted(REFERENCE)
 
 
 @pytest.mark.parametrize("name", sorted(REFERENCE))

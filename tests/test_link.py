@@ -186,6 +186,10 @@ REFUSALS = [
     (decode_target_fix, _bytes(_fix(velocity=[0.0, 0.0, -1001.0])), "out_of_range"),
     (decode_command, _bytes({"schema": "bof.command/1", "sender": "gcs", "seq": 0, "stamp": 0, "command": "abort",
                              "detail": "x" * 201}), "out_of_range"),
+    (link.decode_pursuer_share, _bytes({"schema": "bof.pursuer_share/1", "sender": 2, "seq": 0, "stamp": 1.0, "epoch": 5,
+                                        "position": [0, 0, 0], "velocity": [0, 0, 0],
+                                        "estimate": {"stamp": 1.0, "position": [9, 0, 0], "velocity": [0, 0, 0],
+                                                     "covariance": [-1.0] + [0.0] * 35}}), "bad_covariance"),
 ]
 
 
