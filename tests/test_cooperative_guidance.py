@@ -395,8 +395,8 @@ def _pair_minimum_distance(p1, v1, a1, p2, v2, a2, dt, substeps=8):
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.filter_too_much])
 @given(st.lists(st.floats(-12.0, 12.0), min_size=3, max_size=3), st.lists(st.floats(-4.0, 4.0), min_size=6, max_size=6),
-       st.lists(st.floats(-1.0, 1.0), min_size=6, max_size=6), st.floats(1.0, 3.0))
-def test_separation_filter_keeps_two_pursuers_apart(offset, velocities, bias, min_separation):
+       st.lists(st.floats(-1.0, 1.0), min_size=6, max_size=6), st.floats(1.0, 3.0), st.sampled_from([0.01, 0.05]))
+def test_separation_filter_keeps_two_pursuers_apart(offset, velocities, bias, min_separation, dt):
     """Two double integrators, each commanded straight at the other at full acceleration plus a random bias,
     both filtered: from any state with braking margin left, they never come closer than min_separation."""
     guard = SeparationFilter(min_separation=min_separation, braking_acceleration=3.0, max_acceleration=6.0,
@@ -407,8 +407,8 @@ def test_separation_filter_keeps_two_pursuers_apart(offset, velocities, bias, mi
     assume(distance > 0.1)
     closing = float((v[0] - v[1]) @ (p[1] - p[0])) / distance
     assume(guard.braking_margin(distance, closing) >= guard._trigger_margin(closing))
-    dt, closest = 0.05, distance
-    for step in range(200):
+    closest = distance
+    for step in range(int(round(10.0 / dt))):
         commands = []
         for i in (0, 1):
             j = 1 - i
@@ -421,6 +421,29 @@ def test_separation_filter_keeps_two_pursuers_apart(offset, velocities, bias, mi
         for i in (0, 1):
             p[i] = p[i] + v[i] * dt + 0.5 * commands[i] * dt * dt
             v[i] = v[i] + commands[i] * dt
+    assert closest >= min_separation - 1e-9
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.filter_too_much])
+@given(st.lists(st.floats(-12.0, 12.0), min_size=3, max_size=3), st.lists(st.floats(-3.0, 3.0), min_size=6, max_size=6),
+       st.floats(1.0, 3.0), st.sampled_from([0.01, 0.02, 0.05]))
+def test_non_reciprocal_filter_keeps_clear_of_a_constant_velocity_neighbour(offset, velocities, min_separation, dt):
+    """Only this pursuer filters (reciprocal=False); the neighbour flies on at constant velocity and this pursuer's
+    nominal command chases it at full acceleration: the separation still holds (update period <= horizon)."""
+    guard = SeparationFilter(min_separation=min_separation, braking_acceleration=4.0, max_acceleration=6.0,
+                             horizon=0.05, reciprocal=False)
+    p, q = np.zeros(3), np.array(offset, dtype=float)
+    v, w = np.array(velocities[:3]), np.array(velocities[3:])
+    distance = float(np.linalg.norm(q - p))
+    assume(distance > 0.1)
+    closing = float((v - w) @ (q - p)) / distance
+    assume(guard.braking_margin(distance, closing) >= guard._trigger_margin(closing))
+    closest = distance
+    for step in range(int(round(8.0 / dt))):
+        command = guard.filter(p, v, 6.0 * (q - p) / float(np.linalg.norm(q - p)),
+                               (NeighbourState(2, step * dt, q, w),))
+        closest = min(closest, _pair_minimum_distance(p, v, command, q, w, np.zeros(3), dt))
+        p, v, q = p + v * dt + 0.5 * command * dt * dt, v + command * dt, q + w * dt
     assert closest >= min_separation - 1e-9
 
 

@@ -488,23 +488,24 @@ class SeparationFilter:
        d_inf, repulsion_gain k m/s^2);
     2. a hard constraint. The neighbour is "threatening" when, at constant velocity, it comes within
        min_separation inside `horizon` s, or when the braking margin
-           m = d - d_min - max(w, 0)^2 / (4 a_b)
-       falls to (1 + a_max / a_b)(max(w, 0) tau + a_max tau^2) (tau = horizon) or below. Against a
+           m = d - d_min - max(w, 0)^2 / (2 c a_b)
+       (c = 2 when `reciprocal`: both pursuers brake; c = 1 otherwise: only this one) falls to the
+       trigger margin (1 + a_max / a_b)(max(w, 0) tau + a_max tau^2) (tau = horizon) or below. Against a
        threatening neighbour the command's component along n is replaced by min(a . n, -a_b) when
        closing (w > 0) and by min(a . n, 0) otherwise: the closing acceleration is removed and the
        closing velocity is braked at a_b (braking_acceleration). The other components are then scaled
        down so that |a| <= max_acceleration.
-    Guarantee, and its conditions. For TWO pursuers that both run this filter with the same parameters,
-    realise the commanded acceleration exactly (|a| <= max_acceleration, which must not exceed what the
-    vehicles can realise), update it at least every `horizon` s, and start with m >= 0: the separation
-    never falls below min_separation. Reason: braking of both gives w' <= -2 a_b (the tangential
-    motion only lowers w), so m' = -w - w w' / (2 a_b) >= 0 while closing; the trigger margin covers
-    the worst growth of w and loss of d during one update interval before braking starts. With three
-    or more pursuers the pairwise constraints are applied in turn (a few passes) and may conflict (a
-    pursuer squeezed between two neighbours cannot brake away from both); the filter then still
-    removes every closing component it can, but no bound is claimed. A neighbour that does not run
-    the filter halves the braking authority; the bound then holds only if that neighbour is not
-    accelerating towards us.
+    Guarantee, and its conditions. For TWO pursuers that realise the commanded acceleration exactly
+    (|a| <= max_acceleration, which must not exceed what the vehicle can realise), update it at least
+    every `horizon` s and start with m at or above the trigger margin: the separation never falls below
+    min_separation, (a) with `reciprocal` (the default), when both run this filter with the same
+    parameters, and (b) without it, when the neighbour does not accelerate at all (constant velocity).
+    Reason: braking gives w' <= -c a_b (the tangential motion only lowers w), so
+    m' = -w - w w' / (c a_b) >= 0 while closing; the trigger margin covers the worst growth of w and
+    loss of d during one update interval before braking starts. A neighbour that manoeuvres without
+    the filter voids the bound. With three or more pursuers the pairwise constraints are applied in
+    turn (a few passes) and may conflict (a pursuer squeezed between two neighbours cannot brake away
+    from both): the filter then still removes the closing components it can, but no bound is claimed.
     """
 
     min_separation: float
@@ -514,6 +515,7 @@ class SeparationFilter:
     max_acceleration: float = 8.0
     horizon: float = 0.1
     passes: int = 3
+    reciprocal: bool = True
     _influence: float = field(init=False, repr=False, default=0.0)
 
     def __post_init__(self) -> None:
@@ -530,9 +532,10 @@ class SeparationFilter:
         object.__setattr__(self, "_influence", influence)
 
     def braking_margin(self, distance: float, closing_speed: float) -> float:
-        """m = d - d_min - max(w, 0)^2 / (4 a_b), m: the separation left after both pursuers brake."""
+        """m = d - d_min - max(w, 0)^2 / (2 c a_b), m: the separation left after braking (c = 2 if reciprocal)."""
         closing = max(closing_speed, 0.0)
-        return distance - self.min_separation - closing * closing / (4.0 * self.braking_acceleration)
+        sharing = 2.0 if self.reciprocal else 1.0
+        return distance - self.min_separation - closing * closing / (2.0 * sharing * self.braking_acceleration)
 
     def _trigger_margin(self, closing_speed: float) -> float:
         closing = max(closing_speed, 0.0)
