@@ -118,6 +118,24 @@ def test_phase_spacing_errors_closed_form():
     assert phase_spacing_errors([]).shape == (0,)
 
 
+vectors = st.lists(st.floats(-1e6, 1e6), min_size=3, max_size=3).map(np.array)
+
+
+@settings(max_examples=80, deadline=None)
+@given(vectors, vectors, vectors, vectors, st.lists(st.tuples(vectors, vectors), max_size=4))
+def test_commands_are_finite_and_bounded_for_any_finite_state(own_p, own_v, target_p, target_v, others):
+    """No finite state (including coincident vehicles, a pursuer right above the target, far-off values) makes a
+    law or the filter return NaN or exceed its acceleration limit."""
+    neighbours = tuple(NeighbourState(k + 2, 0.0, p, v) for k, (p, v) in enumerate(others))
+    context = CooperativeContext(0.0, own_p, own_v, target_p, target_v, neighbours)
+    guard = SeparationFilter(min_separation=2.0, max_acceleration=8.0)
+    for law in (CircumnavigationGuidance(max_acceleration=10.0), StandoffTrackingGuidance(max_acceleration=8.0)):
+        command = law.acceleration(context)
+        assert np.all(np.isfinite(command)) and float(np.linalg.norm(command)) <= law.max_acceleration * (1 + 1e-12)
+        filtered = guard.filter(own_p, own_v, command, neighbours)
+        assert np.all(np.isfinite(filtered)) and float(np.linalg.norm(filtered)) <= 8.0 * (1 + 1e-12)
+
+
 def test_bad_input_is_rejected():
     with pytest.raises(ValueError):
         CooperativeContext(0.0, np.array([np.nan, 0.0, 0.0]), np.zeros(3), np.zeros(3), np.zeros(3))

@@ -325,7 +325,9 @@ class StandoffTrackingGuidance:
       horizontal relative speed stays v.
     Phase coordination (seed 004 eqs. (36)-(40), generalised from 3 pursuers with a leader to N
     without one): v_i = clip(v0 + k R (Delta_ahead - Delta_behind), v_min, v_max), with the CCW gaps to
-    the nearest neighbours ahead and behind. The gaps then obey a diffusion on the ring,
+    the nearest neighbours ahead and behind; Delta_ahead - Delta_behind = (Delta_ahead - 2 pi/N) -
+    (Delta_behind - 2 pi/N), so each correction is (38)'s UAV-1 term on the gap ahead plus its UAV-3
+    term on the gap behind, and needs no leader and no count N. The gaps then obey a diffusion on the ring,
     Delta_k' = k (Delta_k+1 - 2 Delta_k + Delta_k-1) while unsaturated on the circle, whose Lyapunov
     function sum (Delta_k - 2 pi/N)^2 (eq. (36) for N gaps) decreases as in eq. (39); the gaps tend to
     2 pi / N. Without neighbours v_i = v0.
@@ -589,6 +591,8 @@ class SeparationFilter:
                 if along > bound:
                     command = command + (bound - along) * normal
         return self._limit_keeping_constraints(command, active)
+
+    __call__ = filter
 
     def _limit_keeping_constraints(self, command: np.ndarray, active: list[tuple[np.ndarray, float]]) -> np.ndarray:
         """|a| <= max_acceleration, shrinking the part of the command outside the constrained directions first."""
