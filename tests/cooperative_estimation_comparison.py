@@ -18,7 +18,8 @@ gain projection, Q = 0.04 I (m/s^2)^2, Sigma = 1e-4 I, restart when behind), wit
 pursuer_position_std = 0 since the sensors' positions are exact here. Every estimator starts
 on sensor 1's (or its own sensor's) first bearing at a 25 m range guess (std 30 m), velocity
 guess 0 (std 5 m/s). Reported: RMS of the 3-D position error pooled over the seeds, over
-t in [5, 30] s and over the last 10 s.
+t in [5, 30] s and over the last 10 s, and the mean position NEES over t in [5, 30] s (3 for a
+consistent estimator; larger: its covariance claims more than it has).
 
 Run: python tests/cooperative_estimation_comparison.py [number of seeds, default 20]
 """
@@ -50,8 +51,15 @@ def _uplkf() -> UPLKF:
                  gain_projection=GainProjection.PREDICTED, pursuer_position_std=0.0, restart_when_behind=True)
 
 
+def _errors(estimate, target: np.ndarray) -> tuple[float, float]:
+    """(|position error|, m; position NEES) of a TargetEstimate."""
+    error = estimate.position - target
+    return float(np.linalg.norm(error)), float(error @ np.linalg.solve(estimate.covariance[:3, :3], error))
+
+
 def run(seed: int) -> dict[str, np.ndarray]:
-    """One run: name -> position errors, m, shape (ticks,), at t = k PERIOD, k = 0..DURATION/PERIOD."""
+    """One run: name -> (ticks, 2) array of [position error, m; position NEES] at t = k PERIOD,
+    k = 0..DURATION/PERIOD."""
     rng = np.random.default_rng(seed)
     ticks = int(round(DURATION / PERIOD))
     estimators = {
@@ -61,7 +69,7 @@ def run(seed: int) -> dict[str, np.ndarray]:
         "uplkf_all": _uplkf(),
     }
     singles = [_uplkf() for _ in SENSORS]
-    errors: dict[str, list[float]] = {name: [] for name in NAMES}
+    errors: dict[str, list[tuple[float, float]]] = {name: [] for name in NAMES}
     for k in range(ticks + 1):
         time = k * PERIOD
         target = TARGET_START + TARGET_VELOCITY * time
@@ -85,34 +93,35 @@ def run(seed: int) -> dict[str, np.ndarray]:
                 single.predict()
                 single.correct(bearing)
         for name, estimator in estimators.items():
-            errors[name].append(float(np.linalg.norm(estimator.estimate.position - target)))
+            errors[name].append(_errors(estimator.estimate, target))
         own = singles[0].estimate
-        errors["uplkf_single"].append(float(np.linalg.norm(own.position - target)))
+        errors["uplkf_single"].append(_errors(own, target))
         others = [single.estimate for single in singles[1:]]
-        errors["uplkf_ci"].append(float(np.linalg.norm(fuse_target_estimates(own, others, "ci").position - target)))
-        errors["uplkf_seed004"].append(float(np.linalg.norm(fuse_target_estimates(own, others, "seed004").position - target)))
+        errors["uplkf_ci"].append(_errors(fuse_target_estimates(own, others, "ci"), target))
+        errors["uplkf_seed004"].append(_errors(fuse_target_estimates(own, others, "seed004"), target))
     return {name: np.array(values) for name, values in errors.items()}
 
 
 def compare(seeds: range) -> dict[str, dict[str, float]]:
-    """name -> {"rms_5_30": m, "rms_last_10": m} pooled over the seeds."""
+    """name -> {"rms_5_30": m, "rms_last_10": m, "nees_5_30": mean position NEES} pooled over the seeds."""
     runs = [run(seed) for seed in seeds]
     times = np.arange(len(runs[0][NAMES[0]])) * PERIOD
     after_5, last_10 = times >= 5.0 - 1e-9, times >= DURATION - 10.0 - 1e-9
     summary = {}
     for name in NAMES:
-        stacked = np.stack([result[name] for result in runs])
-        summary[name] = {"rms_5_30": float(np.sqrt(np.mean(stacked[:, after_5] ** 2))),
-                         "rms_last_10": float(np.sqrt(np.mean(stacked[:, last_10] ** 2)))}
+        stacked = np.stack([result[name] for result in runs])  # (seeds, ticks, 2)
+        summary[name] = {"rms_5_30": float(np.sqrt(np.mean(stacked[:, after_5, 0] ** 2))),
+                         "rms_last_10": float(np.sqrt(np.mean(stacked[:, last_10, 0] ** 2))),
+                         "nees_5_30": float(np.mean(stacked[:, after_5, 1]))}
     return summary
 
 
 def main() -> None:
     count = int(sys.argv[1]) if len(sys.argv) > 1 else 20
     summary = compare(range(count))
-    print(f"{'estimator':<16}{'RMS 5-30 s (m)':>16}{'RMS last 10 s (m)':>20}   ({count} seeds)")
+    print(f"{'estimator':<16}{'RMS 5-30 s (m)':>16}{'RMS last 10 s (m)':>20}{'NEES 5-30 s':>14}   ({count} seeds)")
     for name, figures in summary.items():
-        print(f"{name:<16}{figures['rms_5_30']:>16.3f}{figures['rms_last_10']:>20.3f}")
+        print(f"{name:<16}{figures['rms_5_30']:>16.3f}{figures['rms_last_10']:>20.3f}{figures['nees_5_30']:>14.2f}")
 
 
 if __name__ == "__main__":
