@@ -308,6 +308,46 @@ def test_hostile_bearings_are_counted_and_change_nothing():
     assert estimator.rejections["near_parallel"] == 1 and estimator.updates == 0
 
 
+def test_far_stamps_wrong_neighbours_and_floods_are_contained():
+    target = np.array([10.0, 0.0, 0.0])
+    guess = InitialGuess(10.0, 5.0, np.zeros(3), 1.0)
+    estimator = TriangulationKalmanEstimator(0.1, measurement_noise=None, gate_probability=0.999)
+    estimator.initialize_on_bearing(_bearing(target, np.zeros(3)), guess)
+    # a bearing stamped 5 s away from the filter's time is refused, not stored
+    estimator.correct(_bearing(target, np.array([10.0, -10.0, 0.0]), -5.0, source=1))
+    estimator.correct(_bearing(target, np.array([10.0, -10.0, 0.0]), 5.0, source=1))
+    assert estimator.rejections["time_offset"] == 2 and estimator.updates == 0
+    estimator.correct(_bearing(target, np.array([10.0, -10.0, 0.0]), 0.0, source=1))
+    assert estimator.updates == 1
+    for k in range(1, 30):  # converge on the target
+        estimator.predict()
+        estimator.correct(_bearing(target, np.zeros(3), 0.1 * k))
+        estimator.correct(_bearing(target, np.array([10.0, -10.0, 0.0]), 0.1 * k, source=1))
+    before = estimator.state_and_covariance
+    # a neighbour that reports a position 5 m off its true one: its triangulation is gated out
+    estimator.correct(_bearing(target, np.zeros(3), 3.0))
+    estimator.correct(BearingMeasurement(3.0, np.array([0.0, 1.0, 0.0]), np.array([15.0, -10.0, 0.0]), source=1))
+    assert estimator.rejections["gated"] == 1
+    np.testing.assert_array_equal(before[0], estimator.state_and_covariance[0])
+    # two thousand made-up source ids: the waiting table stays bounded
+    for source in range(2_000):
+        estimator.correct(_bearing(target, np.array([0.0, 0.0, -10.0 - source]), 3.0, source=100 + source))
+    assert len(estimator._waiting) <= 64 and len(estimator._consumed) <= 64
+
+
+def test_a_bearing_handed_back_on_a_restart_is_not_used_twice():
+    """The pipeline's health restart calls initialize_on_bearing with a bearing correct() just used."""
+    target = np.array([10.0, 0.0, 0.0])
+    estimator = TriangulationKalmanEstimator(0.1)
+    estimator.initialize_on_bearing(_bearing(target, np.zeros(3)), InitialGuess(10.0, 5.0, np.zeros(3), 1.0))
+    used = _bearing(target, np.array([10.0, -10.0, 0.0]), 0.0, source=1)
+    estimator.correct(used)
+    assert estimator.updates == 1
+    estimator.initialize_on_bearing(used, InitialGuess(10.0, 5.0, np.zeros(3), 1.0))
+    estimator.correct(_bearing(target, np.array([0.0, 10.0, 0.0]), 0.0, source=2))
+    assert estimator.updates == 1  # source 2 found nothing unused to pair with
+
+
 # ---------------------------------------------------------------------------------------------
 # Fusion
 # ---------------------------------------------------------------------------------------------

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 from scipy.optimize import minimize_scalar
+from scipy.stats import chi2
 
 from companion.core.estimators import CorrectionReport, InitialGuess, MAX_RANGE, explicit_start
 from companion.core.messages import BearingMeasurement, TargetEstimate
@@ -209,6 +210,10 @@ def triangulate(bearing_a: BearingMeasurement, bearing_b: BearingMeasurement, be
 # Kalman enhancement, seed 002 eqs. (31)-(33)
 # --------------------------------------------------------------------------------------------
 
+MAX_SOURCES = 64
+"""Most sources (own sensor and neighbours) whose waiting bearings the Kalman enhancement keeps:
+a stream of ever new source ids cannot grow its memory (the oldest are dropped)."""
+
 INSTRUMENT_MAX_RELATIVE_STD = 0.1
 """The Kalman enhancement's R (measurement_noise None) comes from the predicted geometry once the
 prior position std is below this fraction of the predicted ranges (see
@@ -290,16 +295,29 @@ class TriangulationKalmanEstimator:
     period: s. bearing_noise_std: rad, the bearing noise per axis (for the triangulation
     covariance and the remark-3 start). min_angle: rad (see `triangulate`). max_pair_age_s: s.
     acceleration_std: m/s^2, initial 1-sigma per axis of the acceleration.
+    max_time_offset_s: s, a bearing stamped further than this from the filter's time (either
+    way) is refused and counted ("time_offset"): H = [I, tau I, tau^2/2 I] is for short leads.
+    gate_probability: None (default, the seed has no gate) or p in (0, 1): an update whose
+    normalised innovation squared exceeds the chi-square(3) p-quantile is refused and counted
+    ("gated"), e.g. a neighbour reporting a wrong position. A gate can lock a filter out after a
+    manoeuvre its prior did not foresee, hence off by default.
+
+    Bad input never raises and never changes the state: a non-finite or zero bearing is counted
+    ("invalid_bearing"); degenerate pairs are counted by reason; the waiting bearings are kept for
+    at most MAX_SOURCES sources.
     """
 
     def __init__(self, period: float, process_noise: float | np.ndarray = SEED_002_PROCESS_NOISE,
                  measurement_noise: float | np.ndarray | None = SEED_002_MEASUREMENT_NOISE,
                  bearing_noise_std: float = 0.01, min_angle: float = DEFAULT_MIN_ANGLE,
-                 max_pair_age_s: float = 0.25, acceleration_std: float = 1.0, compensate_age: bool = True) -> None:
+                 max_pair_age_s: float = 0.25, acceleration_std: float = 1.0, compensate_age: bool = True,
+                 max_time_offset_s: float = 1.0, gate_probability: float | None = None) -> None:
         if not period > 0.0:
             raise ValueError("estimator period must be positive")
         if not bearing_noise_std > 0.0 or not max_pair_age_s >= 0.0 or not 0.0 <= min_angle < math.pi / 2:
             raise ValueError("need bearing_noise_std > 0, max_pair_age_s >= 0 and 0 <= min_angle < pi/2")
+        if not max_time_offset_s > 0.0 or not (gate_probability is None or 0.0 < gate_probability < 1.0):
+            raise ValueError("need max_time_offset_s > 0 and gate_probability in (0, 1) or None")
         self.period = float(period)
         self.process_noise = (float(process_noise) * np.eye(9) if np.ndim(process_noise) == 0
                               else np.array(process_noise, dtype=float).reshape(9, 9))
@@ -311,6 +329,12 @@ class TriangulationKalmanEstimator:
         self.max_pair_age_s = float(max_pair_age_s)
         self.acceleration_std = float(acceleration_std)
         self.compensate_age = bool(compensate_age)
+        self.max_time_offset_s = float(max_time_offset_s)
+        self.gate_probability = gate_probability
+        self._gate = math.inf if gate_probability is None else float(chi2.ppf(gate_probability, 3))
+        # last time stamp per source that went into a triangulation: a bearing is used at most once,
+        # also when the pipeline hands the same bearing to initialize_on_bearing after correct
+        self._consumed: dict[int, float] = {}
         self.process_noise_boost: float = 1.0
         self._transition = constant_acceleration_transition(self.period)
         self._state: np.ndarray | None = None
@@ -407,6 +431,9 @@ class TriangulationKalmanEstimator:
                 or not float(np.linalg.norm(bearing.direction)) > 0.0 or not math.isfinite(bearing.time):
             self.rejections["invalid_bearing"] += 1
             return CorrectionReport(math.nan, False)
+        if abs(bearing.time - self.time) > self.max_time_offset_s:
+            self.rejections["time_offset"] += 1
+            return CorrectionReport(math.nan, False)
         innovation_angle = self._innovation_angle(bearing, state)
         partner = self._partner_for(bearing)
         if partner is None:
@@ -419,16 +446,37 @@ class TriangulationKalmanEstimator:
             self._store(bearing)
             return CorrectionReport(innovation_angle, False)
         del self._waiting[partner.source]
+        for used in (bearing, partner):
+            self._consumed[used.source] = max(used.time, self._consumed.get(used.source, -math.inf))
+        self._bound(self._consumed, lambda time: time)
         self.last_triangulation = result
         innovation, innovation_covariance = self._update(result, pair)
+        if innovation is None:
+            self.rejections["gated"] += 1
+            return CorrectionReport(innovation_angle, False)
         return CorrectionReport(innovation_angle, False, innovation=innovation,
                                 innovation_covariance=innovation_covariance, innovation_dof=3)
 
     # -- internals ---------------------------------------------------------------------------
     def _store(self, bearing: BearingMeasurement) -> None:
+        """Keep the bearing as its source's waiting one (if newer than that and than any already
+        used); drop waiting bearings too old to pair with it; at most MAX_SOURCES are kept."""
+        if bearing.time <= self._consumed.get(bearing.source, -math.inf):
+            return
         waiting = self._waiting.get(bearing.source)
         if waiting is None or bearing.time >= waiting.time:
             self._waiting[bearing.source] = bearing
+        newest = max(candidate.time for candidate in self._waiting.values())
+        for source in [source for source, candidate in self._waiting.items()
+                       if candidate.time < newest - self.max_pair_age_s]:
+            del self._waiting[source]
+        self._bound(self._waiting, lambda candidate: candidate.time)
+
+    @staticmethod
+    def _bound(table: dict, time_of) -> None:
+        """Keep the MAX_SOURCES entries with the newest times (a flood of source ids stays bounded)."""
+        while len(table) > MAX_SOURCES:
+            del table[min(table, key=lambda key: time_of(table[key]))]
 
     def _partner_for(self, bearing: BearingMeasurement) -> BearingMeasurement | None:
         best: BearingMeasurement | None = None
@@ -487,8 +535,9 @@ class TriangulationKalmanEstimator:
         return result.covariance
 
     def _update(self, result: Triangulation,
-                pair: tuple[BearingMeasurement, BearingMeasurement]) -> tuple[np.ndarray, np.ndarray]:
-        """Kalman update with z = p_T(t) + noise at lead tau = t - filter time (seed 002 eq. (31))."""
+                pair: tuple[BearingMeasurement, BearingMeasurement]) -> tuple[np.ndarray | None, np.ndarray]:
+        """Kalman update with z = p_T(t) + noise at lead tau = t - filter time (seed 002 eq. (31)).
+        Returns (innovation, S); innovation None when the gate refused the update (nothing changed)."""
         state, prior = self._require_state()
         tau = result.time - self.time
         eye = np.eye(3)
@@ -500,7 +549,10 @@ class TriangulationKalmanEstimator:
         cross = prior @ h.T
         innovation_covariance = h @ cross + r
         innovation_covariance = 0.5 * (innovation_covariance + innovation_covariance.T)
-        gain = cho_solve(cho_factor(innovation_covariance), cross.T).T
+        factor = cho_factor(innovation_covariance)
+        if float(innovation @ cho_solve(factor, innovation)) > self._gate:
+            return None, innovation_covariance
+        gain = cho_solve(factor, cross.T).T
         self._state = state + gain @ innovation
         i_kh = np.eye(9) - gain @ h
         covariance = i_kh @ prior @ i_kh.T + gain @ r @ gain.T  # Joseph form: stays symmetric PSD
