@@ -7,7 +7,8 @@ line of sight, i.e. about 0.01 rad), all stamped at the tick. Estimators:
 
   (a) TriangulationKalmanEstimator, seed 002's Q = 0.2 I per step and R = I ("tkf_seed"), and
       with a white-jerk Q (q = 0.01 (m/s^3)^2 s) and each triangulation's own covariance as R
-      ("tkf_consistent");
+      ("tkf_consistent"), and the latter with the older bearing of a pair taken as simultaneous
+      (compensate_age off, "tkf_no_age_model"; with three sensors one pair in three spans two ticks);
   (b) one u-PLKF fed with all three sensors' bearings ("uplkf_all");
   (c) a u-PLKF fed with sensor 1 only ("uplkf_single");
   (d) three single-sensor u-PLKFs fused at every tick by covariance intersection ("uplkf_ci"),
@@ -20,6 +21,9 @@ on sensor 1's (or its own sensor's) first bearing at a 25 m range guess (std 30 
 guess 0 (std 5 m/s). Reported: RMS of the 3-D position error pooled over the seeds, over
 t in [5, 30] s and over the last 10 s, and the mean position NEES over t in [5, 30] s (3 for a
 consistent estimator; larger: its covariance claims more than it has).
+
+A second pass staggers the sensors: sensor i takes its bearing PERIOD/3 x i after the tick
+(the pairs are then 1/30 or 2/30 s apart).
 
 Run: python tests/cooperative_estimation_comparison.py [number of seeds, default 20]
 """
@@ -43,7 +47,7 @@ _CENTRE = TARGET_START + TARGET_VELOCITY * DURATION / 2
 SENSORS = [(_CENTRE + np.array([25.0 * np.cos(angle), 25.0 * np.sin(angle), -10.0]))
            for angle in np.radians([0.0, 120.0, 240.0])]
 GUESS = InitialGuess(25.0, 30.0, np.zeros(3), 5.0)
-NAMES = ("tkf_seed", "tkf_consistent", "uplkf_all", "uplkf_single", "uplkf_ci", "uplkf_seed004")
+NAMES = ("tkf_seed", "tkf_consistent", "tkf_no_age_model", "uplkf_all", "uplkf_single", "uplkf_ci", "uplkf_seed004")
 
 
 def _uplkf() -> UPLKF:
@@ -57,15 +61,18 @@ def _errors(estimate, target: np.ndarray) -> tuple[float, float]:
     return float(np.linalg.norm(error)), float(error @ np.linalg.solve(estimate.covariance[:3, :3], error))
 
 
-def run(seed: int) -> dict[str, np.ndarray]:
+def run(seed: int, stagger: float = 0.0) -> dict[str, np.ndarray]:
     """One run: name -> (ticks, 2) array of [position error, m; position NEES] at t = k PERIOD,
-    k = 0..DURATION/PERIOD."""
+    k = 0..DURATION/PERIOD. stagger: s, sensor i takes its bearing at t + i stagger (0: all at the tick)."""
     rng = np.random.default_rng(seed)
     ticks = int(round(DURATION / PERIOD))
     estimators = {
         "tkf_seed": TriangulationKalmanEstimator(PERIOD, bearing_noise_std=NOISE_STD),
         "tkf_consistent": TriangulationKalmanEstimator(PERIOD, process_noise=white_jerk_process_noise(PERIOD, 0.01),
                                                        measurement_noise=None, bearing_noise_std=NOISE_STD),
+        "tkf_no_age_model": TriangulationKalmanEstimator(PERIOD, process_noise=white_jerk_process_noise(PERIOD, 0.01),
+                                                         measurement_noise=None, bearing_noise_std=NOISE_STD,
+                                                         compensate_age=False),
         "uplkf_all": _uplkf(),
     }
     singles = [_uplkf() for _ in SENSORS]
@@ -75,8 +82,10 @@ def run(seed: int) -> dict[str, np.ndarray]:
         target = TARGET_START + TARGET_VELOCITY * time
         bearings = []
         for source, sensor in enumerate(SENSORS):
-            line = (target - sensor) / np.linalg.norm(target - sensor)
-            bearings.append(BearingMeasurement(time, line + NOISE_STD * rng.standard_normal(3), sensor, source=source))
+            taken = time + source * stagger
+            seen = TARGET_START + TARGET_VELOCITY * taken
+            line = (seen - sensor) / np.linalg.norm(seen - sensor)
+            bearings.append(BearingMeasurement(taken, line + NOISE_STD * rng.standard_normal(3), sensor, source=source))
         for estimator in estimators.values():
             if k == 0:
                 estimator.initialize_on_bearing(bearings[0], GUESS)
@@ -102,9 +111,9 @@ def run(seed: int) -> dict[str, np.ndarray]:
     return {name: np.array(values) for name, values in errors.items()}
 
 
-def compare(seeds: range) -> dict[str, dict[str, float]]:
+def compare(seeds: range, stagger: float = 0.0) -> dict[str, dict[str, float]]:
     """name -> {"rms_5_30": m, "rms_last_10": m, "nees_5_30": mean position NEES} pooled over the seeds."""
-    runs = [run(seed) for seed in seeds]
+    runs = [run(seed, stagger) for seed in seeds]
     times = np.arange(len(runs[0][NAMES[0]])) * PERIOD
     after_5, last_10 = times >= 5.0 - 1e-9, times >= DURATION - 10.0 - 1e-9
     summary = {}
@@ -118,10 +127,12 @@ def compare(seeds: range) -> dict[str, dict[str, float]]:
 
 def main() -> None:
     count = int(sys.argv[1]) if len(sys.argv) > 1 else 20
-    summary = compare(range(count))
-    print(f"{'estimator':<16}{'RMS 5-30 s (m)':>16}{'RMS last 10 s (m)':>20}{'NEES 5-30 s':>14}   ({count} seeds)")
-    for name, figures in summary.items():
-        print(f"{name:<16}{figures['rms_5_30']:>16.3f}{figures['rms_last_10']:>20.3f}{figures['nees_5_30']:>14.2f}")
+    for stagger in (0.0, PERIOD / 3):
+        summary = compare(range(count), stagger)
+        print(f"bearings of sensor i at t + {stagger:.3f} i s")
+        print(f"{'estimator':<18}{'RMS 5-30 s (m)':>16}{'RMS last 10 s (m)':>20}{'NEES 5-30 s':>14}   ({count} seeds)")
+        for name, figures in summary.items():
+            print(f"{name:<18}{figures['rms_5_30']:>16.3f}{figures['rms_last_10']:>20.3f}{figures['nees_5_30']:>14.2f}")
 
 
 if __name__ == "__main__":

@@ -275,19 +275,47 @@ def test_pairing_rules():
     assert estimator.updates == 4
 
 
-def test_the_older_ray_is_moved_with_the_velocity_estimate():
-    """A target moving at a known velocity, bearings 0.2 s apart: with compensation the triangulated
-    point is the target at the newer time exactly; without, it is off by about speed x age."""
+def test_the_age_of_the_older_bearing_is_in_the_measurement_model():
+    """A target moving at a known velocity (tight velocity prior), bearings 0.2 s apart, no noise:
+    with the age in the model the update lands on the target at the newer time; without, it is
+    off by a fraction of speed x age (the raw midpoint is off either way)."""
     velocity = np.array([2.0, 1.0, 0.0])
-    results = {}
+    misses = {}
     for compensate in (True, False):
-        estimator = TriangulationKalmanEstimator(0.1, compensate_age=compensate, max_pair_age_s=0.3)
-        estimator.initialize(0.0, np.array([10.0, 0.0, 0.0]), velocity, np.diag([100.0] * 3 + [1e-6] * 3))
+        estimator = TriangulationKalmanEstimator(0.1, compensate_age=compensate, max_pair_age_s=0.3,
+                                                 measurement_noise=1e-6)
+        # a known constant velocity: the full 9x9 covariance, tight on velocity and acceleration
+        estimator.initialize(0.0, np.array([10.0, 0.0, 0.0]), velocity, np.diag([100.0] * 3 + [1e-10] * 6))
         estimator.correct(_bearing(np.array([10.0, 0.0, 0.0]), np.zeros(3), 0.0))
+        estimator.predict()
+        estimator.predict()
         moved = np.array([10.0, 0.0, 0.0]) + 0.2 * velocity
         estimator.correct(_bearing(moved, np.array([15.0, -12.0, -3.0]), 0.2, source=1))
-        results[compensate] = np.linalg.norm(estimator.last_triangulation.position - moved)
-    assert results[True] < 1e-9 and results[False] > 0.2
+        assert estimator.time == pytest.approx(0.2) and estimator.updates == 1
+        misses[compensate] = np.linalg.norm(estimator.estimate.position - moved)
+        assert np.linalg.norm(estimator.last_triangulation.position - moved) > 0.1
+    assert misses[True] < 1e-4 and misses[False] > 0.1
+
+
+def test_three_sensors_in_turn_converge_with_little_noise():
+    """Three sensors, pairs spanning one or two ticks, bearing noise 1e-5: the filter must follow
+    the target to the noise level (moving the older ray with the filter's own velocity estimate
+    instead diverged here, to 44 m)."""
+    rng = np.random.default_rng(5)
+    sensors = [np.array([-20.0, 0.0, -10.0]), np.array([10.0, -25.0, -10.0]), np.array([15.0, 20.0, -5.0])]
+    velocity = np.array([1.0, 0.5, 0.0])
+    estimator = TriangulationKalmanEstimator(0.1, process_noise=white_jerk_process_noise(0.1, 0.01),
+                                             measurement_noise=None, bearing_noise_std=1e-5)
+    estimator.initialize_on_bearing(_bearing(np.zeros(3), sensors[0]), InitialGuess(20.0, 30.0, np.zeros(3), 5.0))
+    errors = []
+    for k in range(1, 201):
+        target = velocity * 0.1 * k
+        estimator.predict()
+        for source, sensor in enumerate(sensors):
+            estimator.correct(_bearing(target, sensor, 0.1 * k, source, 1e-5 * rng.standard_normal(3)))
+        errors.append(np.linalg.norm(estimator.estimate.position - target))
+    assert estimator.updates == 300
+    assert max(errors[100:]) < 2e-3
 
 
 def test_hostile_bearings_are_counted_and_change_nothing():

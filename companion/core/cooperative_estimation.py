@@ -195,8 +195,8 @@ def triangulate(bearing_a: BearingMeasurement, bearing_b: BearingMeasurement, be
     Time. Bearings taken at different times are used as they are: the result is stamped at the
     newer time, and the target's motion between the two (speed x age) is an error the
     covariance does not contain. The caller pairs bearings close in time
-    (`TriangulationKalmanEstimator` pairs within max_pair_age_s and moves the older ray with its
-    velocity estimate first).
+    (`TriangulationKalmanEstimator` pairs within max_pair_age_s and puts the age into its
+    measurement model).
     """
     result = triangulation_attempt(bearing_a, bearing_b, bearing_noise_std, min_angle)
     if isinstance(result, TriangulationRejection):
@@ -258,11 +258,8 @@ class TriangulationKalmanEstimator:
     Measurements. Bearings arrive one at a time through `correct(bearing)`. The estimator keeps
     the latest unused bearing of every source (0 = own sensor, >= 1 a neighbour). A new bearing
     is paired with the freshest unused bearing of another source taken within max_pair_age_s
-    of it (ties: the larger angle between the lines). Before triangulating, the older ray is moved by
-    the estimated target velocity times the age (the target lies on that moved ray at the newer
-    time if its velocity is the estimated one), so the triangulated position is the target's at
-    the newer time stamp (`compensate_age`; off, the older ray is used as it is). The pair then
-    gives one measurement z = p_T + noise through the Kalman update; both bearings are consumed,
+    of it (ties: the larger angle between the lines). The pair gives one measurement, the
+    triangulated point z, through the Kalman update; both bearings are consumed,
     so every bearing enters at most one triangulation and successive measurements have
     independent errors, as the Kalman filter assumes (re-using a bearing in two
     triangulations would correlate them and make the filter overconfident). A bearing with no
@@ -271,7 +268,14 @@ class TriangulationKalmanEstimator:
 
     Time. The filter ticks at `period` like the u-PLKF; a triangulated position stamped between
     ticks (lead tau = its time - the filter's time, either sign) is compared with the prior
-    carried there: H = [I, tau I, tau^2/2 I].
+    carried there: H = [I, tau I, tau^2/2 I]. Bearings of different times (age d > 0): the older
+    ray saw the target at p_T - v_T d + a_T d^2 / 2. The midpoint is linear in the ray origins
+    (x = A^-1 sum_i P_i p_i), so the target's motion moves it by -L (v_T d - a_T d^2 / 2) with
+    L = A^-1 P_old (A = P_a + P_b); `compensate_age` puts that into the model,
+    H = [I, tau I - d L, tau^2/2 I + d^2/2 L], exact for a constant-acceleration target (off: the
+    older ray is taken as simultaneous). Not done by moving the older ray with the velocity
+    estimate: that makes the measurement depend on the filter's own state, and with small
+    bearing noise that loop diverged (44 m RMS error with 1e-6 noise, three sensors, 0.1 s ages).
 
     Before the first pair (design choice). `initialize_on_bearing` starts on the first bearing
     like remark 3 of the main paper: p_T = p + r_hat u, long along the bearing (range_std), thin
@@ -439,7 +443,7 @@ class TriangulationKalmanEstimator:
         if partner is None:
             self._store(bearing)
             return CorrectionReport(innovation_angle, False)
-        pair = self._aligned(bearing, partner)
+        pair = (bearing, partner)
         result = triangulation_attempt(*pair, self.bearing_noise_std, self.min_angle)
         if isinstance(result, TriangulationRejection):
             self.rejections[result.value] += 1
@@ -492,17 +496,6 @@ class TriangulationKalmanEstimator:
                 best, best_key = candidate, key
         return best
 
-    def _aligned(self, bearing: BearingMeasurement, partner: BearingMeasurement) -> tuple[BearingMeasurement, BearingMeasurement]:
-        """The pair with the older ray moved by v_hat x age (compensate_age), else as they are."""
-        if not self.compensate_age or bearing.time == partner.time:
-            return bearing, partner
-        assert self._state is not None
-        newer, older = (bearing, partner) if bearing.time > partner.time else (partner, bearing)
-        shift = self._state[3:6] * (newer.time - older.time)
-        moved = BearingMeasurement(newer.time, older.direction, np.asarray(older.pursuer_position, dtype=float) + shift,
-                                   source=older.source)
-        return newer, moved
-
     def _innovation_angle(self, bearing: BearingMeasurement, state: np.ndarray) -> float:
         lead = bearing.time - self.time
         relative = state[:3] + lead * state[3:6] + 0.5 * lead**2 * state[6:] - np.asarray(bearing.pursuer_position, float)
@@ -542,6 +535,14 @@ class TriangulationKalmanEstimator:
         tau = result.time - self.time
         eye = np.eye(3)
         h = np.hstack([eye, tau * eye, 0.5 * tau**2 * eye])
+        if self.compensate_age and result.age > 0.0:
+            older = min(pair, key=lambda b: b.time)
+            u_a, u_b = (np.asarray(b.direction, dtype=float) / float(np.linalg.norm(b.direction)) for b in pair)
+            u_old = np.asarray(older.direction, dtype=float) / float(np.linalg.norm(older.direction))
+            projector_old = eye - np.outer(u_old, u_old)
+            lag = np.linalg.solve(2.0 * eye - np.outer(u_a, u_a) - np.outer(u_b, u_b), projector_old)  # L = A^-1 P_old
+            h[:, 3:6] -= result.age * lag
+            h[:, 6:9] += 0.5 * result.age**2 * lag
         r = self.measurement_noise
         if r is None:
             r = self._measurement_covariance(result, pair, h @ state, h @ prior @ h.T)
