@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 from scipy import stats
 
 from companion.core.cooperative_estimation import (
+    DEFAULT_MIN_ANGLE,
     TriangulationKalmanEstimator,
     covariance_intersection,
     fuse_target_estimates,
@@ -118,19 +119,21 @@ def test_the_papers_form_gives_a_wrong_range_where_it_should_not():
     assert law_of_sines_range(u_i, u_nu, d) == pytest.approx(true_range)
 
 
-@pytest.mark.parametrize("direction_b, reason", [
-    (np.array([1.0, 0.0, 0.0]), "near_parallel"),  # parallel rays
-    (np.array([-1.0, 0.0, 0.0]), "near_parallel"),  # anti-parallel
-    (np.array([1.0, math.tan(math.radians(3.0)), 0.0]), "near_parallel"),  # 3 deg, below the 5 deg default
-    (np.array([0.0, -1.0, 0.0]), "behind_sensor"),  # the lines cross behind sensor b
-    (np.array([np.nan, 0.0, 0.0]), "invalid"),
-    (np.zeros(3), "invalid"),
+@pytest.mark.parametrize("direction_b, reason, min_angle", [
+    (np.array([1.0, 0.0, 0.0]), "near_parallel", DEFAULT_MIN_ANGLE),  # parallel rays
+    (np.array([1.0, 0.0, 0.0]), "near_parallel", 0.0),  # parallel, even with no minimum angle
+    (np.array([-1.0, 0.0, 0.0]), "near_parallel", DEFAULT_MIN_ANGLE),  # anti-parallel
+    (np.array([-1.0, 0.0, 0.0]), "near_parallel", 0.0),
+    (np.array([1.0, -math.tan(math.radians(3.0)), 0.0]), "near_parallel", DEFAULT_MIN_ANGLE),  # 3 deg < 5 deg
+    (np.array([0.0, -1.0, 0.0]), "behind_sensor", DEFAULT_MIN_ANGLE),  # the lines cross behind sensor b
+    (np.array([np.nan, 0.0, 0.0]), "invalid", DEFAULT_MIN_ANGLE),
+    (np.zeros(3), "invalid", DEFAULT_MIN_ANGLE),
 ])
-def test_degenerate_pairs_give_none_and_a_counted_reason(direction_b, reason):
+def test_degenerate_pairs_give_none_and_a_counted_reason(direction_b, reason, min_angle):
     a = BearingMeasurement(0.0, np.array([1.0, 0.0, 0.0]), np.zeros(3))
     b = BearingMeasurement(0.0, direction_b, np.array([0.0, 10.0, 0.0]), source=1)
     rejections: Counter = Counter()
-    assert triangulate(a, b, rejections=rejections) is None
+    assert triangulate(a, b, min_angle=min_angle, rejections=rejections) is None
     assert rejections == Counter({reason: 1})
 
 
@@ -325,9 +328,12 @@ def test_hostile_bearings_are_counted_and_change_nothing():
     for bad in (BearingMeasurement(0.0, np.array([np.nan, 0, 0]), np.zeros(3), source=1),
                 BearingMeasurement(0.0, np.zeros(3), np.zeros(3), source=1),
                 BearingMeasurement(math.inf, np.array([1.0, 0, 0]), np.zeros(3), source=1),
-                BearingMeasurement(0.0, np.array([1.0, 0, 0]), np.array([np.inf, 0, 0]), source=1)):
+                BearingMeasurement(0.0, np.array([1.0, 0, 0]), np.array([np.inf, 0, 0]), source=1),
+                BearingMeasurement(None, np.array([1.0, 0, 0]), np.zeros(3), source=1),  # type: ignore[arg-type]
+                BearingMeasurement(0.0, np.array([1.0, 0]), np.zeros(3), source=1),
+                BearingMeasurement(0.0, "north", np.zeros(3), source=1)):  # type: ignore[arg-type]
         assert estimator.correct(bad).innovation is None
-    assert estimator.rejections["invalid_bearing"] == 4
+    assert estimator.rejections["invalid_bearing"] == 7
     after = estimator.state_and_covariance
     np.testing.assert_array_equal(before[0], after[0])
     np.testing.assert_array_equal(before[1], after[1])

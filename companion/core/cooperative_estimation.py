@@ -109,6 +109,19 @@ def law_of_sines_range(own_direction: np.ndarray, neighbour_direction: np.ndarra
     return float(np.linalg.norm(np.cross(d, u_nu))) / sine_target
 
 
+_MIN_SINE = 1e-9
+"""Lines closer to parallel than this sine are parallel whatever min_angle says (A = P_a + P_b is
+then singular to working precision)."""
+
+
+def _finite_time(value: object) -> bool:
+    """Whether a time stamp is a finite real number (a hostile one may be anything)."""
+    try:
+        return math.isfinite(float(value))  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return False
+
+
 def _valid_vector(vector: np.ndarray) -> np.ndarray | None:
     try:
         array = np.asarray(vector, dtype=float).reshape(3)
@@ -123,7 +136,7 @@ def triangulation_attempt(bearing_a: BearingMeasurement, bearing_b: BearingMeasu
     u_a, u_b = _valid_vector(bearing_a.direction), _valid_vector(bearing_b.direction)
     p_a, p_b = _valid_vector(bearing_a.pursuer_position), _valid_vector(bearing_b.pursuer_position)
     if u_a is None or u_b is None or p_a is None or p_b is None \
-            or not (math.isfinite(bearing_a.time) and math.isfinite(bearing_b.time)):
+            or not (_finite_time(bearing_a.time) and _finite_time(bearing_b.time)):
         return TriangulationRejection.INVALID
     norm_a, norm_b = float(np.linalg.norm(u_a)), float(np.linalg.norm(u_b))
     if norm_a == 0.0 or norm_b == 0.0:
@@ -132,7 +145,7 @@ def triangulation_attempt(bearing_a: BearingMeasurement, bearing_b: BearingMeasu
     normal = np.cross(u_a, u_b)
     sine = float(np.linalg.norm(normal))  # sin of the angle between the lines (|x1 y2 - x2 y1| in 2-D)
     angle = math.atan2(sine, abs(float(u_a @ u_b)))  # in [0, pi/2]: lines, not rays
-    if angle < min_angle:
+    if angle < min_angle or sine < _MIN_SINE:
         return TriangulationRejection.NEAR_PARALLEL
     baseline = p_b - p_a
     # Law of sines in 3-D: the parameters of the closest points, p_a + s u_a and p_b + t u_b.
@@ -293,8 +306,8 @@ class TriangulationKalmanEstimator:
     rate-independent Q. measurement_noise: R, m^2, a scalar (R = r I(3)) or (3, 3); seed 002's
     R = I (`SEED_002_MEASUREMENT_NOISE`). None uses the triangulation's first-order
     covariance (the consistent choice when bearing_noise_std is the sensor's), evaluated at the
-    predicted target position once the prior is credible (`_measurement_covariance` says why). process_noise_boost: factor on Q (the
-    pipeline's health actions set it), 1 by default.
+    predicted target position once the prior is credible (`_measurement_covariance` says why).
+    process_noise_boost: factor on Q (the pipeline's health actions set it), 1 by default.
 
     period: s. bearing_noise_std: rad, the bearing noise per axis (for the triangulation
     covariance and the remark-3 start). min_angle: rad (see `triangulate`). max_pair_age_s: s.
@@ -432,7 +445,7 @@ class TriangulationKalmanEstimator:
         the prior mean (nan for an unusable bearing)."""
         state, _ = self._require_state()
         if _valid_vector(bearing.pursuer_position) is None or _valid_vector(bearing.direction) is None \
-                or not float(np.linalg.norm(bearing.direction)) > 0.0 or not math.isfinite(bearing.time):
+                or not float(np.linalg.norm(bearing.direction)) > 0.0 or not _finite_time(bearing.time):
             self.rejections["invalid_bearing"] += 1
             return CorrectionReport(math.nan, False)
         if abs(bearing.time - self.time) > self.max_time_offset_s:
@@ -523,7 +536,8 @@ class TriangulationKalmanEstimator:
         position_std = math.sqrt(max(float(np.trace(predicted_covariance)), 0.0) / 3.0)
         if min(ranges) > 0.0 and position_std < INSTRUMENT_MAX_RELATIVE_STD * min(ranges):
             u_a, u_b = rays[0] / ranges[0], rays[1] / ranges[1]
-            if math.atan2(float(np.linalg.norm(np.cross(u_a, u_b))), abs(float(u_a @ u_b))) >= self.min_angle:
+            sine = float(np.linalg.norm(np.cross(u_a, u_b)))
+            if sine >= _MIN_SINE and math.atan2(sine, abs(float(u_a @ u_b))) >= self.min_angle:
                 return first_order_covariance(u_a, u_b, ranges[0], ranges[1], self.bearing_noise_std)
         return result.covariance
 
