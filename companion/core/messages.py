@@ -86,6 +86,33 @@ class TargetEstimate:
 
 
 @dataclass(frozen=True)
+class NeighbourState:
+    """Another pursuer as cooperative guidance and estimation see it (issue 15).
+
+    ident: pursuer id >= 1. time: s, stamp of position/velocity. position: m, shape (3,),
+    NED. velocity: m/s, shape (3,), NED. Construction rejects a bad id, a non-finite time
+    and non-finite or wrongly shaped vectors with ValueError (vectors are stored as float
+    arrays), so one malformed neighbour report cannot reach the guidance as NaN.
+    """
+
+    ident: int
+    time: float
+    position: np.ndarray
+    velocity: np.ndarray
+
+    def __post_init__(self) -> None:
+        if isinstance(self.ident, bool) or not isinstance(self.ident, (int, np.integer)) or self.ident < 1:
+            raise ValueError(f"neighbour ident must be an integer >= 1, got {self.ident!r}")
+        if not math.isfinite(float(self.time)):
+            raise ValueError(f"neighbour time must be finite, got {self.time!r}")
+        for name in ("position", "velocity"):
+            vector = np.asarray(getattr(self, name), dtype=float)
+            if vector.shape != (3,) or not np.all(np.isfinite(vector)):
+                raise ValueError(f"neighbour {name} must be a finite vector of shape (3,), got {getattr(self, name)!r}")
+            object.__setattr__(self, name, vector)
+
+
+@dataclass(frozen=True)
 class AttitudeSetpoint:
     """What the companion sends the autopilot (maps to MAVLink SET_ATTITUDE_TARGET).
 
