@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from companion.core.attitude import VehicleLimits
-from interfaces.scenario import (ConfigError, EstimatorConfig, GuidanceConfig, Scenario, SensorConfig,
+from interfaces.scenario import (ConfigError, EstimatorConfig, GuidanceConfig, PursuerStart, Scenario, SensorConfig,
                                  VehicleConfig)
 from companion.core.bearing_sensor import BearingSensor, CameraModel, RangeDependentVariance
 from companion.core.baseline_estimators import AzElEKF, MSCEKF, RangeAzElEKF
@@ -25,7 +25,9 @@ from companion.core.guidance import (HelicalNavigationGuidance, LateralGuidance,
                                      RangeExcitation)
 from companion.core.health import HealthActionConfig, HealthActionPolicy, HealthConfig, HealthMonitor
 from companion.core.imm import IMMEstimator, standard_models
-from companion.core.pipeline import DropoutPolicy, FollowingPipeline
+from companion.core.cooperative_estimation import TriangulationKalmanEstimator
+from companion.core.cooperative_guidance import CircumnavigationGuidance, SeparationFilter, StandoffTrackingGuidance
+from companion.core.pipeline import Cooperation, DropoutPolicy, FollowingPipeline
 
 
 def _camera_sensor(config: SensorConfig) -> BearingSensor:
@@ -208,7 +210,7 @@ def vehicle_limits(vehicle: VehicleConfig, hover_thrust_normalized: float) -> Ve
 def build_pipeline(scenario: Scenario, vehicle: VehicleConfig, hover_thrust_normalized: float) -> FollowingPipeline:
     """The one pipeline object both harnesses drive."""
     return FollowingPipeline(
-        estimator=build_estimator(scenario),
+        estimator=build_swarm_estimator(scenario),
         lateral_guidance=build_lateral_guidance(scenario),
         range_controller=build_range_controller(scenario),
         limits=vehicle_limits(vehicle, hover_thrust_normalized),
@@ -220,7 +222,77 @@ def build_pipeline(scenario: Scenario, vehicle: VehicleConfig, hover_thrust_norm
         health=HealthMonitor(health_config(scenario)),
         actions=HealthActionPolicy(health_action_config(scenario)),
         action_excitation=build_action_excitation(scenario),
+        cooperation=build_cooperation(scenario),
     )
+
+
+def pursuer_scenario(scenario: Scenario, start: PursuerStart) -> Scenario:
+    """`scenario` as pursuer `start.ident` flies it: [pursuer] is its start and [estimator] initial_position
+    its own range guess's point ([swarm.pursuers]); unchanged for a scenario without [swarm]."""
+    if scenario.swarm is None:
+        return scenario
+    pursuer = scenario.pursuer.model_copy(update={"initial_position": tuple(start.initial_position),
+                                                  "initial_velocity": tuple(start.initial_velocity)})
+    update = {"pursuer": pursuer}
+    if start.estimator_initial_position is not None:
+        update["estimator"] = scenario.estimator.model_copy(
+            update={"initial_position": tuple(start.estimator_initial_position)})
+    return scenario.model_copy(update=update)
+
+
+#: Separation filter limits: within what the Table I airframe realises horizontally at its 35 degree tilt
+#: (g tan 35 deg = 6.9 m/s^2), braking at half of it.
+SEPARATION_MAX_ACCELERATION = 6.0
+SEPARATION_BRAKING = 3.0
+
+
+def build_cooperation(scenario: Scenario) -> Cooperation | None:
+    """[swarm]'s guidance as the pipeline's Cooperation: the cooperative law (None for 'hng'), the separation
+    filter, and HNG's weave switch (off while a neighbour's line of sight is weave_min_angle_deg from ours).
+    None without [swarm]."""
+    swarm = scenario.swarm
+    if swarm is None:
+        return None
+    g = scenario.guidance
+    law = None
+    if swarm.guidance == "circumnavigation":
+        c = swarm.circumnavigation
+        law = CircumnavigationGuidance(desired_radius=g.desired_range, g1=c.g1, g2=c.g2, g3=c.g3, alpha=c.alpha,
+                                       altitude_offset=c.altitude_offset, velocity_gain=c.velocity_gain,
+                                       max_acceleration=c.max_acceleration)
+    elif swarm.guidance == "standoff":
+        t = swarm.standoff
+        law = StandoffTrackingGuidance(standoff_radius=t.radius, min_turn_radius=t.inner_radius, speed=t.speed,
+                                       min_speed=t.min_speed, max_speed=t.max_speed, phase_gain=t.phase_gain,
+                                       standoff_height=t.height, max_vertical_speed=t.max_vertical_speed,
+                                       max_vertical_acceleration=t.max_vertical_acceleration,
+                                       velocity_gain=t.velocity_gain, max_acceleration=t.max_acceleration)
+    steady = PurePursuitGuidance(g.navigation_gain) if g.law == "hng" else None
+    separation = SeparationFilter(swarm.min_separation, max_acceleration=SEPARATION_MAX_ACCELERATION,
+                                  braking_acceleration=SEPARATION_BRAKING)
+    return Cooperation(law=law, separation=separation,
+                       weave_min_angle=None if steady is None else float(np.radians(swarm.weave_min_angle_deg)),
+                       steady_guidance=steady)
+
+
+def build_swarm_estimator(scenario: Scenario) -> TargetEstimator:
+    """[swarm] estimator: 'triangulation_kf' is seed 002's Kalman enhancement on triangulated bearing pairs
+    ([swarm.triangulation]: Q = process_noise I9 per step, R = measurement_noise I3); every other choice
+    flies the [estimator] section's filter (fed the neighbours' bearings or not: the harness decides)."""
+    swarm = scenario.swarm
+    if swarm is None or swarm.estimator in ("own", "fusion"):
+        return build_estimator(scenario)
+    if swarm.estimator == "shared_bearings":
+        # The u-PLKF and the IMM (whose model filters are u-PLKFs) take a neighbour's bearing as it is: the
+        # pseudo-linear measurement stacks naturally over sources. The baselines' EKF corrections do not.
+        if scenario.estimator.kind not in ("uplkf", "imm"):
+            raise ConfigError(f"[swarm] estimator = 'shared_bearings' needs [estimator] kind 'uplkf' or 'imm', "
+                              f"not {scenario.estimator.kind!r}")
+        return build_estimator(scenario)
+    t = swarm.triangulation
+    return TriangulationKalmanEstimator(1.0 / scenario.estimator.rate_hz, process_noise=t.process_noise,
+                                        measurement_noise=t.measurement_noise,
+                                        bearing_noise_std=max(scenario.sensor.noise_std, 1e-4))
 
 
 def health_config(scenario: Scenario) -> HealthConfig:

@@ -239,6 +239,9 @@ def _is_positive_semidefinite(covariance: np.ndarray) -> bool:
     return not np.linalg.eigvalsh(covariance)[0] < 0.0  # as the old test reads it: a NaN eigenvalue is not negative
 
 
+#: Neighbour position trackers kept by one u-PLKF (the oldest is dropped beyond it): more than any swarm flies.
+MAX_TRACKED_SOURCES = 64
+
 #: |bearing time - filter time| (s) below which a bearing counts as taken at the filter's time: the in-process
 #: simulator's bearings fall on estimator ticks to rounding, and take exactly the paper's H = [P_lambda, 0].
 _LEAD_EPSILON = 1e-9
@@ -717,9 +720,10 @@ class UPLKF:
         use_predicted = self.gain_projection is GainProjection.PREDICTED
         gain_relative, gain_range = relative, predicted_range
         if self._own_track is not None:
+            tracker = self._own_track if bearing.source == 0 else self._source_track(bearing.source)
             # Errors in variables: the gain's line of sight from an own position that does not
             # carry this sample's error (OwnPositionTracker), the residual from the sample itself.
-            reference = self._own_track.reference(bearing.time, bearing.pursuer_position)
+            reference = tracker.reference(bearing.time, bearing.pursuer_position)
             gain_relative = relative + (bearing.pursuer_position - reference)
             gain_range = math.sqrt(float(gain_relative @ gain_relative))
             if gain_range < 1e-6:
@@ -764,6 +768,16 @@ class UPLKF:
             self.adaptive_noise.update(bearing.time, float(innovation @ innovation_inverse @ innovation), 2)
         return CorrectionReport(innovation_angle, use_predicted, innovation=innovation,
                                 innovation_covariance=innovation_covariance, innovation_dof=2)
+
+    def _source_track(self, source: int) -> OwnPositionTracker:
+        """The position tracker of a neighbour's bearings (source != 0): each pursuer's reported positions are
+        their own series (one tracker fed several pursuers would predict none of them)."""
+        tracks = self.__dict__.setdefault("_neighbour_tracks", {})
+        if source not in tracks:
+            if len(tracks) >= MAX_TRACKED_SOURCES:
+                tracks.pop(next(iter(tracks)))
+            tracks[source] = OwnPositionTracker(self.pursuer_position_std)
+        return tracks[source]
 
     def _lead_noise(self, lead: float) -> np.ndarray:
         """Covariance of w_tau, the target position's departure from p_T + tau v_T over |tau| = |lead| s, m^2,

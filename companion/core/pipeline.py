@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from companion.core.attitude import VehicleLimits, attitude_setpoint
+from companion.core.cooperative_guidance import CooperativeContext, SeparationFilter, neighbours_make_range_observable
 from companion.core.estimators import CorrectionReport, InitialGuess, TargetEstimator
 from companion.core.geometry import relative_range_std, unit
 from companion.core.guidance import LateralGuidance, RangeController, RangeExcitation
@@ -143,6 +144,31 @@ class PipelineOutput:
     health_reinitialized: bool = False
 
 
+@dataclass(frozen=True)
+class Cooperation:
+    """What the pipeline does with its neighbours, other pursuers following the same target (issue 15).
+
+    law: a complete cooperative law (companion.core.cooperative_guidance: CircumnavigationGuidance, seed 002
+    eq. (10); StandoffTrackingGuidance, seed 004 TOGVF) flown while at least one neighbour is fresh; with
+    none, the single-pursuer laws (lateral guidance + range controller) take over again. None: every
+    pursuer flies the single-pursuer laws. separation: applied to every command (any mode, any law), so
+    pursuers keep min_separation apart (SeparationFilter's guarantee and its limits). weave_min_angle: rad;
+    while a fresh neighbour's line of sight to the estimated target is at least this far from ours (a
+    triangulation baseline: `neighbours_make_range_observable`), the lateral law flies without its weave
+    (`steady_guidance`, HNG with c_Z = c_Y = 0 = PPG, eq. (14)), and weaves again when none is.
+    None: always weave. steady_guidance: the lateral law without weave (required with weave_min_angle).
+    """
+
+    law: object | None = None
+    separation: SeparationFilter | None = None
+    weave_min_angle: float | None = None
+    steady_guidance: LateralGuidance | None = None
+
+    def __post_init__(self) -> None:
+        if self.weave_min_angle is not None and self.steady_guidance is None:
+            raise ValueError("weave_min_angle needs the steady (non-weaving) lateral law")
+
+
 class FollowingPipeline:
     """u-PLKF + lateral guidance + range controller + attitude mapping, stepped by the caller.
 
@@ -192,6 +218,7 @@ class FollowingPipeline:
         excitation: RangeExcitation | None = None,
         actions: HealthActionPolicy | None = None,
         action_excitation: RangeExcitation | None = None,
+        cooperation: Cooperation | None = None,
     ) -> None:
         if control_period <= 0.0:
             raise ValueError("control period must be positive")
@@ -233,6 +260,16 @@ class FollowingPipeline:
         self.health_action_changes: list[tuple[float, HealthAction]] = []
         self.health_reinitializations = 0
         self._process_noise_boost = 1.0
+        self.cooperation = cooperation
+        self._neighbours: tuple = ()
+        self.weaving = True
+        self.cooperating = False
+        self.law_changes: list[tuple[float, str]] = []
+
+    def set_neighbours(self, neighbours) -> None:
+        """The fresh neighbours (companion.core.messages.NeighbourState, the caller filters freshness) the next
+        setpoints are computed with; () when none is fresh (single-pursuer following)."""
+        self._neighbours = tuple(neighbours)
 
     @property
     def engaged_at(self) -> float | None:
@@ -429,6 +466,27 @@ class FollowingPipeline:
             self.estimator.predict()
             self._estimator_ticks += 1
 
+    def _choose_law(self, time: float, pursuer: PursuerState, target_position: np.ndarray) -> str:
+        """'cooperative', 'steady' (lateral law without weave) or 'single' (the configured laws); a change
+        is recorded in law_changes and blended like a change of mode (max_jerk for blend_time)."""
+        cooperation = self.cooperation
+        law = "single"
+        if cooperation is not None and self._neighbours:
+            if cooperation.law is not None:
+                law = "cooperative"
+            elif cooperation.weave_min_angle is not None and neighbours_make_range_observable(
+                    pursuer.position, target_position, [n.position for n in self._neighbours],
+                    cooperation.weave_min_angle):
+                law = "steady"
+        self.cooperating = law == "cooperative"
+        weaving = law == "single"
+        current = self.law_changes[-1][1] if self.law_changes else "single"
+        if law != current:
+            self.law_changes.append((time, law))
+            self._blend_until = time + self.dropout.blend_time
+        self.weaving = weaving
+        return law
+
     def _compute_setpoint(self, time: float, pursuer: PursuerState) -> None:
         assert self._engaged_at is not None
         estimate = self.estimator.estimate.extrapolated(time)
@@ -439,14 +497,21 @@ class FollowingPipeline:
             los = self._last_bearing
         else:
             los = relative_position / max(range_estimate, 1e-9)
+        law = self._choose_law(time, pursuer, estimate.position)
         if self.mode == TrackMode.DEGRADED:
             # Safe behaviour: no weave; hold safe_range on the predicted line of sight.
             lateral = np.zeros(3)
             longitudinal = self._safe_controller.acceleration(relative_position, relative_velocity, los, lateral)
+        elif law == "cooperative":
+            # A complete law on the estimate (seed 002 / seed 004): no range-controller term.
+            lateral = self.cooperation.law.acceleration(CooperativeContext(
+                time, pursuer.position, pursuer.velocity, estimate.position, estimate.velocity, self._neighbours))
+            longitudinal = np.zeros(3)
         else:
-            lateral = self.lateral_guidance.acceleration(time - self._engaged_at, pursuer.velocity, los, range_estimate,
-                                                         relative_velocity)
-            if getattr(self.lateral_guidance, "includes_range_control", False):
+            lateral_law = self.cooperation.steady_guidance if law == "steady" else self.lateral_guidance
+            lateral = lateral_law.acceleration(time - self._engaged_at, pursuer.velocity, los, range_estimate,
+                                               relative_velocity)
+            if getattr(lateral_law, "includes_range_control", False):
                 longitudinal = np.zeros(3)  # a complete law (PD controller): no range-controller term
             else:
                 if self.excitation is not None:
@@ -471,6 +536,9 @@ class FollowingPipeline:
             size = float(np.linalg.norm(change))
             if size > step_limit:
                 command = self._last_command + change * (step_limit / size)
+        if self.cooperation is not None and self.cooperation.separation is not None and self._neighbours:
+            # Last, so that no mode, law or blend can undo it.
+            command = self.cooperation.separation.filter(pursuer.position, pursuer.velocity, command, self._neighbours)
         self._last_command = command
         heading_fallback = None if self._setpoint is None else self._setpoint.rotation[:, 0]
         self._setpoint = attitude_setpoint(time, command, los, self.limits, heading_fallback)

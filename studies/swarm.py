@@ -1,0 +1,297 @@
+"""In-process simulator of several pursuers following one target (issue 15; seeds 002 and 004).
+
+Each pursuer is what the single-pursuer simulator flies (studies.closed_loop): its own Table I plant, its
+own bearing sensor and its own FollowingPipeline, built by the same assembly (companion.assembly). What is
+added is the share link between them, as the networked companions have it: every pursuer publishes a
+``bof.pursuer_share/1`` (interfaces.link_schema) at [swarm] share_rate_hz with its own measured state and its
+latest bearing (and its estimate); the share goes through the neighbour-link fault model
+(interfaces.neighbour_link: radius, loss, latency, blackouts) and is decoded by the receiver, which then
+
+* hands the neighbour's bearing to its estimator at the bearing's own stamp, from the neighbour's position
+  then (estimator 'shared_bearings' and 'triangulation_kf'; 'own' keeps to its own bearings);
+* knows the neighbour's state for the cooperative guidance and the separation filter for as long as it is
+  fresh ([swarm] neighbour_timeout_s); with no fresh neighbour it flies the single-pursuer laws.
+
+The loop is deterministic for a seed. Pursuer 1 draws exactly what the single-pursuer simulator draws for
+the same seed (plant, sensor and range streams), so one pursuer alone flies the single flight exactly;
+pursuer k > 1 has streams of its own.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from companion.assembly import build_pipeline, build_sensor, pursuer_scenario
+from companion.core.cooperative_guidance import phase_spacing_errors
+from companion.core.messages import BearingMeasurement, NeighbourState, PursuerState
+from companion.core.pipeline import FollowingPipeline
+from interfaces.link_schema import (MAX_EPOCH, PayloadError, PursuerShare, SharedBearing, SharedEstimate,
+                                    decode_pursuer_share, encode_pursuer_share)
+from interfaces.neighbour_link import NeighbourLink
+from interfaces.scenario import ConfigError, PursuerStart, Scenario, VehicleConfig, pursuer_starts, share_rate_hz
+from sitl_plant.vehicle.attitude_control import AttitudeThrustVehicle
+from sitl_plant.vehicle.params import quadrotor_params
+from sitl_plant.world.link_faults import injects_anything
+from sitl_plant.world.target import target_from_config
+from studies.closed_loop import (MAX_SPEED, FlightLog, Termination, _initial_state, _log_tick, _measure,
+                                 health_actions_summary)
+from studies.metrics import rms, summarize
+
+#: Streams of pursuer k > 1: SeedSequence(seed, spawn_key=(SWARM_SPAWN_KEY, k)).spawn(3) (plant, sensor, range).
+SWARM_SPAWN_KEY = 0x5357
+#: Streams of the publishers' epochs: SeedSequence(seed, spawn_key=(EPOCH_SPAWN_KEY, k)).
+EPOCH_SPAWN_KEY = 0xE90D
+
+
+@dataclass
+class _Pursuer:
+    """One pursuer of the swarm and what it knows of the others."""
+
+    ident: int
+    scenario: Scenario
+    plant: AttitudeThrustVehicle
+    pipeline: FollowingPipeline
+    sensor: object
+    sensor_rng: np.random.Generator
+    range_rng: np.random.Generator
+    epoch: int
+    log: FlightLog
+    seq: int = 0
+    latest_bearing: BearingMeasurement | None = None
+    shared_bearing_time: float = -math.inf
+    neighbours: dict[int, NeighbourState] = field(default_factory=dict)
+    inbox: list[BearingMeasurement] = field(default_factory=list)
+    first_bearing: float | None = None
+    termination: Termination = Termination.COMPLETED
+    bearings_used: int = 0
+    neighbour_bearings_used: int = 0
+    shares_rejected: dict[str, int] = field(default_factory=dict)
+    last_seq: dict[int, tuple[int, int]] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class SwarmResult:
+    """A finished swarm flight: series per pursuer (id -> studies.closed_loop.FlightLog series), the summary
+    (pursuer 1's single-pursuer keys, plus `pursuers`, `phase_spacing_error_deg_rms`, `min_pursuer_separation`
+    and the share link's figures) and the worst termination of any pursuer."""
+
+    scenario: Scenario
+    series: dict[int, dict[str, np.ndarray]]
+    summary: dict
+    termination: Termination
+
+
+def _streams(seed: int, ident: int) -> list[np.random.Generator]:
+    sequence = np.random.SeedSequence(seed) if ident == 1 else np.random.SeedSequence(seed, spawn_key=(SWARM_SPAWN_KEY, ident))
+    return [np.random.default_rng(s) for s in sequence.spawn(3)]
+
+
+def _pursuer(scenario: Scenario, vehicle: VehicleConfig, start: PursuerStart, seed: int, rows: int) -> _Pursuer:
+    own = pursuer_scenario(scenario, start)
+    params = quadrotor_params(vehicle)
+    plant_rng, sensor_rng, range_rng = _streams(seed, start.ident)
+    plant = AttitudeThrustVehicle(params, _initial_state(own, params), scenario.simulation.physics_rate_hz, plant_rng)
+    epoch = int(np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(EPOCH_SPAWN_KEY, start.ident))).integers(
+        0, MAX_EPOCH, endpoint=True))
+    return _Pursuer(start.ident, own, plant, build_pipeline(own, vehicle, params.hover_thrust_normalized),
+                    build_sensor(scenario.sensor), sensor_rng, range_rng, epoch, FlightLog(rows))
+
+
+def _share(pursuer: _Pursuer, time: float, position: np.ndarray, velocity: np.ndarray) -> bytes:
+    """Pursuer's bof.pursuer_share/1 at `time`: its measured state, its newest bearing if not shared yet,
+    its estimate."""
+    bearing = None
+    latest = pursuer.latest_bearing
+    if latest is not None and latest.time > pursuer.shared_bearing_time:
+        bearing = SharedBearing(latest.time, tuple(latest.direction), tuple(latest.pursuer_position))
+        pursuer.shared_bearing_time = latest.time
+    estimate = None
+    if pursuer.pipeline.engaged_at is not None:
+        current = pursuer.pipeline.estimator.estimate
+        estimate = SharedEstimate(current.time, tuple(current.position), tuple(current.velocity), current.covariance)
+    share = PursuerShare(pursuer.ident, pursuer.seq, time, pursuer.epoch, tuple(position), tuple(velocity), bearing, estimate)
+    pursuer.seq += 1
+    return encode_pursuer_share(share)
+
+
+def _receive(receiver: _Pursuer, payload: bytes, uses_bearings: bool) -> None:
+    """Decode one share and keep what it says: the neighbour's state, and its bearing for the estimator.
+    A share that does not decode, or that is older than one already heard from its sender and epoch,
+    is counted and dropped."""
+    try:
+        share = decode_pursuer_share(payload)
+    except PayloadError as error:
+        receiver.shares_rejected[error.reason] = receiver.shares_rejected.get(error.reason, 0) + 1
+        return
+    if share.sender == receiver.ident:
+        receiver.shares_rejected["own_sender"] = receiver.shares_rejected.get("own_sender", 0) + 1
+        return
+    previous = receiver.last_seq.get(share.sender)
+    if previous is not None and previous[0] == share.epoch and share.seq <= previous[1]:
+        receiver.shares_rejected["stale_seq"] = receiver.shares_rejected.get("stale_seq", 0) + 1
+        return
+    receiver.last_seq[share.sender] = (share.epoch, share.seq)
+    receiver.neighbours[share.sender] = NeighbourState(share.sender, share.stamp, np.array(share.position),
+                                                       np.array(share.velocity))
+    if uses_bearings and share.bearing is not None:
+        receiver.inbox.append(BearingMeasurement(share.bearing.stamp, np.array(share.bearing.direction),
+                                                 np.array(share.bearing.position), source=share.sender))
+
+
+def simulate_swarm(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None) -> SwarmResult:
+    """Fly every pursuer of `scenario` ([swarm]; one pursuer without it) in process. seed overrides
+    scenario.simulation.seed."""
+    seed = scenario.simulation.seed if seed is None else seed
+    if injects_anything(scenario.faults):
+        raise ConfigError("[faults] on the target link is not simulated with several pursuers yet: fly it with bof-sitl")
+    swarm = scenario.swarm
+    if swarm is not None and swarm.estimator == "fusion":
+        raise ConfigError("[swarm] estimator = 'fusion' is not flown yet (the fusion functions exist in "
+                          "companion.core.cooperative_estimation; the pipeline does not absorb shared estimates)")
+    physics_hz = scenario.simulation.physics_rate_hz
+    every = {
+        "estimator": round(physics_hz / scenario.estimator.rate_hz),
+        "control": round(physics_hz / scenario.guidance.rate_hz),
+        "sensor": round(physics_hz / scenario.sensor.rate_hz),
+        "share": round(physics_hz / share_rate_hz(scenario)),
+    }
+    dt = 1.0 / physics_hz
+    total_steps = round(scenario.simulation.duration * physics_hz)
+    event_steps = sorted({step for period in every.values() for step in range(0, total_steps + 1, period)})
+    starts = pursuer_starts(scenario)
+    pursuers = [_pursuer(scenario, vehicle, start, seed, len(event_steps)) for start in starts]
+    target = target_from_config(scenario.target, seed)
+    link = None if swarm is None else NeighbourLink(swarm.link, swarm.count, seed if swarm.link.seed is None else swarm.link.seed)
+    timeout = math.inf if swarm is None else swarm.neighbour_timeout_s
+    uses_bearings = swarm is not None and swarm.estimator in ("shared_bearings", "triangulation_kf")
+    in_flight: list[tuple[float, int, int, bytes]] = []  # (delivery time, order, receiver id, payload)
+    order = 0
+    separation = math.inf
+    separations = []
+    phase_errors = []
+
+    for index, step in enumerate(event_steps):
+        time = step * dt
+        states = {p.ident: (p.plant.state, *p.plant.measured_state()) for p in pursuers}
+        for p in pursuers:
+            truth = states[p.ident][0]
+            if step % every["sensor"] == 0:
+                bearing = _measure(p.sensor, time, target.position - truth.position, truth.rotation,
+                                   states[p.ident][1], p.sensor_rng, p.range_rng)
+                if bearing is not None:
+                    p.inbox.append(bearing)
+                    p.latest_bearing = bearing
+                    if p.first_bearing is None:
+                        p.first_bearing = time
+        if link is not None and step % every["share"] == 0:
+            for sender in pursuers:
+                payload = _share(sender, time, states[sender.ident][1], states[sender.ident][2])
+                for receiver in pursuers:
+                    if receiver is sender:
+                        continue
+                    delivery = link.transmit(time, sender.ident, receiver.ident, states[sender.ident][1],
+                                             states[receiver.ident][1])
+                    if delivery.delivered:
+                        heapq.heappush(in_flight, (delivery.time, order, receiver.ident, payload))
+                        order += 1
+        while in_flight and in_flight[0][0] <= time + 1e-9:
+            _, _, receiver_id, payload = heapq.heappop(in_flight)
+            _receive(pursuers[receiver_id - 1], payload, uses_bearings)
+
+        for p in pursuers:
+            truth, measured_position, measured_velocity = states[p.ident]
+            own = PursuerState(time, measured_position, measured_velocity)
+            fresh = tuple(n for n in p.neighbours.values() if time - n.time <= timeout)
+            p.pipeline.set_neighbours(fresh)
+            bearings = sorted(p.inbox, key=lambda b: b.time)
+            p.inbox.clear()
+            output = None
+            for bearing in bearings or [None]:
+                output = p.pipeline.step(time, own, bearing)
+            p.bearings_used += sum(1 for b in bearings if b.source == 0)
+            p.neighbour_bearings_used += sum(1 for b in bearings if b.source != 0)
+            if output.new_setpoint and output.setpoint is not None:
+                p.plant.set_attitude_target(output.setpoint.rotation,
+                                            output.setpoint.thrust_normalized * p.plant.params.max_total_thrust)
+            estimate = output.estimate
+            if estimate is not None and not math.isfinite(float(estimate.position.sum() + estimate.velocity.sum())):
+                p.termination = Termination.ESTIMATE_NOT_FINITE
+            if truth.rotation[2, 2] < 0.0 or float(truth.velocity @ truth.velocity) > MAX_SPEED**2:
+                p.termination = Termination.OUT_OF_CONTROL
+            _log_tick(p.log, time, truth, target, output, p.pipeline.estimator)
+
+        positions = np.array([states[p.ident][0].position for p in pursuers])
+        if len(pursuers) > 1:
+            gaps = np.linalg.norm(positions[:, None, :] - positions[None, :, :], axis=2)
+            closest = float(np.min(gaps[np.triu_indices(len(pursuers), 1)]))
+            separation = min(separation, closest)
+            separations.append(closest)
+            phases = np.arctan2(positions[:, 1] - target.position[1], positions[:, 0] - target.position[0])
+            phase_errors.append((time, phase_spacing_errors(phases)))
+        if any(p.termination is not Termination.COMPLETED for p in pursuers) or index + 1 == len(event_steps):
+            break
+        gap = event_steps[index + 1] - step
+        target.step(gap * dt)
+        for p in pursuers:
+            p.plant.advance(gap * dt)
+
+    return _result(scenario, pursuers, link, seed, separation, phase_errors)
+
+
+def _all_bearings_time(pursuers: list[_Pursuer]) -> float | None:
+    firsts = [p.first_bearing for p in pursuers]
+    return None if any(t is None for t in firsts) else max(firsts)
+
+
+def _settled_under(time: np.ndarray, error: np.ndarray, bound: float, after: float) -> float | None:
+    """Seconds after `after` from which |error| stays under `bound` to the end (None: never)."""
+    above = np.flatnonzero((time >= after) & ~(np.abs(error) < bound))
+    if len(above) == 0:
+        return 0.0
+    last = above[-1]
+    return None if last + 1 >= len(time) else float(time[last + 1] - after)
+
+
+def _result(scenario: Scenario, pursuers: list[_Pursuer], link: NeighbourLink | None, seed: int, separation: float,
+            phase_errors: list[tuple[float, np.ndarray]]) -> SwarmResult:
+    all_bearings = _all_bearings_time(pursuers)
+    series = {}
+    entries = []
+    for p in pursuers:
+        data = p.log.series()
+        series[p.ident] = data
+        summary = summarize(data, p.scenario, p.termination)
+        summary["pursuer"] = p.ident
+        summary["bearings_used"] = p.bearings_used
+        summary["neighbour_bearings_used"] = p.neighbour_bearings_used
+        summary["shares_rejected"] = dict(p.shares_rejected)
+        summary["first_bearing_time"] = p.first_bearing
+        estimation_error = data["range_estimate"] - data["range"]
+        summary["range_estimation_settled_1m_after_all_bearings"] = (
+            None if all_bearings is None else _settled_under(data["time"], estimation_error, 1.0, all_bearings))
+        summary["track_mode_changes"] = [(round(t, 3), mode.value) for t, mode in p.pipeline.mode_changes]
+        summary["law_changes"] = [(round(t, 3), law) for t, law in p.pipeline.law_changes]
+        summary["reinitializations"] = p.pipeline.reinitializations
+        summary["health_actions"] = health_actions_summary(p.pipeline)
+        summary["seed"] = seed
+        entries.append(summary)
+    top = dict(entries[0])
+    top["pursuers"] = entries
+    window_start = entries[0]["duration"] - scenario.simulation.summary_window
+    recent = [errors for time, errors in phase_errors if time >= window_start]
+    top["phase_spacing_error_deg_rms"] = (float(np.degrees(rms(np.concatenate(recent)))) if recent else None)
+    top["min_pursuer_separation"] = separation if math.isfinite(separation) else None
+    top["min_separation"] = None if scenario.swarm is None else scenario.swarm.min_separation
+    top["all_pursuers_had_a_bearing_at"] = all_bearings
+    if link is not None:
+        top["share_link"] = {key: int(value) for key, value in link.counters.items()}
+    worst = next((p.termination for p in pursuers if p.termination is not Termination.COMPLETED), Termination.COMPLETED)
+    # The flight is as good as its worst pursuer: the first one that did not complete names the termination.
+    failed = next((e for e in entries if e["termination"] != "completed"), None)
+    if failed is not None:
+        top["termination"], top["termination_reason"] = failed["termination"], f"pursuer {failed['pursuer']}: {failed['termination_reason']}"
+    return SwarmResult(scenario, series, top, worst)
