@@ -339,7 +339,8 @@ class StandoffTrackingGuidance:
       on the pursuer's own radial line, approached along its CCW tangent (eq. (26) applied to that
       circle); otherwise the inner circle through the pursuer whose CCW arc leads outwards (its centre
       ahead in phase), flown along. Either way the path is tangent line -> inner arc -> standoff circle,
-      with turn radius >= r_min and a horizontal distance to the target that does not decrease.
+      turning on arcs of radius r_min, with a horizontal distance to the target that does not decrease
+      (the direction field is continuous except at r = 0 and at the edges of the on-circle band).
     - on the circle (|r - R| <= band; the seed gives no law): tangential at the orbit speed with a
       radial correction, v_r = -k_r (r - R) (clipped to the speed), v_t = sqrt(v^2 - v_r^2), so the
       horizontal relative speed stays v.
