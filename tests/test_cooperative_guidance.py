@@ -28,7 +28,8 @@ from companion.core.cooperative_guidance import (
 )
 from companion.core.messages import NeighbourState
 
-SEED002 = dict(desired_radius=5.0, g1=1.2, g2=1.0, g3=0.4, alpha=1.0)
+# The seed's kinematic law as published: no turn-rate cap (our addition for bounded acceleration).
+SEED002 = dict(desired_radius=5.0, g1=1.2, g2=1.0, g3=0.4, alpha=1.0, max_turn_acceleration=math.inf)
 # Seed 002's five initial positions lost their signs in the text; these are spread in all four quadrants.
 SEED002_STARTS = np.array([[3.0, 8.0], [-6.0, 4.0], [-7.0, -5.0], [2.0, -9.0], [9.0, -1.0]])  # (north, east)
 
@@ -225,7 +226,7 @@ def test_euler_steps_leave_the_closed_form_radius_offset():
 
 def test_lone_pursuer_orbit_period():
     """No neighbour: Delta = 0, angular rate g2 alpha on the orbit; one turn takes 2 pi / (g2 alpha)."""
-    law = CircumnavigationGuidance(desired_radius=5.0, g1=1.2, g2=0.5, g3=0.4, alpha=1.0)
+    law = CircumnavigationGuidance(desired_radius=5.0, g1=1.2, g2=0.5, g3=0.4, alpha=1.0, max_turn_acceleration=math.inf)
     rhs = lambda t, p: law.desired_velocity(CooperativeContext(t, p, np.zeros(3), np.zeros(3), np.zeros(3)))
     period = 2.0 * math.pi / 0.5
     solution = solve_ivp(rhs, (0.0, period), [0.0, 5.0, 0.0], rtol=1e-10, atol=1e-10)
@@ -277,6 +278,57 @@ def test_acceleration_law_on_double_integrators_reaches_the_seed002_orbit(moving
     assert radius < 0.02
     assert height < 1e-3
     assert np.degrees(spacing) < 0.1
+
+
+def _issue_case(law, guard, duration=60.0, dt=0.01):
+    """Three pursuers taking off 5-7 m apart, target 56 m away and 20 m up flying 5 m/s (the constant-velocity
+    scenario's target), perfect estimate; double integrators. Returns (spacing RMS deg over the last 20 s,
+    radius RMS m over the last 20 s, minimum pursuer separation m, minimum range to the target m)."""
+    positions = np.array([[0.0, 0.0, 0.0], [5.0, -3.0, 0.0], [-4.0, 6.0, 0.0]])
+    velocities = np.zeros((3, 3))
+    spacing, radius, separation, closest = [], [], math.inf, math.inf
+    for step in range(int(round(duration / dt))):
+        t = step * dt
+        target = np.array([50.0, -25.0, -20.0]) + np.array([3.0, 4.0, 0.0]) * t
+        commands = []
+        for i in range(3):
+            neighbours = neighbours_of(i, positions, velocities, t)
+            command = law.acceleration(CooperativeContext(t, positions[i], velocities[i], target,
+                                                          np.array([3.0, 4.0, 0.0]), neighbours))
+            commands.append(command if guard is None else guard.filter(positions[i], velocities[i], command, neighbours))
+        commands = np.array(commands)
+        assert np.all(np.linalg.norm(commands, axis=1) <= 6.0 + 1e-9)
+        positions = positions + velocities * dt + 0.5 * commands * dt * dt
+        velocities = velocities + commands * dt
+        target = np.array([50.0, -25.0, -20.0]) + np.array([3.0, 4.0, 0.0]) * (t + dt)
+        separation = min([separation] + [float(np.linalg.norm(positions[i] - positions[j]))
+                                         for i in range(3) for j in range(i)])
+        closest = min([closest] + [float(np.linalg.norm(p - target)) for p in positions])
+        if t + dt > duration - 20.0:
+            spacing.append(phase_spacing_errors([phase(p, target) for p in positions]))
+            radius.extend(horizontal_radius(p, target) - law.desired_radius for p in positions)
+    return (float(np.degrees(np.sqrt(np.mean(np.square(spacing))))), float(np.sqrt(np.mean(np.square(radius)))),
+            separation, closest)
+
+
+def test_default_circumnavigation_fits_a_6_ms2_multirotor():
+    """Issue 15 goal geometry with the defaults (D* = 8 m, 6 m/s^2): spacing RMS < 5 deg, radius converged,
+    separation kept by the filter, never closer than r_d / 2 to the target. With g2 = 0.5 the orbit needs
+    6.75 m/s^2: without the turn cap a pursuer saturates and circles outside the orbit; with it the radius
+    converges (the spacing then cannot, as the docstring says: the cap binds on the orbit)."""
+    guard = SeparationFilter(min_separation=3.0, braking_acceleration=3.0, max_acceleration=6.0, horizon=0.05)
+    spacing, radius, separation, closest = _issue_case(CircumnavigationGuidance(), guard)
+    uncapped = _issue_case(CircumnavigationGuidance(g2=0.5, max_turn_acceleration=math.inf), None)
+    capped = _issue_case(CircumnavigationGuidance(g2=0.5), None)
+    print(f"defaults, 3 pursuers, 6 m/s^2: spacing RMS {spacing:.3f} deg, radius RMS {radius:.3f} m, "
+          f"min separation {separation:.2f} m, min range {closest:.2f} m; g2 = 0.5 without the turn cap: spacing "
+          f"RMS {uncapped[0]:.1f} deg, radius RMS {uncapped[1]:.2f} m; with it: {capped[0]:.1f} deg, {capped[1]:.3f} m")
+    assert spacing < 5.0
+    assert radius < 0.1
+    assert separation >= 3.0
+    assert closest > 4.0
+    assert uncapped[1] > 1.0
+    assert capped[1] < 0.1
 
 
 # ---------------------------------------------------------------------------------------------- seed 004

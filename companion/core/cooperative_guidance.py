@@ -225,27 +225,44 @@ class CircumnavigationGuidance:
     eq. (33) (the Kalman-enhanced law), with the pipeline's target estimate in place of the seed's
     estimator. The acceleration is the velocity-tracking law of the module docstring.
 
-    Parameters: desired_radius D* m; g1 1/s; g2 1/s; g3 1/rad; alpha rad (dimensionless gain, seed 002
-    gives D* = 5, g1 = 1.2, g2 = 1, g3 = 0.4, alpha = 1, the defaults); altitude_offset m;
+    Parameters: desired_radius D* m; g1 1/s; g2 1/s; g3 1/rad; alpha (dimensionless). Seed 002 uses
+    D* = 5, g1 = 1.2, g2 = 1, g3 = 0.4, alpha = 1: an orbit at 7.5 m/s on 5 m (11 m/s^2 centripetal
+    for 5 pursuers), beyond our multirotor's ~6.9 m/s^2 (35 deg tilt). The defaults fit it: D* = 8 m
+    (the paper's r_d), g1 = 0.5, g2 = 0.3, g3 = 0.4, alpha = 1, max_acceleration 6 m/s^2: 4.4 m/s and
+    2.4 m/s^2 on the orbit for 3 pursuers, 3.6 m/s and 1.6 m/s^2 for 5. altitude_offset m;
     vertical_gain k_z 1/s; velocity_gain k_v 1/s; max_acceleration m/s^2; max_relative_speed: cap on
-    |u - v^_T|, m/s (inf = none, as in the seed); feedforward_horizon tau, s (0 disables du/dt).
+    |u - v^_T|, m/s (inf = none, as in the seed); feedforward_horizon tau, s (0 disables du/dt);
+    max_turn_acceleration a_turn, m/s^2 (default max_acceleration / 2; inf = the seed's law unchanged):
+    the tangential speed is capped at sqrt(a_turn D), our addition for vehicles with bounded
+    acceleration. Without it a pursuer with a large gap ahead asks for an orbit speed it cannot turn
+    with, saturates, and can circle outside the orbit indefinitely (seen with 3 pursuers, D* = 8 m,
+    g2 = 0.5, 6 m/s^2). The cap keeps the speed monotone in Delta, so the spacing still converges, more slowly
+    while it binds, PROVIDED it does not bind on the converged orbit: choose
+    (g2 D* (alpha + g3 2 pi / N))^2 / D* < a_turn (if it binds there, every pursuer flies at the cap
+    whatever its gap and the spacing stops converging).
     """
 
     includes_range_control: ClassVar[bool] = True
 
-    desired_radius: float = 5.0
-    g1: float = 1.2
-    g2: float = 1.0
+    desired_radius: float = 8.0
+    g1: float = 0.5
+    g2: float = 0.3
     g3: float = 0.4
     alpha: float = 1.0
     altitude_offset: float = 0.0
     vertical_gain: float = 1.0
     velocity_gain: float = 2.0
-    max_acceleration: float = 15.0
+    max_acceleration: float = 6.0
     max_relative_speed: float = math.inf
     feedforward_horizon: float = 0.05
+    max_turn_acceleration: float | None = None
+    _turn_acceleration: float = field(init=False, repr=False, default=0.0)
 
     def __post_init__(self) -> None:
+        turn = 0.5 * self.max_acceleration if self.max_turn_acceleration is None else float(self.max_turn_acceleration)
+        if not turn > 0.0:
+            raise ValueError("max_turn_acceleration must be > 0")
+        object.__setattr__(self, "_turn_acceleration", turn)
         _check_positive(desired_radius=self.desired_radius, g1=self.g1, g2=self.g2, alpha=self.alpha,
                         vertical_gain=self.vertical_gain, velocity_gain=self.velocity_gain,
                         max_acceleration=self.max_acceleration)
@@ -274,8 +291,11 @@ class CircumnavigationGuidance:
         phi = offset / distance if distance > _EPS else np.array([-1.0, 0.0])
         phi_bar = -_rot90(phi)  # phi rotated by pi/2 clockwise seen from above
         delta = self.spacing_angle(context)
-        horizontal = (self.g1 * (distance - self.desired_radius) * phi
-                      + self.g2 * self.desired_radius * (self.alpha + self.g3 * delta) * phi_bar)
+        tangential = self.g2 * self.desired_radius * (self.alpha + self.g3 * delta)
+        # Not in the seed (a kinematic law): cap the orbit speed where its centripetal acceleration v^2 / D
+        # would exceed the turn budget, so a vehicle with bounded acceleration can still follow the field.
+        tangential = min(tangential, math.sqrt(self._turn_acceleration * max(distance, _EPS)))
+        horizontal = self.g1 * (distance - self.desired_radius) * phi + tangential * phi_bar
         desired_down = context.target_position[2] - self.altitude_offset
         relative = _ned(horizontal, self.vertical_gain * (desired_down - context.own_position[2]))
         return context.target_velocity + _saturate(relative, self.max_relative_speed)
@@ -319,7 +339,8 @@ class StandoffTrackingGuidance:
       on the pursuer's own radial line, approached along its CCW tangent (eq. (26) applied to that
       circle); otherwise the inner circle through the pursuer whose CCW arc leads outwards (its centre
       ahead in phase), flown along. Either way the path is tangent line -> inner arc -> standoff circle,
-      with turn radius >= r_min and a horizontal distance to the target that does not decrease.
+      turning on arcs of radius r_min, with a horizontal distance to the target that does not decrease
+      (the direction field is continuous except at r = 0 and at the edges of the on-circle band).
     - on the circle (|r - R| <= band; the seed gives no law): tangential at the orbit speed with a
       radial correction, v_r = -k_r (r - R) (clipped to the speed), v_t = sqrt(v^2 - v_r^2), so the
       horizontal relative speed stays v.
@@ -363,7 +384,7 @@ class StandoffTrackingGuidance:
     radial_gain: float = 1.0
     alpha_min: float = 0.1
     velocity_gain: float = 2.0
-    max_acceleration: float = 8.0
+    max_acceleration: float = 6.0
     feedforward_horizon: float = 0.05
 
     def __post_init__(self) -> None:
@@ -514,7 +535,7 @@ class SeparationFilter:
     influence_distance: float | None = None  # default 2 min_separation
     repulsion_gain: float = 1.0
     braking_acceleration: float = 3.0
-    max_acceleration: float = 8.0
+    max_acceleration: float = 6.0
     horizon: float = 0.1
     passes: int = 3
     reciprocal: bool = True
