@@ -127,3 +127,42 @@ def plot_observability_comparison(flights: dict[str, dict[str, np.ndarray]], pat
     figure.tight_layout()
     figure.savefig(path, dpi=120)
     plt.close(figure)
+
+
+def plot_swarm_tracks(series: dict[int, dict[str, np.ndarray]], path: Path, title: str) -> None:
+    """Several pursuers around one target: the target (red), each pursuer's track and its estimate of the
+    target (dashed, same colour), in 3-D (north, east, up) and from above; stars at the start."""
+    figure = plt.figure(figsize=(13.0, 6.0))
+    axes3d = figure.add_subplot(1, 2, 1, projection="3d")
+    above = figure.add_subplot(1, 2, 2)
+    first = next(iter(series.values()))
+    points = [np.column_stack(_north_east_up(first["target_position"]))]
+    north, east, up = _north_east_up(first["target_position"])
+    axes3d.plot(north, east, up, "r-", label="target")
+    above.plot(east, north, "r-", label="target")
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for index, (ident, data) in enumerate(sorted(series.items())):
+        colour = colours[index % len(colours)]
+        north, east, up = _north_east_up(data["pursuer_position"])
+        points.append(np.column_stack((north, east, up)))
+        axes3d.plot(north, east, up, "-", color=colour, lw=1.0, label=f"pursuer {ident}")
+        axes3d.scatter([north[0]], [east[0]], [up[0]], marker="*", color=colour, s=60)
+        above.plot(east, north, "-", color=colour, lw=1.0, label=f"pursuer {ident}")
+        above.plot([east[0]], [north[0]], "*", color=colour, ms=10)
+        estimate = data["estimate_position"]
+        if np.isfinite(estimate).any():
+            e_north, e_east, _ = _north_east_up(estimate)
+            above.plot(e_east, e_north, "--", color=colour, lw=0.7, label=f"estimate {ident}")
+    set_metric_aspect(axes3d, np.vstack(points))
+    axes3d.set_xlabel("north [m]")
+    axes3d.set_ylabel("east [m]")
+    axes3d.legend(loc="upper left", fontsize=7)
+    above.set_xlabel("east [m]")
+    above.set_ylabel("north [m]")
+    above.set_aspect("equal", adjustable="datalim")
+    above.legend(loc="best", fontsize=7)
+    above.set_title("from above")
+    figure.suptitle(title)
+    figure.tight_layout()
+    figure.savefig(path, dpi=120)
+    plt.close(figure)

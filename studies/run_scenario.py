@@ -21,7 +21,8 @@ from interfaces.cli import scenario_file, seed_argument
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, load_scenario
 from studies.closed_loop import SimulationResult, simulate
 from studies.metrics import convergence_text, suspect_warning, write_summary
-from studies.plots import plot_errors, plot_trajectories
+from studies.plots import plot_errors, plot_swarm_tracks, plot_trajectories
+from studies.swarm import SwarmResult, simulate_swarm
 
 DEFAULT_SCENARIO = DEFAULT_SCENARIO
 
@@ -80,6 +81,51 @@ def format_summary(summary: dict) -> str:
     return "\n".join(lines)
 
 
+def write_swarm_folder(result: SwarmResult, folder: Path, plots: bool = True) -> None:
+    """summary.json, series.npz (every FlightLog column of pursuer k as p<k>_<column>) and, with plots, the
+    tracks of every pursuer (tracks.png) and pursuer 1's error curves (errors.png)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(folder / "series.npz", **{f"p{ident}_{key}": values for ident, data in result.series.items()
+                                                   for key, values in data.items()})
+    write_summary(folder / "summary.json", result.summary)
+    if plots:
+        title = f"{result.scenario.name} (seed {result.summary['seed']}, {len(result.series)} pursuers)"
+        plot_swarm_tracks(result.series, folder / "tracks.png", title)
+        plot_errors(result.series[1], result.scenario.guidance.desired_range, folder / "errors.png", f"{title}: pursuer 1")
+
+
+def format_swarm_summary(summary: dict) -> str:
+    """The flight's lines, then one line per pursuer."""
+    lines = [format_summary(summary).replace("  over the last", "  pursuer 1, over the last", 1)]
+    spacing = summary["phase_spacing_error_deg_rms"]
+    separation = summary["min_pursuer_separation"]
+    lines.append(f"  {len(summary['pursuers'])} pursuers: phase spacing error rms "
+                 f"{'n/a' if spacing is None else f'{spacing:.2f} deg'} over the last {summary['summary_window']:.0f} s, "
+                 f"closest pursuers {'n/a' if separation is None else f'{separation:.2f} m'} "
+                 f"(limit {summary['min_separation']} m)")
+    for entry in summary["pursuers"]:
+        lines.append(f"    pursuer {entry['pursuer']}: {entry['termination']}, range-estimation rms "
+                     f"{entry['range_estimation_error_rms']:.3f} m, range error rms {entry['range_error_rms']:.3f} m, "
+                     f"min range {entry['min_range']:.2f} m, neighbour bearings used {entry['neighbour_bearings_used']}")
+    return "\n".join(lines)
+
+
+def _fly_swarm(scenario: Scenario, vehicle, args) -> int:
+    started = time.perf_counter()
+    try:
+        result = simulate_swarm(scenario, vehicle, seed=args.seed)
+    except ConfigError as error:
+        print(f"bof-sim: {error}", file=sys.stderr)
+        return 2
+    elapsed = time.perf_counter() - started
+    folder = Path(args.out) / f"{scenario.name}-seed{result.summary['seed']}-{time.strftime('%Y%m%d-%H%M%S')}"
+    write_swarm_folder(result, folder, plots=not args.no_plots)
+    print(format_swarm_summary(result.summary))
+    print(f"  simulated {result.summary['duration']:.0f} s of {len(result.series)} pursuers in {elapsed:.2f} s")
+    print(f"run folder: {folder}")
+    return 0 if result.termination.name in ("COMPLETED", "INTERRUPTED") else 1
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="bof-sim", description="Fly a bearing-only following scenario in the in-process simulator.")
     parser.add_argument("scenario", nargs="?", type=scenario_file, default=DEFAULT_SCENARIO,
@@ -98,6 +144,8 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as error:
         print(f"bof-sim: {error}", file=sys.stderr)
         return 2
+    if scenario.swarm is not None:
+        return _fly_swarm(scenario, vehicle, args)
     started = time.perf_counter()
     result = simulate(scenario, vehicle, seed=args.seed)
     elapsed = time.perf_counter() - started

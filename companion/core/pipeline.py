@@ -31,6 +31,7 @@ from companion.core.health import (
 from companion.core.messages import (
     AttitudeSetpoint,
     BearingMeasurement,
+    NeighbourState,
     PursuerState,
     TargetEstimate,
 )
@@ -268,8 +269,15 @@ class FollowingPipeline:
 
     def set_neighbours(self, neighbours) -> None:
         """The fresh neighbours (companion.core.messages.NeighbourState, the caller filters freshness) the next
-        setpoints are computed with; () when none is fresh (single-pursuer following)."""
+        setpoints are computed with; () when none is fresh (single-pursuer following). Each is carried to the
+        control time at its own velocity before the laws and the separation filter see it."""
         self._neighbours = tuple(neighbours)
+
+    def _neighbours_at(self, time: float) -> tuple:
+        """The neighbours extrapolated to `time` (s) at constant velocity (their shares are late by the link's
+        delay and up to a share period)."""
+        return tuple(NeighbourState(n.ident, time, n.position + (time - n.time) * n.velocity, n.velocity)
+                     for n in self._neighbours)
 
     @property
     def engaged_at(self) -> float | None:
@@ -466,16 +474,16 @@ class FollowingPipeline:
             self.estimator.predict()
             self._estimator_ticks += 1
 
-    def _choose_law(self, time: float, pursuer: PursuerState, target_position: np.ndarray) -> str:
+    def _choose_law(self, time: float, pursuer: PursuerState, target_position: np.ndarray, neighbours: tuple) -> str:
         """'cooperative', 'steady' (lateral law without weave) or 'single' (the configured laws); a change
         is recorded in law_changes and blended like a change of mode (max_jerk for blend_time)."""
         cooperation = self.cooperation
         law = "single"
-        if cooperation is not None and self._neighbours:
+        if cooperation is not None and neighbours:
             if cooperation.law is not None:
                 law = "cooperative"
             elif cooperation.weave_min_angle is not None and neighbours_make_range_observable(
-                    pursuer.position, target_position, [n.position for n in self._neighbours],
+                    pursuer.position, target_position, [n.position for n in neighbours],
                     cooperation.weave_min_angle):
                 law = "steady"
         self.cooperating = law == "cooperative"
@@ -497,7 +505,8 @@ class FollowingPipeline:
             los = self._last_bearing
         else:
             los = relative_position / max(range_estimate, 1e-9)
-        law = self._choose_law(time, pursuer, estimate.position)
+        neighbours = self._neighbours_at(time)
+        law = self._choose_law(time, pursuer, estimate.position, neighbours)
         if self.mode == TrackMode.DEGRADED:
             # Safe behaviour: no weave; hold safe_range on the predicted line of sight.
             lateral = np.zeros(3)
@@ -505,7 +514,7 @@ class FollowingPipeline:
         elif law == "cooperative":
             # A complete law on the estimate (seed 002 / seed 004): no range-controller term.
             lateral = self.cooperation.law.acceleration(CooperativeContext(
-                time, pursuer.position, pursuer.velocity, estimate.position, estimate.velocity, self._neighbours))
+                time, pursuer.position, pursuer.velocity, estimate.position, estimate.velocity, neighbours))
             longitudinal = np.zeros(3)
         else:
             lateral_law = self.cooperation.steady_guidance if law == "steady" else self.lateral_guidance
@@ -536,9 +545,9 @@ class FollowingPipeline:
             size = float(np.linalg.norm(change))
             if size > step_limit:
                 command = self._last_command + change * (step_limit / size)
-        if self.cooperation is not None and self.cooperation.separation is not None and self._neighbours:
+        if self.cooperation is not None and self.cooperation.separation is not None and neighbours:
             # Last, so that no mode, law or blend can undo it.
-            command = self.cooperation.separation.filter(pursuer.position, pursuer.velocity, command, self._neighbours)
+            command = self.cooperation.separation.filter(pursuer.position, pursuer.velocity, command, neighbours)
         self._last_command = command
         heading_fallback = None if self._setpoint is None else self._setpoint.rotation[:, 0]
         self._setpoint = attitude_setpoint(time, command, los, self.limits, heading_fallback)
