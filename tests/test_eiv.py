@@ -23,7 +23,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from paper_reference import floats, unit_vectors
 
-from companion.core.estimators import UPLKF, GainProjection, OwnPositionTracker
+from companion.core.estimators import UPLKF, GainProjection, InitialGuess, OwnPositionTracker
 from companion.core.messages import BearingMeasurement
 
 SIGMA_P = 0.1  # m, own-position noise of section VIII (Table I feedback noise)
@@ -199,3 +199,33 @@ def test_measured_form_has_no_own_position_memory() -> None:
         estimator.correct(bearing)
     assert np.array_equal(fresh.estimate.position, used.estimate.position)
     assert np.array_equal(fresh.estimate.covariance, used.estimate.covariance)
+
+
+def test_each_bearing_source_has_its_own_position_tracker() -> None:
+    """Three pursuers on fixed stations 120 degrees apart share their bearings (source 1, 2, 3 at a receiver
+    whose own sensor is source 0) with white 0.1 m noise on every reported position. Each pursuer's reported
+    positions are a series of their own: the filter's instrumental variable must predict each from its own
+    past, not from the interleaved positions of everyone (which put the reference tens of metres off and made
+    a swarm flight diverge to 2.5e5 m). Reference: a static target seen from three stations 8 m away at
+    0.01 rad with 0.1 m position noise is triangulated to about 0.1 m per round of bearings; the filter's
+    RMS error over the last 30 s must be below 0.3 m (0.07-0.08 m measured over seeds 0-4; one tracker
+    for all sources: 7.7-12.9 m)."""
+    rng = np.random.default_rng(4)
+    period, target = 0.2, np.array([10.0, -5.0, -20.0])
+    stations = [target + 8.0 * np.array([np.cos(a), np.sin(a), 0.3]) for a in (0.0, 2.1, 4.2)]
+    estimator = UPLKF(period, 0.01 * np.eye(3), 1e-4 * np.eye(3), GainProjection.PREDICTED, pursuer_position_std=0.1)
+    errors = []
+    for k in range(300):
+        time = k * period
+        if k:
+            estimator.predict()
+        for source, station in enumerate(stations):
+            line = (target - station) / np.linalg.norm(target - station)
+            bearing = BearingMeasurement(time, line + rng.normal(0.0, 0.01, 3), station + rng.normal(0.0, 0.1, 3),
+                                         source=source)
+            if k == 0 and source == 0:
+                estimator.initialize_on_bearing(bearing, InitialGuess(20.0, 10.0, np.zeros(3), 1.0))
+            else:
+                estimator.correct(bearing)
+        errors.append(np.linalg.norm(estimator.estimate.position - target))
+    assert np.sqrt(np.mean(np.square(errors[150:]))) < 0.3
