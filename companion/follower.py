@@ -87,10 +87,7 @@ class Follower:
         due = self.target_link.due_bearings(sample.state.time)
         self._awaiting_setpoint.extend(fix for fix, _ in due)
         bearings = [bearing for _, bearing in due]
-        output = None
-        for bearing in bearings or [None]:
-            output = self.pipeline.step(sample.state.time, sample.state, bearing)
-        return output, bearings
+        return self.pipeline.step_all(sample.state.time, sample.state, bearings), bearings
 
     async def engage(self, output: PipelineOutput) -> None:
         """Start offboard with the first setpoint (PX4 needs the stream before the mode switch)."""

@@ -623,9 +623,14 @@ Covariance = Annotated[tuple[CovarianceEntry, ...], Strict(False), Field(min_len
 PursuerId = Annotated[int, Field(ge=1, le=MAX_PURSUER_ID)]
 
 
+#: s: a bearing or estimate may be stamped this much after its share (clocks that count ticks and clocks that
+#: count periods differ by rounding: an estimator tick start + k dt against a step k dt).
+SECTION_STAMP_TOLERANCE = 1e-6
+
+
 def _not_after(section_stamp: float, info: ValidationInfo, what: str) -> None:
     stamp = info.data.get("stamp")
-    if stamp is not None and section_stamp > stamp:
+    if stamp is not None and section_stamp > stamp + SECTION_STAMP_TOLERANCE:
         raise PydanticCustomError("after_share", f"{what} stamp {section_stamp!r} is after the share's stamp {stamp!r}")
 
 

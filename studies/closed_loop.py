@@ -167,9 +167,7 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
             else:
                 bearings.append(bearing)
         bearings_used += len(bearings)
-        output = None
-        for bearing in bearings or [None]:
-            output = pipeline.step(time, pursuer, bearing)
+        output = pipeline.step_all(time, pursuer, bearings)
         if output.new_setpoint and output.setpoint is not None:
             # The autopilot side: attitude in, normalised thrust scaled by its own maximum.
             # (The networked harness sends the same attitude as a quaternion.)

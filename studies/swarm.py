@@ -209,9 +209,7 @@ def simulate_swarm(scenario: Scenario, vehicle: VehicleConfig, seed: int | None 
             p.pipeline.set_neighbours(fresh)
             bearings = sorted(p.inbox, key=lambda b: b.time)
             p.inbox.clear()
-            output = None
-            for bearing in bearings or [None]:
-                output = p.pipeline.step(time, own, bearing)
+            output = p.pipeline.step_all(time, own, bearings)
             p.bearings_used += sum(1 for b in bearings if b.source == 0)
             p.neighbour_bearings_used += sum(1 for b in bearings if b.source != 0)
             if output.new_setpoint and output.setpoint is not None:

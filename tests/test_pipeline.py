@@ -288,3 +288,22 @@ def test_step_grid_is_robust_to_float_time_stamps() -> None:
     assert pipeline.estimator.predicts == 100
     assert setpoints == 41
     assert math.isclose(pipeline.estimator.estimate.time, ENGAGE_TIME + 2.0, abs_tol=1e-9)
+
+
+def test_step_all_reports_the_setpoint_computed_on_any_of_its_steps():
+    """Two bearings in one tick at a control time: the setpoint is computed on the first step and the second
+    step computes none; the tick's output must still say a new setpoint came (every harness sends on it), and
+    carry the latest one. A caller that read only the last step's flag never sent such setpoints."""
+    estimator = UPLKF(ESTIMATOR_PERIOD, 0.04 * np.eye(3), 1e-4 * np.eye(3), GainProjection.PREDICTED)
+    pipeline = FollowingPipeline(estimator, HelicalNavigationGuidance(3.0, 3.5, 3.5), RangeController(8.0), LIMITS,
+                                 GUESS, control_period=CONTROL_PERIOD)
+    pipeline.step(0.0, pursuer_at(0.0), bearing_at(0.0))
+    at = CONTROL_PERIOD
+    separate = [pipeline.step(at, pursuer_at(at), bearing_at(at - 0.01)), None]
+    separate[1] = pipeline.step(at, pursuer_at(at), bearing_at(at))
+    assert separate[0].new_setpoint and not separate[1].new_setpoint  # the situation itself
+    at = 2 * CONTROL_PERIOD
+    output = pipeline.step_all(at, pursuer_at(at), [bearing_at(at - 0.01), bearing_at(at)])
+    assert output.new_setpoint and output.setpoint is not None and output.setpoint.time == pytest.approx(at)
+    later = pipeline.step_all(at + 0.01, pursuer_at(at + 0.01), [])
+    assert not later.new_setpoint

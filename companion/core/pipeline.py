@@ -316,6 +316,19 @@ class FollowingPipeline:
                               self._health_report, self.health_action, self._process_noise_boost,
                               health_reinitialized)
 
+    def step_all(self, time: float, pursuer: PursuerState, bearings) -> PipelineOutput:
+        """step() once per bearing (in the order given; one step without a bearing when there is none), all at
+        `time`: the last output, with new_setpoint True when any of the steps computed one (the setpoint is
+        the latest). What every harness calls each tick: when several bearings arrive in one tick, the
+        setpoint is computed on the first step and a caller that looked only at the last step's new_setpoint
+        would never send it."""
+        output = None
+        new_setpoint = False
+        for bearing in bearings or [None]:
+            output = self.step(time, pursuer, bearing)
+            new_setpoint = new_setpoint or output.new_setpoint
+        return output if output.new_setpoint == new_setpoint else dataclasses.replace(output, new_setpoint=new_setpoint)
+
     def _check_health(self, bearing: BearingMeasurement, pursuer: PursuerState, correction: CorrectionReport) -> None:
         """Hand the monitor what this correction computed (it reads, never writes)."""
         estimate = self.estimator.estimate.extrapolated(bearing.time)
