@@ -127,3 +127,64 @@ def test_summary_has_the_in_process_layout_and_cpu_per_process(flown):
     assert (folder / "tracks.png").stat().st_size > 0
     assert written["zenoh"]["secure"] and all(count == 0 for count in written["zenoh"]["tls_refused"].values())
     assert math.isfinite(written["pursuers"][1]["range_error_rms"])
+
+
+def test_sigterm_mid_flight_stops_all_seven_children_and_writes_every_summary(tmp_path):
+    """bof-sitl as a real process (own session): once every companion follows, SIGTERM; every child
+    (3 plants, 3 companions, 1 target) is gone, each companion wrote its summary (stopped by SIGTERM) and
+    bof-sitl wrote the run's (interrupted)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    import psutil
+
+    out = tmp_path / "runs"
+    log = (tmp_path / "bof-sitl.out").open("w")
+    process = subprocess.Popen([sys.executable, "-m", "studies.full_sitl", str(CONFIG), "--speed-factor", "4", "--out",
+                                str(out), "--no-plots", "--quiet", "--gcs-port", str(free_port())],
+                               stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+    children: list[int] = []
+    try:
+        deadline = time.monotonic() + 120.0
+        while True:
+            assert process.poll() is None, (tmp_path / "bof-sitl.out").read_text()
+            assert time.monotonic() < deadline, "the companions did not all follow within 120 s"
+            folders = list(out.glob("sitl-*")) if out.exists() else []
+            outs = [folders[0] / f"pursuer-{k}" / "companion.out" for k in range(1, COUNT + 1)] if folders else []
+            if outs and all(p.exists() and "companion: following" in p.read_text(errors="replace") for p in outs):
+                break
+            time.sleep(0.2)
+        children = [child.pid for child in psutil.Process(process.pid).children(recursive=True)]
+        assert len(children) >= 2 * COUNT + 1
+        process.send_signal(signal.SIGTERM)
+        process.wait(30.0)
+        assert process.returncode == 128 + signal.SIGTERM
+        alive = []
+        for pid in children:
+            try:
+                if psutil.Process(pid).status() != psutil.STATUS_ZOMBIE:
+                    alive.append(pid)
+            except psutil.NoSuchProcess:
+                pass
+        assert alive == []
+        folder = folders[0]
+        summary = json.loads((folder / "summary.json").read_text())
+        assert summary["interrupted"] == "SIGTERM" and summary["termination"] == "interrupted"
+        for k in range(1, COUNT + 1):
+            companion = json.loads((folder / f"pursuer-{k}" / "companion" / "summary.json").read_text())
+            assert companion["stopped_by"] == "SIGTERM" and companion["pursuer_id"] == k
+            assert (folder / f"pursuer-{k}" / "plant" / "stats.json").exists()
+    finally:
+        for pid in [process.pid, *children]:
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except (ProcessLookupError, PermissionError):
+                pass
+        try:
+            process.wait(5.0)
+        except subprocess.TimeoutExpired:
+            pass
+        log.close()
