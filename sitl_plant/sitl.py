@@ -262,6 +262,7 @@ class RealTimeRunner:
             "max_lag_sim_s": round(self.max_lag, 4),
             "slips": self.slips,
             "clock_anchor": self.clock_anchor,
+            "system_id": self.vehicle.system_id,
             "catch_ups": self.catch_ups,
             "slipped_sim_s": round(self.slipped_time, 4),
             "tick_cpu_median_us": round(float(np.median(tick_cpu)) * 1e6, 1),

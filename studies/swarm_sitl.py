@@ -224,6 +224,19 @@ def swarm_geometry(folder: Path, count: int, summary_window: float, rate_hz: flo
     return out
 
 
+def _start_together(children, stop: StopSignals | None, timeout: float = 60.0) -> None:
+    """Start every child at once, then wait (up to `timeout` wall s in all) for each one's ready line."""
+    children = list(children)
+    ready = [child.ready for child in children]
+    for child in children:
+        child.ready = None
+        child.start(stop=stop)
+    deadline = time.monotonic() + timeout
+    for child, line in zip(children, ready):
+        child.ready = line
+        child.wait_for_line(line, max(1.0, deadline - time.monotonic()), stop)
+
+
 def check_swarm_run(scenario: Scenario, abort_after: float | None) -> None:
     """ConfigError (one line) for what a swarm SITL run does not do."""
     if scenario.swarm is None:
@@ -291,14 +304,15 @@ def run_swarm(config: Path, scenario: Scenario, out: Path, speed: float, seed: i
     anchor = None
     try:
         anchor = time.monotonic() + ANCHOR_LEAD_PER_PURSUER * count
-        for k, plant in plants.items():
+        # Each wave starts together, then waits for every ready line: the pursuers take off and engage within
+        # about a second of one another, as the in-process pursuers all start at once.
+        for plant in plants.values():
             plant.command += ["--clock-anchor", f"{anchor:.6f}"]
-            plant.start(stop=stop)
+        _start_together(plants.values(), stop)
         target.start(stop=stop)
         station = SwarmGroundStation(endpoint, scenario, zenoh_transport.tls_identity(pki_folder, "gcs") if secure else None,
                                      namespace)
-        for companion in companions.values():
-            companion.start(stop=stop)
+        _start_together(companions.values(), stop)
         deadline = time.monotonic() + budget
         next_print = 0.0
         while any(c.running for c in companions.values()):
@@ -363,7 +377,6 @@ def run_swarm(config: Path, scenario: Scenario, out: Path, speed: float, seed: i
                      plant={key: plant_stats.get(key) for key in ("system_id", "speed_factor_achieved", "late_ticks",
                                                                   "ticks", "slips", "catch_ups", "max_lag_sim_s")},
                      companion_exit_code=exit_codes[f"companion-{k}"], plant_exit_code=exit_codes[f"plant-{k}"])
-        entry["plant"]["system_id"] = k
         entry["plant"]["mavlink_rejected"] = plant_stats.get("mavlink", {}).get("rejected")
         entries.append(entry)
     top = {key: value for key, value in entries[0].items() if key not in ("companion", "plant")}

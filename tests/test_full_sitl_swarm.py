@@ -72,6 +72,7 @@ def test_each_plant_has_its_own_system_id_and_starts_at_its_pursuers_start(flown
     for k in range(1, COUNT + 1):
         text = (folder / f"pursuer-{k}" / "companion.out").read_text()
         assert f"New system on: 127.0.0.1:" in text and f"(system ID: {k})" in text  # MAVSDK's own words
+        assert summary["pursuers"][k - 1]["plant"]["system_id"] == k  # as the plant itself reports it
         _, track = _track(folder, k)
         assert np.linalg.norm(track[0, :2] - np.array(starts[k - 1][:2])) < 0.5
 
@@ -127,6 +128,9 @@ def test_summary_has_the_in_process_layout_and_cpu_per_process(flown):
     assert (folder / "tracks.png").stat().st_size > 0
     assert written["zenoh"]["secure"] and all(count == 0 for count in written["zenoh"]["tls_refused"].values())
     assert math.isfinite(written["pursuers"][1]["range_error_rms"])
+    from studies.swarm_sitl import format_swarm_sitl_summary
+
+    print(format_swarm_sitl_summary(written))  # the measured figures, with pytest -s
 
 
 def test_sigterm_mid_flight_stops_all_seven_children_and_writes_every_summary(tmp_path):
