@@ -11,7 +11,8 @@ What studies.swarm does between its in-process pursuers, done by one networked c
   reason it is rejected and counted (`rejected`): the payload's own PayloadError reason (decode);
   ``own_sender`` (our id: our own share echoed, or an impostor); ``unknown_pursuer`` (an id outside
   1..N); ``no_clock`` (no odometry yet); ``future_stamp`` (stamped more than [link] max_future_skew_s,
-  the fix validator's skew, ahead of our vehicle clock); ``stale_seq`` (seq not above the last one
+  the fix validator's skew, ahead of our vehicle clock); ``too_old`` (stamped more than [link] max_fix_age_s
+  behind it, the fixes' age limit); ``stale_seq`` (seq not above the last one
   accepted from that sender in that epoch; a new epoch is a restarted sender and starts over, as in
   studies.swarm); ``queue_full`` (more than MAX_HELD shares held for their delivery time).
 * an accepted share then meets [swarm.link] (interfaces.neighbour_link.NeighbourLink) as that module
@@ -55,7 +56,7 @@ MAX_HELD = 256
 #: swarm_rx.jsonl: records per key written in full before only counts are.
 VERBATIM = 20
 #: Rejection reasons this module adds to link_schema.REASONS.
-REASONS = ("own_sender", "unknown_pursuer", "no_clock", "future_stamp", "stale_seq", "queue_full")
+REASONS = ("own_sender", "unknown_pursuer", "no_clock", "future_stamp", "too_old", "stale_seq", "queue_full")
 
 
 def swarm_companion_id(companion_id: str, pursuer_id: int) -> str:
@@ -87,6 +88,7 @@ class SwarmLink:
         self.uses_bearings = swarm.estimator in ("shared_bearings", "triangulation_kf")
         self.rate_hz = share_rate_hz(scenario)
         self.max_future_skew = scenario.link.max_future_skew_s
+        self.max_age = scenario.link.max_fix_age_s
         self.link = NeighbourLink(swarm.link, swarm.count, seed if swarm.link.seed is None else swarm.link.seed)
         self.clock = clock
         self.own_position = own_position
@@ -225,6 +227,10 @@ class SwarmLink:
             self._reject("future_stamp", now, f"stamp {share.stamp:.3f} s is {share.stamp - now:.3f} s ahead "
                                               f"(max {self.max_future_skew:g} s)", share.sender)
             return
+        if share.stamp < now - self.max_age:
+            self._reject("too_old", now, f"stamp {share.stamp:.3f} s is {now - share.stamp:.3f} s old "
+                                         f"(max {self.max_age:g} s)", share.sender)
+            return
         previous = self._last_seq.get(share.sender)
         if previous is not None and previous[0] == share.epoch and share.seq <= previous[1]:
             self._reject("stale_seq", now, f"seq {share.seq} <= {previous[1]} in epoch {share.epoch}", share.sender)
@@ -253,7 +259,9 @@ class SwarmLink:
         if known is None or share.stamp > known.time:
             self.neighbours[share.sender] = NeighbourState(share.sender, share.stamp, np.array(share.position),
                                                            np.array(share.velocity))
-        if self.uses_bearings and self._collecting and share.bearing is not None:
+        # A bearing older than the age limit (the share itself may be fresh) is not given to the estimator.
+        if (self.uses_bearings and self._collecting and share.bearing is not None
+                and share.bearing.stamp >= share.stamp - self.max_age):
             if len(self._inbox) == self._inbox.maxlen:
                 self.bearings_overflowed += 1
             self._inbox.append(BearingMeasurement(share.bearing.stamp, np.array(share.bearing.direction),

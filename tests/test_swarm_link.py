@@ -107,6 +107,14 @@ def test_a_neighbours_share_gives_a_neighbour_and_its_bearing_at_its_own_stamp()
     assert swarm.step_inputs(10.0 + timeout + 0.01)[0] == ()
 
 
+def test_a_fresh_share_carrying_a_bearing_older_than_the_age_limit_gives_the_state_but_not_the_bearing():
+    swarm, _, _ = _link(ident=1, clock=Clock(20.0))
+    swarm.step_inputs(19.8)
+    swarm.on_share(_share(stamp=20.0, bearing=link.SharedBearing(9.99, (0.0, 1.0, 0.0), (19.0, 0.0, -20.0))))
+    neighbours, bearings = swarm.step_inputs(20.0)
+    assert [n.ident for n in neighbours] == [2] and bearings == []
+
+
 def test_estimator_own_keeps_the_neighbours_bearings_out():
     scenario = SCENARIO.model_copy(update={"swarm": SCENARIO.swarm.model_copy(update={"estimator": "own"})})
     swarm, _, _ = _link(scenario=scenario)
@@ -116,18 +124,19 @@ def test_estimator_own_keeps_the_neighbours_bearings_out():
     assert len(neighbours) == 1 and bearings == []
 
 
-@pytest.mark.parametrize("payload, reason", [
-    (b"\xff\xfe", "not_utf8"),
-    (b"[]", "not_object"),
-    (_share(sender=1), "own_sender"),
-    (_share(sender=4), "unknown_pursuer"),
-    (_share(stamp=10.0 + 0.51), "future_stamp"),
+@pytest.mark.parametrize("payload, reason, now", [
+    (b"\xff\xfe", "not_utf8", 10.0),
+    (b"[]", "not_object", 10.0),
+    (_share(sender=1), "own_sender", 10.0),
+    (_share(sender=4), "unknown_pursuer", 10.0),
+    (_share(stamp=10.0 + 0.51), "future_stamp", 10.0),  # [link] max_future_skew_s = 0.5
+    (_share(stamp=10.0), "too_old", 20.01),  # [link] max_fix_age_s = 10
 ])
-def test_bad_shares_are_rejected_and_counted_by_reason(payload, reason):
-    swarm, _, _ = _link(ident=1)
+def test_bad_shares_are_rejected_and_counted_by_reason(payload, reason, now):
+    swarm, _, _ = _link(ident=1, clock=Clock(now))
     swarm.on_share(payload)
     assert swarm.rejected == {reason: 1} and swarm.accepted == 0
-    assert swarm.step_inputs(10.0) == ((), [])
+    assert swarm.step_inputs(now) == ((), [])
 
 
 def test_a_share_before_any_odometry_is_rejected_as_no_clock():
