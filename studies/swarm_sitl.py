@@ -14,7 +14,8 @@ studies.full_sitl.main comes here when the scenario has [swarm]. For pursuer K =
   bof.pursuer_share/1 on bof/swarm/K/share and hears the others' (companion.swarm_link); its state and
   command keys use the companion id ``<[link] companion_id>-K``.
 
-and one ``sitl-target`` (waiting for "start", which this ground station sends when every companion follows).
+and one ``sitl-target`` (waiting for "start", which this ground station sends when every companion follows,
+leaving out any companion that has already ended).
 Every process joins the same Zenoh network in one namespace (plain) or with mutual TLS and access control
 (--secure: every companion uses the companion certificate, which may put bof/swarm/*/share). SIGINT,
 SIGTERM and SIGHUP stop every child (companions first, then the target and the plants) and the summaries are
@@ -94,8 +95,10 @@ class SwarmGroundStation:
         if state.sender in self.ids:
             self.latest[state.sender] = state
 
-    def all_following(self) -> bool:
-        return len(self.latest) == len(self.ids) and all(s.phase == "following" for s in self.latest.values())
+    def all_following(self, gone: frozenset[str] = frozenset()) -> bool:
+        """Every companion follows, except those in `gone` (ended: they will never follow); at least one does."""
+        waiting = [i for i in self.ids if i not in gone]
+        return bool(waiting) and all(i in self.latest and self.latest[i].phase == "following" for i in waiting)
 
     def start_target(self) -> None:
         stamp = max(s.stamp for s in self.latest.values())
@@ -322,7 +325,8 @@ def run_swarm(config: Path, scenario: Scenario, out: Path, speed: float, seed: i
             if time.monotonic() > deadline:
                 interrupted, interrupted_at = f"timeout after {budget:.0f} s of wall time", time.monotonic()
                 break
-            if not station.target_started and station.all_following():
+            gone = frozenset(station.ids[k - 1] for k, c in companions.items() if not c.running)
+            if not station.target_started and station.all_following(gone):
                 station.start_target()
             if on_progress is not None:
                 on_progress(station)

@@ -129,3 +129,15 @@ def test_a_neighbours_bearing_older_than_the_newest_one_used_corrects_without_br
     assert output.estimate is not None and np.all(np.isfinite(output.estimate.position))
     output = pipeline.step(2.0, state(2.0), bearing(2.0, me))
     assert np.all(np.isfinite(output.estimate.position))
+
+
+def test_bof_sitl_refuses_what_a_swarm_run_does_not_do_in_one_line_before_making_anything(tmp_path, capsys):
+    from studies import full_sitl
+
+    out = tmp_path / "runs"
+    with pytest.raises(SystemExit) as exit_:
+        full_sitl.main([str(SWARM), "--abort-after", "3", "--out", str(out)])
+    assert exit_.value.code == 2
+    line = capsys.readouterr().err.strip().splitlines()[-1]
+    assert line.startswith("bof-sitl: error:") and "--abort-after is for one pursuer" in line, line
+    assert not out.exists()
