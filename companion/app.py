@@ -16,7 +16,8 @@ following -> landing -> done, abort, vehicle link loss), companion.target_link (
 fixes in, bearings out, link health), companion.follower (Follower: the per-sample control
 loop while following), companion.state_publisher (StatePublisher: the companion's state on
 its Zenoh state key, as network B of Fig. 16 did, so a ground station can watch). An
-"abort" command on the companion's command key makes it hold, then land.
+"abort" command on the companion's command key makes it hold, then land. In a [swarm] scenario,
+`--pursuer-id K` flies pursuer K and companion.swarm_link shares its state and bearings with the others.
 
 SIGINT, SIGTERM and SIGHUP stop it in any phase (waiting for the autopilot, arming, taking off,
 following, landing): the mission is cancelled, an armed vehicle is handed to the autopilot (offboard
@@ -420,7 +421,8 @@ def main(argv: list[str] | None = None) -> int:
         loop = asyncio.get_running_loop()
         for sig in STOP_SIGNALS:
             loop.add_signal_handler(sig, on_signal, sig)
-        print(f"companion ready: {scenario.name}, vehicle {app.mavlink_url}, log {log_dir}", flush=True)
+        who = f", pursuer {app.pursuer_id} of {scenario.swarm.count}" if scenario.swarm is not None else ""
+        print(f"companion ready: {scenario.name}{who}, vehicle {app.mavlink_url}, log {log_dir}", flush=True)
         return await app.run()
 
     code = asyncio.run(run())

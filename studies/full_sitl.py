@@ -21,6 +21,8 @@ ground-station telemetry to udp 127.0.0.1:--gcs-port (default 14550), printed at
                                 truth logs; figures that do not apply are null
     trajectory.png errors.png   3-D trajectory and errors (paper Fig. 8 style)
     link.png                    target link timeline: fixes received/rejected, bearings used, latency
+
+A scenario with [swarm] is flown by studies.swarm_sitl: one plant and one companion per pursuer, one target.
 """
 
 from __future__ import annotations
