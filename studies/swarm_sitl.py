@@ -391,6 +391,15 @@ def run_swarm(config: Path, scenario: Scenario, out: Path, speed: float, seed: i
         geometry = {"min_pursuer_separation": None, "phase_spacing_error_deg_rms": None, "geometry_error": str(error)}
     top.update(geometry)
     top["min_separation"] = scenario.swarm.min_separation
+    # The [swarm.link] model's counts over every receiver, as bof-sim's share_link: each share a companion
+    # accepted was offered to the model once.
+    links = [((e.get("companion") or {}).get("swarm") or {}) for e in entries]
+    offered = sum(l.get("shares_accepted", 0) for l in links)
+    dropped: dict[str, int] = {}
+    for l in links:
+        for reason, n in (l.get("shares_dropped_by_link") or {}).items():
+            dropped[reason] = dropped.get(reason, 0) + n
+    top["share_link"] = {"offered": offered, "delivered": offered - sum(dropped.values()), **dropped}
     failed = next((e for e in entries if e["termination"] != "completed"), None)
     if failed is not None:
         top["termination"] = failed["termination"]

@@ -115,7 +115,7 @@ def test_summary_has_the_in_process_layout_and_cpu_per_process(flown):
     _, folder, summary = flown
     written = json.loads((folder / "summary.json").read_text(), parse_constant=lambda c: pytest.fail(f"{c} in summary"))
     for key in ("pursuers", "phase_spacing_error_deg_rms", "min_pursuer_separation", "range_estimation_error_rms",
-                "range_error_rms", "min_range", "termination", "cpu"):
+                "range_error_rms", "min_range", "termination", "cpu", "share_link"):
         assert key in written, key
     assert written["range_error_rms"] == written["pursuers"][0]["range_error_rms"]
     assert written["phase_spacing_error_deg_rms"] is not None and written["phase_spacing_error_deg_rms"] < 10.0
@@ -212,6 +212,7 @@ def test_a_share_link_blackout_of_one_pursuer_in_sitl_is_survived_and_recovered(
     assert code == 0 and summary["termination"] == "completed", summary.get("termination_reason")
     rate = SCENARIO.sensor.rate_hz
     dropped = {entry["pursuer"]: entry["companion"]["swarm"]["shares_dropped_by_link"] for entry in summary["pursuers"]}
+    assert summary["share_link"]["blackout"] == sum(d["blackout"] for d in dropped.values())
     assert set(dropped[2]) == {"blackout"} and abs(dropped[2]["blackout"] - 2 * rate * (end - start)) <= 4, dropped
     for k in (1, 3):
         assert set(dropped[k]) == {"blackout"} and abs(dropped[k]["blackout"] - rate * (end - start)) <= 2, dropped
