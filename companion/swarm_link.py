@@ -14,7 +14,9 @@ What studies.swarm does between its in-process pursuers, done by one networked c
   the fix validator's skew, ahead of our vehicle clock); ``too_old`` (stamped more than [link] max_fix_age_s
   behind it, the fixes' age limit); ``stale_seq`` (seq not above the last one
   accepted from that sender in that epoch; a new epoch is a restarted sender and starts over, as in
-  studies.swarm); ``queue_full`` (more than MAX_HELD shares held for their delivery time).
+  studies.swarm); ``seq_jump`` (seq further ahead of the last one than the stamps' advance at the share
+  rate allows, SEQ_RATE_FACTOR x plus SEQ_SLACK: a forged seq cannot lock the sender out for longer than
+  the future-stamp skew allows); ``queue_full`` (more than MAX_HELD shares held for their delivery time).
 * an accepted share then meets [swarm.link] (interfaces.neighbour_link.NeighbourLink) as that module
   says a companion uses it: transmit(share stamp, sender, us, share position, our newest position).
   Dropped (blackout, out_of_radius, loss): counted in `link_dropped`. Delivered: held until our vehicle
@@ -56,7 +58,11 @@ MAX_HELD = 256
 #: swarm_rx.jsonl: records per key written in full before only counts are.
 VERBATIM = 20
 #: Rejection reasons this module adds to link_schema.REASONS.
-REASONS = ("own_sender", "unknown_pursuer", "no_clock", "future_stamp", "too_old", "stale_seq", "queue_full")
+REASONS = ("own_sender", "unknown_pursuer", "no_clock", "future_stamp", "too_old", "stale_seq", "seq_jump", "queue_full")
+#: seq may run ahead of the stamp's advance at the share rate by this factor plus SEQ_SLACK (a genuine sender
+#: adds 1 per 1 / share_rate_hz s): a forged huge seq in a sender's epoch would lock the sender out.
+SEQ_RATE_FACTOR = 2.0
+SEQ_SLACK = 10
 
 
 def swarm_companion_id(companion_id: str, pursuer_id: int) -> str:
@@ -105,7 +111,7 @@ class SwarmLink:
         self.link_dropped: collections.Counter[str] = collections.Counter()
         self.neighbour_bearings_used = 0
         self.neighbours: dict[int, NeighbourState] = {}
-        self._last_seq: dict[int, tuple[int, int]] = {}
+        self._last_seq: dict[int, tuple[int, int, float]] = {}  # sender -> (epoch, seq, stamp) last accepted
         self._held: list[tuple[float, int, link.PursuerShare]] = []
         self._order = 0
         # Neighbours' bearings for the pipeline: collected only once the follower asks for them (before that
@@ -235,10 +241,16 @@ class SwarmLink:
         if previous is not None and previous[0] == share.epoch and share.seq <= previous[1]:
             self._reject("stale_seq", now, f"seq {share.seq} <= {previous[1]} in epoch {share.epoch}", share.sender)
             return
+        if previous is not None and previous[0] == share.epoch:
+            allowed = SEQ_RATE_FACTOR * max(0.0, share.stamp - previous[2]) * self.rate_hz + SEQ_SLACK
+            if share.seq - previous[1] > allowed:
+                self._reject("seq_jump", now, f"seq {share.seq} is {share.seq - previous[1]} past {previous[1]} in "
+                                              f"{share.stamp - previous[2]:.3f} s", share.sender)
+                return
         if len(self._held) >= MAX_HELD:
             self._reject("queue_full", now, f"{MAX_HELD} shares already held", share.sender)
             return
-        self._last_seq[share.sender] = (share.epoch, share.seq)
+        self._last_seq[share.sender] = (share.epoch, share.seq, share.stamp)
         self.accepted += 1
         here = self.own_position()
         delivery = self.link.transmit(share.stamp, share.sender, self.ident, np.array(share.position),

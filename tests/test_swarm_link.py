@@ -155,6 +155,19 @@ def test_replays_are_stale_per_sender_and_epoch_and_a_restarted_sender_starts_ov
     assert swarm.accepted == 4 and swarm.rejected == {"stale_seq": 2}
 
 
+def test_a_forged_far_ahead_seq_cannot_lock_the_sender_out():
+    """seq 2**62 in the genuine sender's epoch: refused (seq_jump); the genuine shares go on being accepted.
+    Losses are no jump: 20 shares missed in 4 s (5 Hz) still pass."""
+    swarm, clock, _ = _link(ident=1)
+    swarm.on_share(_share(seq=0, stamp=10.0))
+    swarm.on_share(_share(seq=2**62, stamp=10.1))
+    clock.now = 10.2
+    swarm.on_share(_share(seq=1, stamp=10.2))
+    clock.now = 14.2
+    swarm.on_share(_share(seq=21, stamp=14.2))
+    assert swarm.rejected == {"seq_jump": 1} and swarm.accepted == 3
+
+
 def test_the_link_model_decides_as_the_fault_model_does_for_the_same_calls():
     """[swarm.link] with loss and jitter: the shares the companion keeps are exactly those a NeighbourLink
     of the same config and seed delivers for (stamp, sender, us, sender position, our position), and each
@@ -200,7 +213,8 @@ def test_shares_are_applied_on_odometry_before_the_follower_runs_and_their_beari
 def test_held_shares_are_bounded():
     swarm, clock, _ = _link(scenario=_scenario(latency_s=100.0))
     for k in range(MAX_HELD + 50):
-        swarm.on_share(_share(seq=k))
+        clock.now = 10.0 + 0.2 * k
+        swarm.on_share(_share(seq=k, stamp=clock.now))
     assert swarm.accepted == MAX_HELD and swarm.rejected == {"queue_full": 50}
 
 
