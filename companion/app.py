@@ -16,7 +16,8 @@ following -> landing -> done, abort, vehicle link loss), companion.target_link (
 fixes in, bearings out, link health), companion.follower (Follower: the per-sample control
 loop while following), companion.state_publisher (StatePublisher: the companion's state on
 its Zenoh state key, as network B of Fig. 16 did, so a ground station can watch). An
-"abort" command on the companion's command key makes it hold, then land.
+"abort" command on the companion's command key makes it hold, then land. In a [swarm] scenario,
+`--pursuer-id K` flies pursuer K and companion.swarm_link shares its state and bearings with the others.
 
 SIGINT, SIGTERM and SIGHUP stop it in any phase (waiting for the autopilot, arming, taking off,
 following, landing): the mission is cancelled, an armed vehicle is handed to the autopilot (offboard
@@ -40,17 +41,19 @@ import numpy as np
 
 from companion.adapters.mavsdk_vehicle import MavsdkVehicle, VehicleError
 from companion.adapters.recorder import RunRecorder, TlogWriter
-from companion.assembly import build_pipeline, build_sensor
+from companion.assembly import build_pipeline, build_sensor, pursuer_scenario
 from companion.core.state_history import StateHistory
 from companion.fix_intake import build_command_validator, build_fix_validator
 from companion.follower import Follower
 from companion.mission import MissionSequencer, Phase
 from companion.state_publisher import StatePublisher
+from companion.swarm_link import SwarmLink, swarm_companion_id
 from companion.target_link import TargetLink
 from interfaces import link_schema as link
 from interfaces import zenoh_transport
 from interfaces.cli import add_zenoh_security_arguments, scenario_file, seed_argument
-from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, VehicleConfig, load_scenario
+from interfaces.scenario import (DEFAULT_SCENARIO, MAX_PURSUERS, ConfigError, Scenario, VehicleConfig, load_scenario,
+                                 pursuer_starts)
 
 __all__ = ["CompanionApp", "Phase", "main"]
 
@@ -72,6 +75,31 @@ CLOSE_TIMEOUT = 0.5
 HARD_EXIT_AFTER = 2.0
 
 
+#: Bearing-noise streams of pursuer K > 1: SeedSequence(seed, spawn_key=(SWARM_NOISE_SPAWN_KEY, K)); pursuer 1
+#: keeps default_rng(seed), so a one-pursuer run draws what it always drew.
+SWARM_NOISE_SPAWN_KEY = 0x5357
+
+
+def bearing_noise_rng(seed: int, pursuer_id: int) -> np.random.Generator:
+    """The bearing sensor's noise stream of pursuer `pursuer_id` for `seed`."""
+    if pursuer_id == 1:
+        return np.random.default_rng(seed)
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(SWARM_NOISE_SPAWN_KEY, pursuer_id)))
+
+
+def check_pursuer_id(scenario: Scenario, pursuer_id: int) -> None:
+    """ConfigError (one line) unless `pursuer_id` is one of the scenario's pursuers: 1 without [swarm], 1..N with."""
+    if isinstance(pursuer_id, bool) or not isinstance(pursuer_id, int) or not 1 <= pursuer_id <= MAX_PURSUERS:
+        raise ConfigError(f"--pursuer-id {pursuer_id!r}: want an integer in 1..{MAX_PURSUERS}")
+    count = 1 if scenario.swarm is None else scenario.swarm.count
+    if pursuer_id > count:
+        raise ConfigError(f"--pursuer-id {pursuer_id}: scenario {scenario.name!r} has "
+                          + ("no [swarm] (one pursuer, id 1)" if scenario.swarm is None else f"pursuers 1..{count}"))
+    if scenario.swarm is not None and len(swarm_companion_id(scenario.link.companion_id, pursuer_id)) > 64:
+        raise ConfigError(f"[link] companion_id {scenario.link.companion_id!r} is too long to carry the pursuer id "
+                          f"(ids are at most 64 characters)")
+
+
 def _percentiles(values: list[float]) -> dict:
     """p50/p99/max (ms) and count of a latency list; NaN figures when it is empty."""
     data = np.array(values) if values else np.array([math.nan])
@@ -85,7 +113,15 @@ class CompanionApp:
     def __init__(self, scenario: Scenario, vehicle_config: VehicleConfig, log_dir: Path, mavlink_url: str | None = None,
                  zenoh_connect: tuple[str, ...] | None = None, zenoh_listen: tuple[str, ...] | None = None,
                  seed: int | None = None, zenoh_tls: "zenoh_transport.Identity | None" = None,
-                 zenoh_namespace: str | None = None) -> None:
+                 zenoh_namespace: str | None = None, pursuer_id: int = 1) -> None:
+        check_pursuer_id(scenario, pursuer_id)
+        self.pursuer_id = pursuer_id
+        full_scenario = scenario
+        if scenario.swarm is not None:
+            # Pursuer K flies its own start and range guess ([swarm.pursuers]); its keys carry its id.
+            scenario = pursuer_scenario(scenario, pursuer_starts(scenario)[pursuer_id - 1])
+            scenario = scenario.model_copy(update={"link": scenario.link.model_copy(
+                update={"companion_id": swarm_companion_id(scenario.link.companion_id, pursuer_id)})})
         self.scenario = scenario
         self.summary_written = False  # set once _shutdown has written summary.json (the hard exit checks it)
         self.zenoh_namespace = zenoh_namespace  # None: keys as they are (zenoh_transport.check_namespace)
@@ -101,7 +137,7 @@ class CompanionApp:
         self.history = StateHistory(HISTORY_SECONDS)
         self.target_link = TargetLink(
             self.link_settings.target_sender, scenario.sitl.home, build_sensor(scenario.sensor),
-            np.random.default_rng(scenario.simulation.seed if seed is None else seed), self.history, self.recorder,
+            bearing_noise_rng(scenario.simulation.seed if seed is None else seed, pursuer_id), self.history, self.recorder,
             clock=self._vehicle_time, wants_bearings=lambda: self.sequencer.phase in (Phase.READY, Phase.FOLLOWING),
             validator=build_fix_validator(self.link_settings), pipeline=lambda: self.follower.pipeline)
         self.sequencer = MissionSequencer(self.settings, self.settings.follow_duration or scenario.simulation.duration,
@@ -109,6 +145,12 @@ class CompanionApp:
                                           link_name=self.target_link.key, log=self.recorder,
                                           commands=build_command_validator(self.link_settings))
         self.follower = Follower(self.target_link, self.history, self.recorder)
+        self.swarm: SwarmLink | None = None
+        if full_scenario.swarm is not None:
+            self.swarm = SwarmLink(full_scenario, pursuer_id, full_scenario.simulation.seed if seed is None else seed,
+                                   clock=self._vehicle_time, own_position=self._own_position,
+                                   pipeline=lambda: self.follower.pipeline, log_folder=self.recorder.folder)
+            self.follower.swarm = self.swarm
         self._session = None
         self.error: str | None = None
         self.stopped_by: str | None = None  # the stop signal's name (SIGTERM...), None while not stopped
@@ -120,6 +162,9 @@ class CompanionApp:
 
     def _vehicle_time(self) -> float | None:
         return self.vehicle.latest.state.time if self.vehicle is not None and self.vehicle.latest else None
+
+    def _own_position(self) -> np.ndarray | None:
+        return self.vehicle.latest.state.position if self.vehicle is not None and self.vehicle.latest else None
 
     def request_stop(self, signum: int) -> None:
         """A stop signal (SIGINT, SIGTERM, SIGHUP): end the mission now, whatever the phase. The mission task
@@ -162,6 +207,8 @@ class CompanionApp:
             # Every odometry sample goes into the own-state history as it arrives, from before take-off:
             # a fix stamped just before the follow loop's first sample still finds its own state.
             self.vehicle.sample_observers.append(self.follower.record_state)
+            if self.swarm is not None:  # shares go out on the odometry clock from the first sample
+                self.vehicle.sample_observers.append(self.swarm.on_sample)
             await self.vehicle.connect()
             limits = await self.vehicle.vehicle_limits(self.vehicle_config.mass, self.vehicle_config.gravity)
             self.recorder.event(None, "vehicle", f"connected; hover thrust {limits.hover_thrust_normalized:.4f}, "
@@ -211,6 +258,8 @@ class CompanionApp:
         self.recorder.event(None, "zenoh_security", zenoh_transport.link_security(self.zenoh_tls),
                             role=self.zenoh_tls.role if self.zenoh_tls is not None else None)
         self.target_link.subscribe(self._session, loop)
+        if self.swarm is not None:
+            self.swarm.subscribe(self._session, loop)
         self._session.declare_subscriber(link.companion_command_key(settings.companion_id),
                                          lambda sample: loop.call_soon_threadsafe(self.on_command, sample.payload.to_bytes()))
         return zenoh_transport.publisher(self._session, link.companion_state_key(settings.companion_id))
@@ -251,7 +300,18 @@ class CompanionApp:
             "health_reasons_at_end": list(control.pipeline.health.episode_reasons) if control.pipeline is not None else [],
             "stopped_by": self.stopped_by,
             "abort_requested": mission.abort_requested and self.stopped_by is None,
+            "pursuer_id": self.pursuer_id,
+            "companion_id": self.link_settings.companion_id,
+            "swarm": self._swarm_summary(),
         }
+
+    def _swarm_summary(self) -> dict | None:
+        """The share link's figures and the pipeline's law changes ([swarm] only; None otherwise)."""
+        if self.swarm is None:
+            return None
+        pipeline = self.follower.pipeline
+        return {**self.swarm.summary(),
+                "law_changes": [] if pipeline is None else [(round(t, 3), law) for t, law in pipeline.law_changes]}
 
     async def _shutdown(self, tlog: TlogWriter) -> None:
         """Logs and summary first (nothing is lost if a library then hangs on close), then MAVSDK
@@ -261,6 +321,8 @@ class CompanionApp:
             self.recorder.summary(self.summary())
             self.summary_written = True
             self.recorder.close()
+            if self.swarm is not None:
+                self.swarm.close()
         finally:
             try:
                 if self.vehicle is not None:
@@ -272,6 +334,17 @@ class CompanionApp:
                     self._session.close()
 
 
+def _pursuer_id(text: str) -> int:
+    """argparse type of --pursuer-id: an integer in 1..MAX_PURSUERS."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if not 1 <= value <= MAX_PURSUERS:
+        raise argparse.ArgumentTypeError(f"{value} is outside 1..{MAX_PURSUERS}")
+    return value
+
+
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="companion", description=__doc__.split("\n\n")[0])
     parser.add_argument("--config", type=scenario_file, default=DEFAULT_SCENARIO, help="scenario TOML (default: %(default)s)")
@@ -281,6 +354,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     add_zenoh_security_arguments(parser, "companion")
     parser.add_argument("--log-dir", type=Path, default=None, help="run folder (default runs/companion-<time>)")
     parser.add_argument("--seed", type=seed_argument, default=None, help="bearing-noise seed, an integer >= 0 ([simulation] seed)")
+    parser.add_argument("--pursuer-id", type=_pursuer_id, default=1, metavar="K",
+                        help=f"which pursuer of a [swarm] scenario this companion flies, 1..{MAX_PURSUERS} (its start, its "
+                             "share key bof/swarm/K/share, companion id <companion_id>-K); 1 without [swarm] "
+                             "(default: %(default)s)")
     return parser.parse_args(argv)
 
 
@@ -309,8 +386,13 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     print(f"companion: {zenoh_transport.link_security(zenoh_tls)}", flush=True)
     log_dir = args.log_dir or Path("runs") / f"companion-{time.strftime('%Y%m%d-%H%M%S')}"
+    try:
+        check_pursuer_id(scenario, args.pursuer_id)
+    except ConfigError as error:
+        print(f"companion: {error}", file=sys.stderr)
+        return 2
     app = CompanionApp(scenario, vehicle_config, log_dir, args.mavlink, args.zenoh_connect, args.zenoh_listen, args.seed,
-                       zenoh_tls=zenoh_tls, zenoh_namespace=args.zenoh_namespace)
+                       zenoh_tls=zenoh_tls, zenoh_namespace=args.zenoh_namespace, pursuer_id=args.pursuer_id)
 
     def hard_exit(signum: int) -> None:
         written = "logs and summary already written"
@@ -339,7 +421,8 @@ def main(argv: list[str] | None = None) -> int:
         loop = asyncio.get_running_loop()
         for sig in STOP_SIGNALS:
             loop.add_signal_handler(sig, on_signal, sig)
-        print(f"companion ready: {scenario.name}, vehicle {app.mavlink_url}, log {log_dir}", flush=True)
+        who = f", pursuer {app.pursuer_id} of {scenario.swarm.count}" if scenario.swarm is not None else ""
+        print(f"companion ready: {scenario.name}{who}, vehicle {app.mavlink_url}, log {log_dir}", flush=True)
         return await app.run()
 
     code = asyncio.run(run())

@@ -69,6 +69,9 @@ class Follower:
         self.health_state = HealthState.OK
         self.health_action: HealthAction | None = None
         self._awaiting_setpoint: list["PendingFix"] = []
+        #: companion.swarm_link.SwarmLink of a [swarm] scenario (None: one pursuer): its neighbours and their
+        #: bearings go to the pipeline with the own ones, and it learns the own bearings it shares next
+        self.swarm = None
 
     def attach(self, vehicle: MavsdkVehicle, pipeline: FollowingPipeline) -> None:
         self.vehicle = vehicle
@@ -87,6 +90,11 @@ class Follower:
         due = self.target_link.due_bearings(sample.state.time)
         self._awaiting_setpoint.extend(fix for fix, _ in due)
         bearings = [bearing for _, bearing in due]
+        if self.swarm is not None:
+            self.swarm.own_bearings(bearings)
+            neighbours, shared = self.swarm.step_inputs(sample.state.time)
+            self.pipeline.set_neighbours(neighbours)
+            bearings = sorted(bearings + shared, key=lambda b: b.time)
         return self.pipeline.step_all(sample.state.time, sample.state, bearings), bearings
 
     async def engage(self, output: PipelineOutput) -> None:
@@ -186,8 +194,9 @@ class Follower:
                        est_vx=e.velocity[0], est_vy=e.velocity[1], est_vz=e.velocity[2],
                        est_position_std=e.position_std,
                        range_estimate=float(np.linalg.norm(e.position - s.position)))
-        if bearings:
-            b = bearings[-1]
+        own = [b for b in bearings if b.source == 0]  # a neighbour's shared bearing is not this sensor's
+        if own:
+            b = own[-1]
             row.update(bearing_x=float(b.direction[0]), bearing_y=float(b.direction[1]), bearing_z=float(b.direction[2]),
                        bearing_time=b.time)
         if output.observability is not None:

@@ -28,7 +28,8 @@ from pathlib import Path
 import numpy as np
 
 from interfaces.cli import add_zenoh_security_arguments
-from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, PlantScenario, VehicleConfig, load_plant_scenario
+from interfaces.scenario import (DEFAULT_SCENARIO, ConfigError, PlantScenario, VehicleConfig, load_plant_scenario,
+                                 pursuer_starts)
 from interfaces.records import AggregatingLog, CsvLog, JsonLinesLog, write_json
 from interfaces.link_schema import CLOCK_KEY, ClockTick, encode_clock
 from interfaces.zenoh_transport import LinkError, link_security, open_session, publisher, tls_identity, zenoh_config
@@ -60,17 +61,26 @@ def build_vehicle(
     on_event=None,
     signing_key: bytes | None = None,
     sign_cfg: int | None = None,
+    system_id: int = 1,
+    pursuer_id: int = 1,
 ) -> MavlinkVehicle:
     """Autopilot + MAVLink links from a scenario (the plant's sections, load_plant_scenario; a full
     Scenario has them too); keyword overrides take precedence over [sitl].
 
     signing_key: 32-byte MAVLink signing key for the ground-station link (None: none yet).
-    sign_cfg: MAV_SIGN_CFG override (else [sitl.parameters] or 0)."""
+    sign_cfg: MAV_SIGN_CFG override (else [sitl.parameters] or 0).
+    system_id: the vehicle's MAVLink system id (1..255). pursuer_id: which pursuer of a [swarm] scenario
+    this plant is (its start, interfaces.scenario.pursuer_starts); 1 without [swarm]."""
     sitl = scenario.sitl
+    starts = pursuer_starts(scenario)
+    if not 1 <= pursuer_id <= len(starts):
+        raise ConfigError(f"--pursuer-id {pursuer_id}: scenario {scenario.name!r} has pursuers 1..{len(starts)}")
+    if not 1 <= system_id <= 255:
+        raise ConfigError(f"--system-id {system_id}: MAVLink system ids are 1..255")
     speed = sitl.speed_factor if speed_factor is None else speed_factor
     autopilot = Autopilot(
         quadrotor_params(vehicle),
-        start_position=scenario.pursuer.initial_position[:2],
+        start_position=starts[pursuer_id - 1].initial_position[:2],
         yaw=math.radians(sitl.start_yaw_deg),
         tick_rate_hz=sitl.tick_rate_hz,
         physics_rate_hz=scenario.simulation.physics_rate_hz,
@@ -97,7 +107,7 @@ def build_vehicle(
         LinkSpec("companion", sitl.companion_host, companion, COMPANION_STREAMS, sitl.bind_host),
         LinkSpec("gcs", sitl.gcs_host, gcs, GCS_STREAMS, sitl.bind_host, signed=True),
     ]
-    vehicle = MavlinkVehicle(autopilot, links, Home(*sitl.home), on_event=on_event)
+    vehicle = MavlinkVehicle(autopilot, links, Home(*sitl.home), on_event=on_event, system_id=system_id)
     if signing_key is not None:
         vehicle.set_signing_key(signing_key, source="--signing-key")
     return vehicle
@@ -215,7 +225,7 @@ class RealTimeRunner:
     """Paces an Autopilot + MavlinkVehicle against the wall clock at a speed factor."""
 
     def __init__(self, vehicle: MavlinkVehicle, speed_factor: float, log: RunLog, duration: float | None = None,
-                 progress: bool = False, on_tick=None) -> None:
+                 progress: bool = False, on_tick=None, clock_anchor: float | None = None) -> None:
         if not (math.isfinite(speed_factor) and speed_factor > 0):
             raise ValueError(f"speed factor must be positive, got {speed_factor!r}")
         self.vehicle = vehicle
@@ -225,6 +235,10 @@ class RealTimeRunner:
         self.duration = duration
         self.progress = progress
         self.on_tick = on_tick  # called with the simulated time after every tick
+        # time.monotonic() at which simulated time is 0 (shared by every plant given the same anchor), or None:
+        # simulated time starts now and a plant that falls MAX_LAG behind re-anchors (a slip)
+        self.clock_anchor = clock_anchor
+        self.catch_ups = 0  # with an anchor: times it fell MAX_LAG behind and caught up instead of slipping
         self.stop_requested = False
         self.slips = 0
         self.slipped_time = 0.0
@@ -232,7 +246,7 @@ class RealTimeRunner:
         self.late_ticks = 0
         self.ticks = 0
         self.tick_cpu = []  # seconds of CPU per tick, sampled (for the benchmark)
-        self._wall_start = time.monotonic()
+        self._wall_start = time.monotonic() if clock_anchor is None else clock_anchor
 
     def stats(self) -> dict:
         wall = time.monotonic() - self._wall_start
@@ -247,6 +261,9 @@ class RealTimeRunner:
             "late_ticks": self.late_ticks,
             "max_lag_sim_s": round(self.max_lag, 4),
             "slips": self.slips,
+            "clock_anchor": self.clock_anchor,
+            "system_id": self.vehicle.system_id,
+            "catch_ups": self.catch_ups,
             "slipped_sim_s": round(self.slipped_time, 4),
             "tick_cpu_median_us": round(float(np.median(tick_cpu)) * 1e6, 1),
             "tick_cpu_p99_us": round(float(np.percentile(tick_cpu, 99)) * 1e6, 1),
@@ -264,9 +281,10 @@ class RealTimeRunner:
     def run(self) -> None:
         ap, mv, tick = self.autopilot, self.vehicle, self.autopilot.tick_period
         sockets = [link.sock for link in mv.links]
-        wall_anchor, sim_anchor = time.monotonic(), ap.time
+        wall_anchor, sim_anchor = (time.monotonic(), ap.time) if self.clock_anchor is None else (self.clock_anchor, 0.0)
         next_stats = time.monotonic() + 1.0
         next_progress = 10.0
+        catching_up = False
         mv.after_tick()  # first heartbeat at time zero
         while not self.stop_requested:
             if self.duration is not None and ap.time >= self.duration - 1e-9:
@@ -287,13 +305,23 @@ class RealTimeRunner:
                 self.max_lag = max(self.max_lag, lag)
                 if lag > 2.0 * tick:
                     self.late_ticks += 1
-                if lag > MAX_LAG:
+                if lag > MAX_LAG and self.clock_anchor is not None:
+                    # Several plants share this clock: never leave it; the ticks run back to back until
+                    # simulated time is on it again (counted once per episode).
+                    if not catching_up:
+                        self.catch_ups += 1
+                    catching_up = True
+                elif lag > MAX_LAG:
                     # Cannot keep up: give up the lost time instead of racing to catch up.
                     self.slips += 1
                     self.slipped_time += lag - tick
                     wall_anchor, sim_anchor = now, ap.time
+                elif lag < 2.0 * tick:
+                    catching_up = False
             else:
-                select.select(sockets, [], [], (tick - lag) / self.speed)
+                catching_up = False
+                # bounded: before a shared anchor the wait could be seconds, and a stop must not wait for it
+                select.select(sockets, [], [], min((tick - lag) / self.speed, 0.05))
             if now >= next_stats:
                 next_stats = now + 1.0
                 self.log.tick(ap.time)
@@ -359,6 +387,16 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--zenoh-connect", action="append", default=None, metavar="ENDPOINT",
                         help="publish the simulated clock on Zenoh, connecting here; repeatable")
     parser.add_argument("--clock-rate", type=float, default=50.0, help="clock messages per simulated second")
+    parser.add_argument("--system-id", type=_number(int, 1, 255, low_open=False, what="a MAVLink system id"),
+                        default=1, help="MAVLink system id of this vehicle, 1..255 (default: %(default)s); give each "
+                                        "vehicle its own when several stream to one ground station")
+    parser.add_argument("--pursuer-id", type=_number(int, 1, 32, low_open=False, what="a pursuer id"), default=1,
+                        help="which pursuer of a [swarm] scenario this plant is: it starts at that pursuer's "
+                             "[[swarm.pursuers]] position (default: %(default)s)")
+    parser.add_argument("--clock-anchor", type=_number(float, 0.0), default=None, metavar="T",
+                        help="time.monotonic() (CLOCK_MONOTONIC, s, this machine) at which simulated time is 0: plants "
+                             "given the same anchor share one simulated clock (several pursuers); one behind it catches "
+                             "up instead of slipping (default: simulated time starts when the plant does)")
     add_zenoh_security_arguments(parser, "plant")
     parser.add_argument("--mavlink-blackout", type=float, nargs=2, action="append", default=None,
                         metavar=("START", "DURATION"),
@@ -390,7 +428,8 @@ def main(argv: list[str] | None = None) -> int:
                   file=sys.stderr, flush=True)
         log = RunLog(args.log_dir, args.log_rate, args.latency_log)
         vehicle = build_vehicle(scenario, vehicle_config, args.speed_factor, args.companion_port, args.gcs_port,
-                                args.seed, on_event=log.event, signing_key=key, sign_cfg=args.mav_sign_cfg)
+                                args.seed, on_event=log.event, signing_key=key, sign_cfg=args.mav_sign_cfg,
+                                system_id=args.system_id, pursuer_id=args.pursuer_id)
     except ConfigError as error:
         if log is not None:
             log.close()
@@ -423,7 +462,7 @@ def main(argv: list[str] | None = None) -> int:
             return 2
     speed = scenario.sitl.speed_factor if args.speed_factor is None else args.speed_factor
     runner = RealTimeRunner(vehicle, speed, log, args.duration, progress=not args.quiet,
-                            on_tick=clock.tick if clock is not None else None)
+                            on_tick=clock.tick if clock is not None else None, clock_anchor=args.clock_anchor)
 
     def request_stop(signum, frame):  # noqa: ARG001
         runner.stop_requested = True
@@ -435,7 +474,8 @@ def main(argv: list[str] | None = None) -> int:
     signing = (f"MAV_SIGN_CFG={vehicle.signing_mode}, key {'from ' + vehicle.signing_key_source if vehicle.signing_key_set else 'not set'}")
     print(f"sitl-plant: ground station (--gcs-port) {gcs.partner[0]}:{gcs.partner[1]}; MAVLink signing: {signing}",
           flush=True)
-    print(f"sitl-plant ready: {scenario.name}, speed x{speed:g}, links: {links}", flush=True)
+    print(f"sitl-plant ready: {scenario.name}, system id {args.system_id}, pursuer {args.pursuer_id}, speed x{speed:g}, "
+          f"links: {links}", flush=True)
     try:
         runner.run()
     finally:

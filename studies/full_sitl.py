@@ -21,6 +21,8 @@ ground-station telemetry to udp 127.0.0.1:--gcs-port (default 14550), printed at
                                 truth logs; figures that do not apply are null
     trajectory.png errors.png   3-D trajectory and errors (paper Fig. 8 style)
     link.png                    target link timeline: fixes received/rejected, bearings used, latency
+
+A scenario with [swarm] is flown by studies.swarm_sitl: one plant and one companion per pursuer, one target.
 """
 
 from __future__ import annotations
@@ -77,13 +79,14 @@ def _interp(times: np.ndarray, source_times: np.ndarray, values: np.ndarray) -> 
     return np.column_stack([np.interp(times, source_times, values[:, i]) for i in range(values.shape[1])])
 
 
-def flight_series(run: Path) -> tuple[dict[str, np.ndarray], float]:
+def flight_series(run: Path, target_folder: Path | None = None) -> tuple[dict[str, np.ndarray], float]:
     """The engaged part of the flight as a bof-sim style series (time since engagement),
     truth interpolated from the plant's and target's logs at the companion's sample times.
-    Returns (series, engagement time in simulated seconds)."""
+    Returns (series, engagement time in simulated seconds). target_folder: where target.csv is
+    (default: run / "target"; a swarm run has one target for every pursuer's folder)."""
     companion = _read_csv(run / "companion" / "series.csv")
     plant = _read_csv(run / "plant" / "vehicle.csv")
-    target = _read_csv(run / "target" / "target.csv")
+    target = _read_csv((run / "target" if target_folder is None else target_folder) / "target.csv")
     engaged = np.isfinite(companion["est_x"]) & (companion["phase"] == "following")
     if not engaged.any():
         raise RuntimeError("the companion never engaged; see companion/events.jsonl")
@@ -320,6 +323,12 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
         raise ConfigError(f"--timeout {timeout:g} s is too short: this flight needs at least "
                           f"{minimum_timeout(scenario, speed):.0f} s of wall time at x{speed:g}")
     check_faults(scenario, target_faults)
+    if scenario.swarm is not None:  # one plant and one companion per pursuer (studies.swarm_sitl)
+        from studies.swarm_sitl import budget_for, check_swarm_run, run_swarm
+
+        check_swarm_run(scenario, abort_after)
+        return run_swarm(config, scenario, out, speed, seed, budget_for(scenario, speed, timeout), plots, quiet,
+                         target_faults, gcs_port, stop, secure)
     folder = out / f"sitl-{scenario.name}-seed{seed}-{time.strftime('%Y%m%d-%H%M%S')}"
     folder.mkdir(parents=True, exist_ok=True)
     companion_port = free_port()
@@ -561,7 +570,12 @@ def main(argv: list[str] | None = None) -> int:
     if summary.get("interrupted"):
         print(f"bof-sitl: {summary['interrupted']}: every process stopped {summary['stopped_after_s']} s after it, "
               f"summaries written", file=sys.stderr)
-    print(format_summary(summary))
+    if "pursuers" in summary:
+        from studies.swarm_sitl import format_swarm_sitl_summary
+
+        print(format_swarm_sitl_summary(summary))
+    else:
+        print(format_summary(summary))
     return code
 
 

@@ -250,6 +250,7 @@ class FollowingPipeline:
         self.reinitializations = 0
         self.observability = WindowedObservability(observability_window, self.dropout.bearing_noise_std)
         self._observability_measure: dict | None = None
+        self._observed_until = -np.inf  # s, the newest bearing in the windowed FIM
         self.health = health if health is not None else HealthMonitor(
             HealthConfig(min_range=0.25 * range_controller.desired_range))
         self._health_report: HealthReport | None = None
@@ -409,9 +410,14 @@ class FollowingPipeline:
 
     def _observe(self, bearing: BearingMeasurement) -> None:
         """Feed the windowed FIM (section V, eq. (7)) with a bearing used, at the estimated range."""
+        if bearing.time < self._observed_until:
+            # A late bearing (a neighbour's share that arrived after newer bearings): it has corrected the
+            # estimate; the windowed FIM takes bearings in time order only, so it is left out of it.
+            return
         estimate = self.estimator.estimate.extrapolated(bearing.time)
         distance = float(np.linalg.norm(estimate.position - bearing.pursuer_position))
         if distance > 1e-6:
+            self._observed_until = bearing.time
             self.observability.add(bearing.time, unit(bearing.direction), distance)
             self._observability_measure = self.observability.measure()
 

@@ -1,0 +1,453 @@
+"""`bof-sitl` for a [swarm] scenario: one plant and one companion per pursuer, one target, one Zenoh network.
+
+    bof-sitl config/scenarios/swarm_circumnavigation.toml [--speed-factor 1] [--secure] [--out runs]
+
+studies.full_sitl.main comes here when the scenario has [swarm]. For pursuer K = 1..N it starts
+
+* a plant: ``sitl-plant --pursuer-id K --system-id K`` (pursuer K's [[swarm.pursuers]] start, its own MAVLink
+  system id and companion port; every plant streams ground-station telemetry to the one --gcs-port, where a
+  ground station sees N vehicles told apart by their system ids). All plants get the same ``--clock-anchor``
+  (CLOCK_MONOTONIC s at which simulated time is 0), so they share one simulated clock, the clock the target's
+  fixes and every share are stamped in. Only pursuer 1's plant is on Zenoh (it listens; it publishes
+  bof/sim/clock for the target).
+* a companion: ``companion --pursuer-id K`` on its plant's port: it flies pursuer K, publishes its
+  bof.pursuer_share/1 on bof/swarm/K/share and hears the others' (companion.swarm_link); its state and
+  command keys use the companion id ``<[link] companion_id>-K``.
+
+and one ``sitl-target`` (waiting for "start", which this ground station sends when every companion follows,
+leaving out any companion that has already ended).
+Every process joins the same Zenoh network in one namespace (plain) or with mutual TLS and access control
+(--secure: every companion uses the companion certificate, which may put bof/swarm/*/share). SIGINT,
+SIGTERM and SIGHUP stop every child (companions first, then the target and the plants) and the summaries are
+still written.
+
+The run folder sitl-<scenario>-seed<seed>-<time>/::
+
+    pursuer-K/plant/ pursuer-K/companion/   pursuer K's plant and companion logs (as bof-sitl's plant/ and
+    pursuer-K/plant.out companion.out       companion/; companion/swarm_rx.jsonl: the shares it received)
+    target/ target.out                      the one target
+    summary.json    the in-process layout (studies.swarm): pursuer 1's single-pursuer keys at the top,
+                    `pursuers` (one entry per pursuer: its figures, its companion's summary, its plant's
+                    pacing), `phase_spacing_error_deg_rms`, `min_pursuer_separation`, and `cpu` (user +
+                    system CPU s and share of one core per child process, psutil, sampled to the end)
+    tracks.png      every pursuer's track and estimate around the target (studies.plots.plot_swarm_tracks)
+"""
+
+from __future__ import annotations
+
+import secrets
+import signal
+import socket
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from companion.swarm_link import swarm_companion_id
+from companion.assembly import pursuer_scenario
+from companion.core.cooperative_guidance import phase_spacing_errors
+from interfaces import link_schema as link
+from interfaces import zenoh_transport
+from interfaces.pki import make_pki
+from interfaces.records import write_json
+from interfaces.scenario import ConfigError, Scenario, pursuer_starts
+from studies.closed_loop import Termination
+from studies.metrics import rms, summarize, termination_name, write_summary
+from studies.processes import ChildProcess, Interrupted, StopSignals, free_port, stop_all
+
+#: Wall s between the start of the first plant and simulated time 0 of every plant, per pursuer (the plants
+#: start one after the other; one that starts late catches up on the ground, before anyone connects).
+ANCHOR_LEAD_PER_PURSUER = 1.5
+#: Wall s between two CPU samples of the children.
+CPU_SAMPLE_PERIOD = 0.5
+
+
+def plant_seed(seed: int, ident: int) -> int:
+    """Pursuer `ident`'s plant telemetry-noise seed: `seed` for pursuer 1, a derived one for the others."""
+    if ident == 1:
+        return seed
+    return int(np.random.SeedSequence(seed, spawn_key=(0x504C, ident)).generate_state(1)[0])
+
+
+class SwarmGroundStation:
+    """Watches every companion's state on Zenoh and starts the target once they all follow."""
+
+    def __init__(self, endpoint: str, scenario: Scenario, tls: zenoh_transport.Identity | None,
+                 namespace: str | None) -> None:
+        self.session = zenoh_transport.open_session(zenoh_transport.zenoh_config("peer", listen=(), connect=(endpoint,),
+                                                                                 tls=tls, namespace=namespace))
+        self.ids = [swarm_companion_id(scenario.link.companion_id, k) for k in range(1, scenario.swarm.count + 1)]
+        self.latest: dict[str, link.CompanionState] = {}
+        for companion_id in self.ids:
+            self.session.declare_subscriber(link.companion_state_key(companion_id), self._on_state)
+        self._target_command = zenoh_transport.publisher(self.session, link.target_command_key(scenario.link.target_sender))
+        self.epoch = link.new_epoch()
+        self.target_started = False
+        self.started_stamp: float | None = None
+
+    def _on_state(self, sample) -> None:
+        try:
+            state = link.decode_state(sample.payload)
+        except link.PayloadError:
+            return
+        if state.sender in self.ids:
+            self.latest[state.sender] = state
+
+    def all_following(self, gone: frozenset[str] = frozenset()) -> bool:
+        """Every companion follows, except those in `gone` (ended: they will never follow); at least one does."""
+        waiting = [i for i in self.ids if i not in gone]
+        return bool(waiting) and all(i in self.latest and self.latest[i].phase == "following" for i in waiting)
+
+    def start_target(self) -> None:
+        stamp = max(s.stamp for s in self.latest.values())
+        self._target_command.put(link.encode_command(link.Command("ground-station", 1, stamp, "start", epoch=self.epoch)))
+        self.target_started, self.started_stamp = True, stamp
+
+    def progress(self) -> str:
+        if not self.latest:
+            return "waiting for the companions"
+        parts = []
+        for companion_id in self.ids:
+            state = self.latest.get(companion_id)
+            if state is None:
+                parts.append(f"{companion_id}: -")
+                continue
+            text = f"{companion_id}: {state.phase}"
+            if state.estimate is not None and state.estimate.range is not None:
+                text += f" r^={state.estimate.range:.1f}"
+            parts.append(text)
+        stamp = max(s.stamp for s in self.latest.values())
+        return f"t={stamp:6.1f}s " + ", ".join(parts)
+
+    def close(self) -> None:
+        self.session.close()
+
+
+class CpuMeter:
+    """User + system CPU seconds of each child (and its descendants), sampled until it ends (psutil)."""
+
+    def __init__(self) -> None:
+        import psutil
+
+        self._psutil = psutil
+        self.samples: dict[str, dict] = {}
+        self._next = 0.0
+
+    def sample(self, children: dict[str, ChildProcess], force: bool = False) -> None:
+        now = time.monotonic()
+        if not force and now < self._next:
+            return
+        self._next = now + CPU_SAMPLE_PERIOD
+        for name, child in children.items():
+            if not child.running:
+                continue
+            try:
+                process = self._psutil.Process(child.process.pid)
+                total = process.cpu_times()
+                cpu = total.user + total.system
+                for descendant in process.children(recursive=True):
+                    try:
+                        times = descendant.cpu_times()
+                        cpu += times.user + times.system
+                    except self._psutil.Error:
+                        continue
+                started = process.create_time()
+            except self._psutil.Error:
+                continue
+            self.samples[name] = {"cpu_s": round(cpu, 3), "wall_s": round(time.time() - started, 3)}
+
+    def report(self) -> dict:
+        """{child: {cpu_s, wall_s, cpu_share (of one core)}}, from the last sample of each child."""
+        out = {}
+        for name, sample in self.samples.items():
+            share = sample["cpu_s"] / sample["wall_s"] if sample["wall_s"] > 0 else None
+            out[name] = {**sample, "cpu_share": None if share is None else round(share, 4)}
+        return out
+
+
+def _engaged_spans(folder: Path, count: int) -> list[tuple[float, float] | None]:
+    """Per pursuer, (first, last) simulated time it was following with an estimate (None: never)."""
+    from studies.full_sitl import _read_csv
+
+    spans = []
+    for ident in range(1, count + 1):
+        try:
+            series = _read_csv(folder / f"pursuer-{ident}" / "companion" / "series.csv")
+        except (FileNotFoundError, IndexError):
+            spans.append(None)
+            continue
+        engaged = np.isfinite(series.get("est_x", np.array([]))) & (series.get("phase", np.array([])) == "following")
+        spans.append(None if not engaged.any() else (float(series["time"][engaged][0]), float(series["time"][engaged][-1])))
+    return spans
+
+
+def swarm_geometry(folder: Path, count: int, summary_window: float, rate_hz: float = 10.0) -> dict:
+    """Closest pursuers and phase spacing from the plants' and the target's truth logs (one shared clock).
+
+    min_pursuer_separation: m, the smallest 3-D distance between any two pursuers while at least one of them
+    follows (None with one pursuer or no overlap). phase_spacing_error_deg_rms: RMS of
+    companion.core.cooperative_guidance.phase_spacing_errors (horizontal phases about the target, deg) over
+    the last `summary_window` s of the span where every pursuer follows (None if there is none)."""
+    from studies.full_sitl import _interp, _read_csv
+
+    plants = [_read_csv(folder / f"pursuer-{k}" / "plant" / "vehicle.csv") for k in range(1, count + 1)]
+    target = _read_csv(folder / "target" / "target.csv")
+    spans = _engaged_spans(folder, count)
+    out = {"min_pursuer_separation": None, "phase_spacing_error_deg_rms": None, "all_following_span": None}
+    known = [s for s in spans if s is not None]
+    if count < 2 or not known:
+        return out
+    start = max(min(s[0] for s in known), max(float(p["time"][0]) for p in plants))
+    end = min(max(s[1] for s in known), min(float(p["time"][-1]) for p in plants))
+    if end <= start:
+        return out
+    grid = np.arange(start, end, 1.0 / rate_hz)
+    positions = np.stack([_interp(grid, p["time"], np.column_stack([p["x"], p["y"], p["z"]])) for p in plants])
+    gaps = np.linalg.norm(positions[:, None, :, :] - positions[None, :, :, :], axis=3)
+    pairs = np.triu_indices(count, 1)
+    out["min_pursuer_separation"] = float(np.min(gaps[pairs[0], pairs[1], :]))
+    if any(s is None for s in spans):
+        return out
+    all_start, all_end = max(s[0] for s in spans), min(s[1] for s in spans)
+    if all_end <= all_start:
+        return out
+    out["all_following_span"] = [all_start, all_end]
+    window = grid[(grid >= max(all_start, all_end - summary_window)) & (grid <= all_end)]
+    if window.size == 0:
+        return out
+    target_position = _interp(window, target["stamp"], np.column_stack([target["true_n"], target["true_e"], target["true_d"]]))
+    errors = []
+    for index, moment in enumerate(window):
+        where = np.stack([_interp(np.array([moment]), p["time"], np.column_stack([p["x"], p["y"]]))[0] for p in plants])
+        relative = where - target_position[index, :2]
+        errors.append(phase_spacing_errors(np.arctan2(relative[:, 1], relative[:, 0])))
+    out["phase_spacing_error_deg_rms"] = float(np.degrees(rms(np.concatenate(errors))))
+    return out
+
+
+def _start_together(children, stop: StopSignals | None, timeout: float = 60.0) -> None:
+    """Start every child at once, then wait (up to `timeout` wall s in all) for each one's ready line."""
+    children = list(children)
+    ready = [child.ready for child in children]
+    for child in children:
+        child.ready = None
+        child.start(stop=stop)
+    deadline = time.monotonic() + timeout
+    for child, line in zip(children, ready):
+        child.ready = line
+        child.wait_for_line(line, max(1.0, deadline - time.monotonic()), stop)
+
+
+def check_swarm_run(scenario: Scenario, abort_after: float | None) -> None:
+    """ConfigError (one line) for what a swarm SITL run does not do."""
+    if scenario.swarm is None:
+        raise ConfigError(f"scenario {scenario.name!r} has no [swarm]")
+    if scenario.swarm.estimator == "fusion":
+        raise ConfigError("[swarm] estimator = 'fusion' is not flown yet (as in bof-sim)")
+    if abort_after is not None:
+        raise ConfigError("--abort-after is for one pursuer; with [swarm] stop the run with Ctrl-C")
+
+
+def run_swarm(config: Path, scenario: Scenario, out: Path, speed: float, seed: int, budget: float,
+              plots: bool = True, quiet: bool = False, target_faults: list[str] | None = None,
+              gcs_port: int = 14550, stop: StopSignals | None = None, secure: bool = False,
+              on_progress: Callable[[SwarmGroundStation], None] | None = None) -> tuple[int, Path, dict]:
+    """Fly the [swarm] scenario `config` (already loaded and checked as `scenario`) through 2N + 1 processes;
+    returns (exit code, run folder, summary). Arguments as studies.full_sitl.run; budget: wall s for the
+    whole flight. on_progress: called about every 50 ms of wall time with the ground station."""
+    from studies.full_sitl import _read_json, _termination, flight_series, make_signing_key
+
+    count = scenario.swarm.count
+    folder = out / f"sitl-{scenario.name}-seed{seed}-{time.strftime('%Y%m%d-%H%M%S')}"
+    folder.mkdir(parents=True, exist_ok=True)
+    endpoint = f"{'tls' if secure else 'tcp'}/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+    pki_folder = folder / "pki"
+    namespace = None if secure else f"bof-sitl-{secrets.token_hex(4)}"
+    zenoh_args = ["--zenoh-tls", str(pki_folder)] if secure else ["--zenoh-namespace", namespace]
+    signing_args: list[str] = []
+    if secure:
+        make_pki(pki_folder)
+        signing_args = ["--signing-key", str(make_signing_key(pki_folder)), "--mav-sign-cfg", "1"]
+    companion_ports = {k: free_port() for k in range(1, count + 1)}
+    write_json(folder / "links.json", {"zenoh": {"endpoint": endpoint, "namespace": namespace, "secure": secure,
+                                                 "pki": str(pki_folder) if secure else None},
+                                       "mavlink": {"gcs_port": gcs_port, "signing_required": secure,
+                                                   "pursuers": {str(k): {"system_id": k, "companion_port": port}
+                                                                for k, port in companion_ports.items()}}}, indent=2)
+    python = sys.executable
+    plants, companions = {}, {}
+    for k in range(1, count + 1):
+        where = folder / f"pursuer-{k}"
+        zenoh = ["--zenoh-listen", endpoint, *zenoh_args] if k == 1 else []
+        plants[k] = ChildProcess([python, "-m", "sitl_plant.sitl", "--config", str(config), "--speed-factor", str(speed),
+                                  "--pursuer-id", str(k), "--system-id", str(k), "--companion-port",
+                                  str(companion_ports[k]), "--gcs-port", str(gcs_port), "--seed", str(plant_seed(seed, k)),
+                                  "--log-dir", str(where / "plant"), "--quiet", *zenoh, *signing_args],
+                                 where / "plant.out", ready="sitl-plant ready")
+        companions[k] = ChildProcess([python, "-m", "companion", "--config", str(config), "--pursuer-id", str(k),
+                                      "--mavlink", f"udpin://127.0.0.1:{companion_ports[k]}", "--zenoh-connect", endpoint,
+                                      "--seed", str(seed), "--log-dir", str(where / "companion"), *zenoh_args],
+                                     where / "companion.out", ready="companion ready")
+    target = ChildProcess([python, "-m", "sitl_plant.world.target_publisher", "--config", str(config), "--zenoh-connect",
+                           endpoint, "--seed", str(seed), "--log-dir", str(folder / "target"), "--wait-for-start",
+                           *zenoh_args, *[arg for fault in (target_faults or []) for arg in ("--fault", fault)]],
+                          folder / "target.out", ready="sitl-target ready")
+    children = {**{f"plant-{k}": c for k, c in plants.items()}, "target": target,
+                **{f"companion-{k}": c for k, c in companions.items()}}
+    print(f"bof-sitl: {count} pursuers; ground station: udp 127.0.0.1:{gcs_port} (system ids 1..{count})", flush=True)
+    print(f"bof-sitl: zenoh {endpoint}, " + ("mutual TLS and access control (pki in the run folder)" if secure else
+          f"plain TCP, unauthenticated, namespace {namespace}"), flush=True)
+    cpu = CpuMeter()
+    station = None
+    code = 1
+    interrupted: str | None = None
+    interrupted_at: float | None = None
+    anchor = None
+    try:
+        anchor = time.monotonic() + ANCHOR_LEAD_PER_PURSUER * count
+        # Each wave starts together, then waits for every ready line: the pursuers take off and engage within
+        # about a second of one another, as the in-process pursuers all start at once.
+        for plant in plants.values():
+            plant.command += ["--clock-anchor", f"{anchor:.6f}"]
+        _start_together(plants.values(), stop)
+        target.start(stop=stop)
+        station = SwarmGroundStation(endpoint, scenario, zenoh_transport.tls_identity(pki_folder, "gcs") if secure else None,
+                                     namespace)
+        _start_together(companions.values(), stop)
+        deadline = time.monotonic() + budget
+        next_print = 0.0
+        while any(c.running for c in companions.values()):
+            if stop is not None:
+                stop.check()
+            cpu.sample(children)
+            if time.monotonic() > deadline:
+                interrupted, interrupted_at = f"timeout after {budget:.0f} s of wall time", time.monotonic()
+                break
+            gone = frozenset(station.ids[k - 1] for k, c in companions.items() if not c.running)
+            if not station.target_started and station.all_following(gone):
+                station.start_target()
+            if on_progress is not None:
+                on_progress(station)
+            if not quiet and time.monotonic() >= next_print:
+                next_print = time.monotonic() + 2.0
+                print(f"bof-sitl: {station.progress()}", flush=True)
+            for name, child in children.items():
+                if not name.startswith("companion") and not child.running:
+                    raise RuntimeError(f"{name} exited early:\n{child.output()[-2000:]}")
+            time.sleep(0.05)
+        cpu.sample(children, force=True)
+        codes = [c.process.returncode for c in companions.values()]
+        code = (0 if all(c == 0 for c in codes) else 1) if interrupted is None else 1
+    except Interrupted as signal_stop:
+        interrupted = signal.Signals(signal_stop.signum).name
+        interrupted_at = stop.received_at if stop is not None else time.monotonic()
+        code = 128 + signal_stop.signum
+    finally:
+        cpu.sample(children, force=True)
+        # Companions first, while the plants still answer (each hands its vehicle to its autopilot).
+        companion_codes = stop_all(companions.values())
+        other_codes = stop_all([target, *plants.values()])
+        if station is not None:
+            station.close()
+    stopped_after = None if interrupted_at is None else round(time.monotonic() - interrupted_at, 3)
+    exit_codes = {"target": other_codes[0], **{f"plant-{k}": c for k, c in zip(plants, other_codes[1:])},
+                  **{f"companion-{k}": c for k, c in zip(companions, companion_codes)}}
+    entries, series = [], {}
+    for k in range(1, count + 1):
+        where = folder / f"pursuer-{k}"
+        own = pursuer_scenario(scenario, pursuer_starts(scenario)[k - 1])
+        companion_summary = _read_json(where / "companion" / "summary.json")
+        plant_stats = _read_json(where / "plant" / "stats.json") or {}
+        termination = _termination(where, companion_summary, interrupted)
+        entry: dict = {"pursuer": k, "termination": termination_name(termination),
+                       "termination_reason": termination.value}
+        try:
+            if companion_summary is None:
+                raise RuntimeError(f"pursuer {k}'s companion wrote no summary; see pursuer-{k}/companion.out")
+            data, engaged_at = flight_series(where, folder / "target")
+            series[k] = data
+            entry.update(summarize(data, own, termination))
+            entry["engaged_at_sim_time"] = engaged_at
+        except (RuntimeError, FileNotFoundError, KeyError, ValueError, IndexError) as error:
+            entry["flight_error"] = str(error)
+        swarm = (companion_summary or {}).get("swarm") or {}
+        entry.update(pursuer=k, neighbour_bearings_used=swarm.get("neighbour_bearings_used"),
+                     shares_rejected=swarm.get("shares_rejected"), law_changes=swarm.get("law_changes"),
+                     deadline_misses=(companion_summary or {}).get("deadline_misses"),
+                     setpoints_sent=(companion_summary or {}).get("setpoints_sent"),
+                     companion=companion_summary,
+                     plant={key: plant_stats.get(key) for key in ("system_id", "speed_factor_achieved", "late_ticks",
+                                                                  "ticks", "slips", "catch_ups", "max_lag_sim_s")},
+                     companion_exit_code=exit_codes[f"companion-{k}"], plant_exit_code=exit_codes[f"plant-{k}"])
+        entry["plant"]["mavlink_rejected"] = plant_stats.get("mavlink", {}).get("rejected")
+        entries.append(entry)
+    top = {key: value for key, value in entries[0].items() if key not in ("companion", "plant")}
+    top["pursuers"] = entries
+    try:
+        geometry = swarm_geometry(folder, count, scenario.simulation.summary_window)
+    except (FileNotFoundError, KeyError, ValueError, IndexError) as error:
+        geometry = {"min_pursuer_separation": None, "phase_spacing_error_deg_rms": None, "geometry_error": str(error)}
+    top.update(geometry)
+    top["min_separation"] = scenario.swarm.min_separation
+    # The [swarm.link] model's counts over every receiver, as bof-sim's share_link: each share a companion
+    # accepted was offered to the model once.
+    links = [((e.get("companion") or {}).get("swarm") or {}) for e in entries]
+    offered = sum(l.get("shares_accepted", 0) for l in links)
+    dropped: dict[str, int] = {}
+    for l in links:
+        for reason, n in (l.get("shares_dropped_by_link") or {}).items():
+            dropped[reason] = dropped.get(reason, 0) + n
+    top["share_link"] = {"offered": offered, "delivered": offered - sum(dropped.values()), **dropped}
+    failed = next((e for e in entries if e["termination"] != "completed"), None)
+    if failed is not None:
+        top["termination"] = failed["termination"]
+        top["termination_reason"] = f"pursuer {failed['pursuer']}: {failed['termination_reason']}"
+        code = code or 1
+    if any("flight_error" in e for e in entries):
+        code = code or 1
+    top.update(speed_factor=speed, seed=seed, run_folder=str(folder), gcs_port=gcs_port, interrupted=interrupted,
+               stopped_after_s=stopped_after, exit_codes=exit_codes, cpu=cpu.report(), clock_anchor=anchor,
+               target_started_at=None if station is None else station.started_stamp,
+               zenoh={"secure": secure, "endpoint": endpoint, "namespace": namespace,
+                      "tls_refused": {name: zenoh_transport.count_tls_refusals(child.output())
+                                      for name, child in children.items()} if secure else None})
+    if plots and interrupted is None and series:
+        from studies.plots import plot_swarm_tracks
+
+        plot_swarm_tracks(series, folder / "tracks.png", f"{scenario.name} (SITL, {count} pursuers, seed {seed})")
+    write_summary(folder / "summary.json", top, sort_keys=True)
+    return code, folder, top
+
+
+def format_swarm_sitl_summary(summary: dict) -> str:
+    """The run's lines: the swarm's figures, then one line per pursuer, then CPU per process."""
+    spacing, separation = summary.get("phase_spacing_error_deg_rms"), summary.get("min_pursuer_separation")
+    lines = [f"run folder: {summary['run_folder']}",
+             f"termination: {summary.get('termination')}, {summary.get('termination_reason')}",
+             f"  {len(summary['pursuers'])} pursuers: phase spacing error rms "
+             f"{'n/a' if spacing is None else f'{spacing:.2f} deg'}, closest pursuers "
+             f"{'n/a' if separation is None else f'{separation:.2f} m'} (limit {summary['min_separation']} m)"]
+    for entry in summary["pursuers"]:
+        if "flight_error" in entry:
+            lines.append(f"    pursuer {entry['pursuer']}: {entry['termination']}: {entry['flight_error']}")
+            continue
+        lines.append(f"    pursuer {entry['pursuer']}: {entry['termination']}, range-estimation rms "
+                     f"{entry['range_estimation_error_rms']:.3f} m, range error rms {entry['range_error_rms']:.3f} m, "
+                     f"min range {entry['min_range']:.2f} m, neighbour bearings used {entry['neighbour_bearings_used']}, "
+                     f"deadline misses {entry['deadline_misses']}/{entry['setpoints_sent']}, "
+                     f"plant x{entry['plant']['speed_factor_achieved']}")
+    cpu = summary.get("cpu") or {}
+    if cpu:
+        lines.append("  CPU (share of one core): " + ", ".join(
+            f"{name} {value['cpu_share']:.2f}" for name, value in sorted(cpu.items()) if value.get("cpu_share") is not None))
+    return "\n".join(lines)
+
+
+def budget_for(scenario: Scenario, speed: float, timeout: float | None) -> float:
+    """Wall s for the whole run: --timeout, else (follow duration + 90 s) / speed + 60 s + 10 s per pursuer."""
+    if timeout is not None:
+        return timeout
+    duration = scenario.companion.follow_duration or scenario.simulation.duration
+    return (duration + 90.0) / speed + 60.0 + 10.0 * scenario.swarm.count
