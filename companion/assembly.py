@@ -7,6 +7,7 @@ factory, so adding a baseline is one entry.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -207,8 +208,9 @@ def vehicle_limits(vehicle: VehicleConfig, hover_thrust_normalized: float) -> Ve
     )
 
 
-def build_pipeline(scenario: Scenario, vehicle: VehicleConfig, hover_thrust_normalized: float) -> FollowingPipeline:
-    """The one pipeline object both harnesses drive."""
+def build_pipeline(scenario: Scenario, vehicle: VehicleConfig, hover_thrust_normalized: float,
+                   pursuer_id: int = 1) -> FollowingPipeline:
+    """The one pipeline object both harnesses drive (pursuer_id: which pursuer of a [swarm] flies it)."""
     return FollowingPipeline(
         estimator=build_swarm_estimator(scenario),
         lateral_guidance=build_lateral_guidance(scenario),
@@ -222,7 +224,7 @@ def build_pipeline(scenario: Scenario, vehicle: VehicleConfig, hover_thrust_norm
         health=HealthMonitor(health_config(scenario)),
         actions=HealthActionPolicy(health_action_config(scenario)),
         action_excitation=build_action_excitation(scenario),
-        cooperation=build_cooperation(scenario),
+        cooperation=build_cooperation(scenario, pursuer_id),
     )
 
 
@@ -246,10 +248,16 @@ SEPARATION_MAX_ACCELERATION = 6.0
 SEPARATION_BRAKING = 3.0
 
 
-def build_cooperation(scenario: Scenario) -> Cooperation | None:
-    """[swarm]'s guidance as the pipeline's Cooperation: the cooperative law (None for 'hng'), the separation
-    filter, and HNG's weave switch (off while a neighbour's line of sight is weave_min_angle_deg from ours).
-    None without [swarm]."""
+#: A lone pursuer's layer: its orbit radius grows by LONE_LAYER x min_separation x its id.
+LONE_LAYER = 1.5
+
+
+def build_cooperation(scenario: Scenario, pursuer_id: int = 1) -> Cooperation | None:
+    """[swarm]'s guidance as the pipeline's Cooperation of pursuer `pursuer_id`: the cooperative law (None for
+    'hng'), its lone layer (the same law on an orbit LONE_LAYER x min_separation x pursuer_id larger: pursuers
+    that hear nobody each fly their own circle, clear of the others' by at least 1.5 min_separation), the
+    separation filter, and HNG's weave switch (off while a neighbour's line of sight is weave_min_angle_deg
+    from ours). None without [swarm]."""
     swarm = scenario.swarm
     if swarm is None:
         return None
@@ -267,10 +275,16 @@ def build_cooperation(scenario: Scenario) -> Cooperation | None:
                                        standoff_height=t.height, max_vertical_speed=t.max_vertical_speed,
                                        max_vertical_acceleration=t.max_vertical_acceleration,
                                        velocity_gain=t.velocity_gain, max_acceleration=t.max_acceleration)
+    lone = None
+    if law is not None:
+        layer = LONE_LAYER * swarm.min_separation * pursuer_id
+        lone = (dataclasses.replace(law, desired_radius=law.desired_radius + layer)
+                if isinstance(law, CircumnavigationGuidance)
+                else dataclasses.replace(law, standoff_radius=law.standoff_radius + layer))
     steady = PurePursuitGuidance(g.navigation_gain) if g.law == "hng" else None
     separation = SeparationFilter(swarm.min_separation, max_acceleration=SEPARATION_MAX_ACCELERATION,
                                   braking_acceleration=SEPARATION_BRAKING)
-    return Cooperation(law=law, separation=separation,
+    return Cooperation(law=law, separation=separation, lone_law=lone,
                        weave_min_angle=None if steady is None else float(np.radians(swarm.weave_min_angle_deg)),
                        steady_guidance=steady)
 

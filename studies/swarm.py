@@ -97,7 +97,7 @@ def _pursuer(scenario: Scenario, vehicle: VehicleConfig, start: PursuerStart, se
     plant = AttitudeThrustVehicle(params, _initial_state(own, params), scenario.simulation.physics_rate_hz, plant_rng)
     epoch = int(np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(EPOCH_SPAWN_KEY, start.ident))).integers(
         0, MAX_EPOCH, endpoint=True))
-    return _Pursuer(start.ident, own, plant, build_pipeline(own, vehicle, params.hover_thrust_normalized),
+    return _Pursuer(start.ident, own, plant, build_pipeline(own, vehicle, params.hover_thrust_normalized, start.ident),
                     build_sensor(scenario.sensor), sensor_rng, range_rng, epoch, FlightLog(rows))
 
 

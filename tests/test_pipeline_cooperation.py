@@ -129,3 +129,25 @@ def test_a_neighbours_bearing_corrects_the_estimate_but_is_not_our_line_of_sight
     assert output.correction is not None  # used by the estimator
     assert not np.allclose(pipeline.estimator.estimate.position, estimate_before)
     np.testing.assert_array_equal(pipeline._last_bearing, own_bearing)
+
+
+def test_a_pursuer_that_hears_nobody_flies_the_cooperative_law_on_its_own_layer():
+    """Pursuer k of a cooperative flight alone (its share link down): the same law on an orbit 1.5 x
+    min_separation x k larger (assembly.build_cooperation), so that it stays clear of the others' circle
+    (which it cannot see, nor they it); with a neighbour again, the common orbit."""
+    from companion.assembly import LONE_LAYER, build_cooperation
+    from interfaces.scenario import SCENARIOS_DIR, load_scenario
+
+    scenario, _ = load_scenario(SCENARIOS_DIR / "swarm_circumnavigation.toml")
+    for pursuer_id in (1, 2, 3):
+        cooperation = build_cooperation(scenario, pursuer_id)
+        assert cooperation.lone_law.desired_radius == pytest.approx(
+            cooperation.law.desired_radius + LONE_LAYER * scenario.swarm.min_separation * pursuer_id)
+    cooperation = build_cooperation(scenario, 2)
+    pipeline = _pipeline(cooperation)
+    _engage(pipeline)
+    pipeline.step(0.05, PursuerState(0.05, OWN.position, OWN.velocity))
+    assert pipeline.law_changes[-1] == (0.0, "lone")  # from the engagement on
+    pipeline.set_neighbours([_neighbour_at(120.0)])
+    pipeline.step(0.10, PursuerState(0.10, OWN.position, OWN.velocity))
+    assert pipeline.law_changes[-1] == (0.10, "cooperative") and pipeline.cooperating

@@ -158,12 +158,17 @@ class Cooperation:
     triangulation baseline: `neighbours_make_range_observable`), the lateral law flies without its weave
     (`steady_guidance`, HNG with c_Z = c_Y = 0 = PPG, eq. (14)), and weaves again when none is.
     None: always weave. steady_guidance: the lateral law without weave (required with weave_min_angle).
+    lone_law: what a pursuer of a cooperative flight (law given) flies while it hears no neighbour: the
+    same law on a layer of its own (a larger orbit, companion.assembly.build_cooperation), so that a
+    pursuer whose share link is down cannot fly into the orbit of the others, who cannot see it either.
+    None: the single-pursuer laws (lateral guidance + range controller).
     """
 
     law: object | None = None
     separation: SeparationFilter | None = None
     weave_min_angle: float | None = None
     steady_guidance: LateralGuidance | None = None
+    lone_law: object | None = None
 
     def __post_init__(self) -> None:
         if self.weave_min_angle is not None and self.steady_guidance is None:
@@ -494,11 +499,14 @@ class FollowingPipeline:
             self._estimator_ticks += 1
 
     def _choose_law(self, time: float, pursuer: PursuerState, target_position: np.ndarray, neighbours: tuple) -> str:
-        """'cooperative', 'steady' (lateral law without weave) or 'single' (the configured laws); a change
+        """'cooperative', 'lone' (the cooperative law's own layer, no neighbour heard), 'steady' (lateral law
+        without weave) or 'single' (the configured laws); a change
         is recorded in law_changes and blended like a change of mode (max_jerk for blend_time)."""
         cooperation = self.cooperation
         law = "single"
-        if cooperation is not None and neighbours:
+        if cooperation is not None and not neighbours and cooperation.law is not None and cooperation.lone_law is not None:
+            law = "lone"
+        elif cooperation is not None and neighbours:
             if cooperation.law is not None:
                 law = "cooperative"
             elif cooperation.weave_min_angle is not None and neighbours_make_range_observable(
@@ -530,9 +538,10 @@ class FollowingPipeline:
             # Safe behaviour: no weave; hold safe_range on the predicted line of sight.
             lateral = np.zeros(3)
             longitudinal = self._safe_controller.acceleration(relative_position, relative_velocity, los, lateral)
-        elif law == "cooperative":
+        elif law in ("cooperative", "lone"):
             # A complete law on the estimate (seed 002 / seed 004): no range-controller term.
-            lateral = self.cooperation.law.acceleration(CooperativeContext(
+            complete = self.cooperation.law if law == "cooperative" else self.cooperation.lone_law
+            lateral = complete.acceleration(CooperativeContext(
                 time, pursuer.position, pursuer.velocity, estimate.position, estimate.velocity, neighbours))
             longitudinal = np.zeros(3)
         else:
