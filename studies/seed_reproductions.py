@@ -31,11 +31,13 @@ module only:
    neighbours') and applies only the LAST step's output if its new_setpoint is set; the pipeline computes the
    setpoint on the FIRST step of a control tick, so whenever a control tick has two or more bearings the
    setpoint never reaches the plant. With seed 002's 20 Hz bearings every control tick has five, and no
-   pursuer ever moves (bof-sim config/scenarios/seed002_circumnavigation.toml: max speed 0). Here every
+   pursuer ever moves (bof-sim config/scenarios/seed002_circumnavigation.toml with fault 2 worked around:
+   max speed 0). Here every
    pipeline reports new_setpoint on every step of the tick in which it computed one (`_SetpointOfTheTick`).
 2. Shares refused. A share is stamped with the loop time and its estimate with the estimator's own clock;
    they may differ by one rounding step, and encode_pursuer_share then refuses the share and the flight
-   stops with PayloadError (the same command, at 11.75 s); an estimate outside the schema's range (a
+   stops with PayloadError (the same command as it is: at 11.75 s, the pursuers still where they started);
+   an estimate outside the schema's range (a
    diverged one, |v| > 1e3 m/s) stops it too. Here an estimate stamped < 1 us after its share is stamped at
    the share's time, and one the schema still refuses is left out of the share and counted.
 """
@@ -48,6 +50,7 @@ import math
 import sys
 import time as wall
 from collections.abc import Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -167,11 +170,17 @@ def _build_pipeline(*args, **kwargs) -> FollowingPipeline:
     return pipeline
 
 
-def _harness_workarounds() -> None:
-    """Route studies.swarm's share encoding through `_encode_share` and its pipelines through
-    `_SetpointOfTheTick` (module docstring)."""
-    swarm_module.encode_pursuer_share = _encode_share
-    swarm_module.build_pipeline = _build_pipeline
+@contextmanager
+def _harness_workarounds():
+    """While inside: studies.swarm's share encoding goes through `_encode_share` and its pipelines are
+    `_SetpointOfTheTick` (module docstring). Restored on leaving, so nothing else flown in the same
+    process (other studies, other tests) is changed."""
+    saved = swarm_module.encode_pursuer_share, swarm_module.build_pipeline
+    swarm_module.encode_pursuer_share, swarm_module.build_pipeline = _encode_share, _build_pipeline
+    try:
+        yield
+    finally:
+        swarm_module.encode_pursuer_share, swarm_module.build_pipeline = saved
 
 
 def load_variant(variant: Variant, duration: float | None = None) -> tuple[Scenario, VehicleConfig]:
@@ -186,9 +195,9 @@ def load_variant(variant: Variant, duration: float | None = None) -> tuple[Scena
 
 def fly(variant: Variant, seed: int, duration: float | None = None) -> SwarmResult:
     """Fly one variant for one flight seed (studies.swarm.simulate_swarm)."""
-    _harness_workarounds()
     scenario, vehicle = load_variant(variant, duration)
-    return swarm_module.simulate_swarm(scenario, vehicle, seed=seed)
+    with _harness_workarounds():
+        return swarm_module.simulate_swarm(scenario, vehicle, seed=seed)
 
 
 # ---------------------------------------------------------------------------------------------- metrics

@@ -10,7 +10,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from interfaces.link_schema import PursuerShare, SharedEstimate, decode_pursuer_share
+import companion.assembly
+from interfaces.link_schema import PursuerShare, SharedEstimate, decode_pursuer_share, encode_pursuer_share
 from interfaces.scenario import SCENARIOS_DIR, load_scenario
 from studies import seed_reproductions as repro
 
@@ -119,6 +120,9 @@ def test_short_reproduction_writes_its_folder_and_the_pursuers_close_in(tmp_path
     assert "| " + variant + " |" in (folder / "summary.md").read_text()
     assert "run folder" in capsys.readouterr().out
     result = repro.fly(next(v for v in repro.REPRODUCTIONS[paper] if v.key == variant), 0, duration=4.0)
+    # the workarounds end with the flight: studies.swarm is as it was for anything flown afterwards
+    assert repro.swarm_module.build_pipeline is companion.assembly.build_pipeline
+    assert repro.swarm_module.encode_pursuer_share is encode_pursuer_share
     for data in result.series.values():
         offset = data["target_position"] - data["pursuer_position"]
         distance = np.hypot(offset[:, 0], offset[:, 1])
