@@ -19,6 +19,7 @@ pursuer k > 1 has streams of its own.
 
 from __future__ import annotations
 
+import dataclasses
 import heapq
 import math
 from dataclasses import dataclass, field
@@ -29,16 +30,37 @@ from companion.assembly import build_pipeline, build_sensor, pursuer_scenario
 from companion.core.cooperative_guidance import phase_spacing_errors
 from companion.core.messages import BearingMeasurement, NeighbourState, PursuerState
 from companion.core.pipeline import FollowingPipeline
-from interfaces.link_schema import (MAX_EPOCH, PayloadError, PursuerShare, SharedBearing, SharedEstimate,
-                                    decode_pursuer_share, encode_pursuer_share)
+from interfaces.link_schema import (
+    MAX_EPOCH,
+    PayloadError,
+    PursuerShare,
+    SharedBearing,
+    SharedEstimate,
+    decode_pursuer_share,
+    encode_pursuer_share,
+)
 from interfaces.neighbour_link import NeighbourLink
-from interfaces.scenario import ConfigError, PursuerStart, Scenario, VehicleConfig, pursuer_starts, share_rate_hz
+from interfaces.scenario import (
+    ConfigError,
+    PursuerStart,
+    Scenario,
+    VehicleConfig,
+    pursuer_starts,
+    share_rate_hz,
+)
 from sitl_plant.vehicle.attitude_control import AttitudeThrustVehicle
 from sitl_plant.vehicle.params import quadrotor_params
 from sitl_plant.world.link_faults import injects_anything
 from sitl_plant.world.target import target_from_config
-from studies.closed_loop import (MAX_SPEED, FlightLog, Termination, _initial_state, _log_tick, _measure,
-                                 health_actions_summary)
+from studies.closed_loop import (
+    MAX_SPEED,
+    FlightLog,
+    Termination,
+    _initial_state,
+    _log_tick,
+    _measure,
+    health_actions_summary,
+)
 from studies.metrics import rms, summarize
 
 #: Streams of pursuer k > 1: SeedSequence(seed, spawn_key=(SWARM_SPAWN_KEY, k)).spawn(3) (plant, sensor, range).
@@ -71,6 +93,7 @@ class _Pursuer:
     neighbour_bearings_used: int = 0
     shares_rejected: dict[str, int] = field(default_factory=dict)
     last_seq: dict[int, tuple[int, int]] = field(default_factory=dict)
+    estimates_not_shared: dict[str, int] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -115,7 +138,15 @@ def _share(pursuer: _Pursuer, time: float, position: np.ndarray, velocity: np.nd
         estimate = SharedEstimate(current.time, tuple(current.position), tuple(current.velocity), current.covariance)
     share = PursuerShare(pursuer.ident, pursuer.seq, time, pursuer.epoch, tuple(position), tuple(velocity), bearing, estimate)
     pursuer.seq += 1
-    return encode_pursuer_share(share)
+    try:
+        return encode_pursuer_share(share)
+    except PayloadError as error:
+        if estimate is None:
+            raise
+        # An estimate the schema refuses (a diverged one: |v| > 1e3 m/s, a covariance out of range) is left out
+        # of the share, and counted; the rest of the share still goes.
+        pursuer.estimates_not_shared[error.reason] = pursuer.estimates_not_shared.get(error.reason, 0) + 1
+        return encode_pursuer_share(dataclasses.replace(share, estimate=None))
 
 
 def _receive(receiver: _Pursuer, payload: bytes, uses_bearings: bool) -> None:
@@ -267,6 +298,7 @@ def _result(scenario: Scenario, pursuers: list[_Pursuer], link: NeighbourLink | 
         summary["bearings_used"] = p.bearings_used
         summary["neighbour_bearings_used"] = p.neighbour_bearings_used
         summary["shares_rejected"] = dict(p.shares_rejected)
+        summary["estimates_not_shared"] = dict(p.estimates_not_shared)
         summary["first_bearing_time"] = p.first_bearing
         estimation_error = data["range_estimate"] - data["range"]
         summary["range_estimation_settled_1m_after_all_bearings"] = (
