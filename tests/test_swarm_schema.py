@@ -24,7 +24,7 @@ from interfaces.scenario import (SCENARIOS_DIR, VEHICLES_DIR, ConfigError, Scena
                                  load_plant_scenario, load_scenario, pursuer_starts, share_rate_hz)
 
 FUZZ = settings(max_examples=300, deadline=None, database=None, suppress_health_check=[HealthCheck.too_slow])
-SWARM_FILES = ("swarm_circumnavigation", "seed002_circumnavigation", "seed004_standoff")
+SWARM_FILES = ("swarm_circumnavigation", "seed002_circumnavigation", "seed004_standoff", "swarm_turning")
 
 
 # --- the payload -------------------------------------------------------------------
