@@ -331,9 +331,18 @@ def markdown(tables: dict[str, dict], goal_rows: list[dict], seeds: int, executo
 
 def run_study(cases: list[Case], seeds: int, executor_spec: str = "local", workers: int | None = None,
               progress: bool = True) -> tuple[list[dict], list[dict], str, float]:
-    """Fly every case for seeds 1..seeds; returns (pursuer rows, flights, executor name, wall s), in case and
-    seed order whatever order the workers finish in."""
-    tasks = [(case, seed) for case in cases for seed in range(1, seeds + 1)]
+    """Fly every case for seeds 1..seeds; returns (pursuer rows, flights flown, executor name, wall s), in
+    case and seed order whatever order the workers finish in."""
+    # A case whose scenario another case already flies (cv_shared_bearings is cv_swarm) is flown once.
+    flown: list[Case] = []
+    same_as: dict[str, int] = {}
+    for case in cases:
+        twin = next((k for k, other in enumerate(flown) if other.scenario == case.scenario and other.vehicle == case.vehicle), None)
+        if twin is None:
+            flown.append(case)
+            twin = len(flown) - 1
+        same_as[case.name] = twin
+    tasks = [(case, seed) for case in flown for seed in range(1, seeds + 1)]
     executor = make_executor(executor_spec, workers)
     results: list[dict | None] = [None] * len(tasks)
     started = time.perf_counter()
@@ -347,8 +356,13 @@ def run_study(cases: list[Case], seeds: int, executor_spec: str = "local", worke
         if progress:
             print(file=sys.stderr)
     wall = time.perf_counter() - started
-    rows = [row for result in results for row in result["rows"]]
-    flights = [result["flight"] for result in results]
+    rows, flights = [], []
+    for case in cases:
+        for seed in range(seeds):
+            result = results[same_as[case.name] * seeds + seed]
+            rows += [{**row, "case": case.name, "part": case.part} for row in result["rows"]]
+            if flown[same_as[case.name]] is case:
+                flights.append(result["flight"])
     return rows, flights, executor.name, wall
 
 

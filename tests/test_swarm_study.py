@@ -77,3 +77,12 @@ def test_bad_arguments_are_refused(tmp_path):
     assert swarm_study.main(["--seeds", "0", "--out", str(tmp_path)]) == 2
     assert swarm_study.main(["--workers", "0", "--out", str(tmp_path)]) == 2
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_case_that_is_another_case_is_flown_once():
+    cases = [c for c in swarm_study.build_cases(("a", "c"), 3.0) if c.name in ("cv_swarm", "cv_shared_bearings")]
+    rows, flights, _, _ = swarm_study.run_study(cases, 1, "serial", progress=False)
+    assert len(flights) == 1
+    by_case = {name: [{k: v for k, v in r.items() if k not in ("case", "part")} for r in rows if r["case"] == name]
+               for name in ("cv_swarm", "cv_shared_bearings")}
+    assert len(by_case["cv_swarm"]) == 3 and by_case["cv_swarm"] == by_case["cv_shared_bearings"]
