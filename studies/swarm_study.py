@@ -280,6 +280,9 @@ def goals(tables: dict[str, dict]) -> list[dict]:
             f"max {blackout['silent_recovered_1m_max']:.2f} s after; max |error| during it "
             f"{blackout['silent_blackout_max_abs_error_max']:.3f} m",
             blackout["silent_recovered"] == blackout["seeds"] and blackout["silent_diverged"] == 0)
+        add("blackout: pursuers never closer than min_separation (nobody hears the silent one)",
+            f"{blackout['min_pursuer_separation']:.2f} m against {blackout['min_separation']:g} m",
+            blackout["min_pursuer_separation"] >= blackout["min_separation"])
     return out
 
 
@@ -318,7 +321,11 @@ def markdown(tables: dict[str, dict], goal_rows: list[dict], seeds: int, executo
                   f"| the silent one | {_f(blackout['silent_blackout_max_abs_error_median'])} median, {_f(blackout['silent_blackout_max_abs_error_max'])} max "
                   f"| {_f(blackout['silent_range_estimation_rms_pooled'])} | {_f(blackout['silent_recovered_1m_median'], 2)} median, "
                   f"{_f(blackout['silent_recovered_1m_max'], 2)} max ({blackout['silent_recovered']}/{blackout['seeds']} recovered) "
-                  f"| {blackout['silent_diverged']} |", ""]
+                  f"| {blackout['silent_diverged']} |", "",
+                  f"Closest pursuers in these flights {_f(blackout['min_pursuer_separation'], 2)} m (limit "
+                  f"{_f(blackout['min_separation'], 1)} m); phase spacing RMS over the last window (from the blackout's "
+                  f"end) median {_f(blackout['phase_spacing_deg_rms_median'], 1)} deg, max "
+                  f"{_f(blackout['phase_spacing_deg_rms_max'], 1)} deg.", ""]
     if goal_rows:
         lines += ["| goal | measured | met |", "|---|---|---|"]
         lines += [f"| {g['goal']} | {g['measured']} | {'yes' if g['met'] else 'NO'} |" for g in goal_rows]
