@@ -277,8 +277,10 @@ def build_cooperation(scenario: Scenario) -> Cooperation | None:
 
 def build_swarm_estimator(scenario: Scenario) -> TargetEstimator:
     """[swarm] estimator: 'triangulation_kf' is seed 002's Kalman enhancement on triangulated bearing pairs
-    ([swarm.triangulation]: Q = process_noise I9 per step, R = measurement_noise I3); every other choice
-    flies the [estimator] section's filter (fed the neighbours' bearings or not: the harness decides)."""
+    ([swarm.triangulation]: Q = process_noise I9 per step, R = measurement_noise I3); 'fusion' is the
+    [estimator] section's filter inside a FusionEstimator ([swarm.fusion] method; the harness hands its
+    `absorb` the neighbours' shared estimates as they arrive, at most neighbour_timeout_s old); every other
+    choice flies the [estimator] section's filter (fed the neighbours' bearings or not: the harness decides)."""
     swarm = scenario.swarm
     if swarm is None or swarm.estimator == "own":
         return build_estimator(scenario)
