@@ -26,7 +26,7 @@ from companion.core.guidance import (HelicalNavigationGuidance, LateralGuidance,
                                      RangeExcitation)
 from companion.core.health import HealthActionConfig, HealthActionPolicy, HealthConfig, HealthMonitor
 from companion.core.imm import IMMEstimator, standard_models
-from companion.core.cooperative_estimation import TriangulationKalmanEstimator
+from companion.core.cooperative_estimation import FusionEstimator, TriangulationKalmanEstimator
 from companion.core.cooperative_guidance import CircumnavigationGuidance, SeparationFilter, StandoffTrackingGuidance
 from companion.core.pipeline import Cooperation, DropoutPolicy, FollowingPipeline
 
@@ -291,11 +291,20 @@ def build_cooperation(scenario: Scenario, pursuer_id: int = 1) -> Cooperation | 
 
 def build_swarm_estimator(scenario: Scenario) -> TargetEstimator:
     """[swarm] estimator: 'triangulation_kf' is seed 002's Kalman enhancement on triangulated bearing pairs
-    ([swarm.triangulation]: Q = process_noise I9 per step, R = measurement_noise I3); every other choice
-    flies the [estimator] section's filter (fed the neighbours' bearings or not: the harness decides)."""
+    ([swarm.triangulation]: Q = process_noise I9 per step, R = measurement_noise I3); 'fusion' is the
+    [estimator] section's filter inside a FusionEstimator ([swarm.fusion] method; the harness hands its
+    `absorb` the neighbours' shared estimates as they arrive, at most neighbour_timeout_s old); every other
+    choice flies the [estimator] section's filter (fed the neighbours' bearings or not: the harness decides)."""
     swarm = scenario.swarm
-    if swarm is None or swarm.estimator in ("own", "fusion"):
+    if swarm is None or swarm.estimator == "own":
         return build_estimator(scenario)
+    if swarm.estimator == "fusion":
+        # the own [estimator] filter on the own bearings, absorbing the neighbours' shared estimates
+        if scenario.estimator.kind not in ("uplkf", "imm"):
+            raise ConfigError(f"[swarm] estimator = 'fusion' needs [estimator] kind 'uplkf' or 'imm', "
+                              f"not {scenario.estimator.kind!r}")
+        method = {"covariance_intersection": "ci", "seed004": "seed004"}[swarm.fusion.method]
+        return FusionEstimator(build_estimator(scenario), method, max_age_s=swarm.neighbour_timeout_s)
     if swarm.estimator == "shared_bearings":
         # The u-PLKF and the IMM (whose model filters are u-PLKFs) take a neighbour's bearing as it is: the
         # pseudo-linear measurement stacks naturally over sources. The baselines' EKF corrections do not.

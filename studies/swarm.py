@@ -8,7 +8,9 @@ latest bearing (and its estimate); the share goes through the neighbour-link fau
 (interfaces.neighbour_link: radius, loss, latency, blackouts) and is decoded by the receiver, which then
 
 * hands the neighbour's bearing to its estimator at the bearing's own stamp, from the neighbour's position
-  then (estimator 'shared_bearings' and 'triangulation_kf'; 'own' keeps to its own bearings);
+  then (estimator 'shared_bearings' and 'triangulation_kf'; 'own' and 'fusion' keep to their own bearings);
+* hands the neighbour's shared estimate to its estimator's `absorb` (estimator 'fusion':
+  companion.core.cooperative_estimation.FusionEstimator), all that arrived since its last tick at once;
 * knows the neighbour's state for the cooperative guidance and the separation filter for as long as it is
   fresh ([swarm] neighbour_timeout_s); with no fresh neighbour it flies the single-pursuer laws.
 
@@ -28,7 +30,7 @@ import numpy as np
 
 from companion.assembly import build_pipeline, build_sensor, pursuer_scenario
 from companion.core.cooperative_guidance import phase_spacing_errors
-from companion.core.messages import BearingMeasurement, NeighbourState, PursuerState
+from companion.core.messages import BearingMeasurement, NeighbourState, PursuerState, TargetEstimate
 from companion.core.pipeline import FollowingPipeline
 from interfaces.link_schema import (
     MAX_EPOCH,
@@ -87,6 +89,7 @@ class _Pursuer:
     shared_bearing_time: float = -math.inf
     neighbours: dict[int, NeighbourState] = field(default_factory=dict)
     inbox: list[BearingMeasurement] = field(default_factory=list)
+    estimate_inbox: list[TargetEstimate] = field(default_factory=list)
     first_bearing: float | None = None
     termination: Termination = Termination.COMPLETED
     bearings_used: int = 0
@@ -149,10 +152,11 @@ def _share(pursuer: _Pursuer, time: float, position: np.ndarray, velocity: np.nd
         return encode_pursuer_share(dataclasses.replace(share, estimate=None))
 
 
-def _receive(receiver: _Pursuer, payload: bytes, uses_bearings: bool) -> None:
+def _receive(receiver: _Pursuer, payload: bytes, uses_bearings: bool, uses_estimates: bool = False) -> None:
     """Decode one share and keep what it says: the neighbour's state, and its bearing for the estimator.
     A share that does not decode, or that is older than one already heard from its sender and epoch,
-    is counted and dropped."""
+    is counted and dropped. With uses_estimates the neighbour's shared estimate waits for the estimator's
+    absorb (estimator 'fusion')."""
     try:
         share = decode_pursuer_share(payload)
     except PayloadError as error:
@@ -171,6 +175,10 @@ def _receive(receiver: _Pursuer, payload: bytes, uses_bearings: bool) -> None:
     if uses_bearings and share.bearing is not None:
         receiver.inbox.append(BearingMeasurement(share.bearing.stamp, np.array(share.bearing.direction),
                                                  np.array(share.bearing.position), source=share.sender))
+    if uses_estimates and share.estimate is not None:
+        receiver.estimate_inbox.append(TargetEstimate(share.estimate.stamp, np.array(share.estimate.position),
+                                                      np.array(share.estimate.velocity),
+                                                      share.estimate.covariance_matrix))
 
 
 def simulate_swarm(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None) -> SwarmResult:
@@ -180,9 +188,6 @@ def simulate_swarm(scenario: Scenario, vehicle: VehicleConfig, seed: int | None 
     if injects_anything(scenario.faults):
         raise ConfigError("[faults] on the target link is not simulated with several pursuers yet: fly it with bof-sitl")
     swarm = scenario.swarm
-    if swarm is not None and swarm.estimator == "fusion":
-        raise ConfigError("[swarm] estimator = 'fusion' is not flown yet (the fusion functions exist in "
-                          "companion.core.cooperative_estimation; the pipeline does not absorb shared estimates)")
     physics_hz = scenario.simulation.physics_rate_hz
     every = {
         "estimator": round(physics_hz / scenario.estimator.rate_hz),
@@ -199,6 +204,7 @@ def simulate_swarm(scenario: Scenario, vehicle: VehicleConfig, seed: int | None 
     link = None if swarm is None else NeighbourLink(swarm.link, swarm.count, seed if swarm.link.seed is None else swarm.link.seed)
     timeout = math.inf if swarm is None else swarm.neighbour_timeout_s
     uses_bearings = swarm is not None and swarm.estimator in ("shared_bearings", "triangulation_kf")
+    uses_estimates = swarm is not None and swarm.estimator == "fusion"
     in_flight: list[tuple[float, int, int, bytes]] = []  # (delivery time, order, receiver id, payload)
     order = 0
     separation = math.inf
@@ -231,13 +237,17 @@ def simulate_swarm(scenario: Scenario, vehicle: VehicleConfig, seed: int | None 
                         order += 1
         while in_flight and in_flight[0][0] <= time + 1e-9:
             _, _, receiver_id, payload = heapq.heappop(in_flight)
-            _receive(pursuers[receiver_id - 1], payload, uses_bearings)
+            _receive(pursuers[receiver_id - 1], payload, uses_bearings, uses_estimates)
 
         for p in pursuers:
             truth, measured_position, measured_velocity = states[p.ident]
             own = PursuerState(time, measured_position, measured_velocity)
             fresh = tuple(n for n in p.neighbours.values() if time - n.time <= timeout)
             p.pipeline.set_neighbours(fresh)
+            if p.estimate_inbox:
+                # estimator 'fusion': the shares that arrived since the last tick, fused into the own filter at once
+                p.pipeline.estimator.absorb(p.estimate_inbox)
+                p.estimate_inbox.clear()
             bearings = sorted(p.inbox, key=lambda b: b.time)
             p.inbox.clear()
             output = p.pipeline.step_all(time, own, bearings)
@@ -297,6 +307,9 @@ def _result(scenario: Scenario, pursuers: list[_Pursuer], link: NeighbourLink | 
         summary["pursuer"] = p.ident
         summary["bearings_used"] = p.bearings_used
         summary["neighbour_bearings_used"] = p.neighbour_bearings_used
+        if hasattr(p.pipeline.estimator, "absorb"):
+            summary["estimates_absorbed"] = p.pipeline.estimator.absorbed
+            summary["estimates_refused"] = dict(p.pipeline.estimator.rejections)
         summary["shares_rejected"] = dict(p.shares_rejected)
         summary["estimates_not_shared"] = dict(p.estimates_not_shared)
         summary["first_bearing_time"] = p.first_bearing

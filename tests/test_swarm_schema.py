@@ -25,7 +25,7 @@ from interfaces.scenario import (SCENARIOS_DIR, VEHICLES_DIR, ConfigError, Scena
 
 FUZZ = settings(max_examples=300, deadline=None, database=None, suppress_health_check=[HealthCheck.too_slow])
 SWARM_FILES = ("swarm_circumnavigation", "seed002_circumnavigation", "seed002_circumnavigation_scaled",
-               "seed004_standoff")
+               "seed004_standoff", "swarm_turning")
 
 
 # --- the payload -------------------------------------------------------------------

@@ -700,3 +700,133 @@ def fuse_target_estimates(own: TargetEstimate, others: Sequence[TargetEstimate],
     else:
         raise ValueError(f"unknown fusion method {method!r}: 'ci' or 'seed004'")
     return TargetEstimate(own.time, mean[:3].copy(), mean[3:].copy(), covariance)
+
+
+# --------------------------------------------------------------------------------------------
+# A pursuer's own filter absorbing its neighbours' shared estimates (estimator = 'fusion')
+# --------------------------------------------------------------------------------------------
+
+FUSION_METHODS = ("ci", "seed004")
+
+
+class FusionEstimator:
+    """A pursuer's own bearing-only filter that also absorbs its neighbours' shared estimates: seed 004's
+    distributed fusion (its Fig. 2: each UAV filters its own measurements, then the estimates are fused
+    among the UAVs, eqs. (24)-(25), and the next cycle starts from the fused result); a `TargetEstimator`.
+
+    inner: the own filter (companion.core.estimators.UPLKF, or companion.core.imm.IMMEstimator whose model
+    filters are u-PLKFs); it sees only the bearings the harness hands `correct` (the own ones). `absorb`
+    fuses the current estimate with neighbours' estimates (`fuse_target_estimates`: each carried to the
+    own time at constant velocity) and writes the result back into the filter, so the own filter goes on
+    from the fused state (feedback). For an IMM every model-conditioned estimate is fused with the same
+    neighbours (the model probabilities are left as they are). method: "ci" (covariance intersection:
+    consistent whatever the cross-covariance, hence safe with feedback, where a neighbour's estimate
+    already holds some of ours) or "seed004" (`fuse_two` in turn, cross-covariance ignored: with feedback
+    the same information is counted again at every share, so the covariance shrinks faster than the error
+    and the filter trusts its own bearings less and less; kept for the comparison).
+
+    Hostile or useless input never changes the state: an estimate that is not finite, whose covariance is
+    not positive definite, whose stamp lies more than max_age_s (s) from the own time, is refused and
+    counted in `rejections` by reason ("not_finite", "not_positive_definite", "too_old"; "not_initialized"
+    when the own filter has not started). `absorbed` counts the estimates fused.
+
+    Every other attribute (process_noise_boost, motion_probabilities, ...) is the inner filter's.
+    """
+
+    def __init__(self, inner, method: str = "ci", max_age_s: float = 1.0) -> None:
+        if method not in FUSION_METHODS:
+            raise ValueError(f"unknown fusion method {method!r}: one of {FUSION_METHODS}")
+        if not max_age_s > 0.0:
+            raise ValueError("max_age_s must be positive")
+        self.inner = inner
+        self.method = method
+        self.max_age_s = float(max_age_s)
+        self.period = inner.period
+        self.absorbed = 0
+        self.rejections: Counter = Counter()
+
+    # --- the TargetEstimator protocol: the own filter's ---------------------------------------
+    def initialize_on_bearing(self, bearing: BearingMeasurement, initial_guess: InitialGuess) -> None:
+        self.inner.initialize_on_bearing(bearing, initial_guess)
+
+    def predict(self) -> None:
+        self.inner.predict()
+
+    def correct(self, bearing: BearingMeasurement) -> CorrectionReport:
+        return self.inner.correct(bearing)
+
+    @property
+    def initialized(self) -> bool:
+        return self.inner.initialized
+
+    @property
+    def estimate(self) -> TargetEstimate:
+        return self.inner.estimate
+
+    @property
+    def process_noise_boost(self) -> float:
+        # AttributeError (hasattr False) when the own filter has none: the pipeline then leaves it alone
+        return self.inner.process_noise_boost
+
+    @process_noise_boost.setter
+    def process_noise_boost(self, value: float) -> None:
+        self.inner.process_noise_boost = value
+
+    def __getattr__(self, name: str):
+        # only called for names this class lacks: the own filter's extras (motion_probabilities, time, ...)
+        if name == "inner":
+            raise AttributeError(name)
+        return getattr(self.inner, name)
+
+    # --- the fusion ---------------------------------------------------------------------------
+    def absorb(self, estimates: Sequence[TargetEstimate]) -> int:
+        """Fuse neighbours' estimates (TargetEstimate: time s, position m, velocity m/s NED (3,), covariance
+        (6, 6) over [position, velocity]) into the own filter, all at once. Returns how many were fused
+        (the others are counted in `rejections`)."""
+        if not self.inner.initialized:
+            self.rejections["not_initialized"] += len(estimates)
+            return 0
+        own_time = self.inner.estimate.time
+        usable = [estimate for estimate in estimates if self._usable(estimate, own_time)]
+        if not usable:
+            return 0
+        filters = list(getattr(self.inner, "filters", None) or [self.inner])
+        fused_states = []
+        for model_filter in filters:
+            state, covariance = model_filter.state_and_covariance
+            own = TargetEstimate(own_time, state[:3].copy(), state[3:].copy(), covariance.copy())
+            try:
+                fused = fuse_target_estimates(own, usable, self.method)
+            except np.linalg.LinAlgError:  # the own covariance degenerate: keep the own estimate
+                self.rejections["fusion_failed"] += len(usable)
+                return 0
+            fused_states.append((np.concatenate([fused.position, fused.velocity]), fused.covariance))
+        if hasattr(self.inner, "set_model_states"):
+            self.inner.set_model_states(fused_states)
+        else:
+            self.inner.set_state(*fused_states[0])
+        self.absorbed += len(usable)
+        return len(usable)
+
+    def _usable(self, estimate: TargetEstimate, own_time: float) -> bool:
+        try:
+            position = np.asarray(estimate.position, dtype=float).reshape(3)
+            velocity = np.asarray(estimate.velocity, dtype=float).reshape(3)
+            covariance = np.asarray(estimate.covariance, dtype=float).reshape(6, 6)
+            stamp = float(estimate.time)
+        except (TypeError, ValueError, AttributeError):
+            self.rejections["not_finite"] += 1
+            return False
+        if not (math.isfinite(stamp) and np.all(np.isfinite(position)) and np.all(np.isfinite(velocity))
+                and np.all(np.isfinite(covariance))):
+            self.rejections["not_finite"] += 1
+            return False
+        if abs(own_time - stamp) > self.max_age_s:
+            self.rejections["too_old"] += 1
+            return False
+        try:
+            cho_factor(0.5 * (covariance + covariance.T))
+        except np.linalg.LinAlgError:
+            self.rejections["not_positive_definite"] += 1
+            return False
+        return True

@@ -329,6 +329,16 @@ class IMMEstimator:
             model_filter.initialize_on_bearing(bearing, initial_guess)
         self._reset_probabilities()
 
+    def set_model_states(self, pairs: Sequence[tuple[np.ndarray, np.ndarray]]) -> None:
+        """Replace every model filter's [p_T, v_T] (6,) and covariance (6, 6), in the order of `models`,
+        keeping the clock and the model probabilities (track fusion with neighbours' estimates,
+        companion.core.cooperative_estimation.FusionEstimator)."""
+        if len(pairs) != len(self.filters):
+            raise ValueError(f"need {len(self.filters)} model states, got {len(pairs)}")
+        for model_filter, (state, covariance) in zip(self.filters, pairs):
+            model_filter.set_state(state, covariance)
+        self._snapshot = None
+
     def predict(self) -> None:
         """Each model filter's own time update over one period."""
         self._snapshot = None
