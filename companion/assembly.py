@@ -276,7 +276,7 @@ def build_cooperation(scenario: Scenario, pursuer_id: int = 1) -> Cooperation | 
                                        max_vertical_acceleration=t.max_vertical_acceleration,
                                        velocity_gain=t.velocity_gain, max_acceleration=t.max_acceleration)
     lone = None
-    if law is not None:
+    if law is not None and swarm.count > 1:  # one pursuer alone has nobody to keep clear of: the single laws
         layer = LONE_LAYER * swarm.min_separation * pursuer_id
         lone = (dataclasses.replace(law, desired_radius=law.desired_radius + layer)
                 if isinstance(law, CircumnavigationGuidance)

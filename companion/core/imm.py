@@ -288,6 +288,19 @@ class IMMEstimator:
                 self._snapshot = TargetEstimate(self.time, state[:3], state[3:], covariance)
         return self._snapshot
 
+    @property
+    def acceleration(self) -> np.ndarray:
+        """The target's expected acceleration, m/s^2, shape (3,) NED: sum_j mu_j omega_j J v_h,j, each model's
+        coordinated-turn acceleration (coordinated_turn_matrices: d/dt v_h = omega J v_h, J = [[0, -1], [1, 0]];
+        no vertical part) weighted by its probability. Zero for the constant-velocity model; a feed-forward
+        for guidance laws that take one (companion.core.cooperative_guidance)."""
+        total = np.zeros(3)
+        for weight, model, model_filter in zip(self._probabilities, self.models, self.filters):
+            if model.turn_rate != 0.0:
+                velocity = model_filter.state_and_covariance[0][3:5]
+                total[:2] += weight * model.turn_rate * np.array([-velocity[1], velocity[0]])
+        return total
+
     def _stacked(self) -> tuple[np.ndarray, np.ndarray]:
         """The model filters' states (n, 6) and covariances (n, 6, 6), stacked (copies)."""
         pairs = [model_filter.state_and_covariance for model_filter in self.filters]

@@ -498,6 +498,15 @@ class FollowingPipeline:
             self.estimator.predict()
             self._estimator_ticks += 1
 
+    def _target_acceleration(self) -> np.ndarray | None:
+        """The estimator's target acceleration (m/s^2, (3,)) when it has one (the IMM's turn models, the
+        constant-acceleration filter), for the cooperative laws' feed-forward; None otherwise or if not finite."""
+        acceleration = getattr(self.estimator, "acceleration", None)
+        if acceleration is None:
+            return None
+        acceleration = np.asarray(acceleration, dtype=float)
+        return acceleration if acceleration.shape == (3,) and np.all(np.isfinite(acceleration)) else None
+
     def _choose_law(self, time: float, pursuer: PursuerState, target_position: np.ndarray, neighbours: tuple) -> str:
         """'cooperative', 'lone' (the cooperative law's own layer, no neighbour heard), 'steady' (lateral law
         without weave) or 'single' (the configured laws); a change
@@ -542,7 +551,8 @@ class FollowingPipeline:
             # A complete law on the estimate (seed 002 / seed 004): no range-controller term.
             complete = self.cooperation.law if law == "cooperative" else self.cooperation.lone_law
             lateral = complete.acceleration(CooperativeContext(
-                time, pursuer.position, pursuer.velocity, estimate.position, estimate.velocity, neighbours))
+                time, pursuer.position, pursuer.velocity, estimate.position, estimate.velocity, neighbours,
+                self._target_acceleration()))
             longitudinal = np.zeros(3)
         else:
             lateral_law = self.cooperation.steady_guidance if law == "steady" else self.lateral_guidance
