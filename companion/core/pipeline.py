@@ -571,8 +571,9 @@ class FollowingPipeline:
                                                               self.action_excitation)
                 longitudinal = self.range_controller.acceleration(relative_position, relative_velocity, los, lateral)
         command = lateral + longitudinal
-        if self.mode != TrackMode.TRACKING or self.health_action is HealthAction.RECOVERING:
-            # Also while recovering: the estimate is judged wrong, so its range cannot be trusted to close on.
+        if self.mode != TrackMode.TRACKING or self.health_action is HealthAction.RECOVERING or law in ("cooperative", "lone"):
+            # Also while recovering: the estimate is judged wrong, so its range cannot be trusted to close on;
+            # and under a cooperative law, which does not weave: its range may never have been observable.
             range_std = float(np.sqrt(max(los @ estimate.covariance[:3, :3] @ los, 0.0)))
             closing = float(command @ los)
             if range_estimate - 2.0 * range_std < self.dropout.min_range and closing > 0.0:
