@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from interfaces.shutdown import arm_exit_deadline
 from interfaces.cli import add_zenoh_security_arguments
 from interfaces.scenario import (DEFAULT_SCENARIO, ConfigError, PlantScenario, VehicleConfig, load_plant_scenario,
                                  pursuer_starts)
@@ -466,6 +467,7 @@ def main(argv: list[str] | None = None) -> int:
 
     def request_stop(signum, frame):  # noqa: ARG001
         runner.stop_requested = True
+        arm_exit_deadline("sitl-plant", signum)
 
     previous = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
     links = ", ".join(f"{link.name} {link.address[0]}:{link.address[1]} -> {link.partner[0]}:{link.partner[1]}"

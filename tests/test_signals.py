@@ -161,8 +161,14 @@ def test_sigkill_to_bof_sitl_leaves_no_child_behind(sitl):
     killed = time.monotonic()
     sitl.process.kill()
     sitl.process.wait(10.0)
-    _wait_until(lambda: not any(_alive(pid) for pid in sitl.children.values()), 20.0,
-                f"the children {sitl.children} to exit")
+    try:
+        _wait_until(lambda: not any(_alive(pid) for pid in sitl.children.values()), 20.0,
+                    f"the children {sitl.children} to exit")
+    except AssertionError as error:  # say which child stayed and what it last printed
+        alive = {name: psutil.Process(pid).status() for name, pid in sitl.children.items() if _alive(pid)}
+        tails = {name: (sitl.folder() / f"{name}.out").read_text()[-1500:]
+                 for name in alive if (sitl.folder() / f"{name}.out").exists()}
+        raise AssertionError(f"{error}; still alive: {alive}; last output: {tails}") from None
     print(f"SIGKILL: every child gone {time.monotonic() - killed:.2f} s after it")
 
 

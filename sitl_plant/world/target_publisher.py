@@ -49,6 +49,7 @@ from pathlib import Path
 
 import numpy as np
 
+from interfaces.shutdown import arm_exit_deadline
 from interfaces.cli import add_zenoh_security_arguments
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, FaultsConfig, TargetConfig, load_plant_scenario
 from interfaces.link_schema import (CLOCK_KEY, PayloadError, TargetFix, decode_clock, decode_command, encode_target_fix,
@@ -397,6 +398,7 @@ def main(argv: list[str] | None = None) -> int:
 
     def request_stop(signum, frame) -> None:  # noqa: ARG001
         stop.set()
+        arm_exit_deadline("sitl-target", signum)
 
     previous = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
     key = target_fix_key(args.sender)

@@ -1,0 +1,40 @@
+"""A last resort for a process asked to stop: if its orderly stop has not ended it within a deadline, end it.
+
+Every process of a SITL run stops cooperatively on SIGINT/SIGTERM (a flag its main loop polls), closing its
+Zenoh session, sockets and logs on the way out. A close that blocks (a Zenoh session whose peers all died in
+the same instant, when the owner was SIGKILLed and the kernel's death signal reached every child at once)
+would leave the process running for ever, holding its ports. `arm_exit_deadline` starts a daemon timer when
+the stop is asked; if the process is still there when it fires, it flushes what it can and leaves with
+os._exit(128 + signal number). Logs written line by line (JsonLinesLog, CsvLog) are already on disk.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import threading
+
+#: s between the stop request and the forced exit: far above an orderly stop (well under a second).
+EXIT_DEADLINE_S = 5.0
+
+_armed: threading.Timer | None = None
+
+
+def _expire(name: str, signum: int) -> None:
+    try:
+        print(f"{name}: orderly stop took more than {EXIT_DEADLINE_S:g} s after signal {signum}; exiting now",
+              file=sys.stderr, flush=True)
+        sys.stdout.flush()
+    finally:
+        os._exit(128 + signum)
+
+
+def arm_exit_deadline(name: str, signum: int, seconds: float = EXIT_DEADLINE_S) -> None:
+    """Exit the process `seconds` from now unless it has ended by then (once; later calls do nothing).
+    name: the process's name for the one line it prints. signum: the stop signal (the exit code is 128 + it)."""
+    global _armed
+    if _armed is not None:
+        return
+    _armed = threading.Timer(seconds, _expire, (name, int(signum)))
+    _armed.daemon = True
+    _armed.start()

@@ -1,0 +1,56 @@
+"""interfaces.shutdown: a process whose orderly stop hangs is ended by the deadline armed at the stop request,
+with 128 + the signal number; one that stops in time is not touched."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+
+HANGS = """
+import signal, threading, time
+from interfaces.shutdown import arm_exit_deadline
+def stop(signum, frame):
+    arm_exit_deadline("hangs", signum, seconds=0.5)
+signal.signal(signal.SIGTERM, stop)
+print("ready", flush=True)
+threading.Event().wait()  # a close that never returns
+"""
+
+STOPS = """
+import signal, sys
+from interfaces.shutdown import arm_exit_deadline
+stopped = []
+def stop(signum, frame):
+    arm_exit_deadline("stops", signum, seconds=0.5)
+    stopped.append(signum)
+signal.signal(signal.SIGTERM, stop)
+print("ready", flush=True)
+while not stopped:
+    signal.pause()
+sys.exit(0)
+"""
+
+
+def _run(source: str) -> tuple[int, float]:
+    process = subprocess.Popen([sys.executable, "-c", source], stdout=subprocess.PIPE, text=True)
+    try:
+        assert process.stdout.readline().strip() == "ready"
+        sent = time.monotonic()
+        process.terminate()
+        code = process.wait(timeout=10.0)
+        return code, time.monotonic() - sent
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+
+
+def test_a_hanging_stop_is_ended_by_the_deadline():
+    code, after = _run(HANGS)
+    assert code == 128 + 15 and after >= 0.5
+
+
+def test_an_orderly_stop_keeps_its_own_exit_code():
+    code, _ = _run(STOPS)
+    assert code == 0
