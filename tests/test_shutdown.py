@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import subprocess
 import sys
-import time
 
 HANGS = """
 import signal, threading, time
@@ -32,14 +31,12 @@ sys.exit(0)
 """
 
 
-def _run(source: str) -> tuple[int, float]:
+def _run(source: str) -> int:
     process = subprocess.Popen([sys.executable, "-c", source], stdout=subprocess.PIPE, text=True)
     try:
         assert process.stdout.readline().strip() == "ready"
-        sent = time.monotonic()
         process.terminate()
-        code = process.wait(timeout=10.0)
-        return code, time.monotonic() - sent
+        return process.wait(timeout=10.0)
     finally:
         if process.poll() is None:
             process.kill()
@@ -47,10 +44,9 @@ def _run(source: str) -> tuple[int, float]:
 
 
 def test_a_hanging_stop_is_ended_by_the_deadline():
-    code, after = _run(HANGS)
-    assert code == 128 + 15 and after >= 0.5
+    # it waits for ever otherwise: only the deadline can end it, with 128 + SIGTERM
+    assert _run(HANGS) == 128 + 15
 
 
 def test_an_orderly_stop_keeps_its_own_exit_code():
-    code, _ = _run(STOPS)
-    assert code == 0
+    assert _run(STOPS) == 0

@@ -147,6 +147,12 @@ def phase_gaps(own_phase: float, neighbour_phases: list[float] | np.ndarray) -> 
     return ahead, behind
 
 
+def _context_gaps(context: "CooperativeContext") -> tuple[float, float] | None:
+    """`phase_gaps` of this pursuer among the context's neighbours, about the estimated target."""
+    own = phase(context.own_position, context.target_position)
+    return phase_gaps(own, [phase(n.position, context.target_position) for n in context.neighbours])
+
+
 def phase_spacing_errors(phases: np.ndarray | list[float]) -> np.ndarray:
     """Error of each consecutive CCW gap from 2 pi / N, rad, shape (N,).
 
@@ -279,8 +285,7 @@ class CircumnavigationGuidance:
 
     def spacing_angle(self, context: CooperativeContext) -> float:
         """Delta_i of seed 002, rad in [0, 2 pi): CCW angle to the nearest neighbour ahead; 0 without neighbours."""
-        own = phase(context.own_position, context.target_position)
-        gaps = phase_gaps(own, [phase(n.position, context.target_position) for n in context.neighbours])
+        gaps = _context_gaps(context)
         return 0.0 if gaps is None else gaps[0]
 
     def desired_velocity(self, context: CooperativeContext) -> np.ndarray:
@@ -412,8 +417,7 @@ class StandoffTrackingGuidance:
 
     def coordinated_speed(self, context: CooperativeContext) -> float:
         """v_i of seed 004 eq. (40) generalised to N: clip(v0 + k R (gap ahead - gap behind), v_min, v_max), m/s."""
-        own = phase(context.own_position, context.target_position)
-        gaps = phase_gaps(own, [phase(n.position, context.target_position) for n in context.neighbours])
+        gaps = _context_gaps(context)
         if gaps is None:
             return self.speed
         ahead, behind = gaps

@@ -614,6 +614,7 @@ class UPLKF:
         # the pursuer, not the target); None where it does not apply.
         self._own_track = (OwnPositionTracker(self.pursuer_position_std)
                            if self.gain_projection is GainProjection.PREDICTED and self.pursuer_position_std > 0.0 else None)
+        self._neighbour_tracks: dict[int, OwnPositionTracker] = {}  # the same for each neighbour's bearings
         self._state: np.ndarray | None = None
         self._covariance: np.ndarray | None = None
         self._start_time = 0.0
@@ -772,7 +773,7 @@ class UPLKF:
     def _source_track(self, source: int) -> OwnPositionTracker:
         """The position tracker of a neighbour's bearings (source != 0): each pursuer's reported positions are
         their own series (one tracker fed several pursuers would predict none of them)."""
-        tracks = self.__dict__.setdefault("_neighbour_tracks", {})
+        tracks = self._neighbour_tracks
         if source not in tracks:
             if len(tracks) >= MAX_TRACKED_SOURCES:
                 tracks.pop(next(iter(tracks)))
