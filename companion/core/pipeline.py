@@ -38,9 +38,6 @@ from companion.core.messages import (
 from companion.core.observability import WindowedObservability
 
 _TIME_EPS = 1e-9
-#: Hysteresis of the track mode: coasting (or degraded) ends on a bearing younger than this fraction of
-#: coast_after, not at coast_after itself.
-TRACK_RESUME_FRACTION = 0.8
 
 
 class TrackMode(str, enum.Enum):
@@ -465,10 +462,7 @@ class FollowingPipeline:
         policy = self.dropout
         if gap >= policy.coast_limit or (gap >= policy.coast_after and position_std > policy.max_position_std):
             mode = TrackMode.DEGRADED
-        elif gap >= policy.coast_after or (self.mode in (TrackMode.COASTING, TrackMode.DEGRADED)
-                                           and gap >= TRACK_RESUME_FRACTION * policy.coast_after):
-            # Back to tracking only on a bearing fresher than TRACK_RESUME_FRACTION x coast_after: a link whose
-            # latency sits near coast_after would otherwise flap between the two modes with every fix.
+        elif gap >= policy.coast_after:
             # Degraded stays degraded while the bearings stay old, unless they are late but keep the
             # estimate tight (a link with a steady latency above coast_after): then it coasts, with
             # hysteresis (half the std that made it degraded), rather than hold the safe range forever.
