@@ -212,7 +212,8 @@ class CompanionApp:
             await self.vehicle.connect()
             limits = await self.vehicle.vehicle_limits(self.vehicle_config.mass, self.vehicle_config.gravity)
             self.recorder.event(None, "vehicle", f"connected; hover thrust {limits.hover_thrust_normalized:.4f}, "
-                                                 f"tilt limit {math.degrees(limits.max_tilt):.1f} deg (from autopilot parameters)")
+                                                 f"tilt limit {math.degrees(limits.max_tilt):.1f} deg, horizontal margin "
+                                                 f"{limits.horizontal_margin:.2f} (from autopilot parameters)")
             pipeline = build_pipeline(self.scenario, self.vehicle_config, limits.hover_thrust_normalized, self.pursuer_id)
             pipeline.limits = limits
             self.follower.attach(self.vehicle, pipeline)

@@ -666,7 +666,9 @@ class FaultsConfig(_Strict):
     the next fix overtakes it). duplicate_probability: a second copy duplicate_delay_s
     later. stale_probability: an extra copy of an older fix, stale_min_age_s to
     stale_max_age_s old. corrupt_probability: the fix is replaced by a broken one, kind
-    drawn uniformly from corrupt_kinds. impostor_rate_hz: a second publisher on the same
+    drawn uniformly from corrupt_kinds. stalls: windows in which the target's publisher is frozen (a
+    loaded machine, a stopped process): the fixes of the window are not lost but all delivered at its
+    end, back to back, with their own stamps. impostor_rate_hz: a second publisher on the same
     key as impostor_sender, impostor_offset m (NED) away from the target (0 = off).
     seed: the faults' own seed (None: derived from simulation.seed). mavlink: faults of
     the MAVLink link ([faults.mavlink]).
@@ -688,6 +690,7 @@ class FaultsConfig(_Strict):
     blackouts: Annotated[tuple[BlackoutWindow, ...], FROM_ARRAY] = ()
     latency_s: NonNegative = 0.0
     jitter_s: NonNegative = 0.0
+    stalls: Annotated[tuple[BlackoutWindow, ...], FROM_ARRAY] = ()
     reorder_probability: Probability = 0.0
     reorder_delay_s: Positive = 0.3
     duplicate_probability: Probability = 0.0
@@ -718,6 +721,7 @@ class FaultsConfig(_Strict):
     @model_validator(mode="after")
     def _consistent(self) -> "FaultsConfig":
         _check_windows(self.blackouts, "blackouts")
+        _check_windows(self.stalls, "stalls")
         if self.stale_min_age_s > self.stale_max_age_s:
             raise ValueError(f"stale_min_age_s ({self.stale_min_age_s}) must not exceed stale_max_age_s "
                              f"({self.stale_max_age_s})")

@@ -165,10 +165,16 @@ def test_limited_command_is_flyable(command: np.ndarray) -> None:
     force, wanted = specific_force(flown), specific_force(command)
     horizontal, wanted_horizontal = force[:2], wanted[:2]
     assert_within_limits(force)
-    # Vertical first: f_z is the commanded one clipped to its range.
-    assert force[2] == pytest.approx(
-        np.clip(wanted[2], LIMITS.min_vertical_specific_force, LIMITS.max_specific_force), abs=1e-12
-    )
+    # Vertical first, but never taking the horizontal margin (PX4 MPC_THR_XY_MARG): f_z is the commanded
+    # one clipped to its range, the top of the range lowered so that min(|f_h wanted|, margin) fits in the
+    # total-thrust sphere.
+    margin = min(np.linalg.norm(wanted_horizontal), LIMITS.horizontal_margin_specific_force)
+    top = max(np.sqrt(LIMITS.max_specific_force**2 - margin**2), LIMITS.min_vertical_specific_force)
+    assert force[2] == pytest.approx(np.clip(wanted[2], LIMITS.min_vertical_specific_force, top), abs=1e-12)
+    # What the margin promises: the horizontal part keeps at least min(wanted, margin), unless the tilt cone
+    # at that vertical force is narrower.
+    promised = min(margin, force[2] * np.tan(LIMITS.max_tilt))
+    assert np.linalg.norm(horizontal) >= promised - 1e-9
     # The horizontal direction is kept; it is only scaled down.
     assert np.linalg.norm(horizontal) <= np.linalg.norm(wanted_horizontal) + 1e-12
     assert horizontal[0] * wanted_horizontal[1] - horizontal[1] * wanted_horizontal[0] == pytest.approx(0.0, abs=1e-9)
@@ -208,9 +214,22 @@ def test_limits_on_named_cases() -> None:
     assert force[2] == pytest.approx(G)
     np.testing.assert_allclose(force[:2], -unit(np.array([30.0, -40.0])) * G * tan_tilt, atol=1e-12)
     np.testing.assert_allclose(flown[:2], unit(np.array([30.0, -40.0])) * G * tan_tilt, atol=1e-12)
-    # A hard climb: the vertical part takes everything, no horizontal force is left.
-    flown = limit_specific_force(np.array([3.0, 0.0, -30.0]), LIMITS)
+    # A hard climb with a push north: the vertical part takes all but the horizontal margin, 0.3 of full
+    # thrust (0.3 g / hover = 4.41 m/s^2 here, PX4's MPC_THR_XY_MARG default), which keeps the push (braking
+    # still works while climbing flat out); the total stays at the maximum.
+    flown = limit_specific_force(np.array([30.0, 0.0, -30.0]), LIMITS)
+    margin = 0.3 * G / (2.0 / 3.0)
+    np.testing.assert_allclose(specific_force(flown), [-margin, 0.0, np.sqrt(LIMITS.max_specific_force**2 - margin**2)],
+                               atol=1e-12)
+    # A pure climb asks for no horizontal force, and gets the whole maximum vertically.
+    flown = limit_specific_force(np.array([0.0, 0.0, -30.0]), LIMITS)
     np.testing.assert_allclose(specific_force(flown), [0.0, 0.0, LIMITS.max_specific_force], atol=1e-12)
+    # A small push under a hard climb keeps only what it asked (0.5 m/s^2 < margin).
+    flown = limit_specific_force(np.array([0.5, 0.0, -30.0]), LIMITS)
+    np.testing.assert_allclose(specific_force(flown), [-0.5, 0.0, np.sqrt(LIMITS.max_specific_force**2 - 0.25)],
+                               atol=1e-12)
+    with pytest.raises(ValueError, match="horizontal_margin"):
+        VehicleLimits(hover_thrust_normalized=0.5, max_tilt=0.5, gravity=G, mass=1.0, horizontal_margin=1.5)
 
 
 # --------------------------------------------------------------------------- setpoint

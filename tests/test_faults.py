@@ -150,6 +150,37 @@ def test_blackout_end_is_noticed_by_due_and_negative_scenario_time_is_outside_ev
     assert [(e.kind, e.time) for e in faults.events] == [("blackout_start", 0.6), ("blackout_end", 1.5)]
 
 
+# --- stalls ---------------------------------------------------------------------------
+
+def test_a_stall_holds_its_window_and_delivers_it_back_to_back_at_its_end_with_the_original_stamps():
+    # Scenario time 1 s behind simulated time: the window [3, 5) s is simulated [4, 6) s; 10 fixes at 5 Hz.
+    faults = _faults(stalls=[{"start": 3.0, "duration": 2.0}], latency_s=0.05)
+    delivered = _run(faults, 60, scenario_offset=1.0, tick=0.01)
+    assert _seqs(delivered) == list(range(60))  # nothing lost, order kept
+    held = [(time, decode_target_fix(payload)) for time, payload in delivered if 20 <= decode_target_fix(payload).seq < 30]
+    # All ten arrive on the first tick at or after the window's end (simulated 6 s; the latency still applies to the
+    # last ones, whose delay would end later), each with its own stamp, so their ages run from 2 s down to ~0.
+    assert all(abs(time - 6.0) < 0.01 + 1e-9 or abs(time - (fix.stamp + 0.05)) < 0.01 + 1e-9 for time, fix in held)
+    assert max(time for time, _ in held) <= 6.06
+    assert [fix.stamp for _, fix in held] == [seq / RATE for seq in range(20, 30)]
+    ages = [time - fix.stamp for time, fix in held]
+    assert ages[0] == pytest.approx(2.0, abs=0.011) and ages == sorted(ages, reverse=True)
+    outside = [time - decode_target_fix(payload).stamp for time, payload in delivered
+               if not 20 <= decode_target_fix(payload).seq < 30]
+    assert max(outside) < 0.05 + 0.01 + 1e-9  # only the latency elsewhere
+    assert [(event.kind, event.fields) for event in faults.events if event.kind == "stall"] == [
+        ("stall", {"window_start": 3.0, "window_end": 5.0})]
+
+
+def test_stalls_change_no_other_faults_draws_and_overlapping_windows_are_refused():
+    alone = _faults(loss_probability=0.3)
+    stalled = _faults(loss_probability=0.3, stalls=[{"start": 2.0, "duration": 3.0}])
+    _run(alone, 100), _run(stalled, 100)
+    assert _event_seqs(alone, "loss") == _event_seqs(stalled, "loss")
+    with pytest.raises(ValueError, match="stalls"):
+        FaultsConfig(stalls=[{"start": 1.0, "duration": 2.0}, {"start": 2.0, "duration": 1.0}])
+
+
 # --- delays, order, copies ------------------------------------------------------------
 
 def test_latency_with_uniform_jitter():

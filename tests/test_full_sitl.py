@@ -279,6 +279,7 @@ def test_a_stalled_target_process_costs_no_bearing(tmp_path, scenario_path):
     # range-estimation RMS 0.14-1.83 m in four runs (errors up to 4 m during the gaps); with the former 2 s
     # age limit the catch-up fixes were refused and it reached 9.5 m.
     assert summary["flight"]["range_estimation_error_rms"] < 3.0, summary["flight"]
-    # The pursuer flies 7.5 s on prediction three times: r_d / 2 is not reliably kept (3.75-7.8 m in five runs
-    # seen; README "Processes and signals"); a quarter of r_d is.
-    assert summary["flight"]["min_range"] > 0.25 * summary["flight"]["desired_range"], summary["flight"]
+    # The pursuer flies 7.5 s on prediction three times and must still never come within r_d / 2: 6.2-7.5 m in
+    # six runs. Before the attitude mapping kept PX4's horizontal thrust margin (MPC_THR_XY_MARG) it was 0.95-7.8 m:
+    # on re-engagement the vertical demand took all the thrust and the pursuer could not brake.
+    assert summary["flight"]["min_range"] > 0.5 * summary["flight"]["desired_range"], summary["flight"]

@@ -261,12 +261,17 @@ class MavsdkVehicle:
         return value
 
     async def vehicle_limits(self, mass: float, gravity: float) -> VehicleLimits:
-        """What the attitude mapping needs, read from the autopilot: hover thrust and tilt limit."""
+        """What the attitude mapping needs, read from the autopilot: hover thrust, tilt limit and the
+        horizontal thrust margin kept under vertical saturation (MPC_THR_XY_MARG)."""
         hover = await self.hover_thrust()
         tilt = await self._param_float("MPC_TILTMAX_AIR")
         if not 0.0 < tilt < 90.0:
             raise VehicleError(f"MPC_TILTMAX_AIR = {tilt} deg is not a tilt limit")
-        return VehicleLimits(hover_thrust_normalized=hover, max_tilt=math.radians(tilt), gravity=gravity, mass=mass)
+        margin = await self._param_float("MPC_THR_XY_MARG")
+        if not 0.0 <= margin <= 1.0:
+            raise VehicleError(f"MPC_THR_XY_MARG = {margin} is not a share of full thrust")
+        return VehicleLimits(hover_thrust_normalized=hover, max_tilt=math.radians(tilt), gravity=gravity, mass=mass,
+                             horizontal_margin=margin)
 
     async def _param_float(self, name: str) -> float:
         try:

@@ -29,6 +29,9 @@ class VehicleLimits:
     attitude loop's differential thrust.
     min_vertical_specific_force: m/s^2, never command less upward specific force
     than this (no free fall, never inverted).
+    horizontal_margin: share of full thrust kept for horizontal control when the vertical
+    demand saturates (PX4 MPC_THR_XY_MARG, default 0.3): a hard climb or braking of a descent
+    can no longer take all the thrust and leave the vehicle unable to brake horizontally.
     gravity: m/s^2. mass: kg, used only to report thrust in newtons. max_tilt, gravity and mass
     have no defaults: they are the airframe's (the vehicle file, e.g. Table I), given by keyword.
     """
@@ -39,26 +42,41 @@ class VehicleLimits:
     mass: float = field(kw_only=True)
     thrust_headroom: float = 0.9
     min_vertical_specific_force: float = 0.3 * 9.81
+    horizontal_margin: float = 0.3
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.horizontal_margin <= 1.0:
+            raise ValueError(f"horizontal_margin {self.horizontal_margin} is not a share of full thrust in [0, 1]")
 
     @property
     def max_specific_force(self) -> float:
         """Largest thrust / mass guidance may ask for, m/s^2."""
         return self.thrust_headroom * self.gravity / self.hover_thrust_normalized
 
+    @property
+    def horizontal_margin_specific_force(self) -> float:
+        """Horizontal specific force (m/s^2) the vertical part may never take away, at most the maximum."""
+        return min(self.horizontal_margin * self.gravity / self.hover_thrust_normalized, self.max_specific_force)
+
 
 def limit_specific_force(acceleration: np.ndarray, limits: VehicleLimits) -> np.ndarray:
     """Clip a_d so the specific force f = g e_Z - a_d (eq. 21) is flyable; returns the flown a_d.
 
-    Vertical first, as PX4 does: f_z is clipped to [min_vertical_specific_force,
-    max_specific_force]; the horizontal part is then scaled down to respect both the
-    tilt limit (|f_h| <= f_z tan(max_tilt)) and the total-thrust limit
+    Vertical first with a horizontal margin, as PX4's position controller does: f_z is
+    clipped to [min_vertical_specific_force, max_specific_force], and further to what the
+    total-thrust limit leaves after reserving min(|f_h|, horizontal margin) for the horizontal
+    part (never below min_vertical_specific_force). The horizontal part is then scaled down to
+    respect both the tilt limit (|f_h| <= f_z tan(max_tilt)) and the total-thrust limit
     (|f| <= max_specific_force). The horizontal direction is kept.
     acceleration: m/s^2, NED, shape (3,). Returns m/s^2, shape (3,).
     """
     force = limits.gravity * E_Z - np.asarray(acceleration, dtype=float)
-    vertical = float(np.clip(force[2], limits.min_vertical_specific_force, limits.max_specific_force))
     horizontal = force[:2]
     horizontal_norm = float(np.hypot(horizontal[0], horizontal[1]))
+    reserved = min(horizontal_norm, limits.horizontal_margin_specific_force)
+    vertical_max = max(float(np.sqrt(max(limits.max_specific_force**2 - reserved**2, 0.0))),
+                       limits.min_vertical_specific_force)
+    vertical = float(np.clip(force[2], limits.min_vertical_specific_force, vertical_max))
     horizontal_limit = min(
         vertical * np.tan(limits.max_tilt),
         float(np.sqrt(max(limits.max_specific_force**2 - vertical**2, 0.0))),

@@ -433,6 +433,7 @@ class Autopilot:
             max_tilt=math.radians(self.parameters.value("MPC_TILTMAX_AIR")),
             max_speed_xy=self.parameters.value("MPC_XY_VEL_MAX"),
             gravity=self.params.gravity,
+            thrust_xy_margin=self.parameters.value("MPC_THR_XY_MARG"),
         )
 
     def _control_output(self, now: float) -> tuple[tuple[float, float, float, float], float]:

@@ -119,6 +119,8 @@ def default_parameters(params: QuadrotorParams, max_tilt_deg: float, speed_facto
         Parameter("MPC_THR_HOVER", params.hover_thrust_normalized, "float",
                   "Normalised collective thrust that hovers (linear thrust curve)", 0.1, 0.9),
         Parameter("MPC_TILTMAX_AIR", max_tilt_deg, "float", "Largest tilt in position modes", 20.0, 89.0, unit="deg"),
+        Parameter("MPC_THR_XY_MARG", 0.3, "float",
+                  "Share of full thrust kept for horizontal control when the vertical demand saturates", 0.0, 0.5),
         Parameter("MPC_TKO_SPEED", 1.5, "float", "Takeoff climb rate", 0.5, 5.0, unit="m/s"),
         Parameter("MPC_LAND_SPEED", 0.7, "float", "Landing descent rate", 0.3, 3.0, unit="m/s"),
         Parameter("MPC_XY_VEL_MAX", 5.0, "float", "Horizontal speed limit in position modes", 0.5, 20.0, unit="m/s"),

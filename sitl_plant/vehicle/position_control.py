@@ -58,7 +58,6 @@ class PositionControlGains:
     max_descent_rate: float = 1.5  # MPC_Z_VEL_MAX_DN
     thrust_min: float = 0.12  # MPC_THR_MIN
     thrust_max: float = 1.0  # MPC_THR_MAX
-    thrust_xy_margin: float = 0.3  # MPC_THR_XY_MARG
 
 
 @dataclass(frozen=True)
@@ -68,13 +67,15 @@ class ControlLimits:
     hover_thrust: normalised thrust that gives 1 g (MPC_THR_HOVER), in (0, 1).
     max_tilt: rad, largest tilt of the thrust axis from vertical (MPC_TILTMAX_AIR), < pi/2.
     max_speed_xy: m/s, horizontal speed limit of the position loop (MPC_XY_VEL_MAX).
-    gravity: m/s^2.
+    gravity: m/s^2. thrust_xy_margin: normalised horizontal thrust that vertical saturation
+    leaves (MPC_THR_XY_MARG).
     """
 
     hover_thrust: float
     max_tilt: float
     max_speed_xy: float
     gravity: float
+    thrust_xy_margin: float = 0.3
 
 
 @dataclass(frozen=True)
@@ -168,7 +169,7 @@ def thrust_vector(acceleration: np.ndarray, limits: ControlLimits, gains: Positi
     horizontal = wanted[:2]
     horizontal_norm = float(np.hypot(*horizontal))
     up = -float(wanted[2])
-    reserved = min(horizontal_norm, gains.thrust_xy_margin)
+    reserved = min(horizontal_norm, limits.thrust_xy_margin)
     up_max = math.sqrt(max(gains.thrust_max**2 - reserved**2, 0.0))
     up = min(max(up, gains.thrust_min), up_max)
     horizontal_max = min(up * math.tan(limits.max_tilt), math.sqrt(max(gains.thrust_max**2 - up * up, 0.0)))

@@ -55,6 +55,10 @@ What happens to one offered message, in this order
 5. **delay**: latency_s + U(0, jitter_s) (uniform, so never negative and never more
    than latency_s + jitter_s). A jitter above the message period reorders messages by
    itself. One ``delay`` event per delayed message.
+   **stall** (``stalls = [{start, duration}]``, scenario time): a message offered inside a
+   window is held to the window's end (after its delay), so the whole window arrives back to back
+   with its own stamps, as from a publisher that was frozen and caught up. One ``stall`` event
+   per window, at its first held message. No draws: stalls change no other fault's draws.
 6. **reordering** (``reorder_probability``): the message is held back a further
    ``reorder_delay_s`` (default 0.3 s, above one 5 Hz period) so the next one
    overtakes it.
@@ -187,6 +191,7 @@ def injects_anything(config: FaultsConfig) -> bool:
     burst = config.burst
     return bool(config.loss_probability > 0 or (burst is not None and (burst.loss_in_good > 0 or burst.loss_in_bad > 0))
                 or any(window.duration > 0 for window in config.blackouts) or config.latency_s > 0
+                or any(window.duration > 0 for window in config.stalls)
                 or config.jitter_s > 0 or config.reorder_probability > 0 or config.duplicate_probability > 0
                 or config.stale_probability > 0 or config.corrupt_probability > 0 or config.impostor_rate_hz > 0
                 or attacks_anything(config))
@@ -309,6 +314,8 @@ class LinkFaults:
         self.config = config
         self._streams = dict(zip(STREAMS, rng.spawn(len(STREAMS))))
         self._windows = tuple(sorted((w for w in config.blackouts if w.duration > 0), key=lambda w: w.start))
+        self._stalls = tuple(sorted((w for w in config.stalls if w.duration > 0), key=lambda w: w.start))
+        self._stalls_logged: set[int] = set()
         self._enabled = injects_anything(config)
         self.events: list[FaultEvent] = []
         self.counters: Counter[str] = Counter()
@@ -396,6 +403,7 @@ class LinkFaults:
             delay = self.config.latency_s + draws["delay"] * self.config.jitter_s
             delivery += delay
             self._log(now, "delay", f"{seq} {delay:.3f} s", seq=seq.value, delay_s=delay)
+        delivery = self._stalled(now, delivery, scenario_time)
         if "reorder" in draws and draws["reorder"] < self.config.reorder_probability:
             delivery += self.config.reorder_delay_s
             self._log(now, "reorder", f"{seq} held back {self.config.reorder_delay_s:g} s more", seq=seq.value,
@@ -463,6 +471,17 @@ class LinkFaults:
                 self._burst_bad = not self._burst_bad
         loss = burst.loss_in_bad if self._burst_bad else burst.loss_in_good
         return bool(uniforms[1] < loss), "bad" if self._burst_bad else "good"
+
+    def _stalled(self, now: float, delivery: float, scenario_time: float) -> float:
+        """`delivery` (simulated s), held to the end of the stall window holding `scenario_time`, if any."""
+        for index, window in enumerate(self._stalls):
+            if window.start - TIME_TOLERANCE <= scenario_time < window.end - TIME_TOLERANCE:
+                if index not in self._stalls_logged:
+                    self._stalls_logged.add(index)
+                    self._log(now, "stall", f"publisher frozen [{window.start:g}, {window.end:g}) s scenario time",
+                              window_start=window.start, window_end=window.end)
+                return max(delivery, now + (window.end - scenario_time))
+        return delivery
 
     def _advance_blackouts(self, now: float, scenario_time: float) -> None:
         """Log the windows entered and left by scenario time `scenario_time` (s)."""
