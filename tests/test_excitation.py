@@ -182,7 +182,8 @@ def test_circle_5ms_flight_with_excitation_keeps_the_pursuer_moving_across_the_l
     """circle_5ms, seed 1, 5 Hz bearings, with and without the option. While the health monitor says
     suspect (its level is then 1), the design makes the pursuer's velocity across the estimated line of
     sight track V_X u(t) on top of what HNG asks, so its median across-LOS speed must exceed the paper's
-    HNG's, and so must its slowest speed (the paper's nearly stops). Figures are printed (pytest -s), not asserted: the study in
+    HNG's, and so must its slowest speed after the first 2 s (both start at the scenario's 2 m/s; the paper's
+    HNG slows to 2.48 m/s, 1.91 m/s before the attitude mapping kept PX4's horizontal margin). Figures are printed (pytest -s), not asserted: the study in
     docs/reproduction.md section 5 says what this does to the estimate."""
     scenario, vehicle = load_scenario(SCENARIOS_DIR / "circle_5ms.toml")
     figures = {}
@@ -199,7 +200,8 @@ def test_circle_5ms_flight_with_excitation_keeps_the_pursuer_moving_across_the_l
         figures[mode] = {
             "rms": result.summary["range_estimation_error_rms"], "suspect_fraction": float(suspect.mean()),
             "median_across_speed_suspect": float(np.median(across[suspect])) if suspect.any() else np.nan,
-            "min_speed": float(np.min(np.linalg.norm(velocity, axis=1))), "max_tilt": result.summary["max_tilt_deg"],
+            "min_speed": float(np.min(np.linalg.norm(velocity[s["time"][engaged] > 2.0], axis=1))),
+            "max_tilt": result.summary["max_tilt_deg"],
             "min_range": float(np.min(s["range"][engaged]))}
     print("circle_5ms seed 1:", figures)
     assert figures["uncertainty"]["suspect_fraction"] > 0.0
