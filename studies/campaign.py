@@ -181,6 +181,7 @@ def _fly(task: tuple[str, int, Scenario, VehicleConfig]) -> dict:
     genuine = link.get("genuine", {})
     attack_messages = sum(count for kind, count in link.get("faults", {}).items() if kind.startswith("attack_"))
     return {"pattern": name, "seed": seed, **metrics,
+            "flown_s": float(result.series["time"][-1]),  # simulated seconds flown (the throughput figure)
             "lockout": genuine.get("longest_rejected_run_s", math.nan),
             "attack_messages": attack_messages,
             "attack_refused": genuine.get("foreign_rejected", 0),
@@ -511,14 +512,17 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     results = None
     bar = reporting.progress_bar(len(tasks), "flights", enabled=not args.quiet, description="bof-campaign")
+    throughput = reporting.Throughput(executor=executor.name)
     try:
         for index, row in executor.map(_fly, tasks):
             slots[index] = row
             if results is None:
                 results = CsvLog(folder / "results.csv", row)
             results.write(row)  # completion order; every row carries its pattern and seed
+            throughput.add(row["flown_s"])
             bar.update()
     finally:
+        throughput.stop()
         bar.close()
         executor.close()
         if results is not None:
@@ -528,8 +532,9 @@ def main(argv: list[str] | None = None) -> int:
     sitl_rows = [_sitl_intruder_case(args.config, name, folder / "sitl", args.sitl_speed) if name in INTRUDER_PATTERNS
                  else _sitl_case(args.config, name, folder / "sitl", args.sitl_speed, not args.quiet) for name in args.sitl]
     report = markdown(table, sitl_rows, scenario, args.seeds)
+    report += f"\n\n{throughput.line('bof-campaign')} (in-process flights; SITL cases not counted)\n"
     (folder / "summary.md").write_text(report)
-    write_summary(folder / "summary.json", {"patterns": table, "sitl": sitl_rows})
+    write_summary(folder / "summary.json", {"patterns": table, "sitl": sitl_rows, "throughput": throughput.record()})
     print(report)
     print(f"run folder: {folder}")
     missed = [e["pattern"] for e in table + sitl_rows if e.get("meets_targets") is False]

@@ -254,6 +254,7 @@ def fly(task: FlightTask) -> dict:
         "observability_log_det": summary["observability_log_det_median"],
         "reinitialized": summary.get("reinitializations", 0),
         "initial_estimate": json.dumps(list(scenario.estimator.initial_position or ())),
+        "flown_s": float(t[-1]),  # simulated seconds flown (the throughput figure counts these)
     }
     for start, stop in task.windows:  # mean |range-estimation error| inside each requested window
         inside = (t >= start) & (t < stop)
@@ -350,10 +351,14 @@ def markdown(table: list[dict], title: str, runs: int, threshold: float, executo
 
 
 def run_tasks(tasks: list[FlightTask], executor_spec: str, workers: int | None, folder: Path,
-              progress: bool = True) -> tuple[list[dict], dict[str, np.ndarray], str]:
+              progress: bool = True,
+              throughput: reporting.Throughput | None = None) -> tuple[list[dict], dict[str, np.ndarray], str]:
     """Fly every task; rows in task order. Each row is appended to results.partial.csv as soon as it
-    arrives (an interrupted campaign keeps what it flew); the ordered results.csv replaces it at the end."""
+    arrives (an interrupted campaign keeps what it flew); the ordered results.csv replaces it at the end.
+    throughput: counts each flight's simulated seconds as it arrives, and stops when the last one has."""
     executor = make_executor(executor_spec, workers)
+    if throughput is not None:
+        throughput.executor = executor.name
     rows: list[dict | None] = [None] * len(tasks)
     series: list[dict | None] = [None] * len(tasks)
     bar = reporting.progress_bar(len(tasks), "flights", enabled=progress, description="bof-montecarlo")
@@ -364,9 +369,13 @@ def run_tasks(tasks: list[FlightTask], executor_spec: str, workers: int | None, 
             if partial is None:
                 partial = CsvLog(folder / "results.partial.csv", ["index", *result["row"]])
             partial.write({"index": index, **result["row"]})
+            if throughput is not None:
+                throughput.add(result["row"]["flown_s"])
             bar.update()
     finally:
         bar.close()
+        if throughput is not None:
+            throughput.stop()
         name = executor.name
         executor.close()
         if partial is not None:
@@ -456,19 +465,23 @@ def main(argv: list[str] | None = None) -> int:
     folder = args.out / f"montecarlo-{label}-{time.strftime('%Y%m%d-%H%M%S')}"
     folder.mkdir(parents=True, exist_ok=True)
     print(f"bof-montecarlo: {len(tasks)} flights -> {folder}", flush=True)
+    throughput = reporting.Throughput()
     try:
-        rows, series, executor_name = run_tasks(tasks, args.executor, args.workers, folder, progress=not args.quiet)
+        rows, series, executor_name = run_tasks(tasks, args.executor, args.workers, folder, progress=not args.quiet,
+                                                throughput=throughput)
     except (RuntimeError, ValueError, OSError) as error:
         print(f"bof-montecarlo: {error}", file=sys.stderr)
         return 2
     table = group_table(rows)
     report = markdown(table, title, runs, args.divergence_threshold, executor_name)
     np.savez_compressed(folder / "series.npz", **series)
-    write_summary(folder / "summary.json", {"title": title, "runs": runs, "groups": table})
+    write_summary(folder / "summary.json", {"title": title, "runs": runs, "groups": table,
+                                             "throughput": throughput.record()})
     if not args.no_plots:
         from studies import montecarlo_plots
 
         report += montecarlo_plots.draw_all(rows, series, folder, curves_by=study.curves_by if study else None, title=title)
+    report += f"\n\n{throughput.line('bof-montecarlo')}\n"
     (folder / "summary.md").write_text(report)
     print(report)
     print(f"run folder: {folder}")

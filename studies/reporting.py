@@ -12,11 +12,56 @@ from __future__ import annotations
 
 import math
 import sys
+import time
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import pandas as pd
 from tqdm import tqdm
+
+@dataclass
+class Throughput:
+    """Simulated flight-seconds per wall-clock second of a study: start it before the first flight, `add` each
+    flight's simulated duration as it arrives, read `line()` / `record()` at the end.
+
+    The wall clock (time.perf_counter) runs from construction to `stop()` (or to the reading, if not stopped):
+    it includes the executor's start-up and every worker's idle time, so it is what a user waits for.
+    """
+
+    executor: str | None = None
+    flights: int = 0
+    simulated_s: float = 0.0
+    _started: float = field(default_factory=time.perf_counter)
+    _stopped: float | None = None
+
+    def add(self, simulated_s: float) -> None:
+        if math.isfinite(simulated_s) and simulated_s > 0.0:
+            self.simulated_s += simulated_s
+        self.flights += 1
+
+    def stop(self) -> None:
+        self._stopped = time.perf_counter()
+
+    @property
+    def wall_s(self) -> float:
+        return (self._stopped if self._stopped is not None else time.perf_counter()) - self._started
+
+    @property
+    def rate(self) -> float:
+        """Simulated flight-seconds per wall second (0 before any time has passed)."""
+        wall = self.wall_s
+        return self.simulated_s / wall if wall > 0.0 else 0.0
+
+    def line(self, tool: str) -> str:
+        executor = "" if self.executor is None else f" ({self.executor})"
+        return (f"{tool}: {self.flights} flights, {self.simulated_s:.0f} simulated flight-s in {self.wall_s:.1f} s wall"
+                f"{executor}: {self.rate:.0f} flight-s per wall second")
+
+    def record(self) -> dict:
+        return {"flights": self.flights, "simulated_s": self.simulated_s, "wall_s": self.wall_s,
+                "flight_s_per_wall_s": self.rate, "executor": self.executor}
+
 
 def summarize(rows: Sequence[Mapping[str, Any]], by: Sequence[str], statistics: Mapping[str, tuple[str, Any]],
               finite: Sequence[str] = ()) -> list[dict]:

@@ -50,6 +50,9 @@ def test_the_campaign_command_writes_its_tables(tmp_path, scenario_path):
     corrupt = [row for row in rows[1:] if row.startswith("corrupt")]
     assert all("not_" in row or "missing_field" in row or "out_of_range" in row for row in corrupt)
     assert "| blackout_5s" in (folder / "summary.md").read_text()
+    # Throughput: 4 flights of constant_velocity's 60 s, over the wall time of the in-process part.
+    assert summary["throughput"]["flights"] == 4 and summary["throughput"]["simulated_s"] == pytest.approx(240.0, abs=0.1)
+    assert "240 simulated flight-s" in (folder / "summary.md").read_text()
 
 
 @pytest.mark.parametrize("name", campaign.ATTACK_PATTERNS)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import json
 import math
 
 import numpy as np
@@ -165,6 +166,11 @@ def test_command_writes_table_csv_series_and_figures(tmp_path):
         assert series["image_plane"].shape == (8, 31, 2)
     for name in ("errors_over_time.png", "trajectories.png", "image_plane.png"):
         assert (folder / name).stat().st_size > 10_000
+    # Throughput: 8 flights of the --duration (6 s) each, 48 simulated flight-s, over the wall time of the run.
+    throughput = json.loads((folder / "summary.json").read_text())["throughput"]
+    assert throughput["flights"] == 8 and throughput["simulated_s"] == pytest.approx(48.0)
+    assert throughput["flight_s_per_wall_s"] == pytest.approx(48.0 / throughput["wall_s"])
+    assert f"48 simulated flight-s in {throughput['wall_s']:.1f} s wall" in summary
 
 
 def test_error_windows_average_the_requested_span(loaded):
