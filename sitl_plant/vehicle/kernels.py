@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 
+from sitl_plant import _jit
 from sitl_plant._jit import jit
 
 Vec3 = tuple[float, float, float]
@@ -352,3 +353,25 @@ def advance_steps(
         c1, c2, c3, c4 = mixer_speeds(thrust, tx, ty, tz, m)
         s, w = rk4_step(h, lag_half, lag_full, s, w, c1, c2, c3, c4, k)
     return s, w
+
+
+_warmed_up = False
+
+
+def warm_up() -> None:
+    """Compile every kernel (or load it from numba's cache) for the argument types the classes pass,
+    once per process: Quadrotor's constructor calls this so that a real-time loop (sitl-plant)
+    never stalls on its first step. Calls on dummy values; nothing to do without numba."""
+    global _warmed_up
+    if _warmed_up or not _jit.ENABLED:
+        return
+    _warmed_up = True
+    k, c, m = (1.0,) * 12, (1.0,) * 5, (1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
+    s: State = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    w = q = (1.0, 0.0, 0.0, 0.0)
+    rigid_body_rhs(*s[3:13], *rotor_wrench(*w, k), k)
+    rk4_step(0.002, 0.9, 0.8, s, w, 1.0, 1.0, 1.0, 1.0, k)
+    error_quaternion(q, q)
+    attitude_torque(q, ZERO3, q, ZERO3, ZERO3, True, c)
+    mixer_speeds(0.5, 0.0, 0.0, 0.0, m)
+    advance_steps(1, 0.002, 0.9, 0.8, s, w, q, 0.5, k, c, m)

@@ -222,6 +222,7 @@ class Quadrotor:
     """
 
     def __init__(self, params: QuadrotorParams, state: RigidBodyState | None = None) -> None:
+        kernels.warm_up()
         self.params = params
         self._k = kernels.plant_constants(params)
         self._max_speed = params.max_rotor_speed
