@@ -15,6 +15,7 @@ from hypothesis import settings
 from interfaces.link_schema import CLOCK_KEY, ClockTick, TargetFix, decode_target_fix, encode_clock, target_fix_key
 from interfaces.scenario import SCENARIOS_DIR
 from interfaces.zenoh_transport import open_session, publisher, zenoh_config
+from sitl_plant.vehicle import kernels
 from studies.processes import free_port
 
 # CI (CI=true, as .ci/run is started) runs every property test on hypothesis's fixed derandomised
@@ -22,6 +23,11 @@ from studies.processes import free_port
 settings.register_profile("ci", derandomize=True, print_blob=True)
 if os.environ.get("CI", "").lower() in ("1", "true", "yes"):
     settings.load_profile("ci")
+
+# With numba the plant's kernels are compiled (or loaded from its cache) on first use: 0.3 s from
+# the cache, about 1.5 s without. Done here once, so that no test's timing (hypothesis deadlines
+# included) depends on whether it happens to be the first to fly a plant. No-op without numba.
+kernels.warm_up()
 
 
 @pytest.fixture

@@ -2,8 +2,9 @@
 attitude/thrust-setpoint vehicle that the companion side drives.
 
 Frames as in sitl_plant.vehicle.quadrotor: NED inertial, FRD body, R maps body -> NED.
-The hot loop (controller, mixer, plant step) works on plain floats and tuples;
-numpy arrays appear only at the public boundary.
+The hot loop (controller, mixer, plant step) is sitl_plant.vehicle.kernels.advance_steps on
+plain floats and tuples (compiled by numba when it is installed); the classes here hold the
+setpoint and the constants and call those kernels. numpy arrays appear only at the public boundary.
 """
 
 from __future__ import annotations
@@ -12,9 +13,9 @@ import math
 
 import numpy as np
 
+from sitl_plant.vehicle import kernels
 from sitl_plant.vehicle.params import QuadrotorParams
 from sitl_plant.vehicle.quadrotor import (
-    Mat3,
     Quadrotor,
     RigidBodyState,
     Vec3,
@@ -26,7 +27,7 @@ from sitl_plant.vehicle.quadrotor import (
 
 Quat = tuple[float, float, float, float]
 
-_ZERO3: Vec3 = (0.0, 0.0, 0.0)
+_ZERO3: Vec3 = kernels.ZERO3
 
 MIN_RATE_HZ = 500.0
 
@@ -58,14 +59,12 @@ class GeometricAttitudeController:
 
     def __init__(self, params: QuadrotorParams) -> None:
         self.params = params
-        self._kp = float(params.attitude_kp)
-        self._kd = float(params.attitude_kd)
-        self._j = tuple(float(x) for x in params.inertia)
+        self._c = kernels.control_constants(params)
 
     @staticmethod
     def attitude_error(rotation: np.ndarray, rotation_desired: np.ndarray) -> np.ndarray:
         """e_R of eq. (24), shape (3,), body frame; equals sin(angle) * axis of R_d^T R."""
-        qe = _error_quaternion(
+        qe = kernels.error_quaternion(
             rotation_to_quaternion(check_rotation(rotation)),
             rotation_to_quaternion(check_rotation(rotation_desired, "rotation_desired")),
         )
@@ -96,59 +95,9 @@ class GeometricAttitudeController:
         )
 
     def _torque(self, q: Quat, w: Vec3, qd: Quat, wd: Vec3 = _ZERO3, wd_dot: Vec3 = _ZERO3) -> Vec3:
-        """Hot path of eq. (24): attitude and target as unit quaternions, rates as 3-tuples."""
-        kp, kd = self._kp, self._kd
-        jx, jy, jz = self._j
-        qw, qx, qy, qz = q
-        dw, dx, dy, dz = qd
-        # q_e = q_d^* (x) q, written out (see _error_quaternion).
-        ew = dw * qw + dx * qx + dy * qy + dz * qz
-        ex = dw * qx - qw * dx - dy * qz + dz * qy
-        ey = dw * qy - qw * dy - dz * qx + dx * qz
-        ez = dw * qz - qw * dz - dx * qy + dy * qx
-        kp2 = 2.0 * kp * ew
-        wx, wy, wz = w
-        # [w]x J w: the gyroscopic term of eq. (20d), cancelled so the closed loop is PD.
-        gx = (jz - jy) * wy * wz
-        gy = (jx - jz) * wz * wx
-        gz = (jy - jx) * wx * wy
-        if wd is _ZERO3 and wd_dot is _ZERO3:
-            return (
-                gx - kp2 * ex - kd * wx,
-                gy - kp2 * ey - kd * wy,
-                gz - kp2 * ez - kd * wz,
-            )
-        # Feed-forward of eq. (23)-(24); R^T R_d = R_e^T maps desired-body vectors to body.
-        re = quaternion_to_rotation(ew, ex, ey, ez)
-        ax, ay, az = _transpose_times(re, wd)
-        bx, by, bz = _transpose_times(re, wd_dot)
-        cx, cy, cz = wy * az - wz * ay, wz * ax - wx * az, wx * ay - wy * ax
-        return (
-            gx - kp2 * ex - kd * (wx - ax) - jx * (cx - bx),
-            gy - kp2 * ey - kd * (wy - ay) - jy * (cy - by),
-            gz - kp2 * ez - kd * (wz - az) - jz * (cz - bz),
-        )
-
-
-def _error_quaternion(q: Quat, qd: Quat) -> Quat:
-    """q_e = q_d^* (x) q, i.e. R(q_e) = R_d^T R."""
-    qw, qx, qy, qz = q
-    dw, dx, dy, dz = qd
-    return (
-        dw * qw + dx * qx + dy * qy + dz * qz,
-        dw * qx - qw * dx - dy * qz + dz * qy,
-        dw * qy - qw * dy - dz * qx + dx * qz,
-        dw * qz - qw * dz - dx * qy + dy * qx,
-    )
-
-
-def _transpose_times(m: Mat3, v: Vec3) -> Vec3:
-    """M^T v for a row-major 9-tuple M."""
-    return (
-        m[0] * v[0] + m[3] * v[1] + m[6] * v[2],
-        m[1] * v[0] + m[4] * v[1] + m[7] * v[2],
-        m[2] * v[0] + m[5] * v[1] + m[8] * v[2],
-    )
+        """Eq. (24) on unit quaternions and 3-tuples (kernels.attitude_torque); the feed-forward
+        terms run only when a desired rate or acceleration was given."""
+        return kernels.attitude_torque(q, w, qd, wd, wd_dot, not (wd is _ZERO3 and wd_dot is _ZERO3), self._c)
 
 
 class Mixer:
@@ -171,13 +120,7 @@ class Mixer:
 
     def __init__(self, params: QuadrotorParams) -> None:
         self.params = params
-        a = params.arm_length / math.sqrt(2.0)
-        self._t_max = params.max_total_thrust
-        self._w_max = params.max_rotor_speed
-        self._u_max = params.max_rotor_speed**2
-        self._inv_4ct = 1.0 / (4.0 * params.thrust_coefficient)
-        self._inv_4cta = 1.0 / (4.0 * params.thrust_coefficient * a)
-        self._inv_4cm = 1.0 / (4.0 * params.moment_coefficient)
+        self._m = kernels.mixer_constants(params)
 
     def rotor_speeds(self, thrust: float, torque: np.ndarray) -> np.ndarray:
         """Rotor speed commands, rad/s, shape (4,), PX4 motor order.
@@ -193,53 +136,8 @@ class Mixer:
         return rotor_wrench(self.params, rotor_speeds)
 
     def _speeds(self, thrust: float, tx: float, ty: float, tz: float) -> tuple[float, float, float, float]:
-        """Hot path of the policy above; returns w_1..w_4 in rad/s.
-
-        Conditional expressions instead of min/max/abs: builtin calls dominate at this size.
-        """
-        u_max = self._u_max
-        t_max = self._t_max
-        thrust = 0.0 if thrust < 0.0 else (t_max if thrust > t_max else thrust)
-        c = thrust * self._inv_4ct
-        dx = tx * self._inv_4cta
-        dy = ty * self._inv_4cta
-        dz = tz * self._inv_4cm
-        # Roll/pitch differentials: motors 1/2 get +/-p, motors 3/4 get +/-q.
-        p = dy - dx
-        q = dx + dy
-        ap = p if p >= 0.0 else -p
-        aq = q if q >= 0.0 else -q
-        half_span = ap if ap > aq else aq
-        if 2.0 * half_span > u_max:
-            k = 0.5 * u_max / half_span
-            p *= k
-            q *= k
-            ap *= k
-            aq *= k
-            half_span = 0.5 * u_max
-        if c < half_span:
-            c = half_span
-        elif c > u_max - half_span:
-            c = u_max - half_span
-        # Yaw: CCW motors 1/2 get +dz, CW motors 3/4 get -dz; clip to the headroom left.
-        if dz > 0.0:
-            up, down = u_max - c - ap, c - aq
-            dz = min(dz, up if up < down else down)
-        else:
-            up, down = u_max - c - aq, c - ap
-            dz = max(dz, -(up if up < down else down))
-        u1 = c + p + dz
-        u2 = c - p + dz
-        u3 = c + q - dz
-        u4 = c - q - dz
-        sqrt = math.sqrt
-        # Rounding may leave u a few ulp outside [0, u_max].
-        return (
-            sqrt(u1) if 0.0 < u1 < u_max else (0.0 if u1 <= 0.0 else self._w_max),
-            sqrt(u2) if 0.0 < u2 < u_max else (0.0 if u2 <= 0.0 else self._w_max),
-            sqrt(u3) if 0.0 < u3 < u_max else (0.0 if u3 <= 0.0 else self._w_max),
-            sqrt(u4) if 0.0 < u4 < u_max else (0.0 if u4 <= 0.0 else self._w_max),
-        )
+        """The policy above on floats (kernels.mixer_speeds); returns w_1..w_4 in rad/s."""
+        return kernels.mixer_speeds(thrust, tx, ty, tz, self._m)
 
 
 def gauss_markov_step(previous: np.ndarray, innovation: np.ndarray, elapsed: float, time_constant: float) -> np.ndarray:
@@ -293,7 +191,7 @@ class AttitudeThrustVehicle:
         self._feedback_time = 0.0
         self._steps = 0
         self._qd: Quat = self._plant._s[6:10]  # type: ignore[assignment]
-        self._thrust = params.hover_thrust
+        self._thrust = float(params.hover_thrust)
 
     @property
     def quadrotor(self) -> Quadrotor:
@@ -354,13 +252,11 @@ class AttitudeThrustVehicle:
         if n < 0 or abs(steps_float - n) > 1e-6:
             raise ValueError(f"duration {duration!r} s is not a non-negative multiple of {self._dt!r} s")
         plant, h = self._plant, self._dt
-        torque, speeds, step = self._controller._torque, self._mixer._speeds, plant._step
-        qd, thrust = self._qd, self._thrust
-        for _ in range(n):
-            s = plant._s
-            tx, ty, tz = torque(s[6:10], s[10:13], qd)
-            w1, w2, w3, w4 = speeds(thrust, tx, ty, tz)
-            step(h, w1, w2, w3, w4)
+        lag_half, lag_full = plant._lag_factors(h)
+        plant._s, plant._w = kernels.advance_steps(
+            n, h, lag_half, lag_full, plant._s, plant._w, self._qd, self._thrust,
+            plant._k, self._controller._c, self._mixer._m,
+        )
         self._steps += n
 
     def measured_state(self) -> tuple[np.ndarray, np.ndarray]:

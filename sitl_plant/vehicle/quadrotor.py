@@ -35,16 +35,21 @@ Extra physics (section VIII, points 1-3)
 2. The command is saturated to [0, max_rotor_speed], so total thrust <= 1.5 m g.
 3. Linear body drag -K_r R^T v with K_r = diag(C_d, C_d, 0), rotated into NED:
    R(-K_r R^T v) = -C_d (v - r3 (r3 . v)), r3 = R e_Z (no drag along body z).
+
+The arithmetic of all this (right-hand side, allocation, RK4 step with the motor lag) is
+in sitl_plant.vehicle.kernels, compiled by numba when it is installed; this module keeps
+the state, checks inputs and reads the state out.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
+from sitl_plant.vehicle import kernels
+from sitl_plant.vehicle.kernels import Mat3, Vec3, Wrench  # noqa: F401  (re-exported)
 from sitl_plant.vehicle.params import QuadrotorParams
 
 #: (x sign, y sign, spin) per motor in PX4 order; spin +1 = CCW = positive yaw moment.
@@ -57,27 +62,14 @@ ROTOR_LAYOUT: tuple[tuple[int, int, int], ...] = (
 
 _ORTHONORMAL_TOL = 1e-6
 
-Vec3 = tuple[float, float, float]
-Mat3 = tuple[float, float, float, float, float, float, float, float, float]
-Wrench = tuple[float, float, float, float]
 
-
-def quaternion_to_rotation(qw: float, qx: float, qy: float, qz: float) -> Mat3:
-    """Rotation matrix of a unit quaternion, row-major 9-tuple (body FRD -> NED).
-
-    Kept by hand (not scipy's Rotation) for the per-tick paths only: the state read-out
-    that the autopilot and the in-process simulator poll every step, and the attitude
-    controller's feed-forward at 500 Hz, where a Rotation object costs more than the step.
-    Anything slower uses scipy.spatial.transform.Rotation.
-    """
-    xx, yy, zz = qx * qx, qy * qy, qz * qz
-    xy, xz, yz = qx * qy, qx * qz, qy * qz
-    wx, wy, wz = qw * qx, qw * qy, qw * qz
-    return (
-        1.0 - 2.0 * (yy + zz), 2.0 * (xy - wz), 2.0 * (xz + wy),
-        2.0 * (xy + wz), 1.0 - 2.0 * (xx + zz), 2.0 * (yz - wx),
-        2.0 * (xz - wy), 2.0 * (yz + wx), 1.0 - 2.0 * (xx + yy),
-    )
+#: Rotation matrix of a unit quaternion (w, x, y, z), row-major 9-tuple (body FRD -> NED).
+#: Kept by hand (not scipy's Rotation) for the per-tick paths: the state read-out that the
+#: autopilot and the in-process simulator poll every step, and the attitude controller's
+#: feed-forward at 500 Hz, where a Rotation object costs more than the step. The kernel's
+#: plain-Python twin: called from Python a compiled kernel's dispatch costs as much as the
+#: arithmetic, and it never recompiles for an int argument. Anything slower uses scipy.
+quaternion_to_rotation = kernels.quaternion_to_rotation.py_func
 
 
 def rotation_to_quaternion(rotation: np.ndarray) -> tuple[float, float, float, float]:
@@ -147,74 +139,12 @@ def hover_rotor_speed(params: QuadrotorParams) -> float:
 def rotor_wrench(params: QuadrotorParams, rotor_speeds: np.ndarray) -> tuple[float, np.ndarray]:
     """Total thrust (N) and body torque (N m, shape (3,)) of rotor speeds (rad/s, shape (4,)).
 
-    This is the allocation matrix of the module docstring; the Mixer inverts it.
+    This is the allocation matrix of the module docstring (sitl_plant.vehicle.kernels.rotor_wrench);
+    the Mixer inverts it.
     """
     w = _vector(rotor_speeds, 4, "rotor_speeds")
-    thrust, tx, ty, tz = _make_wrench_function(params)(*(float(x) for x in w))
+    thrust, tx, ty, tz = kernels.rotor_wrench(*(float(x) for x in w), kernels.plant_constants(params))
     return thrust, np.array([tx, ty, tz])
-
-
-def _make_wrench_function(params: QuadrotorParams) -> Callable[[float, float, float, float], Wrench]:
-    c_t = params.thrust_coefficient
-    c_ta = params.thrust_coefficient * params.arm_length / math.sqrt(2.0)
-    c_m = params.moment_coefficient
-
-    def wrench(w1: float, w2: float, w3: float, w4: float) -> Wrench:
-        u1, u2, u3, u4 = w1 * w1, w2 * w2, w3 * w3, w4 * w4
-        return (
-            c_t * (u1 + u2 + u3 + u4),
-            c_ta * (-u1 + u2 + u3 - u4),
-            c_ta * (u1 - u2 + u3 - u4),
-            c_m * (u1 + u2 - u3 - u4),
-        )
-
-    return wrench
-
-
-def _make_dynamics(params: QuadrotorParams) -> Callable[..., tuple[float, ...]]:
-    """Build the rigid-body right-hand side, eq. (20b)-(20d) plus drag.
-
-    f(vx, vy, vz, qw, qx, qy, qz, wx, wy, wz, T, tau_x, tau_y, tau_z) returns
-    (v', q', omega') as a 10-tuple; p' = v (eq. (20a)) is left to the integrator.
-    Scalar arguments instead of a state vector because this runs four times per
-    plant step and packing/unpacking sequences would dominate its cost.
-    """
-    g = params.gravity
-    inv_m = 1.0 / params.mass
-    drag_per_mass = params.drag_coefficient / params.mass
-    jx, jy, jz = params.inertia
-    inv_jx, inv_jy, inv_jz = 1.0 / jx, 1.0 / jy, 1.0 / jz
-    jz_jy, jx_jz, jy_jx = jz - jy, jx - jz, jy - jx
-
-    def dynamics(
-        vx: float, vy: float, vz: float,
-        qw: float, qx: float, qy: float, qz: float,
-        wx: float, wy: float, wz: float,
-        thrust: float, tx: float, ty: float, tz: float,
-    ) -> tuple[float, ...]:
-        # Only r3 = R e_Z is needed: thrust acts along it and, since
-        # R diag(1, 1, 0) R^T = I - r3 r3^T, the drag R(-K_r R^T v) = -C_d (v - r3 (r3 . v)).
-        r02 = 2.0 * (qx * qz + qw * qy)
-        r12 = 2.0 * (qy * qz - qw * qx)
-        r22 = 1.0 - 2.0 * (qx * qx + qy * qy)
-        vertical = r02 * vx + r12 * vy + r22 * vz
-        a3 = thrust * inv_m - drag_per_mass * vertical
-        return (
-            -a3 * r02 - drag_per_mass * vx,  # eq. (20b) + drag
-            -a3 * r12 - drag_per_mass * vy,
-            g - a3 * r22 - drag_per_mass * vz,
-            # eq. (20c) as q' = q (x) (0, omega) / 2
-            -0.5 * (qx * wx + qy * wy + qz * wz),
-            0.5 * (qw * wx + qy * wz - qz * wy),
-            0.5 * (qw * wy - qx * wz + qz * wx),
-            0.5 * (qw * wz + qx * wy - qy * wx),
-            # eq. (20d) with diagonal J
-            (tx - jz_jy * wy * wz) * inv_jx,
-            (ty - jx_jz * wz * wx) * inv_jy,
-            (tz - jy_jx * wx * wy) * inv_jz,
-        )
-
-    return dynamics
 
 
 @dataclass(frozen=True)
@@ -292,9 +222,9 @@ class Quadrotor:
     """
 
     def __init__(self, params: QuadrotorParams, state: RigidBodyState | None = None) -> None:
+        kernels.warm_up()
         self.params = params
-        self._dynamics = _make_dynamics(params)
-        self._wrench = _make_wrench_function(params)
+        self._k = kernels.plant_constants(params)
         self._max_speed = params.max_rotor_speed
         self._lag_step = -1.0
         self._lag_half = 0.0
@@ -317,7 +247,8 @@ class Quadrotor:
     def state(self, state: RigidBodyState) -> None:
         if not isinstance(state, RigidBodyState):
             raise TypeError(f"expected RigidBodyState, got {type(state).__name__}")
-        self._s: tuple[float, ...] = (
+        # Tuples of Python floats: what the kernels take (sitl_plant.vehicle.kernels).
+        self._s: kernels.State = (
             *(float(x) for x in state.position),
             *(float(x) for x in state.velocity),
             *rotation_to_quaternion(state.rotation),
@@ -330,17 +261,18 @@ class Quadrotor:
     @property
     def total_thrust(self) -> float:
         """Total rotor thrust at the current rotor speeds, N (>= 0, <= 1.5 m g)."""
-        return self._wrench(*self._w)[0]
+        return kernels.rotor_wrench(*self._w, self._k)[0]
 
     @property
     def body_torque(self) -> np.ndarray:
         """Rotor torque about the centre of mass at the current rotor speeds, N m, (3,) FRD."""
-        return np.array(self._wrench(*self._w)[1:])
+        return np.array(kernels.rotor_wrench(*self._w, self._k)[1:])
 
     @property
     def acceleration(self) -> np.ndarray:
         """Inertial acceleration dv/dt at the current state (gravity, thrust, drag), m/s^2, (3,) NED."""
-        return np.array(self._dynamics(*self._s[3:13], *self._wrench(*self._w))[0:3])
+        k = self._k
+        return np.array(kernels.rigid_body_rhs(*self._s[3:13], *kernels.rotor_wrench(*self._w, k), k)[0:3])
 
     def step(self, dt: float, rotor_speed_command: np.ndarray) -> None:
         """Advance one RK4 step of dt seconds holding rotor_speed_command (rad/s, shape (4,)).
@@ -351,70 +283,18 @@ class Quadrotor:
             raise ValueError(f"dt must be positive and finite, got {dt!r}")
         c = _vector(rotor_speed_command, 4, "rotor_speed_command")
         top = self._max_speed
-        self._step(dt, *(min(max(float(x), 0.0), top) for x in c))
+        self._step(float(dt), *(min(max(float(x), 0.0), top) for x in c))
 
-    def _step(self, h: float, c1: float, c2: float, c3: float, c4: float) -> None:
-        """Hot path: one step with an already saturated command (floats, rad/s).
-
-        Written out stage by stage on scalars; a loop over state vectors costs
-        more than the arithmetic at this size.
-        """
+    def _lag_factors(self, h: float) -> tuple[float, float]:
+        """Exact motor-lag factors (exp(-h / (2 T_m)), exp(-h / T_m)) for a step of h seconds, cached."""
         if h != self._lag_step:
             tau = self.params.motor_time_constant
             self._lag_half = math.exp(-0.5 * h / tau)
             self._lag_full = math.exp(-h / tau)
             self._lag_step = h
-        eh, ef = self._lag_half, self._lag_full
-        w1, w2, w3, w4 = self._w
-        d1, d2, d3, d4 = w1 - c1, w2 - c2, w3 - c3, w4 - c4
-        wrench, f = self._wrench, self._dynamics
-        t0, x0, y0, z0 = wrench(w1, w2, w3, w4)
-        tm, xm, ym, zm = wrench(c1 + d1 * eh, c2 + d2 * eh, c3 + d3 * eh, c4 + d4 * eh)
-        e1, e2, e3, e4 = c1 + d1 * ef, c2 + d2 * ef, c3 + d3 * ef, c4 + d4 * ef
-        te, xe, ye, ze = wrench(e1, e2, e3, e4)
+        return self._lag_half, self._lag_full
 
-        px, py, pz, vx, vy, vz, qw, qx, qy, qz, wx, wy, wz = self._s
-        hh = 0.5 * h
-        a1x, a1y, a1z, q1w, q1x, q1y, q1z, o1x, o1y, o1z = f(
-            vx, vy, vz, qw, qx, qy, qz, wx, wy, wz, t0, x0, y0, z0
-        )
-        v2x, v2y, v2z = vx + hh * a1x, vy + hh * a1y, vz + hh * a1z
-        a2x, a2y, a2z, q2w, q2x, q2y, q2z, o2x, o2y, o2z = f(
-            v2x, v2y, v2z,
-            qw + hh * q1w, qx + hh * q1x, qy + hh * q1y, qz + hh * q1z,
-            wx + hh * o1x, wy + hh * o1y, wz + hh * o1z,
-            tm, xm, ym, zm,
-        )
-        v3x, v3y, v3z = vx + hh * a2x, vy + hh * a2y, vz + hh * a2z
-        a3x, a3y, a3z, q3w, q3x, q3y, q3z, o3x, o3y, o3z = f(
-            v3x, v3y, v3z,
-            qw + hh * q2w, qx + hh * q2x, qy + hh * q2y, qz + hh * q2z,
-            wx + hh * o2x, wy + hh * o2y, wz + hh * o2z,
-            tm, xm, ym, zm,
-        )
-        v4x, v4y, v4z = vx + h * a3x, vy + h * a3y, vz + h * a3z
-        a4x, a4y, a4z, q4w, q4x, q4y, q4z, o4x, o4y, o4z = f(
-            v4x, v4y, v4z,
-            qw + h * q3w, qx + h * q3x, qy + h * q3y, qz + h * q3z,
-            wx + h * o3x, wy + h * o3y, wz + h * o3z,
-            te, xe, ye, ze,
-        )
-        h6 = h / 6.0
-        qw += h6 * (q1w + 2.0 * (q2w + q3w) + q4w)
-        qx += h6 * (q1x + 2.0 * (q2x + q3x) + q4x)
-        qy += h6 * (q1y + 2.0 * (q2y + q3y) + q4y)
-        qz += h6 * (q1z + 2.0 * (q2z + q3z) + q4z)
-        inv = 1.0 / math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
-        self._s = (
-            px + h6 * (vx + 2.0 * (v2x + v3x) + v4x),
-            py + h6 * (vy + 2.0 * (v2y + v3y) + v4y),
-            pz + h6 * (vz + 2.0 * (v2z + v3z) + v4z),
-            vx + h6 * (a1x + 2.0 * (a2x + a3x) + a4x),
-            vy + h6 * (a1y + 2.0 * (a2y + a3y) + a4y),
-            vz + h6 * (a1z + 2.0 * (a2z + a3z) + a4z),
-            qw * inv, qx * inv, qy * inv, qz * inv,
-            wx + h6 * (o1x + 2.0 * (o2x + o3x) + o4x),
-            wy + h6 * (o1y + 2.0 * (o2y + o3y) + o4y),
-            wz + h6 * (o1z + 2.0 * (o2z + o3z) + o4z),
-        )
-        self._w = (e1, e2, e3, e4)
+    def _step(self, h: float, c1: float, c2: float, c3: float, c4: float) -> None:
+        """One step with an already saturated command (floats, rad/s): kernels.rk4_step."""
+        eh, ef = self._lag_factors(h)
+        self._s, self._w = kernels.rk4_step(h, eh, ef, self._s, self._w, c1, c2, c3, c4, self._k)
