@@ -182,8 +182,13 @@ def test_the_public_api_never_compiles_a_second_version():
     vehicle.set_attitude_target_quaternion((1, 0, 0, 0), 10)
     vehicle.advance(np.float32(0.01))
     if _jit.ENABLED:
+        from numba.core.types import unliteral
+
         for name in KERNELS:
-            assert len(getattr(kernels, name).signatures) <= 1, (name, getattr(kernels, name).signatures)
+            # A kernel called from another compiled kernel with a constant (advance_steps passes feed_forward=False)
+            # is also specialised on that literal when the cache is empty: compiled with its caller, not at run time.
+            signatures = {tuple(unliteral(kind) for kind in signature) for signature in getattr(kernels, name).signatures}
+            assert len(signatures) <= 1, (name, getattr(kernels, name).signatures)
 
 
 FLIGHT = """
