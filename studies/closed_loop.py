@@ -372,37 +372,42 @@ class GenuineRecord:
 
 def _log_tick(log: FlightLog, time: float, truth: RigidBodyState, target: TargetMotion, output,
               estimator: object = None) -> None:
+    """One row of the flight log, written straight into its preallocated columns (FlightLog.append's
+    keyword form costs a dict and a call per column: a fifth of the harness's own time per flight)."""
+    data, row = log._data, log.rows
     estimate, setpoint = output.estimate, output.setpoint
-    row = dict(
-        time=time,
-        pursuer_position=truth.position,
-        pursuer_velocity=truth.velocity,
-        pursuer_forward=truth.rotation[:, 0],
-        pursuer_down_z=truth.rotation[2, 2],
-        target_position=target.position,
-        target_velocity=target.velocity,
-    )
+    data["time"][row, 0] = time
+    data["pursuer_position"][row] = truth.position
+    data["pursuer_velocity"][row] = truth.velocity
+    rotation = truth.rotation
+    data["pursuer_forward"][row] = rotation[:, 0]
+    data["pursuer_down_z"][row, 0] = rotation[2, 2]
+    data["target_position"][row] = target.position
+    data["target_velocity"][row] = target.velocity
     if estimate is not None:
-        row.update(
-            estimate_position=estimate.position,
-            estimate_velocity=estimate.velocity,
-            estimate_position_std=estimate.position_std,
-        )
+        data["estimate_position"][row] = estimate.position
+        data["estimate_velocity"][row] = estimate.velocity
+        data["estimate_position_std"][row, 0] = estimate.position_std
+        data["track_mode"][row, 0] = TRACK_MODE_CODES[output.mode]
+        data["bearing_age"][row, 0] = output.bearing_age
     if setpoint is not None:
-        row.update(command_acceleration=setpoint.acceleration, thrust_normalized=setpoint.thrust_normalized)
-    if estimate is not None:
-        row.update(track_mode=TRACK_MODE_CODES[output.mode], bearing_age=output.bearing_age)
-    if output.observability is not None:
-        row.update(observability_log_det=output.observability["log_det"],
-                   observability_min_eigenvalue=output.observability["min_eigenvalue"])
+        data["command_acceleration"][row] = setpoint.acceleration
+        data["thrust_normalized"][row, 0] = setpoint.thrust_normalized
+    observability = output.observability
+    if observability is not None:
+        data["observability_log_det"][row, 0] = observability["log_det"]
+        data["observability_min_eigenvalue"][row, 0] = observability["min_eigenvalue"]
     health = output.health
     if health is not None:
-        row.update(health_suspect=float(health.state is HealthState.SUSPECT),
-                   health_reasons=sum(HEALTH_REASON_BITS[reason] for reason in health.reasons),
-                   health_nis_ratio=health.nis_ratio, health_relative_range_std=health.relative_range_std,
-                   health_action=HEALTH_ACTION_CODES[output.health_action], process_noise_boost=output.process_noise_boost,
-                   health_reinitialized=float(output.health_reinitialized))
-    motion = getattr(estimator, "motion_probabilities", None)
-    if motion is not None and estimate is not None:
-        row.update(model_probabilities=motion)
-    log.append(**row)
+        data["health_suspect"][row, 0] = float(health.state is HealthState.SUSPECT)
+        data["health_reasons"][row, 0] = sum(HEALTH_REASON_BITS[reason] for reason in health.reasons)
+        data["health_nis_ratio"][row, 0] = health.nis_ratio
+        data["health_relative_range_std"][row, 0] = health.relative_range_std
+        data["health_action"][row, 0] = HEALTH_ACTION_CODES[output.health_action]
+        data["process_noise_boost"][row, 0] = output.process_noise_boost
+        data["health_reinitialized"][row, 0] = float(output.health_reinitialized)
+    if estimate is not None:
+        motion = getattr(estimator, "motion_probabilities", None)
+        if motion is not None:
+            data["model_probabilities"][row] = motion
+    log.rows = row + 1
