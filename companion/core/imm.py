@@ -91,28 +91,24 @@ def standard_models(turn_rates: Sequence[float], cv_process_noise: float, turn_p
     return models
 
 
+@jit
 def markov_matrix(count: int, stay_probability: float) -> np.ndarray:
     """p_ij, shape (count, count): stay_probability on the diagonal, the rest split evenly over
     the other models (seed 004's matrix for count = 3, stay_probability = 0.98); rows sum to 1."""
     if count == 1:
         return np.ones((1, 1))
     leave = (1.0 - stay_probability) / (count - 1)
-    # one np.where on a cached identity mask: the same entries as np.full + np.fill_diagonal, at a
-    # fraction of their cost (this runs at nearly every correction: the interval's rounding varies)
-    return np.where(_diagonal_mask(count), stay_probability, leave)
+    matrix = np.full((count, count), leave)
+    for i in range(count):
+        matrix[i, i] = stay_probability
+    return matrix
 
 
-_DIAGONAL_MASKS: dict[int, np.ndarray] = {}
-
-
-def _diagonal_mask(count: int) -> np.ndarray:
-    """The boolean identity of size count (read only, cached)."""
-    mask = _DIAGONAL_MASKS.get(count)
-    if mask is None:
-        mask = np.eye(count, dtype=bool)
-        mask.flags.writeable = False
-        _DIAGONAL_MASKS[count] = mask
-    return mask
+@jit
+def _markov_matrix_over(count: int, stay_probability: float, stay_time: float, interval: float) -> np.ndarray:
+    """p_ij over `interval` s: p_ii = stay_probability^(interval / stay_time) (module docstring; a negative
+    interval counts as 0, as max(interval, 0.0) takes it)."""
+    return markov_matrix(count, stay_probability ** ((0.0 if 0.0 > interval else interval) / stay_time))
 
 
 def mix(probabilities: np.ndarray, transition: np.ndarray, states: np.ndarray,
@@ -353,7 +349,8 @@ def _imm_correct_kernel(states: np.ndarray, covariances: np.ndarray, model_relat
                         direction: np.ndarray, gain_relatives: np.ndarray, gain_ranges: np.ndarray, lead: float,
                         late: bool, measurement_noises: np.ndarray, add_position_noise: bool, position_variance: float,
                         lead_noises: np.ndarray, pursuer_position: np.ndarray, weights: np.ndarray,
-                        relative: np.ndarray, predicted_range: float, transition: np.ndarray):
+                        relative: np.ndarray, predicted_range: float, stay_probability: float, stay_time: float,
+                        interval: float):
     """One IMM correction of models with the PREDICTED gain, none restarting (IMMEstimator.correct), in place on
     the stacked states (n, 6) and covariances (n, 6, 6):
 
@@ -365,7 +362,8 @@ def _imm_correct_kernel(states: np.ndarray, covariances: np.ndarray, model_relat
     The per-model inputs are `_correct_kernel`'s, stacked (gain_relatives (n, 3), gain_ranges (n,),
     measurement_noises and lead_noises (n, 3, 3)); model_relative (n, 3) and ranges (n,) as
     `_prior_lines_of_sight` gives them; weights: c (n,); relative and predicted_range: the combined line of
-    sight; transition: p_ij (n, n). Returns (innovations (n, 3), their covariances (n, 3, 3) and
+    sight; stay_probability, stay_time, interval: the Markov matrix p_ij over the interval since the last
+    correction (`_markov_matrix_over`). Returns (innovations (n, 3), their covariances (n, 3, 3) and
     pseudo-inverses (n, 3, 3), the combined innovation (3,) and covariance (3, 3), mu (n,), the next c (n,))."""
     count = states.shape[0]
     innovations = np.empty((count, 3))
@@ -383,7 +381,8 @@ def _imm_correct_kernel(states: np.ndarray, covariances: np.ndarray, model_relat
     innovation, innovation_covariance = _combined_innovation(weights, innovations, innovation_covariances, relative,
                                                              predicted_range)
     probabilities = _posterior_probabilities(log_likelihoods, weights)
-    predicted = _mix_into(probabilities, transition, states, covariances)
+    predicted = _mix_into(probabilities, _markov_matrix_over(count, stay_probability, stay_time, interval), states,
+                          covariances)
     return innovations, innovation_covariances, innovation_inverses, innovation, innovation_covariance, probabilities, predicted
 
 
@@ -440,6 +439,8 @@ class IMMEstimator:
         self._transitions = np.array([model_filter._a for model_filter in self.filters])
         self._discrete_process_noises = np.array([model_filter._q_discrete for model_filter in self.filters])
         self._measurement_noises = np.array([model_filter.measurement_noise for model_filter in self.filters])
+        self._noise_factors: list[tuple[float, float]] = []  # the (scale, boost) of `_scales` and `_boosts`
+        self._scales = self._boosts = np.ones(count)
         if initial_probabilities is None:
             initial = np.full(count, 0.02 / (count - 1)) if count > 1 else np.ones(1)
             initial[0] = 0.98 if count > 1 else 1.0
@@ -456,8 +457,6 @@ class IMMEstimator:
         self._initial_guess: InitialGuess | None = None
         self._snapshot: TargetEstimate | None = None
         self._process_noise_boost = 1.0
-        self._markov_interval = math.nan
-        self._markov = markov_matrix(len(self.models), self.stay_probability)
 
     # --- the TargetEstimator interface ------------------------------------------------
 
@@ -515,12 +514,14 @@ class IMMEstimator:
         """(straight, right turn, left turn): mu_k summed over the constant-velocity models
         (turn_rate 0), the right turns (> 0) and the left turns (< 0); fixed-width, for logs
         (summed once per change of mu_k)."""
+        if self._motion_probabilities is None:
+            self._motion_probabilities = tuple(float(self._probabilities[mask].sum()) for mask in self._motion_masks)
         return self._motion_probabilities
 
     def _set_probabilities(self, probabilities: np.ndarray) -> None:
-        """mu_k := probabilities (n,), and its sums by motion (`motion_probabilities`)."""
+        """mu_k := probabilities (n,) (its sums by motion follow on the next read of `motion_probabilities`)."""
         self._probabilities = probabilities
-        self._motion_probabilities = tuple(float(probabilities[mask].sum()) for mask in self._motion_masks)
+        self._motion_probabilities: tuple[float, float, float] | None = None
 
     @property
     def process_noise_boost(self) -> float:
@@ -560,10 +561,13 @@ class IMMEstimator:
             filters[0].predict()
             return
         self._require_states()
-        _predict_models(self._transitions, self._discrete_process_noises,
-                        np.array([model_filter.process_noise_scale for model_filter in filters]),
-                        np.array([float(model_filter.process_noise_boost) for model_filter in filters]),
-                        self._states, self._covariances)
+        factors = [(model_filter.process_noise_scale, model_filter.process_noise_boost) for model_filter in filters]
+        if factors != self._noise_factors:  # each model's adaptive scale and boost, as arrays for the kernel
+            self._noise_factors = factors
+            self._scales = np.array([scale for scale, _ in factors], dtype=float)
+            self._boosts = np.array([boost for _, boost in factors], dtype=float)
+        _predict_models(self._transitions, self._discrete_process_noises, self._scales, self._boosts, self._states,
+                        self._covariances)
         for model_filter in filters:
             model_filter._advance_clock()
 
@@ -590,22 +594,19 @@ class IMMEstimator:
             self._reset_probabilities()
             return CorrectionReport(float(np.arccos(cos_angle)), False, reinitialized=True)
         interval = self.stay_time if self._last_correction_time is None else bearing.time - self._last_correction_time
-        if interval != self._markov_interval:  # the same interval at every bearing of a regular sensor
-            self._markov = self.markov_matrix(interval)
-            self._markov_interval = interval
         if (filters[0].gain_projection is GainProjection.PREDICTED and (ranges > 0.0).all()
                 and not any(model_filter._behind(float(model_cosines[j]), float(model_ranges[j]))
                             for j, model_filter in enumerate(filters))):
             report = self._correct_all(bearing, lead, pursuer_position, direction, model_relative, ranges, model_ranges,
-                                       relative, predicted_range, cos_angle)
+                                       relative, predicted_range, cos_angle, interval)
         else:
-            report = self._correct_each(bearing, model_relative, ranges, relative, predicted_range, cos_angle)
+            report = self._correct_each(bearing, model_relative, ranges, relative, predicted_range, cos_angle, interval)
         self._last_correction_time = bearing.time
         return report
 
     def _correct_all(self, bearing: BearingMeasurement, lead: float, pursuer_position: np.ndarray, direction: np.ndarray,
                      model_relative: np.ndarray, ranges: np.ndarray, model_ranges: np.ndarray, relative: np.ndarray,
-                     predicted_range: float, cos_angle: float) -> CorrectionReport:
+                     predicted_range: float, cos_angle: float, interval: float) -> CorrectionReport:
         """The usual correction (PREDICTED gains, no model restarting): every step of the cycle in one
         `_imm_correct_kernel` call. The same arithmetic as `_correct_each`, which takes the other cases."""
         filters = self.filters
@@ -618,7 +619,8 @@ class IMMEstimator:
                                 np.array([gain_range for _, gain_range, *_ in inputs]), lead, late,
                                 self._measurement_noises, filters[0].pursuer_position_std > 0.0,
                                 filters[0].pursuer_position_std**2, np.array([entry[4] for entry in inputs]),
-                                pursuer_position, self._weights, relative, predicted_range, self._markov)
+                                pursuer_position, self._weights, relative, predicted_range, self.stay_probability,
+                                self.stay_time, interval)
         for j, model_filter in enumerate(filters):
             model_filter._snapshot = None
             model_filter._note_innovation(bearing, innovations[j], innovation_inverses[j])
@@ -629,7 +631,7 @@ class IMMEstimator:
                                 innovation_covariance=innovation_covariance, innovation_dof=2)
 
     def _correct_each(self, bearing: BearingMeasurement, model_relative: np.ndarray, ranges: np.ndarray,
-                      relative: np.ndarray, predicted_range: float, cos_angle: float) -> CorrectionReport:
+                      relative: np.ndarray, predicted_range: float, cos_angle: float, interval: float) -> CorrectionReport:
         """The correction model filter by model filter (any gain projection; models may restart on the bearing)."""
         reports = [model_filter.correct(bearing) for model_filter in self.filters]
         self._snapshot = None
@@ -657,7 +659,7 @@ class IMMEstimator:
             else:
                 report = CorrectionReport(float(np.arccos(cos_angle)), reports[0].used_predicted_projection, reinitialized=True)
         self._set_probabilities(self._updated_probabilities(log_likelihoods))
-        self._weights = _mix_into(self._probabilities, self._markov, self._states, self._covariances)
+        self._weights = _mix_into(self._probabilities, self.markov_matrix(interval), self._states, self._covariances)
         for model_filter in self.filters:
             model_filter._snapshot = None
         return report
@@ -666,8 +668,7 @@ class IMMEstimator:
 
     def markov_matrix(self, interval: float) -> np.ndarray:
         """p_ij over `interval` s: p_ii = stay_probability^(interval / stay_time) (module docstring)."""
-        stay = self.stay_probability ** (max(interval, 0.0) / self.stay_time)
-        return markov_matrix(len(self.models), stay)
+        return _markov_matrix_over(len(self.models), self.stay_probability, self.stay_time, float(interval))
 
     def _updated_probabilities(self, log_likelihoods: np.ndarray) -> np.ndarray:
         """mu^j = Lambda^j c_j / sum_t Lambda^t c_t, seed 004 eq. (21), in logarithms (`_posterior_probabilities`).
