@@ -180,28 +180,30 @@ def test_predict(seed, exponent, turn_rate, scale, boost):
 
 
 def correction_arguments(seed: int, exponent: int, lead: float, late: bool, use_predicted: bool, position_noise: bool,
-                         noise_scale: float) -> tuple:
-    """`_correct_kernel`'s arguments for a random prior and geometry (the bearing noise_scale rad off)."""
+                         noise_scale: float, reference_offset: float | None) -> tuple:
+    """`_correct_kernel`'s arguments for a random prior and geometry (the bearing noise_scale rad off, the gain's own
+    position reference_offset m from the bearing's; None: no reference)."""
     rng = np.random.default_rng(seed)
     state = np.concatenate([rng.normal(size=3) * 40.0, rng.normal(size=3) * 3.0])
     pursuer = rng.normal(size=3) * 5.0
     relative = state[:3] + lead * state[3:] - pursuer
     direction = relative / np.linalg.norm(relative) + rng.normal(size=3) * noise_scale
     direction = direction / math.sqrt(float(direction @ direction))
-    gain_relative = relative + rng.normal(size=3) * 0.1
+    reference = pursuer + rng.normal(size=3) * (0.0 if reference_offset is None else reference_offset)
     lead_noise = covariance(seed + 2, 3, -3) if late else np.zeros((3, 3))
-    return (state, covariance(seed, 6, exponent), relative, direction, gain_relative,
-            math.sqrt(float(gain_relative @ gain_relative)), use_predicted, lead, late, 1e-4 * np.eye(3), position_noise,
-            0.01, lead_noise, pursuer)
+    return (state, covariance(seed, 6, exponent), relative, math.sqrt(float(relative.dot(relative))), direction, reference,
+            reference_offset is not None, use_predicted, lead, late, 1e-4 * np.eye(3), position_noise, 0.01, lead_noise,
+            pursuer)
 
 
 @settings(max_examples=200, deadline=None)
 @given(seeds, st.integers(-3, 6), floats(-0.3, 0.3), st.booleans(), st.booleans(), st.booleans(),
-       st.sampled_from([0.0, 0.01, 1.0]))
-def test_correct(seed, exponent, lead, late, use_predicted, position_noise, noise_scale):
+       st.sampled_from([0.0, 0.01, 1.0]), st.sampled_from([None, 0.0, 0.1, 1e3]))
+def test_correct(seed, exponent, lead, late, use_predicted, position_noise, noise_scale, reference_offset):
     """The whole correction, in place, with its returned innovation, S and S^+ (noisy bearings reach the
-    general pseudo-inverse and the Joseph form)."""
-    arguments = correction_arguments(seed, exponent, lead if late else 0.0, late, use_predicted, position_noise, noise_scale)
+    general pseudo-inverse and the Joseph form; a far reference the gain's fallback to the bearing's position)."""
+    arguments = correction_arguments(seed, exponent, lead if late else 0.0, late, use_predicted, position_noise, noise_scale,
+                                     reference_offset)
     compiled, interpreted, compiled_args, python_args = both(uplkf._correct_kernel, *arguments)
     assert_same(compiled, interpreted)
     assert_same(tuple(compiled_args[:2]), tuple(python_args[:2]))
@@ -328,8 +330,8 @@ def test_likelihoods_combined_innovation_and_probabilities(seed, count, exponent
 
 
 @settings(max_examples=150, deadline=None)
-@given(seeds, st.sampled_from([3, 5]), floats(-0.3, 0.3))
-def test_prior_lines_of_sight(seed, count, lead):
+@given(seeds, st.sampled_from([3, 5]), floats(-0.3, 0.3), st.booleans())
+def test_prior_lines_of_sight(seed, count, lead, behind):
     """The models' lines of sight as the IMM summed them and as each model filter's correct takes them."""
     rng = np.random.default_rng(seed)
     states = rng.normal(size=(count, 6)) * 20.0
@@ -337,18 +339,27 @@ def test_prior_lines_of_sight(seed, count, lead):
     pursuer = rng.normal(size=3)
     direction = rng.normal(size=3)
     direction /= math.sqrt(float(direction @ direction))
-    compiled, interpreted = both(imm._prior_lines_of_sight, states, weights, lead, pursuer, direction)[:2]
-    assert_same(compiled, interpreted)
-    model_relative, ranges, model_ranges, model_cosines, relative, predicted_range, cos_angle = interpreted
-    expected_relative = states[:, :3] + lead * states[:, 3:] - pursuer
-    assert_same(model_relative, expected_relative)
-    assert_same(ranges, np.sqrt((expected_relative * expected_relative).sum(axis=1)))
-    for j, row in enumerate(expected_relative):  # UPLKF.correct's own formulas
-        row_range = math.sqrt(float(row.dot(row)))
-        assert_same(model_ranges[j], row_range)
-        assert_same(model_cosines[j], min(max(float(direction @ row / max(row_range, 1e-12)), -1.0), 1.0))
-    assert_same(relative, weights @ expected_relative)
-    assert_same(cos_angle, min(max(float(direction @ relative / max(predicted_range, 1e-12)), -1.0), 1.0))
+    # every model ahead of the sensor, near the bearing; with `behind` the first one behind it
+    states[:, :3] = pursuer + 30.0 * direction + rng.normal(size=(count, 3)) - lead * states[:, 3:]
+    if behind:
+        states[0, :3] = pursuer - 10.0 * direction - lead * states[0, 3:]
+    for restart_when_behind in (True, False):
+        compiled, interpreted = both(imm._prior_lines_of_sight, states, weights, lead, pursuer, direction, restart_when_behind)[:2]
+        assert_same(compiled, interpreted)
+        model_relative, ranges, model_ranges, relative, predicted_range, cos_angle, every_model_corrects = interpreted
+        expected_relative = states[:, :3] + lead * states[:, 3:] - pursuer
+        assert_same(model_relative, expected_relative)
+        assert_same(ranges, np.sqrt((expected_relative * expected_relative).sum(axis=1)))
+        restarts = []
+        for j, row in enumerate(expected_relative):  # UPLKF.correct's own formulas
+            row_range = math.sqrt(float(row.dot(row)))
+            assert_same(model_ranges[j], row_range)
+            cosine = min(max(float(direction @ row / max(row_range, 1e-12)), -1.0), 1.0)
+            restarts.append(restart_when_behind and (cosine <= 0.0 or row_range < 1e-6))
+        assert every_model_corrects == (not any(restarts))
+        assert every_model_corrects == (not (behind and restart_when_behind))
+        assert_same(relative, weights @ expected_relative)
+        assert_same(cos_angle, min(max(float(direction @ relative / max(predicted_range, 1e-12)), -1.0), 1.0))
 
 
 @settings(max_examples=100, deadline=None)
@@ -366,13 +377,13 @@ def test_predict_models_and_whole_imm_correction(seed, count, exponent, lead, la
     direction = rng.normal(size=3) * noise_scale + states[0, :3] - pursuer
     direction /= math.sqrt(float(direction @ direction))
     lead = lead if late else 0.0
-    model_relative, ranges, _, _, relative, predicted_range, _ = imm._prior_lines_of_sight(states, probabilities, lead,
-                                                                                         pursuer, direction)
-    gain_relatives = model_relative + rng.normal(size=(count, 3)) * 0.1
-    arguments = (states, covariances, model_relative, ranges, direction, gain_relatives,
-                 np.sqrt((gain_relatives**2).sum(axis=1)), lead, late, np.array([1e-4 * np.eye(3)] * count), True, 0.01,
+    model_relative, ranges, model_ranges, relative, predicted_range, _, _ = imm._prior_lines_of_sight(
+        states, probabilities, lead, pursuer, direction, True)
+    references = pursuer + rng.normal(size=(count, 3)) * 0.1
+    arguments = (states, covariances, model_relative, ranges, model_ranges, direction, references, True, lead, late,
+                 np.array([1e-4 * np.eye(3)] * count), True, 0.01,
                  np.array([covariance(seed + j, 3, -3) for j in range(count)]), pursuer, probabilities, relative,
-                 predicted_range, 0.98, 1.0, 0.2)
+                 predicted_range, 0.98, 1.0, 0.2, True)
     compiled, interpreted, compiled_args, python_args = both(imm._imm_correct_kernel, *arguments)
     assert_same(compiled, interpreted)
     assert_same(tuple(compiled_args[:2]), tuple(python_args[:2]))

@@ -333,6 +333,19 @@ def _joseph_update(prior: np.ndarray, gain: np.ndarray, projection: np.ndarray, 
 
 
 @jit
+def _behind_sensor(cos_angle: float, predicted_range: float) -> bool:
+    """Remark 3's guard: a prediction behind the sensor (cosine to the bearing <= 0) or on it (range < 1 um) is
+    not corrected but restarted on the bearing."""
+    return cos_angle <= 0.0 or predicted_range < 1e-6
+
+
+@jit
+def _normalized_innovation_squared(innovation: np.ndarray, innovation_inverse: np.ndarray) -> float:
+    """eps = y^T S^+ y, the NIS of a correction (AdaptiveProcessNoise)."""
+    return float(innovation @ innovation_inverse @ innovation)
+
+
+@jit
 def _predict_kernel(transition: np.ndarray, discrete_process_noise: np.ndarray, scale: float, boost: float,
                     state: np.ndarray, covariance: np.ndarray) -> None:
     """Time update over one period, section IV-C: x^- = A x, P^- = A P A^T + B Q B^T, in place.
@@ -350,9 +363,9 @@ def _predict_kernel(transition: np.ndarray, discrete_process_noise: np.ndarray, 
 
 
 @jit
-def _correct_kernel(state: np.ndarray, covariance: np.ndarray, relative: np.ndarray, direction: np.ndarray,
-                    gain_relative: np.ndarray, gain_range: float, use_predicted: bool, lead: float, late: bool,
-                    measurement_noise: np.ndarray, add_position_noise: bool, position_variance: float,
+def _correct_kernel(state: np.ndarray, covariance: np.ndarray, relative: np.ndarray, predicted_range: float,
+                    direction: np.ndarray, reference: np.ndarray, use_reference: bool, use_predicted: bool, lead: float,
+                    late: bool, measurement_noise: np.ndarray, add_position_noise: bool, position_variance: float,
                     lead_noise: np.ndarray, pursuer_position: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Measurement update with one bearing, eq. (6) and section IV-C (`UPLKF.correct`'s arithmetic), in place.
 
@@ -363,11 +376,20 @@ def _correct_kernel(state: np.ndarray, covariance: np.ndarray, relative: np.ndar
     for a bearing tau = `lead` s off the filter's time, when `late`).
 
     state: x^- (6,), covariance: P^- (6, 6), overwritten with x_k and P_k. relative: p^-_T - p (3,), m, at the
-    bearing's time. direction: the unit bearing of the residual (3,). gain_relative, gain_range: the gain's line
-    of sight (3,), m, and its length, m (the PREDICTED form's; `use_predicted` False takes `direction`).
+    bearing's time, and predicted_range its length, m. direction: the unit bearing of the residual (3,).
+    reference: the own position the gain's line of sight starts from (3,), m (OwnPositionTracker), when
+    use_reference; else p. use_predicted: the PREDICTED gain (from that line of sight; False takes `direction`).
     measurement_noise: Sigma (3, 3). add_position_noise, position_variance: sigma_p^2 P, m^2. lead_noise: the
-    late bearing's target-motion covariance (3, 3), m^2. pursuer_position: p (3,), m, of the range guard.
+    late bearing's target-motion covariance (3, 3), m^2. pursuer_position: p (3,), m, the bearing's position.
     Returns the pseudo-measurement innovation y = P_lambda~ (p^-_T - p) (3,), its covariance S (3, 3) and S^+."""
+    gain_relative, gain_range = relative, predicted_range
+    if use_reference:
+        # Errors in variables: the gain's line of sight from an own position that does not
+        # carry this sample's error (OwnPositionTracker), the residual from the sample itself.
+        gain_relative = relative + (pursuer_position - reference)
+        gain_range = math.sqrt(float(np.dot(gain_relative, gain_relative)))
+        if gain_range < 1e-6:
+            gain_relative, gain_range = relative, predicted_range
     measured_projection = _projector(_unit_vector(direction))
     gain_direction = gain_relative / gain_range if use_predicted else direction
     gain_projection = _projector(gain_direction)
@@ -840,48 +862,42 @@ class UPLKF:
         if self._behind(cos_angle, predicted_range):
             self._restart_on(bearing, predicted_range, state[3:].copy())  # a copy: the storage is overwritten
             return CorrectionReport(innovation_angle, False, reinitialized=True)
-        gain_relative, gain_range, direction, late, lead_noise = self._correction_inputs(
-            bearing, lead, relative, predicted_range, direction)
+        reference, direction, late, lead_noise = self._correction_inputs(bearing, lead, direction)
         use_predicted = self.gain_projection is GainProjection.PREDICTED
         self._snapshot = None
         innovation, innovation_covariance, innovation_inverse = _correct_kernel(
-            state, covariance, relative, direction, gain_relative, gain_range, use_predicted, lead, late,
-            self.measurement_noise, self.pursuer_position_std > 0.0, self.pursuer_position_std**2, lead_noise,
-            pursuer_position)
+            state, covariance, relative, predicted_range, direction, pursuer_position if reference is None else reference,
+            reference is not None, use_predicted, lead, late, self.measurement_noise, self.pursuer_position_std > 0.0,
+            self.pursuer_position_std**2, lead_noise, pursuer_position)
         self._note_innovation(bearing, innovation, innovation_inverse)
         return CorrectionReport(innovation_angle, use_predicted, innovation=innovation,
                                 innovation_covariance=innovation_covariance, innovation_dof=2)
 
     def _behind(self, cos_angle: float, predicted_range: float) -> bool:
         """The guard: a prediction behind the sensor (or on it) restarts the filter on the bearing."""
-        return self.restart_when_behind and (cos_angle <= 0.0 or predicted_range < 1e-6)
+        return self.restart_when_behind and _behind_sensor(cos_angle, predicted_range)
 
-    def _correction_inputs(self, bearing: BearingMeasurement, lead: float, relative: np.ndarray, predicted_range: float,
-                           direction: np.ndarray) -> tuple[np.ndarray, float, np.ndarray, bool, np.ndarray]:
-        """What `_correct_kernel` needs beyond the prior: (the gain's line of sight p^-_T - p (3,) and its length,
-        the residual's unit bearing (3,), whether the bearing is late, the late bearing's noise (3, 3)). Feeds
-        the own-position tracker with this bearing's position (so once per correction that is not a restart)."""
-        gain_relative, gain_range = relative, predicted_range
+    def _correction_inputs(self, bearing: BearingMeasurement, lead: float,
+                           direction: np.ndarray) -> tuple[np.ndarray | None, np.ndarray, bool, np.ndarray]:
+        """What `_correct_kernel` needs beyond the prior and the bearing: (the own position the gain's line of
+        sight starts from (3,) (OwnPositionTracker; None without one), the residual's unit bearing (3,), whether
+        the bearing is late, the late bearing's noise (3, 3)). Feeds the own-position tracker with this bearing's
+        position (so once per correction that is not a restart)."""
+        reference = None
         if self._own_track is not None:
             tracker = self._own_track if bearing.source == 0 else self._source_track(bearing.source)
-            # Errors in variables: the gain's line of sight from an own position that does not
-            # carry this sample's error (OwnPositionTracker), the residual from the sample itself.
             reference = tracker.reference(bearing.time, bearing.pursuer_position)
-            gain_relative = relative + (bearing.pursuer_position - reference)
-            gain_range = math.sqrt(float(gain_relative @ gain_relative))
-            if gain_range < 1e-6:
-                gain_relative, gain_range = relative, predicted_range
         if self.gain_projection is GainProjection.NOISE_FREE:
             if bearing.true_direction is None:
                 raise ValueError("the noise-free (optimal) u-PLKF needs BearingMeasurement.true_direction: simulation only")
             direction = unit(bearing.true_direction)
         late = abs(lead) > _LEAD_EPSILON
-        return gain_relative, gain_range, direction, late, self._lead_noise(lead) if late else _ZERO33
+        return reference, direction, late, self._lead_noise(lead) if late else _ZERO33
 
     def _note_innovation(self, bearing: BearingMeasurement, innovation: np.ndarray, innovation_inverse: np.ndarray) -> None:
         """After a correction: the adaptive process noise takes its NIS y^T S^+ y (2 degrees of freedom)."""
         if self.adaptive_noise is not None:
-            self.adaptive_noise.update(bearing.time, float(innovation @ innovation_inverse @ innovation), 2)
+            self.adaptive_noise.update(bearing.time, _normalized_innovation_squared(innovation, innovation_inverse), 2)
 
     def _source_track(self, source: int) -> OwnPositionTracker:
         """The position tracker of a neighbour's bearings (source != 0): each pursuer's reported positions are

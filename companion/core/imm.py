@@ -60,7 +60,8 @@ import numpy as np
 
 from companion.core._jit import jit
 from companion.core.estimators import (AdaptiveNoiseSettings, CorrectionReport, GainProjection, InitialGuess, UPLKF,
-                                       _correct_kernel, _predict_kernel, coordinated_turn_matrices, restart_guess)
+                                       _behind_sensor, _correct_kernel, _normalized_innovation_squared, _predict_kernel,
+                                       coordinated_turn_matrices, restart_guess)
 from companion.core.geometry import unit
 from companion.core.messages import BearingMeasurement, TargetEstimate
 
@@ -320,37 +321,41 @@ def _clipped_cosine(dot: float, length: float) -> float:
 
 @jit
 def _prior_lines_of_sight(states: np.ndarray, weights: np.ndarray, lead: float, pursuer_position: np.ndarray,
-                          direction: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, float]:
+                          direction: np.ndarray, restart_when_behind: bool
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, float, bool]:
     """Each model's prior line of sight at the bearing's time as UPLKF.correct forms it, and the combined one.
 
     states (n, 6); weights: c (n,); lead: bearing time - filter time, s; pursuer_position (3,); direction: the
     unit bearing (3,). Returns model_relative (n, 3) = p^-_T,j - p, ranges (n,) (their lengths, summed as the
-    IMM's vectorised form), model_ranges (n,) and model_cosines (n,) (each as the model filter's own correct
-    takes them: its range and its clipped cosine to the bearing, its restart test), relative = sum_j c_j
-    model_relative_j (3,), its length and its clipped cosine to the bearing."""
+    IMM's vectorised form), model_ranges (n,) (each as the model filter's own correct takes it), relative =
+    sum_j c_j model_relative_j (3,), its length, its clipped cosine to the bearing, and whether every model
+    filter corrects (a positive range, and none restarts: remark 3's guard on its own clipped cosine and range
+    when restart_when_behind)."""
     count = states.shape[0]
     model_relative = states[:, :3] + lead * states[:, 3:] - pursuer_position
     ranges = np.empty(count)
     model_ranges = np.empty(count)
-    model_cosines = np.empty(count)
+    every_model_corrects = True
     for j in range(count):
         row = model_relative[j]
         ranges[j] = math.sqrt(row[0] * row[0] + row[1] * row[1] + row[2] * row[2])
         model_ranges[j] = math.sqrt(float(np.dot(row, row)))
-        model_cosines[j] = _clipped_cosine(float(np.dot(direction, row)), model_ranges[j])
+        if not ranges[j] > 0.0 or (restart_when_behind and _behind_sensor(
+                _clipped_cosine(float(np.dot(direction, row)), model_ranges[j]), model_ranges[j])):
+            every_model_corrects = False
     relative = weights @ model_relative
     predicted_range = math.sqrt(float(np.dot(relative, relative)))
     cos_angle = _clipped_cosine(float(np.dot(direction, relative)), predicted_range)
-    return model_relative, ranges, model_ranges, model_cosines, relative, predicted_range, cos_angle
+    return model_relative, ranges, model_ranges, relative, predicted_range, cos_angle, every_model_corrects
 
 
 @jit
 def _imm_correct_kernel(states: np.ndarray, covariances: np.ndarray, model_relative: np.ndarray, ranges: np.ndarray,
-                        direction: np.ndarray, gain_relatives: np.ndarray, gain_ranges: np.ndarray, lead: float,
-                        late: bool, measurement_noises: np.ndarray, add_position_noise: bool, position_variance: float,
+                        model_ranges: np.ndarray, direction: np.ndarray, references: np.ndarray, use_reference: bool,
+                        lead: float, late: bool, measurement_noises: np.ndarray, add_position_noise: bool, position_variance: float,
                         lead_noises: np.ndarray, pursuer_position: np.ndarray, weights: np.ndarray,
                         relative: np.ndarray, predicted_range: float, stay_probability: float, stay_time: float,
-                        interval: float):
+                        interval: float, with_nis: bool):
     """One IMM correction of models with the PREDICTED gain, none restarting (IMMEstimator.correct), in place on
     the stacked states (n, 6) and covariances (n, 6, 6):
 
@@ -359,23 +364,23 @@ def _imm_correct_kernel(states: np.ndarray, covariances: np.ndarray, model_relat
     combined innovation for the health monitor (`_combined_innovation`), the model probabilities (eq. (21),
     `_posterior_probabilities`) and the mixing for the next cycle (eqs. (17)-(19), `_mix_into`).
 
-    The per-model inputs are `_correct_kernel`'s, stacked (gain_relatives (n, 3), gain_ranges (n,),
-    measurement_noises and lead_noises (n, 3, 3)); model_relative (n, 3) and ranges (n,) as
-    `_prior_lines_of_sight` gives them; weights: c (n,); relative and predicted_range: the combined line of
+    The per-model inputs are `_correct_kernel`'s, stacked (references (n, 3), measurement_noises and lead_noises
+    (n, 3, 3)); model_relative (n, 3), ranges and model_ranges (n,) as `_prior_lines_of_sight` gives them; weights: c (n,); relative and predicted_range: the combined line of
     sight; stay_probability, stay_time, interval: the Markov matrix p_ij over the interval since the last
-    correction (`_markov_matrix_over`). Returns (innovations (n, 3), their covariances (n, 3, 3) and
-    pseudo-inverses (n, 3, 3), the combined innovation (3,) and covariance (3, 3), mu (n,), the next c (n,))."""
+    correction (`_markov_matrix_over`). Returns (each model's NIS y_j^T S_j^+ y_j (n,) (zeros unless with_nis),
+    the combined innovation (3,) and covariance (3, 3), mu (n,), the next c (n,))."""
     count = states.shape[0]
     innovations = np.empty((count, 3))
     innovation_covariances = np.empty((count, 3, 3))
-    innovation_inverses = np.empty((count, 3, 3))
+    nis = np.zeros(count)
     for j in range(count):
         innovation, innovation_covariance, innovation_inverse = _correct_kernel(
-            states[j], covariances[j], model_relative[j], direction, gain_relatives[j], gain_ranges[j], True, lead, late,
-            measurement_noises[j], add_position_noise, position_variance, lead_noises[j], pursuer_position)
+            states[j], covariances[j], model_relative[j], model_ranges[j], direction, references[j], use_reference, True,
+            lead, late, measurement_noises[j], add_position_noise, position_variance, lead_noises[j], pursuer_position)
         innovations[j] = innovation
         innovation_covariances[j] = innovation_covariance
-        innovation_inverses[j] = innovation_inverse
+        if with_nis:
+            nis[j] = _normalized_innovation_squared(innovation, innovation_inverse)
     log_likelihoods = _rank2_log_likelihoods_kernel(innovations, innovation_covariances, ranges,
                                                     model_relative / ranges[:, None])
     innovation, innovation_covariance = _combined_innovation(weights, innovations, innovation_covariances, relative,
@@ -383,7 +388,7 @@ def _imm_correct_kernel(states: np.ndarray, covariances: np.ndarray, model_relat
     probabilities = _posterior_probabilities(log_likelihoods, weights)
     predicted = _mix_into(probabilities, _markov_matrix_over(count, stay_probability, stay_time, interval), states,
                           covariances)
-    return innovations, innovation_covariances, innovation_inverses, innovation, innovation_covariance, probabilities, predicted
+    return nis, innovation, innovation_covariance, probabilities, predicted
 
 
 class IMMEstimator:
@@ -439,6 +444,7 @@ class IMMEstimator:
         self._transitions = np.array([model_filter._a for model_filter in self.filters])
         self._discrete_process_noises = np.array([model_filter._q_discrete for model_filter in self.filters])
         self._measurement_noises = np.array([model_filter.measurement_noise for model_filter in self.filters])
+        self._no_references, self._no_lead_noises = np.zeros((count, 3)), np.zeros((count, 3, 3))  # not used / zero
         self._noise_factors: list[tuple[float, float]] = []  # the (scale, boost) of `_scales` and `_boosts`
         self._scales = self._boosts = np.ones(count)
         if initial_probabilities is None:
@@ -585,18 +591,16 @@ class IMMEstimator:
         pursuer_position = np.asarray(bearing.pursuer_position, dtype=float)
         direction = unit(bearing.direction)
         # each model's prior line of sight at the bearing's time, as UPLKF.correct forms it, and the combined one
-        model_relative, ranges, model_ranges, model_cosines, relative, predicted_range, cos_angle = _prior_lines_of_sight(
-            self._states, self._weights, lead, pursuer_position, direction)
-        if self.restart_when_behind and (cos_angle <= 0.0 or predicted_range < 1e-6):
+        model_relative, ranges, model_ranges, relative, predicted_range, cos_angle, every_model_corrects = \
+            _prior_lines_of_sight(self._states, self._weights, lead, pursuer_position, direction, self.restart_when_behind)
+        if self.restart_when_behind and _behind_sensor(cos_angle, predicted_range):
             guess = restart_guess(self._initial_guess, predicted_range, self._weights @ self._states[:, 3:])
             for model_filter in filters:
                 model_filter.initialize_on_bearing(bearing, guess)
             self._reset_probabilities()
             return CorrectionReport(float(np.arccos(cos_angle)), False, reinitialized=True)
         interval = self.stay_time if self._last_correction_time is None else bearing.time - self._last_correction_time
-        if (filters[0].gain_projection is GainProjection.PREDICTED and (ranges > 0.0).all()
-                and not any(model_filter._behind(float(model_cosines[j]), float(model_ranges[j]))
-                            for j, model_filter in enumerate(filters))):
+        if every_model_corrects and filters[0].gain_projection is GainProjection.PREDICTED:
             report = self._correct_all(bearing, lead, pursuer_position, direction, model_relative, ranges, model_ranges,
                                        relative, predicted_range, cos_angle, interval)
         else:
@@ -610,20 +614,20 @@ class IMMEstimator:
         """The usual correction (PREDICTED gains, no model restarting): every step of the cycle in one
         `_imm_correct_kernel` call. The same arithmetic as `_correct_each`, which takes the other cases."""
         filters = self.filters
-        inputs = [model_filter._correction_inputs(bearing, lead, model_relative[j], float(model_ranges[j]), direction)
-                  for j, model_filter in enumerate(filters)]
-        late = inputs[0][3]
-        innovations, innovation_covariances, innovation_inverses, innovation, innovation_covariance, probabilities, predicted = \
-            _imm_correct_kernel(self._states, self._covariances, model_relative, ranges, inputs[0][2],
-                                np.array([gain_relative for gain_relative, *_ in inputs]),
-                                np.array([gain_range for _, gain_range, *_ in inputs]), lead, late,
-                                self._measurement_noises, filters[0].pursuer_position_std > 0.0,
-                                filters[0].pursuer_position_std**2, np.array([entry[4] for entry in inputs]),
-                                pursuer_position, self._weights, relative, predicted_range, self.stay_probability,
-                                self.stay_time, interval)
+        inputs = [model_filter._correction_inputs(bearing, lead, direction) for model_filter in filters]
+        late = inputs[0][2]
+        use_reference = inputs[0][0] is not None
+        adaptive = [model_filter.adaptive_noise for model_filter in filters]
+        nis, innovation, innovation_covariance, probabilities, predicted = _imm_correct_kernel(
+            self._states, self._covariances, model_relative, ranges, model_ranges, inputs[0][1],
+            np.array([reference for reference, *_ in inputs]) if use_reference else self._no_references, use_reference,
+            lead, late, self._measurement_noises, filters[0].pursuer_position_std > 0.0, filters[0].pursuer_position_std**2,
+            np.array([lead_noise for *_, lead_noise in inputs]) if late else self._no_lead_noises, pursuer_position,
+            self._weights, relative, predicted_range, self.stay_probability, self.stay_time, interval, any(adaptive))
         for j, model_filter in enumerate(filters):
             model_filter._snapshot = None
-            model_filter._note_innovation(bearing, innovations[j], innovation_inverses[j])
+            if adaptive[j] is not None:  # UPLKF._note_innovation with the kernel's NIS
+                adaptive[j].update(bearing.time, float(nis[j]), 2)
         self._set_probabilities(probabilities)
         self._weights = predicted
         self._snapshot = None
