@@ -21,6 +21,7 @@ without numba it is an empty context manager, so the block simply runs.
 from __future__ import annotations
 
 import os
+import time
 
 import numpy as np
 from scipy.linalg.lapack import dgesv as _scipy_dgesv, dpotrf as _scipy_dpotrf
@@ -49,6 +50,46 @@ def jit(function):
 def python_function(kernel):
     """The plain-Python original of a kernel (its py_func when compiled; the kernel itself when not)."""
     return getattr(kernel, "py_func", kernel)
+
+
+_warmed_up = False
+
+
+def warm_up() -> float:
+    """Compile every estimator kernel now (or load it from numba's cache on disk), once per process, so that no
+    estimator update waits for the compiler: the companion's first bearing in flight, a study's first flight.
+
+    numba compiles a kernel on its first call and caches the machine code next to the sources (or in
+    NUMBA_CACHE_DIR): on a fresh install the first process pays the compilation, about 30 s of one core on the
+    machine of issue 16, and later processes load the cache in about 0.3 s. This runs the u-PLKF and IMM
+    updates once on made-up bearings (at and off the estimator's ticks, with adaptive process noise, both gain
+    forms), on throwaway estimators. Returns the seconds it took; 0 without numba (nothing to compile) and
+    after the first call in a process."""
+    global _warmed_up
+    if numba is None or _warmed_up:
+        return 0.0
+    started = time.perf_counter()
+    from companion.core.estimators import AdaptiveNoiseSettings, GainProjection, InitialGuess, UPLKF, limit_range
+    from companion.core.imm import IMMEstimator, standard_models
+    from companion.core.messages import BearingMeasurement
+
+    sigma = 1e-4 * np.eye(3)
+    estimators = [UPLKF(0.02, 0.04 * np.eye(3), sigma, GainProjection.PREDICTED, pursuer_position_std=0.1,
+                        adaptive_noise=AdaptiveNoiseSettings())]
+    for projection in (GainProjection.PREDICTED, GainProjection.MEASURED):
+        estimators.append(IMMEstimator(0.02, standard_models([0.2], 0.04, 0.04), sigma, projection, pursuer_position_std=0.1))
+    for estimator in estimators:
+        estimator.initialize_on_bearing(BearingMeasurement(0.0, np.array([1.0, 0.0, 0.0]), np.zeros(3)),
+                                        InitialGuess(20.0, 10.0, np.zeros(3), 5.0))
+        for k in range(1, 4):
+            estimator.predict()
+            for lead in (0.0, -0.01):  # a bearing on the tick and a late one
+                estimator.correct(BearingMeasurement(estimator.time + lead, np.array([1.0, 0.01 * k, 0.0]),
+                                                     np.array([0.0, 0.01 * k, 0.0])))
+            estimator.estimate
+    limit_range(np.array([2.0e6, 0.0, 0.0]), np.zeros(3))  # the baseline estimators call it from Python
+    _warmed_up = True
+    return time.perf_counter() - started
 
 
 class _Interpreted:

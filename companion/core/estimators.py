@@ -272,8 +272,8 @@ MAX_TRACKED_SOURCES = 64
 #: simulator's bearings fall on estimator ticks to rounding, and take exactly the paper's H = [P_lambda, 0].
 _LEAD_EPSILON = 1e-9
 
-_ZERO33 = np.zeros((3, 3))
-_ZERO33.flags.writeable = False
+_ZERO33 = np.zeros((3, 3))  # the lead noise of a bearing at the filter's time (never written; writable like the
+# late bearings' own, so the compiled correction has one signature)
 
 
 def _general_pseudo_inverse(matrix: np.ndarray, null_direction: np.ndarray) -> np.ndarray:
