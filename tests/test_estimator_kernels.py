@@ -452,6 +452,33 @@ def test_one_call_correction_is_the_model_by_model_correction(adaptive, monkeypa
         assert_same(tuple(np.asarray(x, dtype=float) for x in a), tuple(np.asarray(x, dtype=float) for x in b), f"row {k}")
 
 
+def test_a_copied_imm_runs_on_its_own_stacked_states():
+    """The model filters' states are rows of the IMM's stacked arrays: a deep copy (or a pickle) keeps that
+    binding, so the copy continues exactly as the original and leaves it alone."""
+    import copy
+    import pickle
+
+    ticks = late_and_shared_bearings(5, steps=200)
+    original = IMMEstimator(0.02, standard_models([0.2], 0.04, 0.04), 1e-4 * np.eye(3), GainProjection.PREDICTED,
+                            pursuer_position_std=0.1)
+    original.initialize_on_bearing(ticks[0][0], InitialGuess(15.0, 10.0, np.zeros(3), 5.0))
+    copies = []
+    for k, bearings in enumerate(ticks[1:]):
+        if k == 100:
+            copies = [copy.deepcopy(original), pickle.loads(pickle.dumps(original))]
+        for estimator in [original, *copies]:
+            estimator.predict()
+            for bearing in bearings:
+                estimator.correct(bearing)
+        for duplicate in copies:
+            for model_filter, row in zip(duplicate.filters, duplicate._states):
+                assert np.shares_memory(model_filter.state_and_covariance[0], row)
+            assert not np.shares_memory(duplicate._states, original._states)
+            assert_same(duplicate.estimate.position, original.estimate.position)
+            assert_same(duplicate.estimate.covariance, original.estimate.covariance)
+    assert copies
+
+
 # --- a whole flight, compiled and interpreted ---------------------------------------------------------
 
 _FLIGHT = """

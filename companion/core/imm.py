@@ -438,8 +438,8 @@ class IMMEstimator:
             process_noise = model.process_noise * np.eye(3)
             model_filter = UPLKF(self.period, process_noise, measurement_noise, gain_projection, pursuer_position_std,
                                  restart_when_behind, adaptive_noise, transition=a, discrete_process_noise=b @ process_noise @ b.T)
-            model_filter._use_storage(self._states[j], self._covariances[j])
             self.filters.append(model_filter)
+        self._bind_storage()
         # the model filters' fixed matrices, stacked for the kernels
         self._transitions = np.array([model_filter._a for model_filter in self.filters])
         self._discrete_process_noises = np.array([model_filter._q_discrete for model_filter in self.filters])
@@ -463,6 +463,21 @@ class IMMEstimator:
         self._initial_guess: InitialGuess | None = None
         self._snapshot: TargetEstimate | None = None
         self._process_noise_boost = 1.0
+
+    def _bind_storage(self) -> None:
+        """Each model filter keeps its x and P in its row of the stacked arrays (UPLKF._use_storage)."""
+        for j, model_filter in enumerate(self.filters):
+            started = model_filter._state is not None
+            model_filter._state = model_filter._covariance = None
+            model_filter._use_storage(self._states[j], self._covariances[j])
+            if started:
+                model_filter._state, model_filter._covariance = self._states[j], self._covariances[j]
+
+    def __setstate__(self, state: dict) -> None:
+        """A copy (copy.deepcopy, pickle) binds its model filters to its own stacked arrays again: copying
+        loses the rows' view of them."""
+        self.__dict__.update(state)
+        self._bind_storage()
 
     # --- the TargetEstimator interface ------------------------------------------------
 
