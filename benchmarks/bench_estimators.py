@@ -11,10 +11,25 @@ through correct's own use of it only. The last column compares each update with 
 budget reference, the u-PLKF's 33.3 us per update when the issue was filed (its goal: the
 default estimator within 4x that); on a loaded machine, time the reference side by side instead
 (docs/reproduction.md section 4).
+
+Side by side with the code before a change (issue 16): python benchmarks/bench_estimators.py --against DIR,
+DIR a checkout of the older code (git worktree add /tmp/old <commit>, or git archive <commit> | tar -x -C DIR).
+In alternating subprocesses (DIR's code, this tree with its kernels compiled by numba when installed, this
+tree with BOF_NO_JIT=1), each round measures the u-PLKF (predicted) and both IMMs as above and one
+in-process flight (studies.closed_loop.simulate, constant_velocity, seed 1, median of 5); the table gives the
+medians over the rounds and each column's ratio to DIR's.
 """
 
 from __future__ import annotations
 
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import numpy as np
 from timing import median_us
@@ -49,12 +64,14 @@ def _estimators() -> list[tuple[str, object]]:
     ]
 
 
-def bench(count: int = 2000) -> list[tuple[str, float, float]]:
-    """(name, predict us, correct us) per estimator."""
+def bench(count: int = 2000, only: tuple[str, ...] | None = None) -> list[tuple[str, float, float]]:
+    """(name, predict us, correct us) per estimator (those named in `only`, when given)."""
     rng = np.random.default_rng(0)
     noisy = LINE_OF_SIGHT + rng.normal(0.0, 0.01, 3)
     results = []
     for name, estimator in _estimators():
+        if only is not None and name not in only:
+            continue
         first = BearingMeasurement(0.0, LINE_OF_SIGHT, np.zeros(3), range=RANGE, true_direction=LINE_OF_SIGHT)
         estimator.initialize_on_bearing(first, InitialGuess(RANGE, 30.0, np.zeros(3), 5.0))
         predict = median_us(estimator.predict, count)
@@ -80,5 +97,74 @@ def markdown_table(results: list[tuple[str, float, float]]) -> str:
     return "\n".join(lines)
 
 
+SIDE_BY_SIDE = ("u-PLKF (predicted)", "IMM (cv, ct +-0.2)", "IMM (cv, ct +-0.1, +-0.3)")
+"""The rows timed side by side: the u-PLKF's form and the default estimator (3 models) and a 5-model IMM."""
+
+
+def flight_seconds(repeats: int = 5) -> tuple[float, float]:
+    """(median wall time, s, of one in-process flight of constant_velocity at seed 1, its simulated duration, s)."""
+    from interfaces.scenario import SCENARIOS_DIR, load_scenario
+    from studies.closed_loop import simulate
+
+    scenario, vehicle = load_scenario(SCENARIOS_DIR / "constant_velocity.toml")
+    duration = simulate(scenario, vehicle, seed=1).summary["duration"]  # also compiles / warms up
+    walls = []
+    for _ in range(repeats):
+        started = time.perf_counter()
+        simulate(scenario, vehicle, seed=1)
+        walls.append(time.perf_counter() - started)
+    return statistics.median(walls), duration
+
+
+def measure() -> dict:
+    """One round in this process (whatever tree is on the import path): the SIDE_BY_SIDE rows and a flight."""
+    rows = {name: (predict, correct) for name, predict, correct in bench(only=SIDE_BY_SIDE)}
+    wall, duration = flight_seconds()
+    return {"rows": rows, "flight": wall, "duration": duration}
+
+
+def side_by_side(other: Path, rounds: int) -> str:
+    """Alternating subprocesses of `other`'s code, this tree compiled, this tree with BOF_NO_JIT=1 (module docstring)."""
+    here = Path(__file__).resolve().parent.parent
+    columns = {f"{other}": (other, {}), "this tree": (here, {}), "this tree, BOF_NO_JIT=1": (here, {"BOF_NO_JIT": "1"})}
+    results: dict[str, list[dict]] = {label: [] for label in columns}
+    for _ in range(rounds):
+        for label, (tree, extra) in columns.items():
+            environment = {key: value for key, value in os.environ.items() if key != "BOF_NO_JIT"}
+            environment.update(PYTHONPATH=str(tree), **extra)
+            output = subprocess.run([sys.executable, __file__, "--measure"], env=environment, cwd=str(tree),
+                                    check=True, capture_output=True, text=True).stdout
+            results[label].append(json.loads(output.strip().splitlines()[-1]))
+    reference = next(iter(columns))
+
+    def median(label: str, pick) -> float:
+        return statistics.median(pick(result) for result in results[label])
+
+    lines = [f"Medians of {rounds} alternating rounds, microseconds (flight: seconds of wall time); ratio = {reference} / column.",
+             "", "| | " + " | ".join(f"{label} | ratio" for label in columns) + " |",
+             "|---|" + "---:|---:|" * len(columns)]
+    picks = []
+    for name in SIDE_BY_SIDE:
+        picks += [(f"{name} predict", lambda r, n=name: r["rows"][n][0]), (f"{name} correct", lambda r, n=name: r["rows"][n][1]),
+                  (f"{name} update", lambda r, n=name: r["rows"][n][0] + r["rows"][n][1])]
+    duration = results[reference][0]["duration"]
+    picks.append((f"flight constant_velocity seed 1 ({duration:.0f} s), median of 5", lambda r: r["flight"]))
+    for title, pick in picks:
+        base = median(reference, pick)
+        cells = [f"{median(label, pick):.3g} | {base / median(label, pick):.2f}" for label in columns]
+        lines.append(f"| {title} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 if __name__ == "__main__":
-    print(markdown_table(bench()))
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--against", type=Path, help="a checkout of the older code to time side by side with this tree")
+    parser.add_argument("--rounds", type=int, default=3, help="alternating rounds with --against (default 3)")
+    parser.add_argument("--measure", action="store_true", help=argparse.SUPPRESS)  # one round, JSON (side_by_side's subprocesses)
+    arguments = parser.parse_args()
+    if arguments.measure:
+        print(json.dumps(measure()))
+    elif arguments.against is not None:
+        print(side_by_side(arguments.against.resolve(), arguments.rounds))
+    else:
+        print(markdown_table(bench()))

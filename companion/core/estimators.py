@@ -21,8 +21,8 @@ from typing import Protocol
 
 import numpy as np
 from scipy.linalg import null_space
-from scipy.linalg.lapack import dgesv, dpotrf
 
+from companion.core._jit import jit, lapack_dgesv, lapack_dpotrf, objmode
 from companion.core.geometry import orthogonal_projection, unit
 from companion.core.messages import BearingMeasurement, TargetEstimate
 
@@ -114,11 +114,13 @@ back along its line of sight (`limit_range`); restarts use at most this range. T
 MSC-EKF's inverse-range floor (baseline_estimators.MIN_INVERSE_RANGE) is the same bound."""
 
 
+@jit
 def limit_range(target_position: np.ndarray, pursuer_position: np.ndarray) -> np.ndarray:
     """The target position (m, NED, shape (3,)) moved along its line of sight from the
-    pursuer (m, shape (3,)) to at most MAX_RANGE away; the same array when already within."""
+    pursuer (m, shape (3,)) to at most MAX_RANGE away; the same array when already within.
+    Float64 arrays (a kernel: companion.core._jit)."""
     relative = target_position - pursuer_position
-    distance = math.sqrt(float(relative.dot(relative)))  # np.linalg.norm's own formula, without its wrapper
+    distance = math.sqrt(float(np.dot(relative, relative)))  # np.linalg.norm's own formula, without its wrapper
     if distance <= MAX_RANGE:
         return target_position
     return pursuer_position + (MAX_RANGE / distance) * relative
@@ -199,13 +201,24 @@ SHORTCUT_EIGENVALUE_BAND = (2.0**-10, 2.0**10)
 _EYE3 = np.eye(3)
 _EYE3.flags.writeable = False
 
+# The numeric kernels below (`@jit`) are plain Python functions over float64 arrays, compiled by numba when it is
+# installed (companion.core._jit): the same arithmetic in the same order either way, the matrix products in BLAS.
 
+
+@jit
 def _projector(unit_vector: np.ndarray) -> np.ndarray:
     """I - g g^T for a unit g (3,), shape (3, 3): eq. (5) for an already normalised vector.
     The same arithmetic as np.eye(3) - np.outer(g, g), without their per-call allocations."""
     return _EYE3 - unit_vector[:, None] * unit_vector
 
 
+@jit
+def _unit_vector(vector: np.ndarray) -> np.ndarray:
+    """vector / |vector|, shape (3,): geometry.unit's arithmetic for a vector already known finite and non-zero."""
+    return vector / math.sqrt(float(np.dot(vector, vector)))
+
+
+@jit
 def _solve_identity(matrix: np.ndarray) -> tuple[np.ndarray, float, bool]:
     """(M^-1, det M, ok) for a 3x3 M by one LAPACK LU solve (dgesv) against the identity.
 
@@ -214,15 +227,22 @@ def _solve_identity(matrix: np.ndarray) -> tuple[np.ndarray, float, bool]:
     the LU pivots with the permutation's sign (np.linalg.det forms it through logarithms, so the
     two agree to rounding). M^-1 comes Fortran-ordered. ok is False when M is exactly singular
     (det 0, no inverse)."""
-    lu, pivots, inverse, info = dgesv(matrix, _EYE3)
+    lu, pivots, inverse, info = lapack_dgesv(matrix, _EYE3)
     if info != 0:
         return inverse, 0.0, False
     determinant = float(lu[0, 0] * lu[1, 1] * lu[2, 2])
-    # row interchanges (scipy's pivots are 0-based; the last row is always itself); ints, as numpy bools add as "or"
-    swaps = int(pivots[0] != 0) + int(pivots[1] != 1)
+    # row interchanges (the pivots are 0-based; the last row is always itself)
+    swaps = (1 if pivots[0] != 0 else 0) + (1 if pivots[1] != 1 else 0)
     return inverse, -determinant if swaps % 2 else determinant, True
 
 
+def _eigenvalues_not_negative(covariance: np.ndarray) -> bool:
+    """not np.linalg.eigvalsh(covariance)[0] < 0: the PSD test `_is_positive_semidefinite` falls back to (a NaN
+    eigenvalue is not negative; eigvalsh's LinAlgError propagates)."""
+    return bool(not np.linalg.eigvalsh(covariance)[0] < 0.0)
+
+
+@jit
 def _is_positive_semidefinite(covariance: np.ndarray) -> bool:
     """Whether the symmetric covariance (n, n) is PSD, i.e. not np.linalg.eigvalsh(covariance)[0] < 0, cheaply.
 
@@ -233,10 +253,16 @@ def _is_positive_semidefinite(covariance: np.ndarray) -> bool:
     The two can disagree only when Cholesky succeeds while eigvalsh's smallest eigenvalue is
     negative at rounding level (|lambda_min| ~ 1e-16 ||P||, where its sign is rounding noise):
     then the short form is kept, a matrix Cholesky-factorisable to working precision."""
-    factor, info = dpotrf(covariance, lower=1, clean=0)
-    if info == 0 and math.isfinite(float(factor.trace())):
-        return True
-    return not np.linalg.eigvalsh(covariance)[0] < 0.0  # as the old test reads it: a NaN eigenvalue is not negative
+    factor, info = lapack_dpotrf(covariance)
+    if info == 0:
+        trace = 0.0  # finite or not: the order of the sum does not matter (each term is at most ~1e154)
+        for i in range(factor.shape[0]):
+            trace += factor[i, i]
+        if math.isfinite(trace):
+            return True
+    with objmode(result="boolean"):  # rare (a singular or non-finite covariance): numpy's eigvalsh itself
+        result = _eigenvalues_not_negative(covariance)
+    return result
 
 
 #: Neighbour position trackers kept by one u-PLKF (the oldest is dropped beyond it): more than any swarm flies.
@@ -246,7 +272,18 @@ MAX_TRACKED_SOURCES = 64
 #: simulator's bearings fall on estimator ticks to rounding, and take exactly the paper's H = [P_lambda, 0].
 _LEAD_EPSILON = 1e-9
 
+_ZERO33 = np.zeros((3, 3))  # the lead noise of a bearing at the filter's time (never written; writable like the
+# late bearings' own, so the compiled correction has one signature)
 
+
+def _general_pseudo_inverse(matrix: np.ndarray, null_direction: np.ndarray) -> np.ndarray:
+    """E (E^T S E)^+ E^T, `_projector_pseudo_inverse`'s general form (C-ordered, (3, 3))."""
+    basis = null_space(np.reshape(null_direction, (1, 3)))
+    block = basis.T @ matrix @ basis
+    return np.ascontiguousarray(basis @ np.linalg.pinv(0.5 * (block + block.T), hermitian=True) @ basis.T)
+
+
+@jit
 def _projector_pseudo_inverse(matrix: np.ndarray, null_direction: np.ndarray) -> np.ndarray:
     """Moore-Penrose pseudo-inverse of a symmetric PSD 3x3 `matrix` S whose kernel is span(g).
 
@@ -271,11 +308,12 @@ def _projector_pseudo_inverse(matrix: np.ndarray, null_direction: np.ndarray) ->
         inverse, determinant, regular = _solve_identity(matrix + outer)  # np.linalg.inv's solve, cheaper
         if regular and determinant >= low * trace:  # smallest eigenvalue >= det / trace >= low
             return inverse - outer
-    basis = null_space(np.reshape(null_direction, (1, 3)))
-    block = basis.T @ matrix @ basis
-    return basis @ np.linalg.pinv(0.5 * (block + block.T), hermitian=True) @ basis.T
+    with objmode(result="float64[:, ::1]"):  # rare (a diverging filter): scipy's null_space and numpy's pinv
+        result = _general_pseudo_inverse(matrix, null_direction)
+    return result
 
 
+@jit
 def _joseph_update(prior: np.ndarray, gain: np.ndarray, projection: np.ndarray, measurement_covariance: np.ndarray,
                    lead: float = 0.0) -> np.ndarray:
     """Joseph form of the covariance update, P = (I - K H) P^- (I - K H)^T + K R K^T, H = [P_lambda, 0]
@@ -288,10 +326,102 @@ def _joseph_update(prior: np.ndarray, gain: np.ndarray, projection: np.ndarray, 
     PSD matrices, so it stays PSD to rounding. prior: P^-, (6, 6). gain: K, (6, 3).
     projection: P_lambda of H, (3, 3). measurement_covariance: R_k, (3, 3). Returns (6, 6).
     """
-    h = np.hstack([projection, np.zeros((3, 3))]) if lead == 0.0 else np.hstack([projection, lead * projection])
+    h = np.hstack((projection, np.zeros((3, 3)))) if lead == 0.0 else np.hstack((projection, lead * projection))
     i_kh = np.eye(6) - gain @ h
     covariance = i_kh @ prior @ i_kh.T + gain @ measurement_covariance @ gain.T
     return 0.5 * (covariance + covariance.T)
+
+
+@jit
+def _behind_sensor(cos_angle: float, predicted_range: float) -> bool:
+    """Remark 3's guard: a prediction behind the sensor (cosine to the bearing <= 0) or on it (range < 1 um) is
+    not corrected but restarted on the bearing."""
+    return cos_angle <= 0.0 or predicted_range < 1e-6
+
+
+@jit
+def _normalized_innovation_squared(innovation: np.ndarray, innovation_inverse: np.ndarray) -> float:
+    """eps = y^T S^+ y, the NIS of a correction (AdaptiveProcessNoise)."""
+    return float(innovation @ innovation_inverse @ innovation)
+
+
+@jit
+def _predict_kernel(transition: np.ndarray, discrete_process_noise: np.ndarray, scale: float, boost: float,
+                    state: np.ndarray, covariance: np.ndarray) -> None:
+    """Time update over one period, section IV-C: x^- = A x, P^- = A P A^T + B Q B^T, in place.
+
+    transition: A (6, 6). discrete_process_noise: B Q B^T (6, 6), scaled by the adaptive factor
+    s_k (`scale`) and then by the health monitor's `boost` (each skipped at 1: 1 Q is Q exactly).
+    state: x (6,) and covariance: P (6, 6), overwritten with x^- and P^-."""
+    noise = discrete_process_noise
+    if scale != 1.0:
+        noise = scale * noise
+    if boost != 1.0:
+        noise = boost * noise
+    state[:] = transition @ state
+    covariance[:] = transition @ covariance @ transition.T + noise
+
+
+@jit
+def _correct_kernel(state: np.ndarray, covariance: np.ndarray, relative: np.ndarray, predicted_range: float,
+                    direction: np.ndarray, reference: np.ndarray, use_reference: bool, use_predicted: bool, lead: float,
+                    late: bool, measurement_noise: np.ndarray, add_position_noise: bool, position_variance: float,
+                    lead_noise: np.ndarray, pursuer_position: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Measurement update with one bearing, eq. (6) and section IV-C (`UPLKF.correct`'s arithmetic), in place.
+
+        K_k = P^-_k H^T (H P^-_k H^T + V_k Sigma V_k^T)^+,   V_k = r^- P_lambda,
+        x_k = x^-_k - K_k H_k x^-_k,   P_k = (I - K_k H) P^-_k   (Joseph form if that is not PSD)
+
+    with H_k x^-_k = P_lambda~ (p^-_T - p) and H = [P_lambda, 0] from the gain's line of sight (H = P_lambda [I, tau I]
+    for a bearing tau = `lead` s off the filter's time, when `late`).
+
+    state: x^- (6,), covariance: P^- (6, 6), overwritten with x_k and P_k. relative: p^-_T - p (3,), m, at the
+    bearing's time, and predicted_range its length, m. direction: the unit bearing of the residual (3,).
+    reference: the own position the gain's line of sight starts from (3,), m (OwnPositionTracker), when
+    use_reference; else p. use_predicted: the PREDICTED gain (from that line of sight; False takes `direction`).
+    measurement_noise: Sigma (3, 3). add_position_noise, position_variance: sigma_p^2 P, m^2. lead_noise: the
+    late bearing's target-motion covariance (3, 3), m^2. pursuer_position: p (3,), m, the bearing's position.
+    Returns the pseudo-measurement innovation y = P_lambda~ (p^-_T - p) (3,), its covariance S (3, 3) and S^+."""
+    gain_relative, gain_range = relative, predicted_range
+    if use_reference:
+        # Errors in variables: the gain's line of sight from an own position that does not
+        # carry this sample's error (OwnPositionTracker), the residual from the sample itself.
+        gain_relative = relative + (pursuer_position - reference)
+        gain_range = math.sqrt(float(np.dot(gain_relative, gain_relative)))
+        if gain_range < 1e-6:
+            gain_relative, gain_range = relative, predicted_range
+    measured_projection = _projector(_unit_vector(direction))
+    gain_direction = gain_relative / gain_range if use_predicted else direction
+    gain_projection = _projector(gain_direction)
+    # H = [P, 0], so H P^- H^T = P P^-_pp P and P^- H^T = P^-[:, :3] P.
+    # A bearing taken tau = lead s away from the filter's time (a late fix, a neighbour's shared
+    # bearing) measures p_T(t + tau) = p_T + tau v_T + w_tau: H = P [I, tau I], and w_tau, the
+    # target's own acceleration over |tau|, adds its position variance to the measurement noise.
+    # P^- M^T, M = [I, tau I] (a contiguous copy of the columns: the same BLAS product, with no strided operand)
+    position_rows = covariance[:, :3] + lead * covariance[:, 3:] if late else np.ascontiguousarray(covariance[:, :3])
+    cross_covariance = position_rows @ gain_projection
+    noise_transition = gain_range * gain_projection  # V_k = r^- P_lambda
+    measurement_covariance = noise_transition @ measurement_noise @ noise_transition.T
+    if add_position_noise:
+        measurement_covariance = measurement_covariance + position_variance * gain_projection
+    if late:
+        measurement_covariance = measurement_covariance + gain_projection @ lead_noise @ gain_projection
+    prior_rows = cross_covariance[:3] + lead * cross_covariance[3:] if late else cross_covariance[:3]  # M P^- M^T P
+    innovation_covariance = gain_projection @ prior_rows + measurement_covariance
+    innovation_inverse = _projector_pseudo_inverse(innovation_covariance, gain_direction)
+    gain = cross_covariance @ innovation_inverse
+    # x_k = x^-_k - K_k H_k x^-_k, with H_k x^-_k = P_lambda~ (p^-_T - p)
+    innovation = measured_projection @ relative  # H_k x^-_k, also the report's innovation
+    updated = state - gain @ innovation
+    updated[:3] = limit_range(updated[:3], pursuer_position)
+    measured_rows = covariance[:3] + lead * covariance[3:] if late else covariance[:3]  # M P^-
+    posterior = covariance - gain @ (gain_projection @ measured_rows)  # (I - K H) P^-
+    posterior = 0.5 * (posterior + posterior.T)
+    if not _is_positive_semidefinite(posterior):
+        posterior = _joseph_update(covariance, gain, gain_projection, measurement_covariance, lead if late else 0.0)
+    state[:] = updated
+    covariance[:] = posterior
+    return innovation, innovation_covariance, innovation_inverse
 
 
 def explicit_start(initial_guess: InitialGuess) -> tuple[np.ndarray, np.ndarray] | None:
@@ -615,6 +745,10 @@ class UPLKF:
         self._own_track = (OwnPositionTracker(self.pursuer_position_std)
                            if self.gain_projection is GainProjection.PREDICTED and self.pursuer_position_std > 0.0 else None)
         self._neighbour_tracks: dict[int, OwnPositionTracker] = {}  # the same for each neighbour's bearings
+        # x = [p_T, v_T] and P live in these two arrays, updated in place (None before the first start); an IMM
+        # hands its model filters rows of its stacked arrays instead (`_use_storage`), so it reads them unstacked.
+        self._state_storage = np.zeros(6)
+        self._covariance_storage = np.zeros((6, 6))
         self._state: np.ndarray | None = None
         self._covariance: np.ndarray | None = None
         self._start_time = 0.0
@@ -644,8 +778,18 @@ class UPLKF:
         self._start_time = float(time)
         self._ticks = 0
         self._snapshot = None
-        self._state = np.concatenate([np.asarray(position, float), np.asarray(velocity, float)])
-        self._covariance = np.array(covariance, dtype=float).reshape(6, 6)
+        self._state_storage[:3] = np.asarray(position, float).reshape(3)
+        self._state_storage[3:] = np.asarray(velocity, float).reshape(3)
+        self._covariance_storage[:] = np.asarray(covariance, dtype=float).reshape(6, 6)
+        self._state, self._covariance = self._state_storage, self._covariance_storage
+
+    def _use_storage(self, state: np.ndarray, covariance: np.ndarray) -> None:
+        """Keep x and P in the given arrays from now on (float64, C-contiguous, (6,) and (6, 6); before the first start):
+        an interacting-multiple-model estimator passes rows of its stacked model states, which the filter then
+        updates in place."""
+        if self._state is not None:
+            raise RuntimeError("the storage of an estimator is fixed before its first start")
+        self._state_storage, self._covariance_storage = state, covariance
 
     def initialize_on_bearing(self, bearing: BearingMeasurement, initial_guess: InitialGuess) -> None:
         """p_T(0) = p(0) + r_hat(0) lambda~(0), remark 3 of section VI-B.
@@ -672,8 +816,9 @@ class UPLKF:
 
     @property
     def state_and_covariance(self) -> tuple[np.ndarray, np.ndarray]:
-        """The current [p_T, v_T] (6,) and its covariance (6, 6) themselves, not copies (read only):
-        what an interacting-multiple-model estimator mixes and combines at every correction."""
+        """The current [p_T, v_T] (6,) and its covariance (6, 6) themselves, not copies (read only; the next
+        predict, correct or start overwrites them in place): what an interacting-multiple-model estimator
+        mixes and combines at every correction."""
         return self._require_state()
 
     def set_state(self, state: np.ndarray, covariance: np.ndarray) -> None:
@@ -681,20 +826,19 @@ class UPLKF:
         clock: an interacting-multiple-model estimator hands each model filter its mixed start this way."""
         self._require_state()
         self._snapshot = None
-        self._state = np.asarray(state, dtype=float).reshape(6)
-        self._covariance = np.asarray(covariance, dtype=float).reshape(6, 6)
+        self._state[:] = np.asarray(state, dtype=float).reshape(6)
+        self._covariance[:] = np.asarray(covariance, dtype=float).reshape(6, 6)
 
     def predict(self) -> None:
-        """Time update over one period, section IV-C: x^- = A x, P^- = A P A^T + B Q B^T."""
+        """Time update over one period, section IV-C: x^- = A x, P^- = A P A^T + B Q B^T (`_predict_kernel`)."""
         state, covariance = self._require_state()
+        _predict_kernel(self._a, self._q_discrete, self.process_noise_scale, float(self.process_noise_boost),
+                        state, covariance)
+        self._advance_clock()
+
+    def _advance_clock(self) -> None:
+        """One period passed (the state was just predicted over it)."""
         self._snapshot = None
-        self._state = self._a @ state
-        q_discrete = self._q_discrete
-        if self.adaptive_noise is not None:
-            q_discrete = self.adaptive_noise.scale * q_discrete
-        if self.process_noise_boost != 1.0:  # 1.0 * Q is Q exactly: skip the 6x6 product
-            q_discrete = self.process_noise_boost * q_discrete
-        self._covariance = self._a @ covariance @ self._a.T + q_discrete
         self._ticks += 1
 
     @property
@@ -703,72 +847,57 @@ class UPLKF:
         return 1.0 if self.adaptive_noise is None else self.adaptive_noise.scale
 
     def correct(self, bearing: BearingMeasurement) -> CorrectionReport:
-        """Measurement update with one bearing, eq. (6) and section IV-C."""
-        state, p_prior = self._require_state()
+        """Measurement update with one bearing, eq. (6) and section IV-C (`_correct_kernel`)."""
+        state, covariance = self._require_state()
         # The bearing may fall between estimator ticks (the networked app receives them
         # at arbitrary times): compare it with the prior mean carried to its time stamp.
         lead = bearing.time - self.time
-        relative = state[:3] + lead * state[3:] - bearing.pursuer_position  # p^-_T - p
+        pursuer_position = np.asarray(bearing.pursuer_position, dtype=float)
+        relative = state[:3] + lead * state[3:] - pursuer_position  # p^-_T - p
         predicted_range = math.sqrt(float(relative.dot(relative)))  # np.linalg.norm's formula, without its wrapper
         direction = unit(bearing.direction)
         # min/max on a float clips exactly as np.clip does, without its array machinery
         cos_angle = min(max(float(direction @ relative / max(predicted_range, 1e-12)), -1.0), 1.0)
         innovation_angle = float(np.arccos(cos_angle))
-        if self.restart_when_behind and (cos_angle <= 0.0 or predicted_range < 1e-6):
-            self._restart_on(bearing, predicted_range, state[3:])
+        if self._behind(cos_angle, predicted_range):
+            self._restart_on(bearing, predicted_range, state[3:].copy())  # a copy: the storage is overwritten
             return CorrectionReport(innovation_angle, False, reinitialized=True)
-
+        reference, direction, late, lead_noise = self._correction_inputs(bearing, lead, direction)
         use_predicted = self.gain_projection is GainProjection.PREDICTED
-        gain_relative, gain_range = relative, predicted_range
+        self._snapshot = None
+        innovation, innovation_covariance, innovation_inverse = _correct_kernel(
+            state, covariance, relative, predicted_range, direction, pursuer_position if reference is None else reference,
+            reference is not None, use_predicted, lead, late, self.measurement_noise, self.pursuer_position_std > 0.0,
+            self.pursuer_position_std**2, lead_noise, pursuer_position)
+        self._note_innovation(bearing, innovation, innovation_inverse)
+        return CorrectionReport(innovation_angle, use_predicted, innovation=innovation,
+                                innovation_covariance=innovation_covariance, innovation_dof=2)
+
+    def _behind(self, cos_angle: float, predicted_range: float) -> bool:
+        """The guard: a prediction behind the sensor (or on it) restarts the filter on the bearing."""
+        return self.restart_when_behind and _behind_sensor(cos_angle, predicted_range)
+
+    def _correction_inputs(self, bearing: BearingMeasurement, lead: float,
+                           direction: np.ndarray) -> tuple[np.ndarray | None, np.ndarray, bool, np.ndarray]:
+        """What `_correct_kernel` needs beyond the prior and the bearing: (the own position the gain's line of
+        sight starts from (3,) (OwnPositionTracker; None without one), the residual's unit bearing (3,), whether
+        the bearing is late, the late bearing's noise (3, 3)). Feeds the own-position tracker with this bearing's
+        position (so once per correction that is not a restart)."""
+        reference = None
         if self._own_track is not None:
             tracker = self._own_track if bearing.source == 0 else self._source_track(bearing.source)
-            # Errors in variables: the gain's line of sight from an own position that does not
-            # carry this sample's error (OwnPositionTracker), the residual from the sample itself.
             reference = tracker.reference(bearing.time, bearing.pursuer_position)
-            gain_relative = relative + (bearing.pursuer_position - reference)
-            gain_range = math.sqrt(float(gain_relative @ gain_relative))
-            if gain_range < 1e-6:
-                gain_relative, gain_range = relative, predicted_range
         if self.gain_projection is GainProjection.NOISE_FREE:
             if bearing.true_direction is None:
                 raise ValueError("the noise-free (optimal) u-PLKF needs BearingMeasurement.true_direction: simulation only")
             direction = unit(bearing.true_direction)
-        # orthogonal_projection normalises its argument again; so does this, to keep its exact rounding
-        measured_projection = _projector(unit(direction))
-        gain_direction = gain_relative / gain_range if use_predicted else direction
-        gain_projection = _projector(gain_direction)
         late = abs(lead) > _LEAD_EPSILON
-        # H = [P, 0], so H P^- H^T = P P^-_pp P and P^- H^T = P^-[:, :3] P.
-        # A bearing taken tau = lead s away from the filter's time (a late fix, a neighbour's shared
-        # bearing) measures p_T(t + tau) = p_T + tau v_T + w_tau: H = P [I, tau I], and w_tau, the
-        # target's own acceleration over |tau|, adds its position variance to the measurement noise.
-        position_rows = p_prior[:, :3] + lead * p_prior[:, 3:] if late else p_prior[:, :3]  # P^- M^T, M = [I, tau I]
-        cross_covariance = position_rows @ gain_projection
-        noise_transition = gain_range * gain_projection  # V_k = r^- P_lambda
-        measurement_covariance = noise_transition @ self.measurement_noise @ noise_transition.T
-        if self.pursuer_position_std > 0.0:
-            measurement_covariance = measurement_covariance + self.pursuer_position_std**2 * gain_projection
-        if late:
-            measurement_covariance = measurement_covariance + gain_projection @ self._lead_noise(lead) @ gain_projection
-        prior_rows = cross_covariance[:3] + lead * cross_covariance[3:] if late else cross_covariance[:3]  # M P^- M^T P
-        innovation_covariance = gain_projection @ prior_rows + measurement_covariance
-        innovation_inverse = _projector_pseudo_inverse(innovation_covariance, gain_direction)
-        gain = cross_covariance @ innovation_inverse
-        # x_k = x^-_k - K_k H_k x^-_k, with H_k x^-_k = P_lambda~ (p^-_T - p)
-        self._snapshot = None
-        innovation = measured_projection @ relative  # H_k x^-_k, also the report's innovation
-        self._state = state - gain @ innovation
-        self._state[:3] = limit_range(self._state[:3], np.asarray(bearing.pursuer_position, dtype=float))
-        measured_rows = p_prior[:3] + lead * p_prior[3:] if late else p_prior[:3]  # M P^-
-        covariance = p_prior - gain @ (gain_projection @ measured_rows)  # (I - K H) P^-
-        covariance = 0.5 * (covariance + covariance.T)
-        if not _is_positive_semidefinite(covariance):
-            covariance = _joseph_update(p_prior, gain, gain_projection, measurement_covariance, lead if late else 0.0)
-        self._covariance = covariance
+        return reference, direction, late, self._lead_noise(lead) if late else _ZERO33
+
+    def _note_innovation(self, bearing: BearingMeasurement, innovation: np.ndarray, innovation_inverse: np.ndarray) -> None:
+        """After a correction: the adaptive process noise takes its NIS y^T S^+ y (2 degrees of freedom)."""
         if self.adaptive_noise is not None:
-            self.adaptive_noise.update(bearing.time, float(innovation @ innovation_inverse @ innovation), 2)
-        return CorrectionReport(innovation_angle, use_predicted, innovation=innovation,
-                                innovation_covariance=innovation_covariance, innovation_dof=2)
+            self.adaptive_noise.update(bearing.time, _normalized_innovation_squared(innovation, innovation_inverse), 2)
 
     def _source_track(self, source: int) -> OwnPositionTracker:
         """The position tracker of a neighbour's bearings (source != 0): each pursuer's reported positions are

@@ -46,7 +46,8 @@ predicted range and the probabilities return to their initial values. A single m
 own prediction is behind the sensor restarts itself (its own guard) and gets zero
 likelihood for that bearing, so the next mixing rebuilds it from the others.
 
-numpy only (and the u-PLKF of companion.core.estimators).
+numpy only (and the u-PLKF of companion.core.estimators); the numeric steps are kernels that numba compiles
+when it is installed (companion.core._jit), the same functions either way.
 """
 
 from __future__ import annotations
@@ -57,7 +58,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from companion.core._jit import jit
 from companion.core.estimators import (AdaptiveNoiseSettings, CorrectionReport, GainProjection, InitialGuess, UPLKF,
+                                       _behind_sensor, _correct_kernel, _normalized_innovation_squared, _predict_kernel,
                                        coordinated_turn_matrices, restart_guess)
 from companion.core.geometry import unit
 from companion.core.messages import BearingMeasurement, TargetEstimate
@@ -89,28 +92,24 @@ def standard_models(turn_rates: Sequence[float], cv_process_noise: float, turn_p
     return models
 
 
+@jit
 def markov_matrix(count: int, stay_probability: float) -> np.ndarray:
     """p_ij, shape (count, count): stay_probability on the diagonal, the rest split evenly over
     the other models (seed 004's matrix for count = 3, stay_probability = 0.98); rows sum to 1."""
     if count == 1:
         return np.ones((1, 1))
     leave = (1.0 - stay_probability) / (count - 1)
-    # one np.where on a cached identity mask: the same entries as np.full + np.fill_diagonal, at a
-    # fraction of their cost (this runs at nearly every correction: the interval's rounding varies)
-    return np.where(_diagonal_mask(count), stay_probability, leave)
+    matrix = np.full((count, count), leave)
+    for i in range(count):
+        matrix[i, i] = stay_probability
+    return matrix
 
 
-_DIAGONAL_MASKS: dict[int, np.ndarray] = {}
-
-
-def _diagonal_mask(count: int) -> np.ndarray:
-    """The boolean identity of size count (read only, cached)."""
-    mask = _DIAGONAL_MASKS.get(count)
-    if mask is None:
-        mask = np.eye(count, dtype=bool)
-        mask.flags.writeable = False
-        _DIAGONAL_MASKS[count] = mask
-    return mask
+@jit
+def _markov_matrix_over(count: int, stay_probability: float, stay_time: float, interval: float) -> np.ndarray:
+    """p_ij over `interval` s: p_ii = stay_probability^(interval / stay_time) (module docstring; a negative
+    interval counts as 0, as max(interval, 0.0) takes it)."""
+    return markov_matrix(count, stay_probability ** ((0.0 if 0.0 > interval else interval) / stay_time))
 
 
 def mix(probabilities: np.ndarray, transition: np.ndarray, states: np.ndarray,
@@ -121,31 +120,49 @@ def mix(probabilities: np.ndarray, transition: np.ndarray, states: np.ndarray,
     covariances: P^i, (n, d, d). Returns (c, x0, P0): the predicted model probabilities
     c_j = sum_i p_ij mu^i, (n,), and each model's mixed start x0^j (n, d) and P0^j (n, d, d).
     """
+    return _mix_kernel(*(np.ascontiguousarray(value, dtype=float) for value in (probabilities, transition, states, covariances)))
+
+
+@jit
+def _mix_kernel(probabilities: np.ndarray, transition: np.ndarray, states: np.ndarray,
+                covariances: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`mix`, seed 004 eqs. (17)-(19), on C-ordered float64 arrays (a kernel: companion.core._jit)."""
     predicted = probabilities @ transition
-    everyone = bool((predicted > 0.0).all())  # the method, not np.all: no dispatch overhead on (n,)
-    # dividing by c itself when no c_j is 0 (the usual case) is np.where's arithmetic without the where
+    everyone = True  # (predicted > 0).all(): no c_j is 0 (the usual case)
+    for value in predicted:
+        if not value > 0.0:
+            everyone = False
+    # dividing by c itself when no c_j is 0 is np.where's arithmetic without the where
     weights = transition * probabilities[:, None] / (predicted if everyone else np.where(predicted > 0.0, predicted, 1.0))[None, :]  # mu^{i|j}
     # A model with c_j = 0 (p_ij = 0 from every likely model) takes no part in anything until
     # its probability returns; it keeps its own estimate instead of an empty mixture.
     if not everyone:
-        for j in np.flatnonzero(predicted <= 0.0):
-            weights[:, j] = 0.0
-            weights[j, j] = 1.0
+        for j in range(predicted.shape[0]):
+            if predicted[j] <= 0.0:
+                weights[:, j] = 0.0
+                weights[j, j] = 1.0
     mixed = weights.T @ states
     count, size = states.shape
     mixed_covariances = (weights.T @ covariances.reshape(count, size * size)).reshape(count, size, size)
     spread = states[None, :, :] - mixed[:, None, :]  # [j, i] = x^i - x0^j
-    mixed_covariances += np.matmul((spread * weights.T[:, :, None]).transpose(0, 2, 1), spread)
+    for j in range(count):  # sum_i mu^{i|j} (x^i - x0^j)(x^i - x0^j)^T, one BLAS product per model
+        mixed_covariances[j] += (spread[j] * weights.T[j][:, None]).T @ spread[j]
     return predicted, mixed, mixed_covariances
 
 
 def combine(probabilities: np.ndarray, states: np.ndarray, covariances: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """IMM output combination, seed 004 eqs. (22)-(23): the moment-matched mixture of the
     model estimates. probabilities (n,), states (n, d), covariances (n, d, d) -> x (d,), P (d, d)."""
+    return _combine_kernel(*(np.ascontiguousarray(value, dtype=float) for value in (probabilities, states, covariances)))
+
+
+@jit
+def _combine_kernel(probabilities: np.ndarray, states: np.ndarray, covariances: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`combine`, seed 004 eqs. (22)-(23), on C-ordered float64 arrays (a kernel: companion.core._jit)."""
     state = probabilities @ states
     spread = states - state
     size = states.shape[1]
-    covariance = (probabilities @ covariances.reshape(len(probabilities), size * size)).reshape(size, size)
+    covariance = (probabilities @ covariances.reshape(probabilities.shape[0], size * size)).reshape(size, size)
     covariance += (probabilities[:, None] * spread).T @ spread
     return state, 0.5 * (covariance + covariance.T)
 
@@ -189,22 +206,189 @@ def rank2_log_likelihoods(innovations: np.ndarray, covariances: np.ndarray, scal
                           null_directions: np.ndarray) -> np.ndarray:
     """`rank2_log_likelihood` with its null_direction for n models at once: innovations (n, 3),
     covariances (n, 3, 3), scales (n,), null_directions (n, 3) -> (n,), -inf where S is not rank 2."""
-    # elementwise products and sums rather than einsum: far cheaper on (3, 3) blocks
-    e1 = covariances[:, 0, 0] + covariances[:, 1, 1] + covariances[:, 2, 2]
-    e2 = 0.5 * (e1 * e1 - (covariances * covariances).sum(axis=(1, 2)))
-    along = (null_directions * innovations).sum(axis=1)
-    quadratic = (np.matmul(covariances, innovations[:, :, None])[:, :, 0] * innovations).sum(axis=1)
-    result = []
-    # Python floats from here on (tolist): the same IEEE arithmetic as numpy's scalars, without their overhead
-    for k, (e1_k, e2_k, along_k, quadratic_k, scale_k) in enumerate(zip(e1.tolist(), e2.tolist(), along.tolist(),
-                                                                        quadratic.tolist(), np.asarray(scales).tolist())):
-        if not e2_k > 0.0:
-            result.append(-math.inf)
+    return _rank2_log_likelihoods_kernel(*(np.ascontiguousarray(value, dtype=float)
+                                           for value in (innovations, covariances, scales, null_directions)))
+
+
+@jit
+def _rank2_log_likelihoods_kernel(innovations: np.ndarray, covariances: np.ndarray, scales: np.ndarray,
+                                  null_directions: np.ndarray) -> np.ndarray:
+    """`rank2_log_likelihoods`, seed 004 eq. (20) as `rank2_log_likelihood` takes it with its null direction, on
+    C-ordered float64 arrays (a kernel: companion.core._jit). The sums are written out in the order numpy's
+    reductions of the vectorised form took them (a row of 3: left to right; the 9 squares of S: numpy's
+    pairwise sum), so its results are those bit for bit."""
+    count = innovations.shape[0]
+    result = np.empty(count)
+    for k in range(count):
+        covariance = covariances[k]
+        innovation = innovations[k]
+        e1 = covariance[0, 0] + covariance[1, 1] + covariance[2, 2]
+        s = covariance * covariance
+        square_sum = ((s[0, 0] + s[0, 1]) + (s[0, 2] + s[1, 0])) + ((s[1, 1] + s[1, 2]) + (s[2, 0] + s[2, 1])) + s[2, 2]
+        e2 = 0.5 * (e1 * e1 - square_sum)
+        g = null_directions[k]
+        along = g[0] * innovation[0] + g[1] * innovation[1] + g[2] * innovation[2]
+        s_y = covariance @ innovation
+        quadratic = s_y[0] * innovation[0] + s_y[1] * innovation[1] + s_y[2] * innovation[2]
+        if not e2 > 0.0:
+            result[k] = -math.inf
             continue
-        nis = (e1_k * (float(innovations[k] @ innovations[k]) - along_k * along_k) - quadratic_k) / e2_k
-        value = -0.5 * (nis + 2.0 * _LOG_TWO_PI + math.log(e2_k)) + 2.0 * math.log(scale_k) if scale_k > 0.0 else -math.inf
-        result.append(float(value) if math.isfinite(value) else -math.inf)
-    return np.array(result)
+        nis = (e1 * (float(innovation @ innovation) - along * along) - quadratic) / e2
+        scale = scales[k]
+        value = -0.5 * (nis + 2.0 * _LOG_TWO_PI + math.log(e2)) + 2.0 * math.log(scale) if scale > 0.0 else -math.inf
+        result[k] = value if math.isfinite(value) else -math.inf
+    return result
+
+
+@jit
+def _combined_innovation(weights: np.ndarray, innovations: np.ndarray, covariances: np.ndarray, relative: np.ndarray,
+                         predicted_range: float) -> tuple[np.ndarray, np.ndarray]:
+    """y = sum_j c_j y_j and its covariance sum_j c_j [S_j + (y_j - y)(y_j - y)^T] projected across the combined
+    predicted line of sight g = `relative` / `predicted_range` (IMMEstimator._combined_report, a kernel:
+    companion.core._jit). weights (n,), innovations (n, 3), covariances (n, 3, 3) -> (3,), (3, 3)."""
+    innovation = weights @ innovations
+    spread = innovations - innovation
+    covariance = (weights @ covariances.reshape(weights.shape[0], 9)).reshape(3, 3) + (weights[:, None] * spread).T @ spread
+    # (I - g g^T) C (I - g g^T), g the combined predicted line of sight, expanded
+    g = relative / predicted_range
+    cg = covariance @ g
+    # broadcast products: np.outer's arithmetic without its per-call argument handling; cg g^T is
+    # (g cg^T)^T exactly (each entry the same product), and the in-place steps keep the order of the sum
+    g_cg = g[:, None] * cg
+    covariance = covariance - g_cg
+    covariance -= g_cg.T
+    covariance += float(g @ cg) * (g[:, None] * g)
+    return innovation, 0.5 * (covariance + covariance.T)
+
+
+@jit
+def _posterior_probabilities(log_likelihoods: np.ndarray, predicted: np.ndarray) -> np.ndarray:
+    """mu^j = Lambda^j c_j / sum_t Lambda^t c_t, seed 004 eq. (21), in logarithms (a kernel: companion.core._jit).
+    log_likelihoods: ln Lambda^j (n,); predicted: c (n,). With no finite likelihood (every model restarted)
+    the predicted probabilities c stand (a copy)."""
+    count = predicted.shape[0]
+    log_posterior = np.empty(count)
+    for j in range(count):
+        likelihood, weight = log_likelihoods[j], predicted[j]
+        log_posterior[j] = likelihood + math.log(weight) if math.isfinite(likelihood) and weight > 0.0 else -math.inf
+    peak = log_posterior[0]
+    for j in range(1, count):
+        if log_posterior[j] > peak:
+            peak = log_posterior[j]
+    if peak == -math.inf:
+        return predicted.copy()
+    posterior = np.empty(count)
+    total = 0.0
+    for j in range(count):
+        posterior[j] = math.exp(log_posterior[j] - peak)
+        total += posterior[j]
+    return posterior / total
+
+
+@jit
+def _mix_into(probabilities: np.ndarray, transition: np.ndarray, states: np.ndarray, covariances: np.ndarray) -> np.ndarray:
+    """Seed 004 eqs. (17)-(19) in place: each model's state (n, d) and covariance (n, d, d) replaced by its mixed
+    start (the covariance symmetrised); returns the predicted model probabilities c (n,)."""
+    predicted, mixed, mixed_covariances = _mix_kernel(probabilities, transition, states, covariances)
+    for j in range(states.shape[0]):
+        states[j] = mixed[j]
+        covariances[j] = 0.5 * (mixed_covariances[j] + mixed_covariances[j].T)
+    return predicted
+
+
+@jit
+def _predict_models(transitions: np.ndarray, discrete_process_noises: np.ndarray, scales: np.ndarray, boosts: np.ndarray,
+                    states: np.ndarray, covariances: np.ndarray) -> None:
+    """Every model filter's time update (section IV-C, UPLKF's `_predict_kernel`), in place on the stacked
+    states (n, 6) and covariances (n, 6, 6); transitions and discrete process noises (n, 6, 6), each model's
+    adaptive scale and boost (n,)."""
+    for j in range(states.shape[0]):
+        _predict_kernel(transitions[j], discrete_process_noises[j], scales[j], boosts[j], states[j], covariances[j])
+
+
+@jit
+def _clipped_cosine(dot: float, length: float) -> float:
+    """min(max(dot / max(length, 1e-12), -1.0), 1.0) with Python's min and max (a NaN stays NaN), as
+    UPLKF.correct clips the cosine between the bearing and the predicted line of sight."""
+    length = 1e-12 if 1e-12 > length else length  # max(length, 1e-12): the first argument unless the second is larger
+    cosine = dot / length
+    if -1.0 > cosine:
+        cosine = -1.0
+    if 1.0 < cosine:
+        cosine = 1.0
+    return cosine
+
+
+@jit
+def _prior_lines_of_sight(states: np.ndarray, weights: np.ndarray, lead: float, pursuer_position: np.ndarray,
+                          direction: np.ndarray, restart_when_behind: bool
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, float, bool]:
+    """Each model's prior line of sight at the bearing's time as UPLKF.correct forms it, and the combined one.
+
+    states (n, 6); weights: c (n,); lead: bearing time - filter time, s; pursuer_position (3,); direction: the
+    unit bearing (3,). Returns model_relative (n, 3) = p^-_T,j - p, ranges (n,) (their lengths, summed as the
+    IMM's vectorised form), model_ranges (n,) (each as the model filter's own correct takes it), relative =
+    sum_j c_j model_relative_j (3,), its length, its clipped cosine to the bearing, and whether every model
+    filter corrects (a positive range, and none restarts: remark 3's guard on its own clipped cosine and range
+    when restart_when_behind)."""
+    count = states.shape[0]
+    model_relative = states[:, :3] + lead * states[:, 3:] - pursuer_position
+    ranges = np.empty(count)
+    model_ranges = np.empty(count)
+    every_model_corrects = True
+    for j in range(count):
+        row = model_relative[j]
+        ranges[j] = math.sqrt(row[0] * row[0] + row[1] * row[1] + row[2] * row[2])
+        model_ranges[j] = math.sqrt(float(np.dot(row, row)))
+        if not ranges[j] > 0.0 or (restart_when_behind and _behind_sensor(
+                _clipped_cosine(float(np.dot(direction, row)), model_ranges[j]), model_ranges[j])):
+            every_model_corrects = False
+    relative = weights @ model_relative
+    predicted_range = math.sqrt(float(np.dot(relative, relative)))
+    cos_angle = _clipped_cosine(float(np.dot(direction, relative)), predicted_range)
+    return model_relative, ranges, model_ranges, relative, predicted_range, cos_angle, every_model_corrects
+
+
+@jit
+def _imm_correct_kernel(states: np.ndarray, covariances: np.ndarray, model_relative: np.ndarray, ranges: np.ndarray,
+                        model_ranges: np.ndarray, direction: np.ndarray, references: np.ndarray, use_reference: bool,
+                        lead: float, late: bool, measurement_noises: np.ndarray, add_position_noise: bool, position_variance: float,
+                        lead_noises: np.ndarray, pursuer_position: np.ndarray, weights: np.ndarray,
+                        relative: np.ndarray, predicted_range: float, stay_probability: float, stay_time: float,
+                        interval: float, with_nis: bool):
+    """One IMM correction of models with the PREDICTED gain, none restarting (IMMEstimator.correct), in place on
+    the stacked states (n, 6) and covariances (n, 6, 6):
+
+    every model's u-PLKF correction (eq. (6), section IV-C: `_correct_kernel`), their likelihoods (seed 004
+    eq. (20), `_rank2_log_likelihoods_kernel`, the kernel of each S_j its model's predicted line of sight), the
+    combined innovation for the health monitor (`_combined_innovation`), the model probabilities (eq. (21),
+    `_posterior_probabilities`) and the mixing for the next cycle (eqs. (17)-(19), `_mix_into`).
+
+    The per-model inputs are `_correct_kernel`'s, stacked (references (n, 3), measurement_noises and lead_noises
+    (n, 3, 3)); model_relative (n, 3), ranges and model_ranges (n,) as `_prior_lines_of_sight` gives them; weights: c (n,); relative and predicted_range: the combined line of
+    sight; stay_probability, stay_time, interval: the Markov matrix p_ij over the interval since the last
+    correction (`_markov_matrix_over`). Returns (each model's NIS y_j^T S_j^+ y_j (n,) (zeros unless with_nis),
+    the combined innovation (3,) and covariance (3, 3), mu (n,), the next c (n,))."""
+    count = states.shape[0]
+    innovations = np.empty((count, 3))
+    innovation_covariances = np.empty((count, 3, 3))
+    nis = np.zeros(count)
+    for j in range(count):
+        innovation, innovation_covariance, innovation_inverse = _correct_kernel(
+            states[j], covariances[j], model_relative[j], model_ranges[j], direction, references[j], use_reference, True,
+            lead, late, measurement_noises[j], add_position_noise, position_variance, lead_noises[j], pursuer_position)
+        innovations[j] = innovation
+        innovation_covariances[j] = innovation_covariance
+        if with_nis:
+            nis[j] = _normalized_innovation_squared(innovation, innovation_inverse)
+    log_likelihoods = _rank2_log_likelihoods_kernel(innovations, innovation_covariances, ranges,
+                                                    model_relative / ranges[:, None])
+    innovation, innovation_covariance = _combined_innovation(weights, innovations, innovation_covariances, relative,
+                                                             predicted_range)
+    probabilities = _posterior_probabilities(log_likelihoods, weights)
+    predicted = _mix_into(probabilities, _markov_matrix_over(count, stay_probability, stay_time, interval), states,
+                          covariances)
+    return nis, innovation, innovation_covariance, probabilities, predicted
 
 
 class IMMEstimator:
@@ -217,6 +401,10 @@ class IMMEstimator:
     stay_probability: p_ii over stay_time s (module docstring); 1 never switches.
     initial_probabilities: mu_0, (n,); default: seed 004's 0.98 on the first model
     (constant velocity) and the rest split evenly.
+
+    The model filters keep their states in rows of two stacked arrays of the IMM ((n, 6), (n, 6, 6)),
+    which every step updates in place: a predict of all models, or a whole correction, is one kernel call
+    (companion.core._jit) over them.
     """
 
     def __init__(
@@ -241,14 +429,24 @@ class IMMEstimator:
         self.stay_probability = float(stay_probability)
         self.stay_time = float(stay_time)
         self.restart_when_behind = bool(restart_when_behind)
+        count = len(self.models)
+        self._states = np.zeros((count, 6))  # x^j, the model filters' own storage (UPLKF._use_storage)
+        self._covariances = np.zeros((count, 6, 6))  # P^j
         self.filters: list[UPLKF] = []
-        for model in self.models:
+        for j, model in enumerate(self.models):
             a, b = coordinated_turn_matrices(self.period, model.turn_rate)
             process_noise = model.process_noise * np.eye(3)
-            self.filters.append(UPLKF(self.period, process_noise, measurement_noise, gain_projection,
-                                      pursuer_position_std, restart_when_behind, adaptive_noise,
-                                      transition=a, discrete_process_noise=b @ process_noise @ b.T))
-        count = len(self.models)
+            model_filter = UPLKF(self.period, process_noise, measurement_noise, gain_projection, pursuer_position_std,
+                                 restart_when_behind, adaptive_noise, transition=a, discrete_process_noise=b @ process_noise @ b.T)
+            self.filters.append(model_filter)
+        self._bind_storage()
+        # the model filters' fixed matrices, stacked for the kernels
+        self._transitions = np.array([model_filter._a for model_filter in self.filters])
+        self._discrete_process_noises = np.array([model_filter._q_discrete for model_filter in self.filters])
+        self._measurement_noises = np.array([model_filter.measurement_noise for model_filter in self.filters])
+        self._no_references, self._no_lead_noises = np.zeros((count, 3)), np.zeros((count, 3, 3))  # not used / zero
+        self._noise_factors: list[tuple[float, float]] = []  # the (scale, boost) of `_scales` and `_boosts`
+        self._scales = self._boosts = np.ones(count)
         if initial_probabilities is None:
             initial = np.full(count, 0.02 / (count - 1)) if count > 1 else np.ones(1)
             initial[0] = 0.98 if count > 1 else 1.0
@@ -257,14 +455,29 @@ class IMMEstimator:
             if np.any(initial < 0.0) or not math.isclose(float(initial.sum()), 1.0, rel_tol=1e-9):
                 raise ValueError("initial_probabilities must be a probability distribution over the models")
         self.initial_probabilities = initial
-        self._probabilities = initial.copy()  # mu_k after the last correction
+        rates = np.array([model.turn_rate for model in self.models])
+        self._motion_masks = (rates == 0.0, rates > 0.0, rates < 0.0)
+        self._set_probabilities(initial.copy())  # mu_k after the last correction
         self._weights = initial.copy()  # c_j: weights of the model filters' current states
         self._last_correction_time: float | None = None
         self._initial_guess: InitialGuess | None = None
         self._snapshot: TargetEstimate | None = None
         self._process_noise_boost = 1.0
-        self._markov_interval = math.nan
-        self._markov = markov_matrix(len(self.models), self.stay_probability)
+
+    def _bind_storage(self) -> None:
+        """Each model filter keeps its x and P in its row of the stacked arrays (UPLKF._use_storage)."""
+        for j, model_filter in enumerate(self.filters):
+            started = model_filter._state is not None
+            model_filter._state = model_filter._covariance = None
+            model_filter._use_storage(self._states[j], self._covariances[j])
+            if started:
+                model_filter._state, model_filter._covariance = self._states[j], self._covariances[j]
+
+    def __setstate__(self, state: dict) -> None:
+        """A copy (copy.deepcopy, pickle) binds its model filters to its own stacked arrays again: copying
+        loses the rows' view of them."""
+        self.__dict__.update(state)
+        self._bind_storage()
 
     # --- the TargetEstimator interface ------------------------------------------------
 
@@ -279,12 +492,13 @@ class IMMEstimator:
 
     @property
     def estimate(self) -> TargetEstimate:
-        """The combined estimate, seed 004 eqs. (22)-(23) (a snapshot)."""
+        """The combined estimate, seed 004 eqs. (22)-(23) (a snapshot, kept until the next step changes the states)."""
         if self._snapshot is None:
             if len(self.filters) == 1:
                 self._snapshot = self.filters[0].estimate
             else:
-                state, covariance = combine(self._weights, *self._stacked())
+                self._require_states()
+                state, covariance = _combine_kernel(self._weights, self._states, self._covariances)
                 self._snapshot = TargetEstimate(self.time, state[:3], state[3:], covariance)
         return self._snapshot
 
@@ -301,10 +515,10 @@ class IMMEstimator:
                 total[:2] += weight * model.turn_rate * np.array([-velocity[1], velocity[0]])
         return total
 
-    def _stacked(self) -> tuple[np.ndarray, np.ndarray]:
-        """The model filters' states (n, 6) and covariances (n, 6, 6), stacked (copies)."""
-        pairs = [model_filter.state_and_covariance for model_filter in self.filters]
-        return np.array([state for state, _ in pairs]), np.array([covariance for _, covariance in pairs])
+    def _require_states(self) -> None:
+        """Every model filter has started (else UPLKF's RuntimeError)."""
+        for model_filter in self.filters:
+            model_filter._require_state()
 
     @property
     def model_probabilities(self) -> np.ndarray:
@@ -319,10 +533,16 @@ class IMMEstimator:
     @property
     def motion_probabilities(self) -> tuple[float, float, float]:
         """(straight, right turn, left turn): mu_k summed over the constant-velocity models
-        (turn_rate 0), the right turns (> 0) and the left turns (< 0); fixed-width, for logs."""
-        rates = np.array([model.turn_rate for model in self.models])
-        mu = self._probabilities
-        return float(mu[rates == 0.0].sum()), float(mu[rates > 0.0].sum()), float(mu[rates < 0.0].sum())
+        (turn_rate 0), the right turns (> 0) and the left turns (< 0); fixed-width, for logs
+        (summed once per change of mu_k)."""
+        if self._motion_probabilities is None:
+            self._motion_probabilities = tuple(float(self._probabilities[mask].sum()) for mask in self._motion_masks)
+        return self._motion_probabilities
+
+    def _set_probabilities(self, probabilities: np.ndarray) -> None:
+        """mu_k := probabilities (n,) (its sums by motion follow on the next read of `motion_probabilities`)."""
+        self._probabilities = probabilities
+        self._motion_probabilities: tuple[float, float, float] | None = None
 
     @property
     def process_noise_boost(self) -> float:
@@ -348,41 +568,90 @@ class IMMEstimator:
         companion.core.cooperative_estimation.FusionEstimator)."""
         if len(pairs) != len(self.filters):
             raise ValueError(f"need {len(self.filters)} model states, got {len(pairs)}")
+        # copied first: a pair may be a view of the storage that an earlier model's set_state overwrites
+        pairs = [(np.array(state, dtype=float), np.array(covariance, dtype=float)) for state, covariance in pairs]
         for model_filter, (state, covariance) in zip(self.filters, pairs):
             model_filter.set_state(state, covariance)
         self._snapshot = None
 
     def predict(self) -> None:
-        """Each model filter's own time update over one period."""
+        """Each model filter's own time update over one period (all in one `_predict_models` call)."""
         self._snapshot = None
-        for model_filter in self.filters:
-            model_filter.predict()
+        filters = self.filters
+        if len(filters) == 1:
+            filters[0].predict()
+            return
+        self._require_states()
+        factors = [(model_filter.process_noise_scale, model_filter.process_noise_boost) for model_filter in filters]
+        if factors != self._noise_factors:  # each model's adaptive scale and boost, as arrays for the kernel
+            self._noise_factors = factors
+            self._scales = np.array([scale for scale, _ in factors], dtype=float)
+            self._boosts = np.array([boost for _, boost in factors], dtype=float)
+        _predict_models(self._transitions, self._discrete_process_noises, self._scales, self._boosts, self._states,
+                        self._covariances)
+        for model_filter in filters:
+            model_filter._advance_clock()
 
     def correct(self, bearing: BearingMeasurement) -> CorrectionReport:
         """Model-conditioned corrections, model probabilities, then the mixing for the next cycle.
 
         The report's innovation is that of the combined prediction (see `_combined_report`).
         """
-        if len(self.filters) == 1:
+        filters = self.filters
+        if len(filters) == 1:
             self._snapshot = None
-            return self.filters[0].correct(bearing)
-        states = np.array([model_filter.state_and_covariance[0] for model_filter in self.filters])
+            return filters[0].correct(bearing)
+        self._require_states()
         lead = bearing.time - self.time
-        # each model's prior line of sight at the bearing's time, as UPLKF.correct forms it, and the combined one
-        model_relative = states[:, :3] + lead * states[:, 3:] - np.asarray(bearing.pursuer_position, dtype=float)
-        ranges = np.sqrt((model_relative * model_relative).sum(axis=1))
-        relative = self._weights @ model_relative
-        predicted_range = math.sqrt(float(relative.dot(relative)))  # np.linalg.norm's formula, without its wrapper
+        pursuer_position = np.asarray(bearing.pursuer_position, dtype=float)
         direction = unit(bearing.direction)
-        # min/max on a float clips exactly as np.clip does, without its array machinery
-        cos_angle = min(max(float(direction @ relative / max(predicted_range, 1e-12)), -1.0), 1.0)
-        if self.restart_when_behind and (cos_angle <= 0.0 or predicted_range < 1e-6):
-            guess = restart_guess(self._initial_guess, predicted_range, self._weights @ states[:, 3:])
-            for model_filter in self.filters:
+        # each model's prior line of sight at the bearing's time, as UPLKF.correct forms it, and the combined one
+        model_relative, ranges, model_ranges, relative, predicted_range, cos_angle, every_model_corrects = \
+            _prior_lines_of_sight(self._states, self._weights, lead, pursuer_position, direction, self.restart_when_behind)
+        if self.restart_when_behind and _behind_sensor(cos_angle, predicted_range):
+            guess = restart_guess(self._initial_guess, predicted_range, self._weights @ self._states[:, 3:])
+            for model_filter in filters:
                 model_filter.initialize_on_bearing(bearing, guess)
             self._reset_probabilities()
             return CorrectionReport(float(np.arccos(cos_angle)), False, reinitialized=True)
+        interval = self.stay_time if self._last_correction_time is None else bearing.time - self._last_correction_time
+        if every_model_corrects and filters[0].gain_projection is GainProjection.PREDICTED:
+            report = self._correct_all(bearing, lead, pursuer_position, direction, model_relative, ranges, model_ranges,
+                                       relative, predicted_range, cos_angle, interval)
+        else:
+            report = self._correct_each(bearing, model_relative, ranges, relative, predicted_range, cos_angle, interval)
+        self._last_correction_time = bearing.time
+        return report
 
+    def _correct_all(self, bearing: BearingMeasurement, lead: float, pursuer_position: np.ndarray, direction: np.ndarray,
+                     model_relative: np.ndarray, ranges: np.ndarray, model_ranges: np.ndarray, relative: np.ndarray,
+                     predicted_range: float, cos_angle: float, interval: float) -> CorrectionReport:
+        """The usual correction (PREDICTED gains, no model restarting): every step of the cycle in one
+        `_imm_correct_kernel` call. The same arithmetic as `_correct_each`, which takes the other cases."""
+        filters = self.filters
+        inputs = [model_filter._correction_inputs(bearing, lead, direction) for model_filter in filters]
+        late = inputs[0][2]
+        use_reference = inputs[0][0] is not None
+        adaptive = [model_filter.adaptive_noise for model_filter in filters]
+        nis, innovation, innovation_covariance, probabilities, predicted = _imm_correct_kernel(
+            self._states, self._covariances, model_relative, ranges, model_ranges, inputs[0][1],
+            np.array([reference for reference, *_ in inputs]) if use_reference else self._no_references, use_reference,
+            lead, late, self._measurement_noises, filters[0].pursuer_position_std > 0.0, filters[0].pursuer_position_std**2,
+            np.array([lead_noise for *_, lead_noise in inputs]) if late else self._no_lead_noises, pursuer_position,
+            self._weights, relative, predicted_range, self.stay_probability, self.stay_time, interval, any(adaptive))
+        for j, model_filter in enumerate(filters):
+            model_filter._snapshot = None
+            if adaptive[j] is not None:  # UPLKF._note_innovation with the kernel's NIS
+                adaptive[j].update(bearing.time, float(nis[j]), 2)
+        self._set_probabilities(probabilities)
+        self._weights = predicted
+        self._snapshot = None
+        return CorrectionReport(float(np.arccos(cos_angle)), True, innovation=innovation,
+                                innovation_covariance=innovation_covariance, innovation_dof=2)
+
+    def _correct_each(self, bearing: BearingMeasurement, model_relative: np.ndarray, ranges: np.ndarray,
+                      relative: np.ndarray, predicted_range: float, cos_angle: float, interval: float) -> CorrectionReport:
+        """The correction model filter by model filter (any gain projection; models may restart on the bearing)."""
         reports = [model_filter.correct(bearing) for model_filter in self.filters]
         self._snapshot = None
         if all([r.innovation is not None and r.innovation_covariance is not None for r in reports]) and (ranges > 0.0).all():
@@ -408,44 +677,22 @@ class IMMEstimator:
                                                relative, predicted_range, cos_angle, reports[0].used_predicted_projection)
             else:
                 report = CorrectionReport(float(np.arccos(cos_angle)), reports[0].used_predicted_projection, reinitialized=True)
-        self._probabilities = self._updated_probabilities(log_likelihoods)
-        interval = self.stay_time if self._last_correction_time is None else bearing.time - self._last_correction_time
-        self._last_correction_time = bearing.time
-        self._mix(interval)
+        self._set_probabilities(self._updated_probabilities(log_likelihoods))
+        self._weights = _mix_into(self._probabilities, self.markov_matrix(interval), self._states, self._covariances)
+        for model_filter in self.filters:
+            model_filter._snapshot = None
         return report
 
     # --- the IMM steps -----------------------------------------------------------------
 
     def markov_matrix(self, interval: float) -> np.ndarray:
         """p_ij over `interval` s: p_ii = stay_probability^(interval / stay_time) (module docstring)."""
-        stay = self.stay_probability ** (max(interval, 0.0) / self.stay_time)
-        return markov_matrix(len(self.models), stay)
+        return _markov_matrix_over(len(self.models), self.stay_probability, self.stay_time, float(interval))
 
     def _updated_probabilities(self, log_likelihoods: np.ndarray) -> np.ndarray:
-        """mu^j = Lambda^j c_j / sum_t Lambda^t c_t, seed 004 eq. (21), in logarithms. With no
-        finite likelihood (every model restarted) the predicted probabilities c stand."""
-        # plain floats: a handful of models, cheaper than numpy's per-call overhead
-        log_posterior = [ll + math.log(c) if math.isfinite(ll) and c > 0.0 else -math.inf
-                         for ll, c in zip(np.asarray(log_likelihoods, dtype=float).tolist(), self._weights.tolist())]
-        peak = max(log_posterior)
-        if peak == -math.inf:
-            return self._weights.copy()
-        posterior = [math.exp(value - peak) for value in log_posterior]
-        total = sum(posterior)
-        return np.array([value / total for value in posterior])
-
-    def _mix(self, interval: float) -> None:
-        """Seed 004 eqs. (17)-(19): every model filter restarts from its mixed start."""
-        states, covariances = self._stacked()
-        if interval != self._markov_interval:  # the same interval at every bearing of a regular sensor
-            self._markov = self.markov_matrix(interval)
-            self._markov_interval = interval
-        predicted, mixed, mixed_covariances = mix(self._probabilities, self._markov, states, covariances)
-        mixed_covariances = 0.5 * (mixed_covariances + mixed_covariances.transpose(0, 2, 1))
-        for j, model_filter in enumerate(self.filters):
-            model_filter.set_state(mixed[j], mixed_covariances[j])
-        self._weights = predicted
-        self._snapshot = None
+        """mu^j = Lambda^j c_j / sum_t Lambda^t c_t, seed 004 eq. (21), in logarithms (`_posterior_probabilities`).
+        With no finite likelihood (every model restarted) the predicted probabilities c stand."""
+        return _posterior_probabilities(np.asarray(log_likelihoods, dtype=float), self._weights)
 
     @staticmethod
     def _combined_report(weights: np.ndarray, innovations: np.ndarray, covariances: np.ndarray, relative: np.ndarray,
@@ -462,24 +709,16 @@ class IMMEstimator:
         and the combination is off, and the mixture's S grows with that disagreement.
         Models that restarted on this bearing (no innovation) are left out (weights renormalised).
         weights (n,), innovations (n, 3), covariances (n, 3, 3); relative: the combined p^-_T - p, m.
+        The arithmetic: `_combined_innovation`.
         """
-        innovation = weights @ innovations
-        spread = innovations - innovation
-        covariance = (weights @ covariances.reshape(len(weights), 9)).reshape(3, 3) + (weights[:, None] * spread).T @ spread
-        # (I - g g^T) C (I - g g^T), g the combined predicted line of sight, expanded
-        g = relative / predicted_range
-        cg = covariance @ g
-        # broadcast products: np.outer's arithmetic without its per-call argument handling; cg g^T is
-        # (g cg^T)^T exactly (each entry the same product), and the in-place steps keep the order of the sum
-        g_cg = g[:, None] * cg
-        covariance = covariance - g_cg
-        covariance -= g_cg.T
-        covariance += float(g @ cg) * (g[:, None] * g)
+        innovation, covariance = _combined_innovation(
+            *(np.ascontiguousarray(value, dtype=float) for value in (weights, innovations, covariances, relative)),
+            float(predicted_range))
         return CorrectionReport(float(np.arccos(cos_angle)), used_predicted, innovation=innovation,
-                                innovation_covariance=0.5 * (covariance + covariance.T), innovation_dof=2)
+                                innovation_covariance=covariance, innovation_dof=2)
 
     def _reset_probabilities(self) -> None:
-        self._probabilities = self.initial_probabilities.copy()
+        self._set_probabilities(self.initial_probabilities.copy())
         self._weights = self.initial_probabilities.copy()
         self._last_correction_time = None
         self._snapshot = None

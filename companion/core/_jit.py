@@ -1,0 +1,155 @@
+"""Optional compilation of companion.core's numeric kernels (numba), with a plain-Python fallback.
+
+One implementation. A kernel is an ordinary module-level Python function over float64 arrays and
+floats (the u-PLKF's update, the IMM's mixing and combination); `jit` hands back that same
+function compiled by numba.njit(cache=True) when numba is installed (`pip install
+bearing-follow[fast]`), and the function itself otherwise or when the environment sets
+BOF_NO_JIT=1. The compiled kernel keeps `kernel.py_func`, the Python original, which the tests run
+side by side with it. No fastmath, no parallel: the compiled arithmetic is the Python function's
+IEEE arithmetic in the same order, and the matrix products go to the same BLAS (numba calls scipy's,
+numpy its own: OpenBLAS both) so the two agree to the last bit (tests/test_estimator_kernels.py).
+
+companion.core imports numba only through this module (the import rules), and never needs it.
+
+Two LAPACK calls have a compiled twin here, `lapack_dgesv` and `lapack_dpotrf`: in Python they are
+scipy.linalg.lapack's wrappers (what the u-PLKF called before it had kernels); compiled, numba's
+binding of the very same routine (scipy's cython_lapack). `objmode` runs a block in the interpreter
+from a compiled kernel (the rare general branches that call scipy or numpy routines numba lacks);
+without numba it is an empty context manager, so the block simply runs.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+
+import numpy as np
+from scipy.linalg.lapack import dgesv as _scipy_dgesv, dpotrf as _scipy_dpotrf
+
+try:
+    if os.environ.get("BOF_NO_JIT", "").strip() not in ("", "0"):
+        raise ImportError("BOF_NO_JIT is set: the plain-Python kernels")
+    import numba
+    from numba import types as _numba_types
+    from numba.extending import overload as _numba_overload
+    from numba.np.linalg import _LAPACK as _NUMBA_LAPACK
+except ImportError:
+    numba = None
+
+ENABLED = numba is not None
+"""Whether the kernels are compiled (numba importable and BOF_NO_JIT unset)."""
+
+
+def jit(function):
+    """`function` compiled with numba.njit(cache=True) when ENABLED, else `function` itself."""
+    if numba is None:
+        return function
+    return numba.njit(cache=True)(function)
+
+
+def python_function(kernel):
+    """The plain-Python original of a kernel (its py_func when compiled; the kernel itself when not)."""
+    return getattr(kernel, "py_func", kernel)
+
+
+_warmed_up = False
+
+
+def warm_up() -> float:
+    """Compile every estimator kernel now (or load it from numba's cache on disk), once per process, so that no
+    estimator update waits for the compiler: the companion's first bearing in flight, a study's first flight.
+
+    numba compiles a kernel on its first call and caches the machine code next to the sources (or in
+    NUMBA_CACHE_DIR): on a fresh install the first process pays the compilation, about 30 s of one core on the
+    machine of issue 16, and later processes load the cache in about 0.3 s. This runs the u-PLKF and IMM
+    updates once on made-up bearings (at and off the estimator's ticks, with adaptive process noise, both gain
+    forms), on throwaway estimators. Returns the seconds it took; 0 without numba (nothing to compile) and
+    after the first call in a process."""
+    global _warmed_up
+    if numba is None or _warmed_up:
+        return 0.0
+    started = time.perf_counter()
+    from companion.core.estimators import AdaptiveNoiseSettings, GainProjection, InitialGuess, UPLKF, limit_range
+    from companion.core.imm import IMMEstimator, standard_models
+    from companion.core.messages import BearingMeasurement
+
+    sigma = 1e-4 * np.eye(3)
+    estimators = [UPLKF(0.02, 0.04 * np.eye(3), sigma, GainProjection.PREDICTED, pursuer_position_std=0.1,
+                        adaptive_noise=AdaptiveNoiseSettings())]
+    for projection in (GainProjection.PREDICTED, GainProjection.MEASURED):
+        estimators.append(IMMEstimator(0.02, standard_models([0.2], 0.04, 0.04), sigma, projection, pursuer_position_std=0.1))
+    for estimator in estimators:
+        estimator.initialize_on_bearing(BearingMeasurement(0.0, np.array([1.0, 0.0, 0.0]), np.zeros(3)),
+                                        InitialGuess(20.0, 10.0, np.zeros(3), 5.0))
+        for k in range(1, 4):
+            estimator.predict()
+            for lead in (0.0, -0.01):  # a bearing on the tick and a late one
+                estimator.correct(BearingMeasurement(estimator.time + lead, np.array([1.0, 0.01 * k, 0.0]),
+                                                     np.array([0.0, 0.01 * k, 0.0])))
+            estimator.estimate
+    limit_range(np.array([2.0e6, 0.0, 0.0]), np.zeros(3))  # the baseline estimators call it from Python
+    _warmed_up = True
+    return time.perf_counter() - started
+
+
+class _Interpreted:
+    """numba.objmode's stand-in without numba: `with objmode(name="float64"):` just runs its block."""
+
+    def __call__(self, *args, **kwargs) -> "_Interpreted":
+        return self
+
+    def __enter__(self) -> None:
+        return None
+
+    def __exit__(self, *exc_info) -> bool:
+        return False
+
+
+objmode = numba.objmode if numba is not None else _Interpreted()
+
+
+def lapack_dgesv(matrix: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """LAPACK dgesv on a square matrix A (n, n) and right-hand sides B (n, m): (LU factors (n, n), the
+    0-based pivots (n,), X = A^-1 B (n, m), info), as scipy.linalg.lapack.dgesv returns them. Compiled,
+    the same LAPACK routine through numba's binding of scipy's cython_lapack (pivots shifted to 0-based)."""
+    return _scipy_dgesv(matrix, rhs)
+
+
+def lapack_dpotrf(matrix: np.ndarray) -> tuple[np.ndarray, int]:
+    """LAPACK dpotrf, lower triangle, of a symmetric matrix (n, n): (factor (n, n) whose lower triangle is
+    the Cholesky factor and whose strict upper triangle is undefined, info), scipy's dpotrf(lower=1, clean=0).
+    Compiled, the same LAPACK routine through numba's binding."""
+    return _scipy_dpotrf(matrix, lower=1, clean=0)
+
+
+if numba is not None:
+
+    @_numba_overload(lapack_dgesv, jit_options={"cache": True})
+    def _lapack_dgesv_compiled(matrix, rhs):
+        gesv = _NUMBA_LAPACK().numba_xgesv(_numba_types.float64)
+        kind = ord("d")
+
+        def implementation(matrix, rhs):
+            n = matrix.shape[0]
+            count = rhs.shape[1]
+            factors = np.ascontiguousarray(matrix.T)  # its memory is A in column-major order, as LAPACK reads it
+            solution = np.ascontiguousarray(rhs.T)
+            pivots = np.empty(n, dtype=np.int32)
+            info = gesv(kind, n, count, factors.ctypes, n, pivots.ctypes, solution.ctypes, n)
+            return factors.T, (pivots - 1).astype(np.int64), solution.T, int(info)
+
+        return implementation
+
+    @_numba_overload(lapack_dpotrf, jit_options={"cache": True})
+    def _lapack_dpotrf_compiled(matrix):
+        potrf = _NUMBA_LAPACK().numba_xxpotrf(_numba_types.float64)
+        kind = ord("d")
+        lower = ord("L")
+
+        def implementation(matrix):
+            n = matrix.shape[0]
+            factor = np.ascontiguousarray(matrix.T)
+            info = potrf(kind, lower, n, factor.ctypes, n)
+            return factor.T, int(info)
+
+        return implementation
