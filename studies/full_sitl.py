@@ -323,6 +323,9 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
         raise ConfigError(f"--timeout {timeout:g} s is too short: this flight needs at least "
                           f"{minimum_timeout(scenario, speed):.0f} s of wall time at x{speed:g}")
     check_faults(scenario, target_faults)
+    from studies.executors import compile_kernels
+
+    compile_kernels()  # here, once: the children then load numba's cache instead of compiling while the clock runs
     if scenario.swarm is not None:  # one plant and one companion per pursuer (studies.swarm_sitl)
         from studies.swarm_sitl import budget_for, check_swarm_run, run_swarm
 

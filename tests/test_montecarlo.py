@@ -241,3 +241,19 @@ def test_studies_fly_the_right_system_and_a_grid_keeps_each_scenarios_estimator(
     tasks = montecarlo.build_tasks(own, [montecarlo.SCENARIO_ESTIMATOR], ["hng"], [("default", {})], 1, None, 2.0)
     assert [t.labels["estimator"] for t in tasks] == ["ekf_rae", "imm"]
     assert [t.scenario.estimator.kind for t in tasks] == ["ekf_rae", "imm"]
+
+
+def test_the_parent_compiles_the_kernels_before_starting_workers():
+    """A local process pool (and bof-sitl) first compiles the plant's and the estimators' numba kernels in the
+    parent (or loads them from the cache), so the workers load the cache instead of each compiling for ~30 s."""
+    from companion.core import _jit as estimator_jit
+    from companion.core import estimators
+    from sitl_plant import _jit as plant_jit
+    from sitl_plant.vehicle import kernels
+    from studies.executors import compile_kernels
+
+    assert compile_kernels() >= 0.0
+    if plant_jit.ENABLED:
+        assert kernels.advance_steps.signatures and kernels.rk4_step.signatures
+    if estimator_jit.ENABLED:
+        assert estimators._correct_kernel.signatures and estimators._predict_kernel.signatures
