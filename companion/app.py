@@ -39,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
+from companion.core._jit import warm_up as warm_up_kernels
 from companion.adapters.mavsdk_vehicle import MavsdkVehicle, VehicleError
 from companion.adapters.recorder import RunRecorder, TlogWriter
 from companion.assembly import build_pipeline, build_sensor, pursuer_scenario
@@ -392,6 +393,10 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as error:
         print(f"companion: {error}", file=sys.stderr)
         return 2
+    # Compile (or load from numba's cache) the estimator kernels before any link is open. Done later, inside the
+    # event loop (build_estimator), it blocked odometry and fixes for the load time (0.3 s; ~30 s on an empty cache)
+    # and the fixes queued meanwhile were refused as future-stamped against the stalled vehicle clock.
+    warm_up_kernels()
     app = CompanionApp(scenario, vehicle_config, log_dir, args.mavlink, args.zenoh_connect, args.zenoh_listen, args.seed,
                        zenoh_tls=zenoh_tls, zenoh_namespace=args.zenoh_namespace, pursuer_id=args.pursuer_id)
 
