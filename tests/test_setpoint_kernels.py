@@ -178,6 +178,14 @@ def test_rotation_from_x_axis_to_is_the_old_one(vector, scale, special, directio
     assert_same(geometry.rotation_from_unit_x_axis_to(unit_los), python(geometry.rotation_from_unit_x_axis_to)(unit_los))
 
 
+@settings(max_examples=500, deadline=None)
+@given(vectors, st.floats(-300.0, 300.0))
+def test_norm_is_numpys(vector, exponent):
+    scaled = vector * 2.0**exponent
+    assert_same(geometry.norm(scaled), float(np.linalg.norm(scaled)))
+    assert type(geometry.norm(scaled)) is float and geometry.norm([3, 4, 0]) == 5.0
+
+
 @settings(max_examples=300, deadline=None)
 @given(finite, finite, finite)
 def test_clip_is_numpys(value, low, high):

@@ -43,6 +43,13 @@ def unit_finite(vector: np.ndarray) -> np.ndarray:
     return vector / norm
 
 
+def norm(vector: np.ndarray) -> float:
+    """|vector| of a float vector as np.linalg.norm computes it (sqrt(vector . vector)), without its per-call
+    cost (~2 us): the same dot and the same correctly rounded square root, the same bits."""
+    vector = np.asarray(vector, dtype=float)
+    return math.sqrt(vector @ vector)
+
+
 def clip(value: float, low: float, high: float) -> float:
     """np.clip(value, low, high) of a float (minimum(maximum(value, low), high), a NaN value stays NaN), without
     numpy's per-call cost; numba's np.clip takes no scalars."""
@@ -123,7 +130,7 @@ def relative_range_std(relative_position: np.ndarray, position_covariance: np.nd
     relative_position: dp = p^_T - p, m, (3,). position_covariance: P_pp of the target
     position estimate, m^2, (3, 3). Returns inf for |dp| = 0 (the range is then unknown).
     """
-    distance = float(np.linalg.norm(relative_position))
+    distance = norm(relative_position)
     if distance <= 1e-9:
         return float("inf")
     los = relative_position / distance

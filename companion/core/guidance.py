@@ -12,7 +12,7 @@ from typing import Protocol
 import numpy as np
 
 from companion.core._jit import jit
-from companion.core.geometry import (E_X, clip, cross, cross_kernel, rotation_about_y_kernel, rotation_about_z_kernel,
+from companion.core.geometry import (E_X, clip, cross, cross_kernel, norm, rotation_about_y_kernel, rotation_about_z_kernel,
                                      rotation_from_unit_x_axis_to, rotation_from_x_axis_to, unit, unit_kernel)
 
 
@@ -148,7 +148,7 @@ class RangeController:
 
     def error_state(self, relative_position: np.ndarray, relative_velocity: np.ndarray) -> RangeErrorState:
         """eq. (15)-(16) from dp = p^_T - p (m, (3,)) and dv = v^_T - v (m/s, (3,))."""
-        distance = float(np.linalg.norm(relative_position))
+        distance = norm(relative_position)
         return RangeErrorState(distance - self.desired_range, float(relative_position @ relative_velocity) / max(distance, 1e-6))
 
     def virtual_control(self, error: RangeErrorState) -> float:
@@ -171,7 +171,7 @@ class RangeController:
         Returns m/s^2, shape (3,).
         """
         error = self.error_state(relative_position, relative_velocity)
-        distance = float(np.linalg.norm(relative_position))
+        distance = norm(relative_position)
         u_star = (
             -distance * self.virtual_control(error)
             + float(relative_velocity @ relative_velocity)
