@@ -56,14 +56,14 @@ _warmed_up = False
 
 
 def warm_up() -> float:
-    """Compile every estimator kernel now (or load it from numba's cache on disk), once per process, so that no
-    estimator update waits for the compiler: the companion's first bearing in flight, a study's first flight.
+    """Compile every estimator and setpoint kernel now (or load it from numba's cache on disk), once per process,
+    so that no estimator update or control tick waits for the compiler: the companion's first bearing in flight, a study's first flight.
 
     numba compiles a kernel on its first call and caches the machine code next to the sources (or in
     NUMBA_CACHE_DIR): on a fresh install the first process pays the compilation, about 30 s of one core on the
     machine of issue 16, and later processes load the cache in about 0.3 s. This runs the u-PLKF and IMM
     updates once on made-up bearings (at and off the estimator's ticks, with adaptive process noise, both gain
-    forms), on throwaway estimators. Returns the seconds it took; 0 without numba (nothing to compile) and
+    forms), on throwaway estimators, then the control tick's setpoint kernels (_warm_up_setpoint). Returns the seconds it took; 0 without numba (nothing to compile) and
     after the first call in a process."""
     global _warmed_up
     if numba is None or _warmed_up:
@@ -88,8 +88,40 @@ def warm_up() -> float:
                                                      np.array([0.0, 0.01 * k, 0.0])))
             estimator.estimate
     limit_range(np.array([2.0e6, 0.0, 0.0]), np.zeros(3))  # the baseline estimators call it from Python
+    _warm_up_setpoint()
     _warmed_up = True
     return time.perf_counter() - started
+
+
+def power(base: float, exponent: float) -> float:
+    """base ** exponent of two floats, as Python computes it: the C library's pow (CPython's float power).
+
+    Compiled, numba would turn `x ** 2` into x * x, which differs from pow(x, 2.0) in the last bit for about
+    one argument in a thousand; this calls the C library's pow under its glibc alias `powf64` instead, a
+    symbol LLVM does not know, so it cannot fold it into a multiplication (the same routine CPython calls).
+    Where the C library has no `powf64` (not glibc), the compiled kernel calls `pow`, which LLVM may fold."""
+    return base ** exponent
+
+
+def _warm_up_setpoint() -> None:
+    """The control tick's kernels (companion.core.attitude, guidance, geometry) on made-up commands, with and
+    without a heading fallback, so that no setpoint in flight waits for the compiler."""
+    from companion.core.attitude import VehicleLimits, attitude_setpoint, collective_thrust, desired_rotation, limit_specific_force
+    from companion.core.geometry import rotation_from_x_axis_to
+    from companion.core.guidance import HelicalNavigationGuidance, RangeExcitation
+
+    limits = VehicleLimits(2.0 / 3.0, max_tilt=0.6, gravity=9.81, mass=1.0)
+    los = np.array([0.8, -0.36, -0.48])
+    velocity = np.array([2.0, 0.5, 0.0])
+    guidance = HelicalNavigationGuidance(3.0, 1.0, 1.0)
+    lateral = guidance.acceleration(1.0, velocity, los, 20.0)
+    guidance.virtual_los(1.0, los, 20.0)
+    lateral = lateral + RangeExcitation().acceleration(1.0, los, 0.5)
+    setpoint = attitude_setpoint(1.0, lateral, los, limits)
+    attitude_setpoint(1.02, lateral, los, limits, setpoint.rotation[:, 0])
+    flown = limit_specific_force(lateral, limits)
+    collective_thrust(flown, desired_rotation(flown, los, limits.gravity), limits.mass, limits.gravity)
+    rotation_from_x_axis_to(los)
 
 
 class _Interpreted:
@@ -123,6 +155,25 @@ def lapack_dpotrf(matrix: np.ndarray) -> tuple[np.ndarray, int]:
 
 
 if numba is not None:
+
+    def _libm_has(symbol: str) -> bool:
+        try:
+            import ctypes
+            import ctypes.util
+
+            return hasattr(ctypes.CDLL(ctypes.util.find_library("m") or "libm.so.6"), symbol)
+        except OSError:
+            return False
+
+    _C_POW = _numba_types.ExternalFunction("powf64" if _libm_has("powf64") else "pow",
+                                          _numba_types.float64(_numba_types.float64, _numba_types.float64))
+
+    @_numba_overload(power, jit_options={"cache": True})
+    def _power_compiled(base, exponent):
+        def implementation(base, exponent):
+            return _C_POW(float(base), float(exponent))
+
+        return implementation
 
     @_numba_overload(lapack_dgesv, jit_options={"cache": True})
     def _lapack_dgesv_compiled(matrix, rhs):

@@ -10,10 +10,12 @@ SET_ATTITUDE_TARGET. The torque loop of eq. (23)-(24) belongs to the autopilot
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
-from companion.core.geometry import E_Z, cross, unit
+from companion.core._jit import jit, power
+from companion.core.geometry import E_Z, clip_kernel, cross_kernel, unit_kernel
 from companion.core.messages import AttitudeSetpoint
 
 
@@ -53,6 +55,15 @@ class VehicleLimits:
         """Largest thrust / mass guidance may ask for, m/s^2."""
         return self.thrust_headroom * self.gravity / self.hover_thrust_normalized
 
+    @cached_property
+    def kernel_terms(self) -> tuple[float, float, float, float, float, float]:
+        """The limits as the setpoint kernels take them: (g, max specific force, its square, horizontal margin
+        specific force, minimum vertical specific force, tan(max tilt)). The square is Python's `**` (the C
+        library's pow) and tan numpy's (its SIMD tan differs from the C library's in the last bit)."""
+        maximum = self.max_specific_force
+        return (float(self.gravity), float(maximum), float(maximum**2), float(self.horizontal_margin_specific_force),
+                float(self.min_vertical_specific_force), float(np.tan(self.max_tilt)))
+
     @property
     def horizontal_margin_specific_force(self) -> float:
         """Horizontal specific force (m/s^2) the vertical part may never take away, at most the maximum."""
@@ -68,23 +79,32 @@ def limit_specific_force(acceleration: np.ndarray, limits: VehicleLimits) -> np.
     part (never below min_vertical_specific_force). The horizontal part is then scaled down to
     respect both the tilt limit (|f_h| <= f_z tan(max_tilt)) and the total-thrust limit
     (|f| <= max_specific_force). The horizontal direction is kept.
-    acceleration: m/s^2, NED, shape (3,). Returns m/s^2, shape (3,).
+    acceleration: m/s^2, NED, shape (3,). Returns m/s^2, shape (3,). The arithmetic is
+    _limited_acceleration's (eq. 21), compiled with numba when installed.
     """
-    force = limits.gravity * E_Z - np.asarray(acceleration, dtype=float)
+    return _limited_acceleration_kernel(np.asarray(acceleration, dtype=float), *_limit_terms(limits))
+
+
+def _limit_terms(limits: VehicleLimits) -> tuple[float, float, float, float, float, float]:
+    """The limits as the kernels take them (computed once per VehicleLimits: it is frozen)."""
+    return limits.kernel_terms
+
+
+def _limited_acceleration(acceleration, gravity, max_specific_force, max_specific_force_squared,
+                          horizontal_margin, min_vertical, tan_max_tilt):
+    """limit_specific_force's arithmetic (eq. 21) on float64 (3,) a_d and the limits as floats (_limit_terms)."""
+    force = gravity * E_Z - acceleration
     horizontal = force[:2]
     horizontal_norm = float(np.hypot(horizontal[0], horizontal[1]))
-    reserved = min(horizontal_norm, limits.horizontal_margin_specific_force)
-    vertical_max = max(float(np.sqrt(max(limits.max_specific_force**2 - reserved**2, 0.0))),
-                       limits.min_vertical_specific_force)
-    vertical = float(np.clip(force[2], limits.min_vertical_specific_force, vertical_max))
-    horizontal_limit = min(
-        vertical * np.tan(limits.max_tilt),
-        float(np.sqrt(max(limits.max_specific_force**2 - vertical**2, 0.0))),
-    )
+    reserved = min(horizontal_norm, horizontal_margin)
+    vertical_max = max(float(np.sqrt(max(max_specific_force_squared - power(reserved, 2.0), 0.0))), min_vertical)
+    vertical = clip_kernel(float(force[2]), min_vertical, vertical_max)
+    horizontal_limit = min(vertical * tan_max_tilt,
+                           float(np.sqrt(max(max_specific_force_squared - power(vertical, 2.0), 0.0))))
     if horizontal_norm > horizontal_limit:
         horizontal = horizontal * (horizontal_limit / horizontal_norm)
     limited_force = np.array([horizontal[0], horizontal[1], vertical])
-    return limits.gravity * E_Z - limited_force
+    return gravity * E_Z - limited_force
 
 
 def desired_rotation(acceleration: np.ndarray, los: np.ndarray, gravity: float, heading_fallback: np.ndarray | None = None) -> np.ndarray:
@@ -97,22 +117,61 @@ def desired_rotation(acceleration: np.ndarray, los: np.ndarray, gravity: float, 
     below or above) the heading is undefined; heading_fallback (a forward direction,
     e.g. the previous setpoint's r1) is used instead, else north.
     acceleration: a_d, m/s^2 (3,). los: lambda (3,). Returns shape (3, 3), body FRD -> NED.
+    The arithmetic is _rotation's, compiled with numba when installed.
     """
-    thrust_axis = unit(gravity * E_Z - np.asarray(acceleration, dtype=float))
-    right = cross(thrust_axis, los)
-    if np.linalg.norm(right) < 1e-6 * max(float(np.linalg.norm(los)), 1e-12):
-        forward_hint = np.array([1.0, 0.0, 0.0]) if heading_fallback is None else np.asarray(heading_fallback, float)
-        right = cross(thrust_axis, forward_hint)
-        if np.linalg.norm(right) < 1e-9:
-            right = cross(thrust_axis, np.array([1.0, 0.0, 0.0]))
-    right = unit(right)
-    forward = cross(right, thrust_axis)
-    return np.column_stack([forward, right, thrust_axis])
+    fallback = _NORTH if heading_fallback is None else np.ascontiguousarray(heading_fallback, dtype=float)
+    return _rotation_kernel(np.asarray(acceleration, dtype=float), np.asarray(los, dtype=float), float(gravity), fallback)
+
+
+_NORTH = np.array([1.0, 0.0, 0.0])
+
+
+def _rotation(acceleration, los, gravity, heading_fallback):
+    """desired_rotation's arithmetic (section VII, Fig. 7) on float64 arrays; heading_fallback (3,) is north when
+    the caller has none. |x| is sqrt(x @ x), what np.linalg.norm computes for a vector."""
+    thrust_axis = unit_kernel(gravity * E_Z - acceleration)
+    right = cross_kernel(thrust_axis, los)
+    if np.sqrt(right @ right) < 1e-6 * max(np.sqrt(los @ los), 1e-12):
+        right = cross_kernel(thrust_axis, heading_fallback)
+        if np.sqrt(right @ right) < 1e-9:
+            right = cross_kernel(thrust_axis, np.array([1.0, 0.0, 0.0]))
+    right = unit_kernel(right)
+    forward = cross_kernel(right, thrust_axis)
+    rotation = np.empty((3, 3))
+    rotation[:, 0] = forward
+    rotation[:, 1] = right
+    rotation[:, 2] = thrust_axis
+    return rotation
 
 
 def collective_thrust(acceleration: np.ndarray, rotation: np.ndarray, mass: float, gravity: float) -> float:
     """T = m e_Z^T R_d^T (g e_Z - a_d), eq. (22); newtons."""
-    return float(mass * rotation[:, 2] @ (gravity * E_Z - np.asarray(acceleration, dtype=float)))
+    return float(_thrust_kernel(np.asarray(acceleration, dtype=float), np.ascontiguousarray(rotation, dtype=float),
+                                float(mass), float(gravity)))
+
+
+def _thrust(acceleration, rotation, mass, gravity):
+    """collective_thrust's arithmetic, eq. (22), on float64 arrays; newtons."""
+    return mass * rotation[:, 2] @ (gravity * E_Z - acceleration)
+
+
+def _setpoint(acceleration, los, heading_fallback, gravity, max_specific_force, max_specific_force_squared,
+              horizontal_margin, min_vertical, tan_max_tilt, mass, hover_thrust_normalized):
+    """eq. (21)-(22) in one kernel: (flown a_d (3,), R_d (3, 3), T N, normalised thrust) from float64 a_d (3,),
+    lambda (3,), the heading fallback (3,) and the limits as floats (_limit_terms, mass, hover thrust)."""
+    flown = _limited_acceleration_kernel(acceleration, gravity, max_specific_force, max_specific_force_squared,
+                                         horizontal_margin, min_vertical, tan_max_tilt)
+    rotation = _rotation_kernel(flown, los, gravity, heading_fallback)
+    thrust = _thrust_kernel(flown, rotation, mass, gravity)
+    specific_force = thrust / mass
+    thrust_normalized = clip_kernel(specific_force / gravity * hover_thrust_normalized, 0.0, 1.0)
+    return flown, rotation, thrust, thrust_normalized
+
+
+_limited_acceleration_kernel = jit(_limited_acceleration)
+_rotation_kernel = jit(_rotation)
+_thrust_kernel = jit(_thrust)
+_setpoint_kernel = jit(_setpoint)
 
 
 def attitude_setpoint(
@@ -126,10 +185,11 @@ def attitude_setpoint(
 
     The normalised thrust is T / (m g) * hover_thrust_normalized, i.e. specific force
     over g times hover thrust (linear thrust curve); the quaternion is [w, x, y, z].
+    The arithmetic is _setpoint's (limit_specific_force, desired_rotation, collective_thrust), compiled with
+    numba when installed.
     """
-    flown = limit_specific_force(acceleration, limits)
-    rotation = desired_rotation(flown, los, limits.gravity, heading_fallback)
-    thrust = collective_thrust(flown, rotation, limits.mass, limits.gravity)
-    specific_force = thrust / limits.mass
-    thrust_normalized = float(np.clip(specific_force / limits.gravity * limits.hover_thrust_normalized, 0.0, 1.0))
-    return AttitudeSetpoint(time, rotation, thrust_normalized, thrust, flown)
+    fallback = _NORTH if heading_fallback is None else np.ascontiguousarray(heading_fallback, dtype=float)
+    flown, rotation, thrust, thrust_normalized = _setpoint_kernel(
+        np.asarray(acceleration, dtype=float), np.asarray(los, dtype=float), fallback, *_limit_terms(limits),
+        float(limits.mass), float(limits.hover_thrust_normalized))
+    return AttitudeSetpoint(time, rotation, float(thrust_normalized), float(thrust), flown)

@@ -11,7 +11,9 @@ from typing import Protocol
 
 import numpy as np
 
-from companion.core.geometry import E_X, cross, rotation_about_y, rotation_about_z, rotation_from_x_axis_to, unit
+from companion.core._jit import jit
+from companion.core.geometry import (E_X, clip, cross, cross_kernel, norm, rotation_about_y_kernel, rotation_about_z_kernel,
+                                     rotation_from_unit_x_axis_to, rotation_from_x_axis_to, unit, unit_kernel)
 
 
 class LateralGuidance(Protocol):
@@ -67,19 +69,41 @@ class HelicalNavigationGuidance:
     scale_with_range: bool = True
 
     def virtual_los(self, engaged_time: float, los: np.ndarray, range_estimate: float) -> np.ndarray:
-        """R_eta R_Z R_Y e_X of eq. (14); unit vector, shape (3,)."""
-        scale = 1.0 / max(range_estimate, 1e-3) if self.scale_with_range else 1.0
-        phase = self.weave_frequency * engaged_time
-        rotation_z = rotation_about_z(self.c_z * np.sin(phase) * scale)
-        rotation_y = rotation_about_y(self.c_y * np.cos(phase) * scale)
-        return rotation_from_x_axis_to(los) @ rotation_z @ rotation_y @ E_X
+        """R_eta R_Z R_Y e_X of eq. (14); unit vector, shape (3,). The arithmetic is _virtual_los's."""
+        return _virtual_los_kernel(float(engaged_time), np.asarray(los, dtype=float), float(range_estimate),
+                                   float(self.c_z), float(self.c_y), float(self.weave_frequency),
+                                   bool(self.scale_with_range))
 
     def acceleration(self, engaged_time: float, velocity: np.ndarray, los: np.ndarray, range_estimate: float,
                      relative_velocity: np.ndarray | None = None) -> np.ndarray:
-        """Lateral command a_HN, eq. (14). velocity m/s (3,), los unit (3,), range m. Returns m/s^2 (3,)."""
-        los = unit(los)
-        virtual = self.virtual_los(engaged_time, los, range_estimate)
-        return self.navigation_gain * cross(cross(velocity, virtual), los)
+        """Lateral command a_HN, eq. (14). velocity m/s (3,), los unit (3,), range m. Returns m/s^2 (3,).
+        The arithmetic is _helical_acceleration's, compiled with numba when installed."""
+        return _helical_acceleration_kernel(float(engaged_time), np.asarray(velocity, dtype=float),
+                                            np.asarray(los, dtype=float), float(range_estimate), self.navigation_gain,
+                                            float(self.c_z), float(self.c_y), float(self.weave_frequency),
+                                   bool(self.scale_with_range))
+
+
+def _virtual_los(engaged_time, los, range_estimate, c_z, c_y, weave_frequency, scale_with_range):
+    """R_eta R_Z R_Y e_X of eq. (14) (HelicalNavigationGuidance.virtual_los) on floats and a float64 (3,) los."""
+    scale = 1.0 / max(range_estimate, 1e-3) if scale_with_range else 1.0
+    phase = weave_frequency * engaged_time
+    rotation_z = rotation_about_z_kernel(c_z * np.sin(phase) * scale)
+    rotation_y = rotation_about_y_kernel(c_y * np.cos(phase) * scale)
+    return rotation_from_unit_x_axis_to(unit_kernel(los)) @ rotation_z @ rotation_y @ E_X
+
+
+def _helical_acceleration(engaged_time, velocity, los, range_estimate, navigation_gain, c_z, c_y, weave_frequency,
+                          scale_with_range):
+    """a_HN = N (v x R_eta R_Z R_Y e_X) x lambda, eq. (14) (HelicalNavigationGuidance.acceleration), on floats and
+    float64 (3,) velocity and line of sight (normalised here)."""
+    los = unit_kernel(los)
+    virtual = _virtual_los_kernel(engaged_time, los, range_estimate, c_z, c_y, weave_frequency, scale_with_range)
+    return navigation_gain * cross_kernel(cross_kernel(velocity, virtual), los)
+
+
+_virtual_los_kernel = jit(_virtual_los)
+_helical_acceleration_kernel = jit(_helical_acceleration)
 
 
 def saturation(x: float, limit: float = 3.0) -> float:
@@ -124,7 +148,7 @@ class RangeController:
 
     def error_state(self, relative_position: np.ndarray, relative_velocity: np.ndarray) -> RangeErrorState:
         """eq. (15)-(16) from dp = p^_T - p (m, (3,)) and dv = v^_T - v (m/s, (3,))."""
-        distance = float(np.linalg.norm(relative_position))
+        distance = norm(relative_position)
         return RangeErrorState(distance - self.desired_range, float(relative_position @ relative_velocity) / max(distance, 1e-6))
 
     def virtual_control(self, error: RangeErrorState) -> float:
@@ -147,7 +171,7 @@ class RangeController:
         Returns m/s^2, shape (3,).
         """
         error = self.error_state(relative_position, relative_velocity)
-        distance = float(np.linalg.norm(relative_position))
+        distance = norm(relative_position)
         u_star = (
             -distance * self.virtual_control(error)
             + float(relative_velocity @ relative_velocity)
@@ -224,7 +248,7 @@ class RangeExcitation:
         """s in [0, 1] from rho = sigma_r / r^ (dimensionless) and the health verdict (see class)."""
         if suspect or not np.isfinite(relative_range_std):
             return 1.0
-        return float(np.clip((relative_range_std - self.low) / (self.high - self.low), 0.0, 1.0))
+        return float(clip((relative_range_std - self.low) / (self.high - self.low), 0.0, 1.0))
 
     def peak_acceleration(self, level: float = 1.0) -> float:
         """|a_X| = s V_X sqrt(N^2 + w^2), m/s^2 (constant in time)."""
@@ -234,12 +258,23 @@ class RangeExcitation:
         """a_X = s V_X (N u + w u_perp), m/s^2, shape (3,); perpendicular to the unit line of sight los (3,).
 
         engaged_time: s since the first bearing. level: s in [0, 1].
+        The arithmetic is _excitation_acceleration's, compiled with numba when installed.
         """
-        if level <= 0.0:
-            return np.zeros(3)
-        basis = rotation_from_x_axis_to(unit(los))
-        phase = self.frequency * engaged_time
-        cos_phase, sin_phase = np.cos(phase), np.sin(phase)
-        direction = cos_phase * basis[:, 1] + sin_phase * basis[:, 2]
-        turning = -sin_phase * basis[:, 1] + cos_phase * basis[:, 2]
-        return level * self.speed * (self.damping_gain * direction + self.frequency * turning)
+        return _excitation_acceleration_kernel(float(engaged_time), np.asarray(los, dtype=float), float(level),
+                                               float(self.speed), float(self.damping_gain), float(self.frequency))
+
+
+def _excitation_acceleration(engaged_time, los, level, speed, damping_gain, frequency):
+    """a_X = s V_X (N u + w u_perp) of RangeExcitation.acceleration on floats and a float64 (3,) line of sight
+    (normalised here, then once more as rotation_from_x_axis_to does)."""
+    if level <= 0.0:
+        return np.zeros(3)
+    basis = rotation_from_unit_x_axis_to(unit_kernel(unit_kernel(los)))
+    phase = frequency * engaged_time
+    cos_phase, sin_phase = np.cos(phase), np.sin(phase)
+    direction = cos_phase * basis[:, 1] + sin_phase * basis[:, 2]
+    turning = -sin_phase * basis[:, 1] + cos_phase * basis[:, 2]
+    return level * speed * (damping_gain * direction + frequency * turning)
+
+
+_excitation_acceleration_kernel = jit(_excitation_acceleration)

@@ -17,7 +17,7 @@ import numpy as np
 from companion.core.attitude import VehicleLimits, attitude_setpoint
 from companion.core.cooperative_guidance import CooperativeContext, SeparationFilter, neighbours_make_range_observable
 from companion.core.estimators import CorrectionReport, InitialGuess, TargetEstimator
-from companion.core.geometry import relative_range_std, unit
+from companion.core.geometry import norm, relative_range_std, unit
 from companion.core.guidance import LateralGuidance, RangeController, RangeExcitation
 from companion.core.health import (
     HealthAction,
@@ -536,7 +536,7 @@ class FollowingPipeline:
         estimate = self.estimator.estimate.extrapolated(time)
         relative_position = estimate.position - pursuer.position
         relative_velocity = estimate.velocity - pursuer.velocity
-        range_estimate = float(np.linalg.norm(relative_position))
+        range_estimate = norm(relative_position)
         if self.los_source == "measurement" and self._last_bearing is not None:
             los = self._last_bearing
         else:
@@ -581,7 +581,7 @@ class FollowingPipeline:
         if self._last_command is not None and time < self._blend_until:
             step_limit = self.dropout.max_jerk * self.control_period
             change = command - self._last_command
-            size = float(np.linalg.norm(change))
+            size = norm(change)
             if size > step_limit:
                 command = self._last_command + change * (step_limit / size)
         if self.cooperation is not None and self.cooperation.separation is not None and neighbours:
