@@ -111,3 +111,18 @@ def desired_attitude(acceleration: np.ndarray, los: np.ndarray, gravity: float) 
     thrust_axis = thrust_axis / np.linalg.norm(thrust_axis)
     rotation, _ = Rotation.align_vectors([thrust_axis, los / np.linalg.norm(los)], [E_Z, E_X], weights=[np.inf, 1.0])
     return rotation
+
+
+def symmetric_with_eigenvalues(seed: int, values: np.ndarray, exponent: int, kind: str) -> np.ndarray:
+    """Q diag(l) Q^T for a random rotation Q (scipy's special_ortho_group, seeded), l = values 10^exponent;
+    kind "any": those signs; "psd_singular": |l| + 10^exponent with l_0 = 0 exactly; "tiny_negative": the same
+    with l_0 = -1e-15 of the largest. Symmetrised to the last bit. For positive-semidefinite decisions."""
+    from scipy.stats import special_ortho_group
+
+    rotation = special_ortho_group.rvs(len(values), random_state=np.random.default_rng(seed))
+    eigenvalues = values * 10.0**exponent
+    if kind != "any":
+        eigenvalues = np.abs(eigenvalues) + 10.0**exponent
+        eigenvalues[0] = 0.0 if kind == "psd_singular" else -1e-15 * eigenvalues.max()
+    matrix = rotation @ np.diag(eigenvalues) @ rotation.T
+    return 0.5 * (matrix + matrix.T)

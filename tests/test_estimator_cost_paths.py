@@ -18,8 +18,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from estimator_cost_sequences import REFERENCE, estimators, reference_runs
 from hypothesis.extra.numpy import arrays
-from paper_reference import floats, unit_vectors
-from scipy.stats import special_ortho_group
+from paper_reference import floats, symmetric_with_eigenvalues, unit_vectors
 
 from companion.core.estimators import (SHORTCUT_EIGENVALUE_BAND, _is_positive_semidefinite, _projector,
                                        _projector_pseudo_inverse, _solve_identity)
@@ -81,13 +80,7 @@ def test_positive_semidefinite_check_is_eigvalsh_decision(seed, values, exponent
     below 1e-13 of the largest), where eigvalsh's own sign is rounding noise. Matrices
     Q diag(l) Q^T with random rotations: any signs, exactly one zero eigenvalue (PSD singular: Cholesky
     fails, so the decision is eigvalsh's own), one eigenvalue -1e-15 of the largest."""
-    rotation = special_ortho_group.rvs(6, random_state=np.random.default_rng(seed))
-    eigenvalues = values * 10.0**exponent
-    if kind != "any":
-        eigenvalues = np.abs(eigenvalues) + 10.0**exponent
-        eigenvalues[0] = 0.0 if kind == "psd_singular" else -1e-15 * eigenvalues.max()
-    matrix = rotation @ np.diag(eigenvalues) @ rotation.T
-    matrix = 0.5 * (matrix + matrix.T)
+    matrix = symmetric_with_eigenvalues(seed, values, exponent, kind)
     smallest, largest = np.linalg.eigvalsh(matrix)[[0, -1]]
     decision = _is_positive_semidefinite(matrix)
     if decision != (not smallest < 0.0):

@@ -28,7 +28,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
-from paper_reference import floats, unit_vectors
+from paper_reference import floats, symmetric_with_eigenvalues, unit_vectors
 from scipy.stats import special_ortho_group
 
 from companion.core import _jit
@@ -119,13 +119,7 @@ def test_lapack_solve_of_an_exactly_singular_matrix():
        st.sampled_from(["any", "psd_singular", "tiny_negative"]))
 def test_positive_semidefinite_check(seed, values, exponent, kind):
     """Cholesky (compiled dpotrf) and its eigvalsh fallback (object mode) decide as the Python function."""
-    rotation = special_ortho_group.rvs(6, random_state=np.random.default_rng(seed))
-    eigenvalues = values * 10.0**exponent
-    if kind != "any":
-        eigenvalues = np.abs(eigenvalues) + 10.0**exponent
-        eigenvalues[0] = 0.0 if kind == "psd_singular" else -1e-15 * eigenvalues.max()
-    matrix = rotation @ np.diag(eigenvalues) @ rotation.T
-    matrix = 0.5 * (matrix + matrix.T)
+    matrix = symmetric_with_eigenvalues(seed, values, exponent, kind)
     assert uplkf._is_positive_semidefinite(matrix) == python(uplkf._is_positive_semidefinite)(matrix)
     factor, info = compiled_dpotrf(matrix)
     reference, reference_info = _jit.lapack_dpotrf(matrix)

@@ -21,7 +21,6 @@ without numba it is an empty context manager, so the block simply runs.
 from __future__ import annotations
 
 import os
-import time
 
 import numpy as np
 from scipy.linalg.lapack import dgesv as _scipy_dgesv, dpotrf as _scipy_dpotrf
@@ -55,7 +54,7 @@ def python_function(kernel):
 _warmed_up = False
 
 
-def warm_up() -> float:
+def warm_up() -> None:
     """Compile every estimator and setpoint kernel now (or load it from numba's cache on disk), once per process,
     so that no estimator update or control tick waits for the compiler: the companion's first bearing in flight, a study's first flight.
 
@@ -63,12 +62,12 @@ def warm_up() -> float:
     NUMBA_CACHE_DIR): on a fresh install the first process pays the compilation, about 30 s of one core on the
     machine of issue 16, and later processes load the cache in about 0.3 s. This runs the u-PLKF and IMM
     updates once on made-up bearings (at and off the estimator's ticks, with adaptive process noise, both gain
-    forms), on throwaway estimators, then the control tick's setpoint kernels (_warm_up_setpoint). Returns the seconds it took; 0 without numba (nothing to compile) and
-    after the first call in a process."""
+    forms), on throwaway estimators, then the control tick's setpoint kernels (_warm_up_setpoint). Nothing to do
+    without numba or after the first call in a process. No clock here (the core has none): callers time it
+    (studies.executors.compile_kernels)."""
     global _warmed_up
     if numba is None or _warmed_up:
-        return 0.0
-    started = time.perf_counter()
+        return
     from companion.core.estimators import AdaptiveNoiseSettings, GainProjection, InitialGuess, UPLKF, limit_range
     from companion.core.imm import IMMEstimator, standard_models
     from companion.core.messages import BearingMeasurement
@@ -90,7 +89,6 @@ def warm_up() -> float:
     limit_range(np.array([2.0e6, 0.0, 0.0]), np.zeros(3))  # the baseline estimators call it from Python
     _warm_up_setpoint()
     _warmed_up = True
-    return time.perf_counter() - started
 
 
 def power(base: float, exponent: float) -> float:
