@@ -13,7 +13,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.core._jit import warm_up
 from companion.core.attitude import VehicleLimits
 from interfaces.scenario import (ConfigError, EstimatorConfig, GuidanceConfig, PursuerStart, Scenario, SensorConfig,
                                  VehicleConfig)
@@ -144,10 +143,8 @@ ESTIMATORS: dict[str, Callable[[EstimatorSettings], TargetEstimator]] = {
 
 def build_estimator(scenario: Scenario) -> TargetEstimator:
     """The estimator of the scenario's [estimator] section: the u-PLKF or a baseline of section VIII-B.
-    Its compiled kernels are ready before it returns (companion.core._jit.warm_up, once per process: numba's
-    first compilation after an install takes about 30 s, a cache load about 0.3 s; nothing without numba),
-    so no update waits for the compiler in flight."""
-    warm_up()
+    (The companion compiles the kernels before it opens any link, `companion.app`; studies before they start
+    workers, `studies.executors.compile_kernels`; elsewhere numba compiles each kernel on its first call.)"""
     settings = scenario.estimator
     derived = EstimatorSettings(scenario, period=1.0 / settings.rate_hz,
                                 process_noise=settings.process_noise * np.eye(3),
