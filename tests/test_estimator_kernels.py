@@ -150,6 +150,17 @@ def test_limit_range(direction, pursuer, distance):
 
 
 @settings(max_examples=150, deadline=None)
+@given(seeds, arrays(np.float64, (6, 6), elements=st.integers(-8, 8)))
+def test_estimate_stds_are_numpys_trace(seed, exponents):
+    """TargetEstimate's position_std / velocity_std add the diagonal term by term: the same float as
+    sqrt(max(np.trace(block), 0) / 3) (numpy's trace sums left to right), negative traces clipped to 0."""
+    from companion.core.messages import TargetEstimate
+    covariance = np.random.default_rng(seed).standard_normal((6, 6)) * 10.0**exponents
+    estimate = TargetEstimate(0.0, np.zeros(3), np.zeros(3), covariance)
+    assert estimate.position_std == math.sqrt(max(float(np.trace(covariance[:3, :3])), 0.0) / 3.0)
+    assert estimate.velocity_std == math.sqrt(max(float(np.trace(covariance[3:, 3:])), 0.0) / 3.0)
+
+
 @given(seeds, st.integers(-4, 8), unit_vectors(), floats(-0.5, 0.5), st.booleans())
 def test_joseph_update(seed, exponent, direction, lead, at_tick):
     rng = np.random.default_rng(seed)
