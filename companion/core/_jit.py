@@ -20,6 +20,7 @@ without numba it is an empty context manager, so the block simply runs.
 
 from __future__ import annotations
 
+import math
 import os
 
 import numpy as np
@@ -136,6 +137,41 @@ class _Interpreted:
 
 
 objmode = numba.objmode if numba is not None else _Interpreted()
+
+
+@jit
+def _all_finite(matrix: np.ndarray) -> bool:
+    """Every entry of a float64 matrix (n, n) finite (no NaN, no infinity)."""
+    for i in range(matrix.shape[0]):
+        for j in range(matrix.shape[1]):
+            if not math.isfinite(matrix[i, j]):
+                return False
+    return True
+
+
+@jit
+def symmetric_eigen(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """numpy.linalg.eigh(matrix) of a symmetric float64 matrix (n, n): (eigenvalues ascending (n,), orthonormal
+    eigenvectors as columns (n, n)), LAPACK dsyevd on the lower triangle. Compiled, numba's np.linalg.eigh: the
+    same routine (jobz V, uplo L) through scipy's LAPACK, numpy's bits (tests/test_diagnostic_kernels.py). A
+    matrix with a NaN or an infinity, which numba refuses, goes to numpy's eigh in object mode."""
+    if _all_finite(matrix):
+        return np.linalg.eigh(matrix)
+    with objmode(values="float64[:]", vectors="float64[:, :]"):
+        values, vectors = np.linalg.eigh(matrix)
+    return values, vectors
+
+
+@jit
+def symmetric_eigenvalues(matrix: np.ndarray) -> np.ndarray:
+    """numpy.linalg.eigvalsh(matrix) of a symmetric float64 matrix (n, n): the eigenvalues ascending (n,), LAPACK
+    dsyevd without vectors on the lower triangle; compiled, numba's np.linalg.eigvalsh (the same routine, jobz N,
+    uplo L, through scipy's LAPACK), and numpy's in object mode for a matrix with a NaN or an infinity."""
+    if _all_finite(matrix):
+        return np.linalg.eigvalsh(matrix)
+    with objmode(values="float64[:]"):
+        values = np.linalg.eigvalsh(matrix)
+    return values
 
 
 def lapack_dgesv(matrix: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:

@@ -69,6 +69,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2
 
+from companion.core._jit import jit, symmetric_eigen
 from companion.core.geometry import relative_range_std
 
 
@@ -86,10 +87,42 @@ REASONS = ("nis", "range_uncertain", "behind_sensor", "range_implausible", "rang
 
 def normalized_innovation_squared(innovation: np.ndarray, covariance: np.ndarray) -> float:
     """eps = y^T S^+ y (dimensionless): y the innovation (m,), S its covariance (m, m), S^+ its
-    Moore-Penrose inverse (S may be singular: the u-PLKF's bearing pseudo-measurement is rank 2 in 3-D)."""
+    Moore-Penrose inverse (S may be singular: the u-PLKF's bearing pseudo-measurement is rank 2 in 3-D).
+
+    S^+ is numpy.linalg.pinv(S, rcond=1e-10, hermitian=True), computed by the kernel
+    _normalized_innovation_squared in numpy's own order (compiled when numba is present). ValueError
+    unless y is (m,) and S (m, m); m = 0 gives 0."""
     y = np.asarray(innovation, dtype=float)
     s = np.asarray(covariance, dtype=float)
-    return float(y @ np.linalg.pinv(s, rcond=1e-10, hermitian=True) @ y)
+    if y.ndim != 1 or s.shape != (y.shape[0], y.shape[0]):
+        raise ValueError(f"need an innovation (m,) and its covariance (m, m), got {y.shape} and {s.shape}")
+    if y.shape[0] == 0:
+        return 0.0
+    return float(_normalized_innovation_squared(np.ascontiguousarray(y), np.ascontiguousarray(s)))
+
+
+@jit
+def _normalized_innovation_squared(innovation: np.ndarray, covariance: np.ndarray) -> float:
+    """y^T S^+ y with S^+ = numpy.linalg.pinv(S, rcond=1e-10, hermitian=True), numpy's operations in numpy's
+    order (numpy/linalg/_linalg.py: svd(hermitian=True), then pinv), so the same bits compiled and not:
+    S = U diag(w) U^T (eigh); singular values |w| in descending order (a stable argsort of |w|, reversed),
+    their signs moved into V^T = (U sign(w))^T; 1/s for s > 1e-10 max(s), 0 otherwise; S^+ = V diag(1/s) U^T
+    as (U sign(w)) @ ((1/s)[:, None] * U^T); then (y @ S^+) @ y. innovation: y (m,), covariance: S (m, m),
+    m >= 1, float64 C-contiguous."""
+    values, vectors = symmetric_eigen(covariance)
+    signs = np.copysign(1.0, values)
+    singular = np.abs(values)
+    order = np.argsort(singular)[::-1]
+    singular = singular[order]
+    signs = signs[order]
+    vectors = vectors[:, order]
+    cutoff = 1e-10 * np.max(singular)
+    inverse = np.zeros(singular.shape[0])
+    for k in range(singular.shape[0]):
+        if singular[k] > cutoff:
+            inverse[k] = 1.0 / singular[k]
+    pseudo_inverse = (vectors * signs) @ (inverse[:, None] * vectors.T)
+    return innovation @ pseudo_inverse @ innovation
 
 
 @dataclass(frozen=True)
