@@ -63,7 +63,8 @@ def warm_up() -> None:
     NUMBA_CACHE_DIR): on a fresh install the first process pays the compilation, about 30 s of one core on the
     machine of issue 16, and later processes load the cache in about 0.3 s. This runs the u-PLKF and IMM
     updates once on made-up bearings (at and off the estimator's ticks, with adaptive process noise, both gain
-    forms), on throwaway estimators, then the control tick's setpoint kernels (_warm_up_setpoint). Nothing to do
+    forms), on throwaway estimators, then the control tick's setpoint kernels (_warm_up_setpoint) and the bearing
+    path's diagnostics (_warm_up_diagnostics). Nothing to do
     without numba or after the first call in a process. No clock here (the core has none): callers time it
     (studies.executors.compile_kernels)."""
     global _warmed_up
@@ -89,6 +90,7 @@ def warm_up() -> None:
             estimator.estimate
     limit_range(np.array([2.0e6, 0.0, 0.0]), np.zeros(3))  # the baseline estimators call it from Python
     _warm_up_setpoint()
+    _warm_up_diagnostics()
     _warmed_up = True
 
 
@@ -121,6 +123,29 @@ def _warm_up_setpoint() -> None:
     flown = limit_specific_force(lateral, limits)
     collective_thrust(flown, desired_rotation(flown, los, limits.gravity), limits.mass, limits.gravity)
     rotation_from_x_axis_to(los)
+
+
+def _warm_up_diagnostics() -> None:
+    """The bearing path's diagnostic kernels (companion.core.health, observability, pipeline): the NIS of a 3-D
+    rank-2 and a 2-D innovation, the windowed FIM's add and measure, the health monitor's update and the
+    re-acquisition gate, on made-up numbers, so that no bearing in flight waits for the compiler."""
+    from companion.core.geometry import relative_range_std
+    from companion.core.health import HealthMonitor, normalized_innovation_squared
+    from companion.core.observability import WindowedObservability
+    from companion.core.pipeline import _gate_terms
+
+    los = np.array([0.8, -0.36, -0.48])
+    across = np.eye(3) - np.outer(los, los)
+    normalized_innovation_squared(across @ np.array([0.1, 0.2, 0.3]), 1e-4 * across)
+    normalized_innovation_squared(np.array([0.01, -0.02]), np.array([[2e-4, 1e-5], [1e-5, 3e-4]]))
+    observability = WindowedObservability(1.0, 0.01)
+    for k in range(3):
+        observability.add(0.6 * k, np.array([0.6, 0.8, 0.0]) if k % 2 else los, 20.0)
+        observability.measure()
+    HealthMonitor().update(0.0, los, np.zeros(3), np.ones(3), 20.0 * los, np.eye(6), across @ np.ones(3),
+                           1e-4 * across, 2, False, 100.0)
+    relative_range_std(20.0 * los, np.eye(3))
+    _gate_terms(20.0 * los, 20.0, los, np.eye(3), 0.01)
 
 
 class _Interpreted:
