@@ -16,6 +16,11 @@ scipy.linalg.lapack's wrappers (what the u-PLKF called before it had kernels); c
 binding of the very same routine (scipy's cython_lapack). `objmode` runs a block in the interpreter
 from a compiled kernel (the rare general branches that call scipy or numpy routines numba lacks);
 without numba it is an empty context manager, so the block simply runs.
+
+`symmetric_eigen` and `symmetric_eigenvalues` are numpy's eigh and eigvalsh as kernels: numba's versions call
+the same LAPACK routine (dsyevd, lower triangle) through scipy's binding and give numpy's bits (checked in
+tests/test_diagnostic_kernels.py); a matrix with a NaN or an infinity, which numba refuses, goes to numpy's in
+object mode.
 """
 
 from __future__ import annotations
