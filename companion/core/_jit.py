@@ -16,10 +16,16 @@ scipy.linalg.lapack's wrappers (what the u-PLKF called before it had kernels); c
 binding of the very same routine (scipy's cython_lapack). `objmode` runs a block in the interpreter
 from a compiled kernel (the rare general branches that call scipy or numpy routines numba lacks);
 without numba it is an empty context manager, so the block simply runs.
+
+`symmetric_eigen` and `symmetric_eigenvalues` are numpy's eigh and eigvalsh as kernels: numba's versions call
+the same LAPACK routine (dsyevd, lower triangle) through scipy's binding and give numpy's bits (checked in
+tests/test_diagnostic_kernels.py); a matrix with a NaN or an infinity, which numba refuses, goes to numpy's in
+object mode.
 """
 
 from __future__ import annotations
 
+import math
 import os
 
 import numpy as np
@@ -62,7 +68,8 @@ def warm_up() -> None:
     NUMBA_CACHE_DIR): on a fresh install the first process pays the compilation, about 30 s of one core on the
     machine of issue 16, and later processes load the cache in about 0.3 s. This runs the u-PLKF and IMM
     updates once on made-up bearings (at and off the estimator's ticks, with adaptive process noise, both gain
-    forms), on throwaway estimators, then the control tick's setpoint kernels (_warm_up_setpoint). Nothing to do
+    forms), on throwaway estimators, then the control tick's setpoint kernels (_warm_up_setpoint) and the bearing
+    path's diagnostics (_warm_up_diagnostics). Nothing to do
     without numba or after the first call in a process. No clock here (the core has none): callers time it
     (studies.executors.compile_kernels)."""
     global _warmed_up
@@ -88,6 +95,7 @@ def warm_up() -> None:
             estimator.estimate
     limit_range(np.array([2.0e6, 0.0, 0.0]), np.zeros(3))  # the baseline estimators call it from Python
     _warm_up_setpoint()
+    _warm_up_diagnostics()
     _warmed_up = True
 
 
@@ -122,6 +130,29 @@ def _warm_up_setpoint() -> None:
     rotation_from_x_axis_to(los)
 
 
+def _warm_up_diagnostics() -> None:
+    """The bearing path's diagnostic kernels (companion.core.health, observability, pipeline): the NIS of a 3-D
+    rank-2 and a 2-D innovation, the windowed FIM's add and measure, the health monitor's update and the
+    re-acquisition gate, on made-up numbers, so that no bearing in flight waits for the compiler."""
+    from companion.core.geometry import relative_range_std
+    from companion.core.health import HealthMonitor, normalized_innovation_squared
+    from companion.core.observability import WindowedObservability
+    from companion.core.pipeline import _gate_terms
+
+    los = np.array([0.8, -0.36, -0.48])
+    across = np.eye(3) - np.outer(los, los)
+    normalized_innovation_squared(across @ np.array([0.1, 0.2, 0.3]), 1e-4 * across)
+    normalized_innovation_squared(np.array([0.01, -0.02]), np.array([[2e-4, 1e-5], [1e-5, 3e-4]]))
+    observability = WindowedObservability(1.0, 0.01)
+    for k in range(3):
+        observability.add(0.6 * k, np.array([0.6, 0.8, 0.0]) if k % 2 else los, 20.0)
+        observability.measure()
+    HealthMonitor().update(0.0, los, np.zeros(3), np.ones(3), 20.0 * los, np.eye(6), across @ np.ones(3),
+                           1e-4 * across, 2, False, 100.0)
+    relative_range_std(20.0 * los, np.eye(3))
+    _gate_terms(20.0 * los, 20.0, los, np.eye(3), 0.01)
+
+
 class _Interpreted:
     """numba.objmode's stand-in without numba: `with objmode(name="float64"):` just runs its block."""
 
@@ -136,6 +167,41 @@ class _Interpreted:
 
 
 objmode = numba.objmode if numba is not None else _Interpreted()
+
+
+@jit
+def _all_finite(matrix: np.ndarray) -> bool:
+    """Every entry of a float64 matrix (n, n) finite (no NaN, no infinity)."""
+    for i in range(matrix.shape[0]):
+        for j in range(matrix.shape[1]):
+            if not math.isfinite(matrix[i, j]):
+                return False
+    return True
+
+
+@jit
+def symmetric_eigen(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """numpy.linalg.eigh(matrix) of a symmetric float64 matrix (n, n): (eigenvalues ascending (n,), orthonormal
+    eigenvectors as columns (n, n)), LAPACK dsyevd on the lower triangle. Compiled, numba's np.linalg.eigh: the
+    same routine (jobz V, uplo L) through scipy's LAPACK, numpy's bits (tests/test_diagnostic_kernels.py). A
+    matrix with a NaN or an infinity, which numba refuses, goes to numpy's eigh in object mode."""
+    if _all_finite(matrix):
+        return np.linalg.eigh(matrix)
+    with objmode(values="float64[:]", vectors="float64[:, :]"):
+        values, vectors = np.linalg.eigh(matrix)
+    return values, vectors
+
+
+@jit
+def symmetric_eigenvalues(matrix: np.ndarray) -> np.ndarray:
+    """numpy.linalg.eigvalsh(matrix) of a symmetric float64 matrix (n, n): the eigenvalues ascending (n,), LAPACK
+    dsyevd without vectors on the lower triangle; compiled, numba's np.linalg.eigvalsh (the same routine, jobz N,
+    uplo L, through scipy's LAPACK), and numpy's in object mode for a matrix with a NaN or an infinity."""
+    if _all_finite(matrix):
+        return np.linalg.eigvalsh(matrix)
+    with objmode(values="float64[:]"):
+        values = np.linalg.eigvalsh(matrix)
+    return values
 
 
 def lapack_dgesv(matrix: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:

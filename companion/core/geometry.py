@@ -130,8 +130,17 @@ def relative_range_std(relative_position: np.ndarray, position_covariance: np.nd
     relative_position: dp = p^_T - p, m, (3,). position_covariance: P_pp of the target
     position estimate, m^2, (3, 3). Returns inf for |dp| = 0 (the range is then unknown).
     """
-    distance = norm(relative_position)
+    return float(relative_range_std_kernel(np.ascontiguousarray(relative_position, dtype=float),
+                                     np.ascontiguousarray(position_covariance, dtype=float)))
+
+
+@jit
+def relative_range_std_kernel(relative_position: np.ndarray, position_covariance: np.ndarray) -> float:
+    """relative_range_std's arithmetic (float64, C-contiguous): |dp| = sqrt(dp . dp) (norm), lambda = dp / |dp|,
+    sigma_r = sqrt(max(lambda @ P_pp @ lambda, 0)) (Python's max: a NaN stays NaN), rho = sigma_r / |dp|."""
+    distance = math.sqrt(relative_position @ relative_position)
     if distance <= 1e-9:
-        return float("inf")
+        return math.inf
     los = relative_position / distance
-    return float(np.sqrt(max(float(los @ position_covariance @ los), 0.0))) / distance
+    variance = los @ position_covariance @ los
+    return math.sqrt(0.0 if 0.0 > variance else variance) / distance

@@ -69,7 +69,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2
 
-from companion.core.geometry import relative_range_std
+from companion.core._jit import jit, symmetric_eigen
+from companion.core.geometry import relative_range_std_kernel
 
 
 class HealthState(str, enum.Enum):
@@ -86,10 +87,61 @@ REASONS = ("nis", "range_uncertain", "behind_sensor", "range_implausible", "rang
 
 def normalized_innovation_squared(innovation: np.ndarray, covariance: np.ndarray) -> float:
     """eps = y^T S^+ y (dimensionless): y the innovation (m,), S its covariance (m, m), S^+ its
-    Moore-Penrose inverse (S may be singular: the u-PLKF's bearing pseudo-measurement is rank 2 in 3-D)."""
+    Moore-Penrose inverse (S may be singular: the u-PLKF's bearing pseudo-measurement is rank 2 in 3-D).
+
+    S^+ is numpy.linalg.pinv(S, rcond=1e-10, hermitian=True), computed by the kernel
+    _normalized_innovation_squared in numpy's own order (compiled when numba is present). ValueError
+    unless y is (m,) and S (m, m); m = 0 gives 0."""
     y = np.asarray(innovation, dtype=float)
     s = np.asarray(covariance, dtype=float)
-    return float(y @ np.linalg.pinv(s, rcond=1e-10, hermitian=True) @ y)
+    if y.ndim != 1 or s.shape != (y.shape[0], y.shape[0]):
+        raise ValueError(f"need an innovation (m,) and its covariance (m, m), got {y.shape} and {s.shape}")
+    if y.shape[0] == 0:
+        return 0.0
+    return float(_normalized_innovation_squared(np.ascontiguousarray(y), np.ascontiguousarray(s)))
+
+
+@jit
+def _normalized_innovation_squared(innovation: np.ndarray, covariance: np.ndarray) -> float:
+    """y^T S^+ y with S^+ = numpy.linalg.pinv(S, rcond=1e-10, hermitian=True), numpy's operations in numpy's
+    order (numpy/linalg/_linalg.py: svd(hermitian=True), then pinv), so the same bits compiled and not:
+    S = U diag(w) U^T (eigh); singular values |w| in descending order (a stable argsort of |w|, reversed),
+    their signs moved into V^T = (U sign(w))^T; 1/s for s > 1e-10 max(s), 0 otherwise; S^+ = V diag(1/s) U^T
+    as (U sign(w)) @ ((1/s)[:, None] * U^T); then (y @ S^+) @ y. innovation: y (m,), covariance: S (m, m),
+    m >= 1, float64 C-contiguous."""
+    values, vectors = symmetric_eigen(covariance)
+    signs = np.copysign(1.0, values)
+    singular = np.abs(values)
+    order = np.argsort(singular)[::-1]
+    singular = singular[order]
+    signs = signs[order]
+    vectors = vectors[:, order]
+    cutoff = 1e-10 * np.max(singular)
+    inverse = np.zeros(singular.shape[0])
+    for k in range(singular.shape[0]):
+        if singular[k] > cutoff:
+            inverse[k] = 1.0 / singular[k]
+    pseudo_inverse = (vectors * signs) @ (inverse[:, None] * vectors.T)
+    return innovation @ pseudo_inverse @ innovation
+
+
+def _vector(values: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(values, dtype=float)
+
+
+@jit
+def _evidence(bearing_direction: np.ndarray, estimate_position: np.ndarray, pursuer_position: np.ndarray,
+              position_covariance: np.ndarray, pursuer_velocity: np.ndarray) -> tuple[float, float, float, float]:
+    """HealthMonitor.update's geometry in one call: (r^ = |p^_T - p|, sigma_r / r^ (geometry.relative_range_std;
+    NaN unless r^ > 1e-9), lambda~^T (p^_T - p) (the cheirality test), |v|). Vectors (3,) and P_pp (3, 3), float64
+    C-contiguous; norms as np.linalg.norm computes them (sqrt of the dot product)."""
+    relative = estimate_position - pursuer_position
+    range_estimate = math.sqrt(relative @ relative)
+    relative_std = math.nan
+    if range_estimate > 1e-9:
+        relative_std = relative_range_std_kernel(relative, position_covariance)
+    return (range_estimate, relative_std, bearing_direction @ relative,
+            math.sqrt(pursuer_velocity @ pursuer_velocity))
 
 
 @dataclass(frozen=True)
@@ -265,23 +317,21 @@ class HealthMonitor:
             if nis_ratio > 1.0:
                 raised.append("nis")
 
-        relative = np.asarray(estimate_position, float) - np.asarray(pursuer_position, float)
-        range_estimate = float(np.linalg.norm(relative))
-        relative_std = math.nan
+        range_estimate, relative_std, cosine, speed = (float(value) for value in _evidence(
+            _vector(bearing_direction), _vector(estimate_position), _vector(pursuer_position),
+            np.ascontiguousarray(np.asarray(estimate_covariance, dtype=float)[:3, :3]), _vector(pursuer_velocity)))
         if range_estimate > 1e-9:
-            relative_std = relative_range_std(relative, np.asarray(estimate_covariance)[:3, :3])
             range_std = relative_std * range_estimate
             if config.max_range_std is not None and range_std <= config.max_range_std:
                 self._range_converged = True
             if relative_std > config.max_relative_range_std or (
                     self._range_converged and config.max_range_std is not None and range_std > config.max_range_std):
                 raised.append("range_uncertain")
-        if reinitialized or float(np.asarray(bearing_direction, float) @ relative) <= 0.0:
+        if reinitialized or cosine <= 0.0:
             raised.append("behind_sensor")
         if not (config.min_range <= range_estimate <= config.max_range):
             raised.append("range_implausible")
 
-        speed = float(np.linalg.norm(pursuer_velocity))
         poorly_observed = config.min_fim_eigenvalue is None or (
             fim_min_eigenvalue is not None and fim_min_eigenvalue < config.min_fim_eigenvalue)
         if poorly_observed and speed < config.slow_speed:

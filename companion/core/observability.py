@@ -22,6 +22,8 @@ from typing import Sequence
 
 import numpy as np
 
+from companion.core._jit import jit, power, symmetric_eigenvalues
+
 _UNIT_TOLERANCE = 1e-6
 # Eigenvalues below this fraction of the largest one are reported as exactly zero.
 _SINGULAR_TOLERANCE = 1e-12
@@ -397,11 +399,15 @@ class WindowedObservability:
         time = float(time)
         if not math.isfinite(time) or time < self._latest_time:
             raise ValueError(f"time must be finite and non-decreasing, got {time!r}")
-        bearing = _check_bearings(np.asarray(bearing, dtype=float).reshape(1, 3))[0]
-        range_estimate = float(_check_ranges(np.array([range_estimate], dtype=float), 1)[0])
-        contribution = (np.eye(3) - np.outer(bearing, bearing)) / (self.sigma**2 * range_estimate**2)
+        bearing = np.ascontiguousarray(bearing, dtype=float)
+        if bearing.shape == (3,) and isinstance(range_estimate, (float, int)) and _plain_sample(
+                bearing, float(range_estimate), self.sigma):
+            range_estimate = float(range_estimate)
+        else:  # fisher_information's checks decide (ValueError), then Python's ** (OverflowError)
+            bearing = _check_bearings(bearing.reshape(1, 3))[0]
+            range_estimate = float(_check_ranges(np.array([range_estimate], dtype=float), 1)[0])
+        contribution = _add_contribution(self._information, bearing, self.sigma**2 * range_estimate**2)
         self._samples.append((time, contribution))
-        self._information += contribution
         self._latest_time = time
         self._drop_older_than(time - self.window_s)
 
@@ -424,13 +430,56 @@ class WindowedObservability:
         below 1e-12 of the largest count as 0); spread: J of eq. (8) divided by the squared mean
         eigenvalue (scale-free; 0 for an isotropic FIM, nan when empty); count: samples in window.
         """
-        eigenvalues = np.linalg.eigvalsh(self._information)
-        largest = float(eigenvalues[-1])
-        eigenvalues = np.where(eigenvalues <= _SINGULAR_TOLERANCE * max(largest, 0.0), 0.0, eigenvalues)
-        if largest <= 0.0:
-            eigenvalues = np.zeros(3)
-        minimum = float(eigenvalues[0])
-        log_det = float(np.sum(np.log10(eigenvalues))) if minimum > 0.0 else -math.inf
-        mean = float(eigenvalues.mean())
-        spread = float(np.sum((eigenvalues - mean) ** 2) / mean**2) if mean > 0.0 else math.nan
-        return {"log_det": log_det, "min_eigenvalue": minimum, "spread": spread, "count": len(self._samples)}
+        eigenvalues, minimum, spread = _spectrum(self._information)
+        log_det = -math.inf
+        if minimum > 0.0:
+            # numpy's log10 (its SIMD routine where it has one, not the C library's), summed left to right as np.sum sums 3.
+            first, second, third = np.log10(eigenvalues).tolist()
+            log_det = first + second + third
+        return {"log_det": log_det, "min_eigenvalue": float(minimum), "spread": float(spread), "count": len(self._samples)}
+
+
+@jit
+def _plain_sample(bearing: np.ndarray, range_estimate: float, sigma: float) -> bool:
+    """True when the checks of fisher_information would certainly pass: bearing (3,) finite with a norm within
+    half of _UNIT_TOLERANCE of 1, range_estimate (m) finite and positive, and sigma^2, r^2 finite (Python's **
+    would not overflow). False does not mean invalid: the caller then runs those checks."""
+    squared = 0.0
+    for k in range(3):
+        if not math.isfinite(bearing[k]):
+            return False
+        squared += bearing[k] * bearing[k]
+    return (abs(math.sqrt(squared) - 1.0) <= 0.5 * _UNIT_TOLERANCE and math.isfinite(range_estimate)
+            and range_estimate > 0.0 and math.isfinite(power(sigma, 2.0)) and math.isfinite(power(range_estimate, 2.0)))
+
+
+@jit
+def _add_contribution(information: np.ndarray, bearing: np.ndarray, scale: float) -> np.ndarray:
+    """One bearing's term of the FIM, eq. (7): (I - lambda lambda^T) / (sigma^2 r^2), (3, 3), added to
+    `information` (3, 3) in place and returned. bearing: lambda (3,); scale: sigma^2 r^2 (rad^2 m^2) as Python
+    computed it."""
+    contribution = (np.eye(3) - np.outer(bearing, bearing)) / scale
+    information += contribution
+    return contribution
+
+
+@jit
+def _spectrum(information: np.ndarray) -> tuple[np.ndarray, float, float]:
+    """WindowedObservability.measure's arithmetic but the logarithm: the FIM's (eq. (7)) eigenvalues (3,) ascending
+    (numpy's eigvalsh; those at or below _SINGULAR_TOLERANCE of the largest set to 0, all 0 when the largest is
+    not positive), the smallest, and the scale-free spread sum((e - mean)^2) / mean^2 (J of eq. (8) over the
+    squared mean eigenvalue; NaN unless mean > 0), each as numpy and Python compute it (sums left to right,
+    mean = sum / 3, mean^2 by the C library's pow)."""
+    eigenvalues = symmetric_eigenvalues(information)
+    largest = eigenvalues[-1]
+    floor = 0.0 if 0.0 > largest else largest  # Python's max(largest, 0.0)
+    eigenvalues = np.where(eigenvalues <= _SINGULAR_TOLERANCE * floor, 0.0, eigenvalues)
+    if largest <= 0.0:
+        eigenvalues = np.zeros(3)
+    mean = (eigenvalues[0] + eigenvalues[1] + eigenvalues[2]) / 3.0
+    spread = math.nan
+    if mean > 0.0:
+        deviations = eigenvalues - mean
+        squares = deviations * deviations
+        spread = (squares[0] + squares[1] + squares[2]) / power(mean, 2.0)
+    return eigenvalues, eigenvalues[0], spread

@@ -17,7 +17,8 @@ import numpy as np
 from companion.core.attitude import VehicleLimits, attitude_setpoint
 from companion.core.cooperative_guidance import CooperativeContext, SeparationFilter, neighbours_make_range_observable
 from companion.core.estimators import CorrectionReport, InitialGuess, TargetEstimator
-from companion.core.geometry import norm, relative_range_std, unit
+from companion.core._jit import jit, power
+from companion.core.geometry import clip_kernel, norm, relative_range_std, unit
 from companion.core.guidance import LateralGuidance, RangeController, RangeExcitation
 from companion.core.health import (
     HealthAction,
@@ -420,7 +421,7 @@ class FollowingPipeline:
             # estimate; the windowed FIM takes bearings in time order only, so it is left out of it.
             return
         estimate = self.estimator.estimate.extrapolated(bearing.time)
-        distance = float(np.linalg.norm(estimate.position - bearing.pursuer_position))
+        distance = norm(estimate.position - bearing.pursuer_position)
         if distance > 1e-6:
             self._observed_until = bearing.time
             self.observability.add(bearing.time, unit(bearing.direction), distance)
@@ -441,16 +442,14 @@ class FollowingPipeline:
 
     def _agrees_with_prediction(self, bearing: BearingMeasurement) -> bool:
         estimate = self.estimator.estimate.extrapolated(bearing.time)
-        relative = estimate.position - bearing.pursuer_position
-        distance = float(np.linalg.norm(relative))
+        relative = np.ascontiguousarray(estimate.position - bearing.pursuer_position, dtype=float)
+        distance = norm(relative)
         if distance < 1e-6:
             return False
-        predicted = relative / distance
-        measured = unit(bearing.direction)
-        angle = float(np.arccos(np.clip(predicted @ measured, -1.0, 1.0)))
-        across = np.eye(3) - np.outer(predicted, predicted)
-        lateral_variance = float(np.trace(across @ estimate.covariance[:3, :3] @ across)) / 2.0
-        angular_std = float(np.sqrt(lateral_variance / distance**2 + self.dropout.bearing_noise_std**2))
+        cosine, angular_std = _gate_terms(relative, distance, unit(bearing.direction),
+                                          np.ascontiguousarray(estimate.covariance[:3, :3], dtype=float),
+                                          self.dropout.bearing_noise_std)
+        angle = float(np.arccos(cosine))  # numpy's arccos (its SIMD routine where it has one)
         return angle <= self.dropout.gate_sigma * angular_std
 
     def _update_mode(self, time: float) -> None:
@@ -591,3 +590,20 @@ class FollowingPipeline:
         heading_fallback = None if self._setpoint is None else self._setpoint.rotation[:, 0]
         self._setpoint = attitude_setpoint(time, command, los, self.limits, heading_fallback)
         self._guidance = GuidanceTerms(lateral, longitudinal, los, range_estimate)
+
+
+@jit
+def _gate_terms(relative: np.ndarray, distance: float, measured: np.ndarray, position_covariance: np.ndarray,
+                bearing_noise_std: float) -> tuple[float, float]:
+    """The re-acquisition gate's terms (FollowingPipeline._agrees_with_prediction): the cosine between the
+    predicted line of sight relative / distance and the measured unit bearing, clipped to [-1, 1], and the
+    angular std sqrt(tr(P_perp P_pp P_perp) / (2 r^2) + sigma^2) (rad), P_perp = I - lambda lambda^T; numpy's
+    operations in numpy's order (np.clip, the two matrix products, the trace summed left to right, Python's
+    ** for r^2 and sigma^2). relative (3,), m; distance r, m; measured (3,); P_pp (3, 3), m^2; sigma rad."""
+    predicted = relative / distance
+    cosine = clip_kernel(predicted @ measured, -1.0, 1.0)
+    across = np.eye(3) - np.outer(predicted, predicted)
+    spread = across @ position_covariance @ across
+    lateral_variance = (spread[0, 0] + spread[1, 1] + spread[2, 2]) / 2.0
+    variance = lateral_variance / power(distance, 2.0) + power(bearing_noise_std, 2.0)
+    return cosine, (math.sqrt(variance) if variance >= 0.0 else math.nan)  # np.sqrt: NaN below 0
