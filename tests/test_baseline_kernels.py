@@ -816,3 +816,32 @@ def test_baseline_flights_are_the_same_compiled_and_interpreted(tmp_path):
         assert sorted(there.files) == sorted(here)
         for name in here:
             assert_same(here[name], there[name], f"{estimator} {name}")
+
+
+_WARM_UP_THEN_FLY = _FLIGHTS.replace('if __name__ == "__main__":', '''def compiled_signatures():
+    from companion.core import baseline_estimators
+    return {name: len(getattr(baseline_estimators, name).signatures) for name in dir(baseline_estimators)
+            if hasattr(getattr(baseline_estimators, name), "signatures")}
+
+if __name__ == "__main__":
+    from companion.core import _jit
+    _jit.warm_up()
+    before = compiled_signatures()
+    for estimator in ("ekf", "msc_ekf", "ekf_rae"):
+        flight(estimator)
+    print(before == compiled_signatures(), sum(before.values()))
+    sys.exit(0)''')
+
+
+def test_warm_up_compiles_every_kernel_a_baseline_flight_calls():
+    """In a fresh interpreter, after _jit.warm_up(), flights of the three baselines compile nothing more. (Without
+    numba the kernels are their Python functions, and warm_up has nothing to do.)"""
+    if not _jit.ENABLED:
+        for kernel in (be._linear_predict, be._az_el_correct, be._msc_propagate, be._msc_correct, be._msc_to_absolute,
+                       be._flight_path_predict, be._range_az_el_correct, be._flight_path_to_cartesian):
+            assert python(kernel) is kernel and not hasattr(kernel, "signatures")
+        return
+    environment = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
+    output = subprocess.run([sys.executable, "-c", _WARM_UP_THEN_FLY, "unused"], check=True, cwd=ROOT, env=environment,
+                            timeout=900, capture_output=True, text=True).stdout.split()
+    assert output[0] == "True" and int(output[1]) >= 10

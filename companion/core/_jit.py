@@ -63,7 +63,8 @@ def warm_up() -> None:
     NUMBA_CACHE_DIR): on a fresh install the first process pays the compilation, about 30 s of one core on the
     machine of issue 16, and later processes load the cache in about 0.3 s. This runs the u-PLKF and IMM
     updates once on made-up bearings (at and off the estimator's ticks, with adaptive process noise, both gain
-    forms), on throwaway estimators, then the control tick's setpoint kernels (_warm_up_setpoint). Nothing to do
+    forms), on throwaway estimators, then the baseline estimators' (_warm_up_baselines) and the control tick's
+    setpoint kernels (_warm_up_setpoint). Nothing to do
     without numba or after the first call in a process. No clock here (the core has none): callers time it
     (studies.executors.compile_kernels)."""
     global _warmed_up
@@ -87,7 +88,8 @@ def warm_up() -> None:
                 estimator.correct(BearingMeasurement(estimator.time + lead, np.array([1.0, 0.01 * k, 0.0]),
                                                      np.array([0.0, 0.01 * k, 0.0])))
             estimator.estimate
-    limit_range(np.array([2.0e6, 0.0, 0.0]), np.zeros(3))  # the baseline estimators call it from Python
+    limit_range(np.array([2.0e6, 0.0, 0.0]), np.zeros(3))
+    _warm_up_baselines()
     _warm_up_setpoint()
     _warmed_up = True
 
@@ -203,6 +205,36 @@ def _cpython_remainder(x: float, y: float) -> float:
     if math.isinf(x):
         raise ValueError("math domain error")
     return x
+
+
+def _warm_up_baselines() -> None:
+    """The baseline estimators' kernels (companion.core.baseline_estimators: az/el EKF, MSC-EKF with and without a
+    reference, range/az/el EKF) on made-up bearings at and off the ticks, a restart behind the sensor, and their
+    estimates, so that none compiles in flight."""
+    from companion.core.baseline_estimators import MSCEKF, AzElEKF, RangeAzElEKF
+    from companion.core.estimators import InitialGuess
+    from companion.core.messages import BearingMeasurement
+
+    sigma = 1e-4 * np.eye(3)
+    estimators = [AzElEKF(0.02, 0.04 * np.eye(3), sigma, pursuer_position_std=0.1),
+                  MSCEKF(0.02, 0.04 * np.eye(3), sigma, pursuer_position_std=0.1),
+                  RangeAzElEKF(0.02, sigma, range_noise_std=1.0, pursuer_position_std=0.1)]
+    guess = InitialGuess(20.0, 10.0, np.array([-1.0, 0.0, 0.0]), 5.0)
+    for estimator in estimators:
+        estimator.initialize_on_bearing(BearingMeasurement(0.0, np.array([1.0, 0.0, 0.0]), np.zeros(3), range=20.0), guess)
+        for k in range(1, 4):
+            estimator.predict()
+            for lead in (0.0, -0.01):  # a bearing on the tick and a late one
+                estimator.correct(BearingMeasurement(estimator.time + lead, np.array([1.0, 0.01 * k, 0.0]),
+                                                     np.array([0.0, 0.01 * k, 0.0]), range=20.0))
+            estimator.estimate
+        if not isinstance(estimator, RangeAzElEKF):  # a prior behind the sensor restarts
+            estimator.correct(BearingMeasurement(estimator.time, np.array([-1.0, 0.0, 0.0]), np.zeros(3)))
+    cartesian = MSCEKF(0.02, 0.04 * np.eye(3), sigma)  # Cartesian until its first correction
+    cartesian.initialize(0.0, np.array([20.0, 0.0, 0.0]), np.zeros(3), np.eye(6))
+    cartesian.predict()
+    cartesian.estimate
+    cartesian.correct(BearingMeasurement(cartesian.time, np.array([1.0, 0.0, 0.0]), np.zeros(3)))
 
 
 def _warm_up_setpoint() -> None:
