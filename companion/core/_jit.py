@@ -1,8 +1,8 @@
 """Optional compilation of companion.core's numeric kernels (numba), with a plain-Python fallback.
 
 One implementation. A kernel is an ordinary module-level Python function over float64 arrays and
-floats (the u-PLKF's update, the IMM's mixing and combination); `jit` hands back that same
-function compiled by numba.njit(cache=True) when numba is installed (`pip install
+floats (the u-PLKF's update, the IMM's mixing and combination, the baseline estimators' updates); `jit` hands
+back that same function compiled by numba.njit(cache=True) when numba is installed (`pip install
 bearing-follow[fast]`), and the function itself otherwise or when the environment sets
 BOF_NO_JIT=1. The compiled kernel keeps `kernel.py_func`, the Python original, which the tests run
 side by side with it. No fastmath, no parallel: the compiled arithmetic is the Python function's
@@ -16,6 +16,10 @@ scipy.linalg.lapack's wrappers (what the u-PLKF called before it had kernels); c
 binding of the very same routine (scipy's cython_lapack). `objmode` runs a block in the interpreter
 from a compiled kernel (the rare general branches that call scipy or numpy routines numba lacks);
 without numba it is an empty context manager, so the block simply runs.
+
+Three scalar functions have a compiled twin that computes what Python computes where numba would not: `power`
+(numba folds x ** 2 into x * x), `hypot` (numba calls the C library's hypot, CPython has its own algorithm) and
+`remainder` (numba has no math.remainder).
 """
 
 from __future__ import annotations
