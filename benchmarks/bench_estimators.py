@@ -17,7 +17,8 @@ DIR a checkout of the older code (git worktree add /tmp/old <commit>, or git arc
 In alternating subprocesses (DIR's code, this tree with its kernels compiled by numba when installed, this
 tree with BOF_NO_JIT=1), each round measures the u-PLKF (predicted) and both IMMs as above and one
 in-process flight (studies.closed_loop.simulate, constant_velocity, seed 1, median of 5); the table gives the
-medians over the rounds and each column's ratio to DIR's.
+medians over the rounds and each column's ratio to DIR's. With --baselines: the three baseline estimators' predict
+and correct, and one 60 s flight of the estimator study (bof-montecarlo --study estimators, 50 Hz) with each.
 """
 
 from __future__ import annotations
@@ -99,6 +100,8 @@ def markdown_table(results: list[tuple[str, float, float]]) -> str:
 
 SIDE_BY_SIDE = ("u-PLKF (predicted)", "IMM (cv, ct +-0.2)", "IMM (cv, ct +-0.1, +-0.3)")
 """The rows timed side by side: the u-PLKF's form and the default estimator (3 models) and a 5-model IMM."""
+BASELINES = {"AzElEKF": "ekf", "MSCEKF": "msc_ekf", "RangeAzElEKF": "ekf_rae"}
+"""The rows timed side by side with --baselines, and each one's name in the estimator study (studies.montecarlo)."""
 
 
 def flight_seconds(repeats: int = 5) -> tuple[float, float]:
@@ -116,15 +119,42 @@ def flight_seconds(repeats: int = 5) -> tuple[float, float]:
     return statistics.median(walls), duration
 
 
-def measure() -> dict:
-    """One round in this process (whatever tree is on the import path): the SIDE_BY_SIDE rows and a flight."""
+def study_flight_seconds(estimator: str, repeats: int = 3) -> tuple[float, float]:
+    """(median wall time, s, of one flight of the estimator study (studies.montecarlo: constant_velocity, HNG, the
+    paper's system) with `estimator` at 50 Hz bearings, the initial estimate of seed 1, its simulated duration, s)."""
+    from interfaces.scenario import SCENARIOS_DIR, load_scenario
+    from studies.closed_loop import simulate
+    from studies.montecarlo import ESTIMATORS, GUIDANCE, PAPER_INITIAL_BOX, PAPER_SYSTEM, drawn_initial_position, with_overrides
+
+    scenario, vehicle = load_scenario(SCENARIOS_DIR / "constant_velocity.toml")
+    scenario = with_overrides(scenario, {**PAPER_SYSTEM, **ESTIMATORS[estimator], **GUIDANCE["hng"], "sensor.rate_hz": 50.0,
+                                         "estimator.initialize": "position",
+                                         "estimator.initial_position": drawn_initial_position(1, PAPER_INITIAL_BOX)})
+    duration = simulate(scenario, vehicle, seed=1).summary["duration"]  # also compiles / warms up
+    walls = []
+    for _ in range(repeats):
+        started = time.perf_counter()
+        simulate(scenario, vehicle, seed=1)
+        walls.append(time.perf_counter() - started)
+    return statistics.median(walls), duration
+
+
+def measure(baselines: bool = False) -> dict:
+    """One round in this process (whatever tree is on the import path): the SIDE_BY_SIDE rows and a flight, or with
+    `baselines` the BASELINES rows and one estimator-study flight of each."""
+    if baselines:
+        rows = {name: (predict, correct) for name, predict, correct in bench(only=tuple(BASELINES))}
+        flights = {name: study_flight_seconds(estimator) for name, estimator in BASELINES.items()}
+        return {"rows": rows, "flights": {name: wall for name, (wall, _) in flights.items()},
+                "duration": next(iter(flights.values()))[1]}
     rows = {name: (predict, correct) for name, predict, correct in bench(only=SIDE_BY_SIDE)}
     wall, duration = flight_seconds()
     return {"rows": rows, "flight": wall, "duration": duration}
 
 
-def side_by_side(other: Path, rounds: int) -> str:
-    """Alternating subprocesses of `other`'s code, this tree compiled, this tree with BOF_NO_JIT=1 (module docstring)."""
+def side_by_side(other: Path, rounds: int, baselines: bool = False) -> str:
+    """Alternating subprocesses of `other`'s code, this tree compiled, this tree with BOF_NO_JIT=1 (module docstring);
+    with `baselines` the baseline estimators' rows and flights instead."""
     here = Path(__file__).resolve().parent.parent
     columns = {f"{other}": (other, {}), "this tree": (here, {}), "this tree, BOF_NO_JIT=1": (here, {"BOF_NO_JIT": "1"})}
     results: dict[str, list[dict]] = {label: [] for label in columns}
@@ -132,8 +162,8 @@ def side_by_side(other: Path, rounds: int) -> str:
         for label, (tree, extra) in columns.items():
             environment = {key: value for key, value in os.environ.items() if key != "BOF_NO_JIT"}
             environment.update(PYTHONPATH=str(tree), **extra)
-            output = subprocess.run([sys.executable, __file__, "--measure"], env=environment, cwd=str(tree),
-                                    check=True, capture_output=True, text=True).stdout
+            output = subprocess.run([sys.executable, __file__, "--measure"] + (["--baselines"] if baselines else []),
+                                    env=environment, cwd=str(tree), check=True, capture_output=True, text=True).stdout
             results[label].append(json.loads(output.strip().splitlines()[-1]))
     reference = next(iter(columns))
 
@@ -144,11 +174,16 @@ def side_by_side(other: Path, rounds: int) -> str:
              "", "| | " + " | ".join(f"{label} | ratio" for label in columns) + " |",
              "|---|" + "---:|---:|" * len(columns)]
     picks = []
-    for name in SIDE_BY_SIDE:
+    for name in (BASELINES if baselines else SIDE_BY_SIDE):
         picks += [(f"{name} predict", lambda r, n=name: r["rows"][n][0]), (f"{name} correct", lambda r, n=name: r["rows"][n][1]),
                   (f"{name} update", lambda r, n=name: r["rows"][n][0] + r["rows"][n][1])]
     duration = results[reference][0]["duration"]
-    picks.append((f"flight constant_velocity seed 1 ({duration:.0f} s), median of 5", lambda r: r["flight"]))
+    if baselines:
+        for name, estimator in BASELINES.items():
+            picks.append((f"flight, estimator study, {estimator} at 50 Hz, seed 1 ({duration:.0f} s), median of 3",
+                          lambda r, n=name: r["flights"][n]))
+    else:
+        picks.append((f"flight constant_velocity seed 1 ({duration:.0f} s), median of 5", lambda r: r["flight"]))
     for title, pick in picks:
         base = median(reference, pick)
         cells = [f"{median(label, pick):.3g} | {base / median(label, pick):.2f}" for label in columns]
@@ -160,11 +195,13 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--against", type=Path, help="a checkout of the older code to time side by side with this tree")
     parser.add_argument("--rounds", type=int, default=3, help="alternating rounds with --against (default 3)")
+    parser.add_argument("--baselines", action="store_true",
+                        help="with --against: the baseline estimators (az/el, MSC, range/az/el EKF) and a study flight of each")
     parser.add_argument("--measure", action="store_true", help=argparse.SUPPRESS)  # one round, JSON (side_by_side's subprocesses)
     arguments = parser.parse_args()
     if arguments.measure:
-        print(json.dumps(measure()))
+        print(json.dumps(measure(arguments.baselines)))
     elif arguments.against is not None:
-        print(side_by_side(arguments.against.resolve(), arguments.rounds))
+        print(side_by_side(arguments.against.resolve(), arguments.rounds, arguments.baselines))
     else:
         print(markdown_table(bench()))

@@ -1,8 +1,8 @@
 """Optional compilation of companion.core's numeric kernels (numba), with a plain-Python fallback.
 
 One implementation. A kernel is an ordinary module-level Python function over float64 arrays and
-floats (the u-PLKF's update, the IMM's mixing and combination); `jit` hands back that same
-function compiled by numba.njit(cache=True) when numba is installed (`pip install
+floats (the u-PLKF's update, the IMM's mixing and combination, the baseline estimators' updates); `jit` hands
+back that same function compiled by numba.njit(cache=True) when numba is installed (`pip install
 bearing-follow[fast]`), and the function itself otherwise or when the environment sets
 BOF_NO_JIT=1. The compiled kernel keeps `kernel.py_func`, the Python original, which the tests run
 side by side with it. No fastmath, no parallel: the compiled arithmetic is the Python function's
@@ -21,6 +21,10 @@ without numba it is an empty context manager, so the block simply runs.
 the same LAPACK routine (dsyevd, lower triangle) through scipy's binding and give numpy's bits (checked in
 tests/test_diagnostic_kernels.py); a matrix with a NaN or an infinity, which numba refuses, goes to numpy's in
 object mode.
+
+Three scalar functions have a compiled twin that computes what Python computes where numba would not: `power`
+(numba folds x ** 2 into x * x), `hypot` (numba calls the C library's hypot, CPython has its own algorithm) and
+`remainder` (numba has no math.remainder).
 """
 
 from __future__ import annotations
@@ -68,8 +72,8 @@ def warm_up() -> None:
     NUMBA_CACHE_DIR): on a fresh install the first process pays the compilation, about 30 s of one core on the
     machine of issue 16, and later processes load the cache in about 0.3 s. This runs the u-PLKF and IMM
     updates once on made-up bearings (at and off the estimator's ticks, with adaptive process noise, both gain
-    forms), on throwaway estimators, then the control tick's setpoint kernels (_warm_up_setpoint) and the bearing
-    path's diagnostics (_warm_up_diagnostics). Nothing to do
+    forms), on throwaway estimators, then the baseline estimators' (_warm_up_baselines), the control tick's
+    setpoint kernels (_warm_up_setpoint) and the bearing path's diagnostics (_warm_up_diagnostics). Nothing to do
     without numba or after the first call in a process. No clock here (the core has none): callers time it
     (studies.executors.compile_kernels)."""
     global _warmed_up
@@ -93,7 +97,8 @@ def warm_up() -> None:
                 estimator.correct(BearingMeasurement(estimator.time + lead, np.array([1.0, 0.01 * k, 0.0]),
                                                      np.array([0.0, 0.01 * k, 0.0])))
             estimator.estimate
-    limit_range(np.array([2.0e6, 0.0, 0.0]), np.zeros(3))  # the baseline estimators call it from Python
+    limit_range(np.array([2.0e6, 0.0, 0.0]), np.zeros(3))
+    _warm_up_baselines()
     _warm_up_setpoint()
     _warm_up_diagnostics()
     _warmed_up = True
@@ -107,6 +112,139 @@ def power(base: float, exponent: float) -> float:
     symbol LLVM does not know, so it cannot fold it into a multiplication (the same routine CPython calls).
     Where the C library has no `powf64` (not glibc), the compiled kernel calls `pow`, which LLVM may fold."""
     return base ** exponent
+
+
+def hypot(x: float, y: float) -> float:
+    """sqrt(x^2 + y^2) of two floats, as Python computes it: math.hypot.
+
+    CPython's math.hypot is its own algorithm, not the C library's hypot (which numba compiles `math.hypot`
+    to, and which differs from it in the last bit for about one argument in 500). Compiled, this is a
+    transcription of the CPython 3.11 algorithm (_cpython_hypot: lossless scaling by a power of two, exact
+    squares, compensated sums and one Newton correction of the square root; subnormal arguments by the plain
+    scaled sum), equal to math.hypot bit for bit (tests/test_baseline_kernels.py, on millions of arguments)."""
+    return math.hypot(x, y)
+
+
+def remainder(x: float, y: float) -> float:
+    """The IEEE 754 remainder x - n y, n the integer nearest x / y (ties to even), as Python computes it:
+    math.remainder, which raises ValueError ("math domain error") for an infinite x or a zero y.
+
+    numba has no math.remainder. Compiled, the CPython algorithm in exact arithmetic (_cpython_remainder:
+    fmod, a comparison with the complement, copysign): every step is exact, so it equals math.remainder."""
+    return math.remainder(x, y)
+
+
+def _split_square(x: float) -> tuple[float, float]:
+    """(x * x rounded, its rounding error), exactly (Veltkamp-Dekker splitting, no fma)."""
+    square = x * x
+    t = x * 134217729.0  # 2^27 + 1
+    high = t - (t - x)
+    low = x - high
+    return square, ((high * high - square) + 2.0 * high * low) + low * low
+
+
+_split_square = jit(_split_square)
+
+
+def _cpython_hypot(x: float, y: float) -> float:
+    """math.hypot(x, y) of CPython 3.11 (Modules/mathmodule.c, vector_norm for two coordinates), in float
+    arithmetic numba compiles as written (no fast-math: no contraction, no reassociation)."""
+    x = abs(x)
+    y = abs(y)
+    largest = y if y > x else x
+    if math.isinf(x) or math.isinf(y):
+        return math.inf
+    if math.isnan(x) or math.isnan(y):
+        return math.nan
+    if largest == 0.0:
+        return largest
+    exponent = math.frexp(largest)[1]
+    if exponent < -1023:  # subnormal: 2^-exponent would overflow; the scaled sum of the older algorithm
+        total = 1.0
+        fraction = 0.0
+        for value in (x, y):
+            value = value / largest
+            value = value * value
+            previous = total
+            total += value
+            fraction += (previous - total) + value
+        return largest * math.sqrt(total - 1.0 + fraction)
+    scale = math.ldexp(1.0, -exponent)
+    total = 1.0
+    fraction_products = 0.0
+    fraction_sums = 0.0
+    for value in (x, y):
+        square, square_error = _split_square(value * scale)
+        summed = total + square
+        sum_error = (total - summed) + square
+        total = summed
+        fraction_products += square_error
+        fraction_sums += sum_error
+    root = math.sqrt(total - 1.0 + (fraction_products + fraction_sums))
+    square, square_error = _split_square(root)
+    summed = total - square
+    sum_error = (total - summed) - square
+    total = summed
+    fraction_products -= square_error
+    fraction_sums += sum_error
+    correction = total - 1.0 + (fraction_products + fraction_sums)
+    root += correction / (2.0 * root)
+    return root / scale
+
+
+def _cpython_remainder(x: float, y: float) -> float:
+    """math.remainder(x, y) of CPython (m_remainder and math_2's domain check), exact at every step."""
+    if math.isfinite(x) and math.isfinite(y):
+        if y == 0.0:
+            raise ValueError("math domain error")
+        absolute_x = abs(x)
+        absolute_y = abs(y)
+        modulus = np.fmod(absolute_x, absolute_y)
+        complement = absolute_y - modulus
+        if modulus < complement:
+            result = modulus
+        elif modulus > complement:
+            result = -complement
+        else:  # halfway between two multiples of y: the even one
+            result = modulus - 2.0 * np.fmod(0.5 * (absolute_x - modulus), absolute_y)
+        return math.copysign(1.0, x) * result
+    if math.isnan(x):
+        return x
+    if math.isnan(y):
+        return y
+    if math.isinf(x):
+        raise ValueError("math domain error")
+    return x
+
+
+def _warm_up_baselines() -> None:
+    """The baseline estimators' kernels (companion.core.baseline_estimators: az/el EKF, MSC-EKF with and without a
+    reference, range/az/el EKF) on made-up bearings at and off the ticks, a restart behind the sensor, and their
+    estimates, so that none compiles in flight."""
+    from companion.core.baseline_estimators import MSCEKF, AzElEKF, RangeAzElEKF
+    from companion.core.estimators import InitialGuess
+    from companion.core.messages import BearingMeasurement
+
+    sigma = 1e-4 * np.eye(3)
+    estimators = [AzElEKF(0.02, 0.04 * np.eye(3), sigma, pursuer_position_std=0.1),
+                  MSCEKF(0.02, 0.04 * np.eye(3), sigma, pursuer_position_std=0.1),
+                  RangeAzElEKF(0.02, sigma, range_noise_std=1.0, pursuer_position_std=0.1)]
+    guess = InitialGuess(20.0, 10.0, np.array([-1.0, 0.0, 0.0]), 5.0)
+    for estimator in estimators:
+        estimator.initialize_on_bearing(BearingMeasurement(0.0, np.array([1.0, 0.0, 0.0]), np.zeros(3), range=20.0), guess)
+        for k in range(1, 4):
+            estimator.predict()
+            for lead in (0.0, -0.01):  # a bearing on the tick and a late one
+                estimator.correct(BearingMeasurement(estimator.time + lead, np.array([1.0, 0.01 * k, 0.0]),
+                                                     np.array([0.0, 0.01 * k, 0.0]), range=20.0))
+            estimator.estimate
+        if not isinstance(estimator, RangeAzElEKF):  # a prior behind the sensor restarts
+            estimator.correct(BearingMeasurement(estimator.time, np.array([-1.0, 0.0, 0.0]), np.zeros(3)))
+    cartesian = MSCEKF(0.02, 0.04 * np.eye(3), sigma)  # Cartesian until its first correction
+    cartesian.initialize(0.0, np.array([20.0, 0.0, 0.0]), np.zeros(3), np.eye(6))
+    cartesian.predict()
+    cartesian.estimate
+    cartesian.correct(BearingMeasurement(cartesian.time, np.array([1.0, 0.0, 0.0]), np.zeros(3)))
 
 
 def _warm_up_setpoint() -> None:
@@ -236,6 +374,23 @@ if numba is not None:
     def _power_compiled(base, exponent):
         def implementation(base, exponent):
             return _C_POW(float(base), float(exponent))
+
+        return implementation
+
+    _compiled_hypot = numba.njit(cache=True)(_cpython_hypot)
+    _compiled_remainder = numba.njit(cache=True)(_cpython_remainder)
+
+    @_numba_overload(hypot, jit_options={"cache": True})
+    def _hypot_compiled(x, y):
+        def implementation(x, y):
+            return _compiled_hypot(float(x), float(y))
+
+        return implementation
+
+    @_numba_overload(remainder, jit_options={"cache": True})
+    def _remainder_compiled(x, y):
+        def implementation(x, y):
+            return _compiled_remainder(float(x), float(y))
 
         return implementation
 

@@ -40,6 +40,7 @@ import math
 
 import numpy as np
 
+from companion.core._jit import hypot, jit, power, remainder
 from companion.core.estimators import (MAX_RANGE, CorrectionReport, InitialGuess, explicit_start, limit_range,
                                        on_bearing_covariance, restart_guess, transition_matrices)
 from companion.core.geometry import unit
@@ -57,18 +58,28 @@ MAX_INVERSE_RANGE = 1e3
 
 
 # --------------------------------------------------------------------------- shared helpers
+#
+# The arithmetic of every update is in module-level kernels (`@jit`) over float64 arrays and floats, compiled by
+# numba when it is installed (companion.core._jit), the plain Python functions otherwise (BOF_NO_JIT=1): the same
+# operations in the same order either way, the matrix products in BLAS and the linear algebra in LAPACK, Python's
+# own math.hypot, math.remainder and float power (_jit.hypot, _jit.remainder, _jit.power), so the compiled and
+# the interpreted filters agree to the last bit (tests/test_baseline_kernels.py). The classes keep the clock,
+# the snapshots and the restarts.
 
 
+@jit
 def wrap_angle(angle: float) -> float:
     """Wrap an angle (rad) to (-pi, pi]."""
-    wrapped = math.remainder(float(angle), 2.0 * math.pi)  # in [-pi, pi]
+    wrapped = remainder(float(angle), 2.0 * math.pi)  # in [-pi, pi]
     return math.pi if wrapped == -math.pi else wrapped
 
 
+@jit
 def _symmetrize(matrix: np.ndarray) -> np.ndarray:
     return 0.5 * (matrix + matrix.T)
 
 
+@jit
 def _symmetric_psd(matrix: np.ndarray) -> np.ndarray:
     """The nearest symmetric positive semi-definite matrix (Frobenius norm; Higham 1988): the
     symmetric part with its negative eigenvalues set to zero. Shape (n, n) in and out.
@@ -76,23 +87,33 @@ def _symmetric_psd(matrix: np.ndarray) -> np.ndarray:
     Why: the MSC-EKF moves its covariance through congruences J P J^T whose Jacobians are badly
     scaled far out (at the inverse-range floor, entries of 1e6 beside 1e-6), and their rounding
     can leave eigenvalues of -1e-6 beside 0.1, which the next steps amplify. A symmetric
-    PSD input comes back unchanged (the same bits).
+    PSD input comes back unchanged (the same bits). (Compiled, np.linalg.eigh is numba's binding of
+    the same LAPACK routine, dsyevd, as numpy's: the same eigenvalues and vectors, tests/test_baseline_kernels.py.)
     """
     symmetric = _symmetrize(matrix)
     eigenvalues, vectors = np.linalg.eigh(symmetric)
     if eigenvalues[0] >= 0.0:
         return symmetric
+    vectors = np.ascontiguousarray(vectors)  # C-ordered as numpy's (numba's come Fortran-ordered): the same BLAS path
     return _symmetrize((vectors * np.maximum(eigenvalues, 0.0)) @ vectors.T)
 
 
+@jit
 def _horizontal_and_range(relative: np.ndarray) -> tuple[float, float]:
     """(rho, r) of a relative position, m, guarded: r >= MIN_RANGE and rho >= r cos(MAX_ELEVATION)."""
     dx, dy, dz = float(relative[0]), float(relative[1]), float(relative[2])
-    rho = math.hypot(dx, dy)
+    rho = hypot(dx, dy)
     r = max(math.sqrt(rho * rho + dz * dz), MIN_RANGE)
     return max(rho, r * math.cos(MAX_ELEVATION)), r
 
 
+@jit
+def _norm(vector: np.ndarray) -> float:
+    """|vector|, m, as np.linalg.norm computes it for a float vector: sqrt(vector . vector), the same BLAS dot."""
+    return math.sqrt(float(np.dot(vector, vector)))
+
+
+@jit
 def azimuth_elevation(relative: np.ndarray) -> np.ndarray:
     """[beta, eps], rad, of a relative position d (m, shape (3,)) in NED; shape (2,).
 
@@ -100,9 +121,10 @@ def azimuth_elevation(relative: np.ndarray) -> np.ndarray:
     azimuth/elevation measurement, elevation positive up). atan2 is finite everywhere.
     """
     dx, dy, dz = float(relative[0]), float(relative[1]), float(relative[2])
-    return np.array([math.atan2(dy, dx), math.atan2(-dz, math.hypot(dx, dy))])
+    return np.array([math.atan2(dy, dx), math.atan2(-dz, hypot(dx, dy))])
 
 
+@jit
 def azimuth_elevation_jacobian(relative: np.ndarray) -> np.ndarray:
     """d[beta, eps]/dd at d (m, shape (3,)); shape (2, 3), units 1/m.
 
@@ -121,12 +143,14 @@ def azimuth_elevation_jacobian(relative: np.ndarray) -> np.ndarray:
     )
 
 
+@jit
 def range_azimuth_elevation(relative: np.ndarray) -> np.ndarray:
     """[r, beta, eps] (m, rad, rad) of d = p_T - p, seed 003 eq. (2)-(3) in NED; shape (3,)."""
     angles = azimuth_elevation(relative)
-    return np.array([float(np.linalg.norm(relative)), angles[0], angles[1]])
+    return np.array([_norm(relative), angles[0], angles[1]])
 
 
+@jit
 def range_azimuth_elevation_jacobian(relative: np.ndarray) -> np.ndarray:
     """H_rd of seed 003 (section 2.2) in NED, d[r, beta, eps]/dd; shape (3, 3).
 
@@ -135,9 +159,13 @@ def range_azimuth_elevation_jacobian(relative: np.ndarray) -> np.ndarray:
     in `azimuth_elevation_jacobian` (NED: eps = atan2(-d_z, rho)).
     """
     _, r = _horizontal_and_range(relative)
-    return np.vstack([np.asarray(relative, float) / r, azimuth_elevation_jacobian(relative)])
+    jacobian = np.empty((3, 3))
+    jacobian[0] = relative / r
+    jacobian[1:] = azimuth_elevation_jacobian(relative)
+    return jacobian
 
 
+@jit
 def angle_noise_covariance(bearing_variance: float, relative: np.ndarray, pursuer_position_std: float) -> np.ndarray:
     """R of the [azimuth, elevation] measurement, rad^2, shape (2, 2) (module docstring).
 
@@ -147,10 +175,10 @@ def angle_noise_covariance(bearing_variance: float, relative: np.ndarray, pursue
     """
     rho, r = _horizontal_and_range(relative)
     cos_eps = rho / r
-    r_matrix = np.diag([bearing_variance / (cos_eps * cos_eps), bearing_variance])
+    r_matrix = np.diag(np.array([bearing_variance / (cos_eps * cos_eps), bearing_variance]))
     if pursuer_position_std > 0.0:
-        s2 = pursuer_position_std**2
-        r_matrix = r_matrix + np.diag([s2 / (rho * rho), s2 / (r * r)])
+        s2 = power(pursuer_position_std, 2.0)
+        r_matrix = r_matrix + np.diag(np.array([s2 / (rho * rho), s2 / (r * r)]))
     return r_matrix
 
 
@@ -158,19 +186,28 @@ def _measured_direction(bearing: BearingMeasurement) -> np.ndarray:
     return unit(np.asarray(bearing.direction, dtype=float))
 
 
+@jit
 def _innovation_angle(direction: np.ndarray, relative: np.ndarray) -> float:
     """Angle, rad, between the unit measured bearing and the predicted line of sight d."""
-    norm = float(np.linalg.norm(relative))
+    norm = _norm(relative)
     if norm < MIN_RANGE:
         return 0.5 * math.pi
     return float(math.acos(min(1.0, max(-1.0, float(direction @ relative) / norm))))
 
 
+@jit
+def _behind(restart_when_behind: bool, direction: np.ndarray, relative: np.ndarray, predicted_range: float) -> bool:
+    """The restart guard (remark 3, as the u-PLKF's): a prior behind the sensor or on it."""
+    return restart_when_behind and (float(direction @ relative) <= 0.0 or predicted_range < 1e-6)
+
+
+@jit
 def _innovation_covariance(covariance: np.ndarray, h: np.ndarray, r: np.ndarray) -> np.ndarray:
     """S = H P H^T + R, shape (m, m), the covariance of the residual (reported, as in `_kalman_update`)."""
     return _symmetrize(h @ covariance @ h.T + r)
 
 
+@jit
 def _kalman_update(
     state: np.ndarray, covariance: np.ndarray, residual: np.ndarray, h: np.ndarray, r: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -178,14 +215,25 @@ def _kalman_update(
 
     K = P H^T (H P H^T + R)^-1, x+ = x + K nu, P+ = (I - K H) P (I - K H)^T + K R K^T
     (the Joseph form keeps P+ symmetric PSD for any gain). Shapes: state (n,),
-    covariance (n, n), residual (m,), h (m, n), r (m, m).
+    covariance (n, n), residual (m,), h (m, n), r (m, m). (Compiled, np.linalg.solve is numba's
+    binding of LAPACK dgesv, numpy's routine: the same gain.)
     """
     ph_t = covariance @ h.T
     innovation_covariance = _symmetrize(h @ ph_t + r)
-    gain = np.linalg.solve(innovation_covariance, ph_t.T).T
+    # numpy's solve returns a C-ordered (m, n), numba's a Fortran-ordered one: made C-ordered here, so that
+    # K = its transpose is Fortran-ordered either way and K nu, K H, K R K^T take the same BLAS paths
+    # (a C-ordered K sends K nu to the other gemv kernel, which rounds differently)
+    gain = np.ascontiguousarray(np.linalg.solve(innovation_covariance, ph_t.T)).T
     i_kh = np.eye(state.size) - gain @ h
     updated = i_kh @ covariance @ i_kh.T + gain @ r @ gain.T
     return state + gain @ residual, _symmetrize(updated)
+
+
+@jit
+def _linear_predict(transition: np.ndarray, discrete_process_noise: np.ndarray, state: np.ndarray,
+                    covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(x^-, P^-) of eq. (1): x^- = A x, P^- = A P A^T + B Q B^T (symmetrised); A (6, 6), B Q B^T (6, 6)."""
+    return transition @ state, _symmetrize(transition @ covariance @ transition.T + discrete_process_noise)
 
 
 class _TickedFilter:
@@ -262,6 +310,33 @@ class _ConstantVelocityFilter(_TickedFilter):
 # --------------------------------------------------------------------------- classic EKF
 
 
+@jit
+def _az_el_correct(state: np.ndarray, covariance: np.ndarray, lead: float, pursuer_position: np.ndarray,
+                   direction: np.ndarray, restart_when_behind: bool, bearing_variance: float, pursuer_position_std: float):
+    """`AzElEKF.correct`'s arithmetic: the [beta, eps] update of section VIII-B with H = J_d [I3, lead I3].
+
+    state: [p_T, v_T] (6,), covariance (6, 6), at the filter's time; lead: bearing time - filter time, s;
+    pursuer_position: p (3,), m; direction: the unit measured bearing (3,). Returns (restart, innovation angle,
+    predicted range, residual (2,), S (2, 2), x+ (6,), P+ (6, 6)): restart when the guard fires (then the rest
+    is the prior, unused), else the Joseph update with its target position kept within MAX_RANGE."""
+    relative = state[:3] + lead * state[3:] - pursuer_position
+    innovation_angle = _innovation_angle(direction, relative)
+    predicted_range = _norm(relative)
+    if _behind(restart_when_behind, direction, relative, predicted_range):
+        return True, innovation_angle, predicted_range, np.zeros(2), np.zeros((2, 2)), state, covariance
+    residual = azimuth_elevation(direction) - azimuth_elevation(relative)
+    residual = np.array([wrap_angle(residual[0]), wrap_angle(residual[1])])
+    jacobian = azimuth_elevation_jacobian(relative)
+    h = np.hstack((jacobian, lead * jacobian))
+    r = angle_noise_covariance(bearing_variance, relative, pursuer_position_std)
+    innovation_covariance = _innovation_covariance(covariance, h, r)
+    updated, updated_covariance = _kalman_update(state, covariance, residual, h, r)
+    # A linearised angle update steps along the tangent plane, so large residuals (a
+    # sensor much noisier than Sigma) lengthen the range at every bearing: keep it bounded.
+    updated[:3] = limit_range(updated[:3], pursuer_position)
+    return False, innovation_angle, predicted_range, residual, innovation_covariance, updated, updated_covariance
+
+
 class AzElEKF(_ConstantVelocityFilter):
     """The "classic EKF" of section VIII-B: Cartesian [p_T, v_T], measurement [azimuth, elevation].
 
@@ -296,8 +371,7 @@ class AzElEKF(_ConstantVelocityFilter):
         """Time update over one period (eq. (1)): x^- = A x, P^- = A P A^T + B Q B^T."""
         state, covariance = self._require_state()
         self._snapshot = None
-        self._state = self._a @ state
-        self._covariance = _symmetrize(self._a @ covariance @ self._a.T + self._q_discrete)
+        self._state, self._covariance = _linear_predict(self._a, self._q_discrete, state, covariance)
         self._ticks += 1
 
     def correct(self, bearing: BearingMeasurement) -> CorrectionReport:
@@ -310,26 +384,18 @@ class AzElEKF(_ConstantVelocityFilter):
         """
         state, covariance = self._require_state()
         lead = bearing.time - self.time
-        relative = state[:3] + lead * state[3:] - np.asarray(bearing.pursuer_position, float)
+        pursuer = np.asarray(bearing.pursuer_position, float)
         direction = _measured_direction(bearing)
-        innovation_angle = _innovation_angle(direction, relative)
-        predicted_range = float(np.linalg.norm(relative))
-        if self.restart_when_behind and (float(direction @ relative) <= 0.0 or predicted_range < 1e-6):
+        restart, innovation_angle, predicted_range, residual, innovation_covariance, updated, updated_covariance = \
+            _az_el_correct(state, covariance, lead, pursuer, direction, self.restart_when_behind, self.bearing_variance,
+                           self.pursuer_position_std)
+        if restart:
             self._restart_on(bearing, predicted_range, state[3:].copy())
             return CorrectionReport(innovation_angle, False, reinitialized=True)
-        residual = azimuth_elevation(direction) - azimuth_elevation(relative)
-        residual = np.array([wrap_angle(residual[0]), wrap_angle(residual[1])])
-        jacobian = azimuth_elevation_jacobian(relative)
-        h = np.hstack([jacobian, lead * jacobian])
-        r = angle_noise_covariance(self.bearing_variance, relative, self.pursuer_position_std)
         self._snapshot = None
-        report = CorrectionReport(innovation_angle, False, innovation=residual,
-                                  innovation_covariance=_innovation_covariance(covariance, h, r), innovation_dof=2)
-        self._state, self._covariance = _kalman_update(state, covariance, residual, h, r)
-        # A linearised angle update steps along the tangent plane, so large residuals (a
-        # sensor much noisier than Sigma) lengthen the range at every bearing: keep it bounded.
-        self._state[:3] = limit_range(self._state[:3], np.asarray(bearing.pursuer_position, dtype=float))
-        return report
+        self._state, self._covariance = updated, updated_covariance
+        return CorrectionReport(innovation_angle, False, innovation=residual, innovation_covariance=innovation_covariance,
+                                innovation_dof=2)
 
     def _cartesian(self) -> tuple[np.ndarray, np.ndarray]:
         return self._require_state()
@@ -338,6 +404,7 @@ class AzElEKF(_ConstantVelocityFilter):
 # --------------------------------------------------------------------------- modified spherical coordinates
 
 
+@jit
 def _unit_and_partials(beta: float, eps: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """u(beta, eps) = [cos eps cos beta, cos eps sin beta, -sin eps] (NED, eps up) and du/dbeta, du/deps."""
     cb, sb, ce, se = math.cos(beta), math.sin(beta), math.cos(eps), math.sin(eps)
@@ -347,6 +414,7 @@ def _unit_and_partials(beta: float, eps: float) -> tuple[np.ndarray, np.ndarray,
     return u, u_beta, u_eps
 
 
+@jit
 def cartesian_from_msc(y: np.ndarray) -> np.ndarray:
     """Relative Cartesian [d, d_dot] (m, m/s; shape (6,)) from MSC y (shape (6,)).
 
@@ -355,12 +423,13 @@ def cartesian_from_msc(y: np.ndarray) -> np.ndarray:
     Standard form: d = u/w, d_dot = (s u + beta_dot du/dbeta + eps_dot du/deps)/w.
     w is floored at MIN_INVERSE_RANGE.
     """
-    beta, eps, w, beta_dot, eps_dot, s = (float(value) for value in y)
+    beta, eps, w, beta_dot, eps_dot, s = float(y[0]), float(y[1]), float(y[2]), float(y[3]), float(y[4]), float(y[5])
     w = max(w, MIN_INVERSE_RANGE)
     u, u_beta, u_eps = _unit_and_partials(beta, eps)
-    return np.concatenate([u / w, (s * u + beta_dot * u_beta + eps_dot * u_eps) / w])
+    return np.concatenate((u / w, (s * u + beta_dot * u_beta + eps_dot * u_eps) / w))
 
 
+@jit
 def msc_from_cartesian(relative_state: np.ndarray) -> np.ndarray:
     """MSC y = [beta, eps, 1/r, beta_dot, eps_dot, r_dot/r] from [d, d_dot] (shape (6,) each).
 
@@ -369,17 +438,16 @@ def msc_from_cartesian(relative_state: np.ndarray) -> np.ndarray:
     eps_dot = (-rho v_z + d_z rho_dot)/r^2 with rho_dot = (d_x v_x + d_y v_y)/rho,
     r_dot/r = d.v / r^2. Units rad, 1/m, rad/s, 1/s. rho and r guarded.
     """
-    d = np.asarray(relative_state[:3], float)
-    v = np.asarray(relative_state[3:], float)
-    dx, dy, dz = float(d[0]), float(d[1]), float(d[2])
-    vx, vy, vz = float(v[0]), float(v[1]), float(v[2])
+    d = relative_state[:3]
+    dx, dy, dz = float(relative_state[0]), float(relative_state[1]), float(relative_state[2])
+    vx, vy, vz = float(relative_state[3]), float(relative_state[4]), float(relative_state[5])
     rho, r = _horizontal_and_range(d)
     r2 = r * r
     rho_dot = (dx * vx + dy * vy) / rho
     return np.array(
         [
             math.atan2(dy, dx),
-            math.atan2(-dz, math.hypot(dx, dy)),
+            math.atan2(-dz, hypot(dx, dy)),
             min(1.0 / r, MAX_INVERSE_RANGE),
             (dx * vy - dy * vx) / (rho * rho),
             (-rho * vz + dz * rho_dot) / r2,
@@ -388,6 +456,7 @@ def msc_from_cartesian(relative_state: np.ndarray) -> np.ndarray:
     )
 
 
+@jit
 def cartesian_from_msc_jacobian(y: np.ndarray) -> np.ndarray:
     """d[d, d_dot]/dy of `cartesian_from_msc` (analytic); shape (6, 6).
 
@@ -396,7 +465,7 @@ def cartesian_from_msc_jacobian(y: np.ndarray) -> np.ndarray:
     (s u_eps + beta_dot u_be - eps_dot u)/w (u_ee = -u), d d_dot/dw = -d_dot/w,
     d d_dot/d[beta_dot, eps_dot, s] = [u_beta, u_eps, u]/w.
     """
-    beta, eps, w, beta_dot, eps_dot, s = (float(value) for value in y)
+    beta, eps, w, beta_dot, eps_dot, s = float(y[0]), float(y[1]), float(y[2]), float(y[3]), float(y[4]), float(y[5])
     w = max(w, MIN_INVERSE_RANGE)
     cb, sb, ce, se = math.cos(beta), math.sin(beta), math.cos(eps), math.sin(eps)
     u, u_beta, u_eps = _unit_and_partials(beta, eps)
@@ -417,13 +486,15 @@ def cartesian_from_msc_jacobian(y: np.ndarray) -> np.ndarray:
     return jacobian
 
 
+@jit
 def msc_from_cartesian_jacobian(relative_state: np.ndarray) -> np.ndarray:
     """dy/d[d, d_dot] of `msc_from_cartesian` (analytic); shape (6, 6).
 
     Derivatives of the standard forms in `msc_from_cartesian` (rho, r guarded), with
     N = -rho v_z + d_z q/rho, q = d_x v_x + d_y v_y, eps_dot = N/r^2.
     """
-    dx, dy, dz, vx, vy, vz = (float(value) for value in relative_state)
+    dx, dy, dz = float(relative_state[0]), float(relative_state[1]), float(relative_state[2])
+    vx, vy, vz = float(relative_state[3]), float(relative_state[4]), float(relative_state[5])
     d = np.array([dx, dy, dz])
     v = np.array([vx, vy, vz])
     rho, r = _horizontal_and_range(d)
@@ -435,8 +506,12 @@ def msc_from_cartesian_jacobian(relative_state: np.ndarray) -> np.ndarray:
     jacobian[2, :3] = -d / (r2 * r)
     # beta_dot = c / rho^2, c = dx vy - dy vx
     c = dx * vy - dy * vx
-    jacobian[3, :3] = [vy / rho2 - 2.0 * dx * c / (rho2 * rho2), -vx / rho2 - 2.0 * dy * c / (rho2 * rho2), 0.0]
-    jacobian[3, 3:] = [-dy / rho2, dx / rho2, 0.0]
+    jacobian[3, 0] = vy / rho2 - 2.0 * dx * c / (rho2 * rho2)
+    jacobian[3, 1] = -vx / rho2 - 2.0 * dy * c / (rho2 * rho2)
+    jacobian[3, 2] = 0.0
+    jacobian[3, 3] = -dy / rho2
+    jacobian[3, 4] = dx / rho2
+    jacobian[3, 5] = 0.0
     # eps_dot = N / r^2
     n = -rho * vz + dz * q / rho
     rho3 = rho2 * rho
@@ -454,6 +529,89 @@ def msc_from_cartesian_jacobian(relative_state: np.ndarray) -> np.ndarray:
     jacobian[5, :3] = v / r2 - 2.0 * float(d @ v) * d / r4
     jacobian[5, 3:] = d / r2
     return jacobian
+
+
+@jit
+def _msc_guard(y: np.ndarray) -> np.ndarray:
+    """y with beta wrapped, eps clipped to +-MAX_ELEVATION, 1/r kept in [MIN_INVERSE_RANGE, MAX_INVERSE_RANGE]."""
+    guarded = y.copy()
+    guarded[0] = wrap_angle(guarded[0])
+    guarded[1] = min(MAX_ELEVATION, max(-MAX_ELEVATION, float(guarded[1])))
+    guarded[2] = min(MAX_INVERSE_RANGE, max(MIN_INVERSE_RANGE, float(guarded[2])))
+    return guarded
+
+
+@jit
+def _msc_propagate(state: np.ndarray, covariance: np.ndarray, a: np.ndarray,
+                   q_discrete: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(y^-, P^-) over one step with transition A and Cartesian process noise Q_d (`MSCEKF`'s docstring):
+    y^- = m(A c(y)) guarded, P^- = J_m (A J_c P J_c^T A^T + Q_d) J_m^T kept PSD."""
+    moved = a @ cartesian_from_msc(state)
+    j_c = a @ cartesian_from_msc_jacobian(state)
+    j_m = msc_from_cartesian_jacobian(moved)
+    cartesian_covariance = j_c @ covariance @ j_c.T + q_discrete
+    return _msc_guard(msc_from_cartesian(moved)), _symmetric_psd(j_m @ cartesian_covariance @ j_m.T)
+
+
+@jit
+def _msc_from_absolute(cartesian: np.ndarray, covariance: np.ndarray,
+                       reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(y, P_y) of absolute [p_T, v_T] (6,) and its covariance (6, 6) about p_ref (3,): y = m([p_T - p_ref, v_T])
+    guarded, P_y = J_m P J_m^T kept PSD."""
+    relative_state = cartesian.copy()
+    relative_state[:3] -= reference
+    j_m = msc_from_cartesian_jacobian(relative_state)
+    return _msc_guard(msc_from_cartesian(relative_state)), _symmetric_psd(j_m @ covariance @ j_m.T)
+
+
+@jit
+def _msc_to_absolute(state: np.ndarray, covariance: np.ndarray,
+                     reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Absolute [p_ref + d, d_dot] (6,) of MSC y about p_ref (3,) and J_c P J_c^T (6, 6) kept PSD."""
+    relative_state = cartesian_from_msc(state)
+    j_c = cartesian_from_msc_jacobian(state)
+    relative_state[:3] += reference
+    return relative_state, _symmetric_psd(j_c @ covariance @ j_c.T)
+
+
+@jit
+def _msc_correct(state: np.ndarray, covariance: np.ndarray, referenced: bool, reference: np.ndarray,
+                 pursuer_position: np.ndarray, lead: float, a_lead: np.ndarray, direction: np.ndarray,
+                 restart_when_behind: bool, bearing_variance: float, pursuer_position_std: float):
+    """`MSCEKF.correct`'s arithmetic: re-reference to the bearing's pursuer position, then the [beta, eps] update
+    on H = [I2, 0] (H = [I2, 0] J_m(A(lead) c(y)) A(lead) J_c(y) for a bearing lead s off the filter's time).
+
+    state, covariance: y (6,) and P (6, 6) about `reference` (3,) when `referenced`, else absolute Cartesian.
+    pursuer_position: p (3,), m, the new reference. a_lead: A(lead) (6, 6), used when lead != 0. direction: the
+    unit measured bearing (3,). Returns (y', P' about p, restart, innovation angle, predicted range, the relative
+    state at the bearing's time (6,), residual (2,), S (2, 2), y+ (6,), P+ (6, 6)); on restart the last four are
+    placeholders (the re-referenced prior)."""
+    if referenced:
+        cartesian, cartesian_covariance = _msc_to_absolute(state, covariance, reference)
+    else:
+        cartesian, cartesian_covariance = state.copy(), covariance.copy()
+    state, covariance = _msc_from_absolute(cartesian, cartesian_covariance, pursuer_position)
+    if lead == 0.0:
+        relative_state = cartesian_from_msc(state)
+        predicted = state[:2]
+        h = np.hstack((np.eye(2), np.zeros((2, 4))))
+    else:
+        relative_state = a_lead @ cartesian_from_msc(state)
+        predicted = msc_from_cartesian(relative_state)[:2]
+        h = (msc_from_cartesian_jacobian(relative_state)[:2] @ a_lead) @ cartesian_from_msc_jacobian(state)
+    relative = relative_state[:3]
+    innovation_angle = _innovation_angle(direction, relative)
+    predicted_range = _norm(relative)
+    if _behind(restart_when_behind, direction, relative, predicted_range):
+        return (state, covariance, True, innovation_angle, predicted_range, relative_state, np.zeros(2),
+                np.zeros((2, 2)), state, covariance)
+    residual = azimuth_elevation(direction) - predicted
+    residual = np.array([wrap_angle(residual[0]), wrap_angle(residual[1])])
+    r = angle_noise_covariance(bearing_variance, relative, pursuer_position_std)
+    innovation_covariance = _innovation_covariance(covariance, h, r)
+    updated, updated_covariance = _kalman_update(state, covariance, residual, h, r)
+    return (state, covariance, False, innovation_angle, predicted_range, relative_state, residual, innovation_covariance,
+            _msc_guard(updated), updated_covariance)
 
 
 class MSCEKF(_ConstantVelocityFilter):
@@ -534,55 +692,36 @@ class MSCEKF(_ConstantVelocityFilter):
         state, covariance = self._require_state()
         self._snapshot = None
         if self._reference is None:
-            self._state = self._a @ state
-            self._covariance = _symmetrize(self._a @ covariance @ self._a.T + self._q_discrete)
+            self._state, self._covariance = _linear_predict(self._a, self._q_discrete, state, covariance)
         else:
-            self._state, self._covariance = self._propagate(state, covariance, self._a, self._q_discrete)
+            self._state, self._covariance = _msc_propagate(state, covariance, self._a, self._q_discrete)
         self._ticks += 1
 
     def correct(self, bearing: BearingMeasurement) -> CorrectionReport:
         """Re-reference to bearing.pursuer_position, then the [beta, eps] update (class docstring)."""
-        self._require_state()
-        pursuer = np.asarray(bearing.pursuer_position, float)
-        cartesian, cartesian_covariance = self._cartesian()
-        self._set_cartesian(cartesian, cartesian_covariance, pursuer)
         state, covariance = self._require_state()
+        pursuer = np.asarray(bearing.pursuer_position, float).reshape(3).copy()
         lead = bearing.time - self.time
-        direction = _measured_direction(bearing)
-        if lead == 0.0:
-            relative_state = cartesian_from_msc(state)
-            predicted = state[:2]
-            h = np.hstack([np.eye(2), np.zeros((2, 4))])
-        else:
-            a_lead, _ = transition_matrices(lead)
-            relative_state = a_lead @ cartesian_from_msc(state)
-            predicted = msc_from_cartesian(relative_state)[:2]
-            h = (msc_from_cartesian_jacobian(relative_state)[:2] @ a_lead) @ cartesian_from_msc_jacobian(state)
-        relative = relative_state[:3]
-        innovation_angle = _innovation_angle(direction, relative)
-        predicted_range = float(np.linalg.norm(relative))
-        if self.restart_when_behind and (float(direction @ relative) <= 0.0 or predicted_range < 1e-6):
+        try:
+            direction = _measured_direction(bearing)
+        except ValueError:  # a bearing that cannot be normalised: re-referenced first, as it always was
+            self._set_cartesian(*self._cartesian(), pursuer)
+            raise
+        a_lead = self._a if lead == 0.0 else transition_matrices(lead)[0]
+        referenced = self._reference is not None
+        (state, covariance, restart, innovation_angle, predicted_range, relative_state, residual, innovation_covariance,
+         updated, updated_covariance) = _msc_correct(state, covariance, referenced,
+                                                     self._reference if referenced else pursuer, pursuer, lead, a_lead,
+                                                     direction, self.restart_when_behind, self.bearing_variance,
+                                                     self.pursuer_position_std)
+        self._snapshot = None
+        self._reference, self._state, self._covariance = pursuer, state, covariance
+        if restart:
             self._restart_on(bearing, predicted_range, relative_state[3:].copy())
             return CorrectionReport(innovation_angle, False, reinitialized=True)
-        residual = azimuth_elevation(direction) - predicted
-        residual = np.array([wrap_angle(residual[0]), wrap_angle(residual[1])])
-        r = angle_noise_covariance(self.bearing_variance, relative, self.pursuer_position_std)
-        self._snapshot = None
-        report = CorrectionReport(innovation_angle, False, innovation=residual,
-                                  innovation_covariance=_innovation_covariance(covariance, h, r), innovation_dof=2)
-        updated, self._covariance = _kalman_update(state, covariance, residual, h, r)
-        self._state = self._guard(updated)
-        return report
-
-    def _propagate(
-        self, state: np.ndarray, covariance: np.ndarray, a: np.ndarray, q_discrete: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """(y^-, P^-) over one step with transition A and Cartesian process noise Q_d."""
-        moved = a @ cartesian_from_msc(state)
-        j_c = a @ cartesian_from_msc_jacobian(state)
-        j_m = msc_from_cartesian_jacobian(moved)
-        cartesian_covariance = j_c @ covariance @ j_c.T + q_discrete
-        return self._guard(msc_from_cartesian(moved)), _symmetric_psd(j_m @ cartesian_covariance @ j_m.T)
+        self._state, self._covariance = updated, updated_covariance
+        return CorrectionReport(innovation_angle, False, innovation=residual, innovation_covariance=innovation_covariance,
+                                innovation_dof=2)
 
     def _set_cartesian(self, cartesian: np.ndarray, covariance: np.ndarray, reference: np.ndarray | None) -> None:
         """Store absolute [p_T, v_T] and its covariance as MSC about `reference` (or as-is when None)."""
@@ -593,29 +732,14 @@ class MSCEKF(_ConstantVelocityFilter):
             self._covariance = _symmetrize(covariance)
             return
         self._reference = np.asarray(reference, float).reshape(3).copy()
-        relative_state = cartesian.copy()
-        relative_state[:3] -= self._reference
-        j_m = msc_from_cartesian_jacobian(relative_state)
-        self._state = self._guard(msc_from_cartesian(relative_state))
-        self._covariance = _symmetric_psd(j_m @ covariance @ j_m.T)
-
-    @staticmethod
-    def _guard(y: np.ndarray) -> np.ndarray:
-        guarded = y.copy()
-        guarded[0] = wrap_angle(guarded[0])
-        guarded[1] = min(MAX_ELEVATION, max(-MAX_ELEVATION, float(guarded[1])))
-        guarded[2] = min(MAX_INVERSE_RANGE, max(MIN_INVERSE_RANGE, float(guarded[2])))
-        return guarded
+        self._state, self._covariance = _msc_from_absolute(cartesian, covariance, self._reference)
 
     def _cartesian(self) -> tuple[np.ndarray, np.ndarray]:
         """Absolute [p_ref + d, d_dot] and J_c P J_c^T."""
         state, covariance = self._require_state()
         if self._reference is None:
             return state.copy(), covariance.copy()
-        relative_state = cartesian_from_msc(state)
-        j_c = cartesian_from_msc_jacobian(state)
-        relative_state[:3] += self._reference
-        return relative_state, _symmetric_psd(j_c @ covariance @ j_c.T)
+        return _msc_to_absolute(state, covariance, self._reference)
 
 
 # --------------------------------------------------------------------------- seed 003 EKF
@@ -625,6 +749,7 @@ SEED003_PROCESS_NOISE = 2.0 * np.diag([1.0, math.radians(0.57) ** 2, math.radian
 """Q_r of seed 003 case 1: 2 diag(1, (0.57 deg)^2, (0.57 deg)^2) for (v, gamma, chi), units (m/s)^2/s, rad^2/s."""
 
 
+@jit
 def flight_path_velocity(speed: float, gamma: float, chi: float) -> np.ndarray:
     """NED velocity of seed 003 eq. (10): v [cos g cos chi, cos g sin chi, -sin g]; m/s, shape (3,).
 
@@ -635,6 +760,7 @@ def flight_path_velocity(speed: float, gamma: float, chi: float) -> np.ndarray:
     return speed * np.array([cg * cc, cg * sc, -sg])
 
 
+@jit
 def flight_path_velocity_jacobian(speed: float, gamma: float, chi: float) -> np.ndarray:
     """d velocity / d(v, gamma, chi) of `flight_path_velocity`: F_rd1 of seed 003 in NED; shape (3, 3)."""
     cg, sg, cc, sc = math.cos(gamma), math.sin(gamma), math.cos(chi), math.sin(chi)
@@ -647,17 +773,19 @@ def flight_path_velocity_jacobian(speed: float, gamma: float, chi: float) -> np.
     )
 
 
+@jit
 def flight_path_step(state: np.ndarray, dt: float) -> np.ndarray:
     """Mean of seed 003 eq. (9)-(10) over dt (s) with no commands: exact integral; shape (6,).
 
     With v, gamma, chi constant (white-noise driven, zero mean) the position moves on a
     straight line: p(t + dt) = p + dt * velocity(v, gamma, chi).
     """
-    stepped = np.array(state, dtype=float)
+    stepped = state.astype(np.float64)  # a copy
     stepped[:3] += dt * flight_path_velocity(stepped[3], stepped[4], stepped[5])
     return stepped
 
 
+@jit
 def flight_path_step_jacobian(state: np.ndarray, dt: float) -> np.ndarray:
     """Exact Jacobian of `flight_path_step`: I + F_r dt, F_r = [[0, F_rd1], [0, 0]]; shape (6, 6).
 
@@ -667,6 +795,66 @@ def flight_path_step_jacobian(state: np.ndarray, dt: float) -> np.ndarray:
     jacobian = np.eye(6)
     jacobian[:3, 3:] = dt * flight_path_velocity_jacobian(state[3], state[4], state[5])
     return jacobian
+
+
+@jit
+def _flight_path_predict(state: np.ndarray, covariance: np.ndarray, period: float,
+                         discrete_process_noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`RangeAzElEKF.predict`'s arithmetic: X^- = `flight_path_step`(X, period), P^- = F P F^T + G Q G^T dt with
+    F = `flight_path_step_jacobian` (symmetrised); X (6,), P (6, 6), G Q G^T dt (6, 6)."""
+    f = flight_path_step_jacobian(state, period)
+    return flight_path_step(state, period), _symmetrize(f @ covariance @ f.T + discrete_process_noise)
+
+
+@jit
+def _fold_flight_path(state: np.ndarray, covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Keep v >= 0 ((v, g, chi) ~ (-v, -g, chi + pi), Jacobian diag(-1, -1, 1)) and wrap the angles."""
+    state = state.copy()
+    if state[3] < 0.0:
+        state[3], state[4], state[5] = -state[3], -state[4], state[5] + math.pi
+        flip = np.diag(np.array([1.0, 1.0, 1.0, -1.0, -1.0, 1.0]))
+        covariance = flip @ covariance @ flip
+    state[4] = wrap_angle(state[4])
+    state[5] = wrap_angle(state[5])
+    return state, covariance
+
+
+@jit
+def _range_az_el_correct(state: np.ndarray, covariance: np.ndarray, lead: float, pursuer_position: np.ndarray,
+                         direction: np.ndarray, measured_range: float, range_noise_std: float, bearing_variance: float,
+                         pursuer_position_std: float):
+    """`RangeAzElEKF.correct`'s arithmetic: the [r, beta, eps] update of seed 003 Table 1, H = H_rd [I3, lead F_rd1]
+    (the erratum's azimuth row), R = diag(sigma_r^2, sigma^2/cos^2(eps), sigma^2) + sigma_p^2 H_rd H_rd^T.
+
+    state: X (6,), covariance (6, 6); pursuer_position: p (3,), m; direction: the unit measured bearing (3,);
+    measured_range: m. Returns (innovation angle, residual (3,), S (3, 3), X+ (6,), P+ (6, 6)), X+ folded."""
+    relative = flight_path_step(state, lead)[:3] - pursuer_position
+    innovation_angle = _innovation_angle(direction, relative)
+    angles = azimuth_elevation(direction)
+    measured = np.array([measured_range, angles[0], angles[1]])
+    residual = measured - range_azimuth_elevation(relative)
+    residual[1] = wrap_angle(residual[1])
+    residual[2] = wrap_angle(residual[2])
+    h_d = range_azimuth_elevation_jacobian(relative)
+    h = np.hstack((h_d, lead * (h_d @ flight_path_velocity_jacobian(state[3], state[4], state[5]))))
+    rho, r = _horizontal_and_range(relative)
+    cos_eps = rho / r
+    r_matrix = np.diag(np.array([power(range_noise_std, 2.0), bearing_variance / power(cos_eps, 2.0), bearing_variance]))
+    if pursuer_position_std > 0.0:
+        r_matrix = r_matrix + power(pursuer_position_std, 2.0) * (h_d @ h_d.T)
+    innovation_covariance = _innovation_covariance(covariance, h, r_matrix)
+    updated, updated_covariance = _kalman_update(state, covariance, residual, h, r_matrix)
+    updated, updated_covariance = _fold_flight_path(updated, updated_covariance)
+    return innovation_angle, residual, innovation_covariance, updated, updated_covariance
+
+
+@jit
+def _flight_path_to_cartesian(state: np.ndarray, covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """[p_T, v_T] (6,) with v_T = velocity(v, gamma, chi) and T P T^T (6, 6), T = blockdiag(I3, F_rd1), symmetrised."""
+    transform = np.eye(6)
+    transform[3:, 3:] = flight_path_velocity_jacobian(state[3], state[4], state[5])
+    cartesian = np.concatenate((state[:3], flight_path_velocity(state[3], state[4], state[5])))
+    return cartesian, _symmetrize(transform @ covariance @ transform.T)
 
 
 class RangeAzElEKF(_TickedFilter):
@@ -766,9 +954,7 @@ class RangeAzElEKF(_TickedFilter):
         """Continuous-discrete time update over one period (seed 003 Table 1, discretised)."""
         state, covariance = self._require_state()
         self._snapshot = None
-        f = flight_path_step_jacobian(state, self.period)
-        self._state = flight_path_step(state, self.period)
-        self._covariance = _symmetrize(f @ covariance @ f.T + self._q_discrete)
+        self._state, self._covariance = _flight_path_predict(state, covariance, self.period, self._q_discrete)
         self._ticks += 1
 
     def correct(self, bearing: BearingMeasurement) -> CorrectionReport:
@@ -781,44 +967,18 @@ class RangeAzElEKF(_TickedFilter):
             raise ValueError("RangeAzElEKF needs a range measurement (a [sensor] range_noise_std)")
         state, covariance = self._require_state()
         lead = bearing.time - self.time
-        relative = flight_path_step(state, lead)[:3] - np.asarray(bearing.pursuer_position, float)
+        pursuer = np.asarray(bearing.pursuer_position, float)
         direction = _measured_direction(bearing)
-        innovation_angle = _innovation_angle(direction, relative)
-        angles = azimuth_elevation(direction)
-        measured = np.array([float(bearing.range), angles[0], angles[1]])
-        residual = measured - range_azimuth_elevation(relative)
-        residual[1] = wrap_angle(residual[1])
-        residual[2] = wrap_angle(residual[2])
-        h_d = range_azimuth_elevation_jacobian(relative)
-        h = np.hstack([h_d, lead * (h_d @ flight_path_velocity_jacobian(state[3], state[4], state[5]))])
-        rho, r = _horizontal_and_range(relative)
-        cos_eps = rho / r
-        r_matrix = np.diag([self.range_noise_std**2, self.bearing_variance / cos_eps**2, self.bearing_variance])
-        if self.pursuer_position_std > 0.0:
-            r_matrix = r_matrix + self.pursuer_position_std**2 * (h_d @ h_d.T)
+        innovation_angle, residual, innovation_covariance, self._state, self._covariance = _range_az_el_correct(
+            state, covariance, lead, pursuer, direction, float(bearing.range), self.range_noise_std, self.bearing_variance,
+            self.pursuer_position_std)
         self._snapshot = None
-        report = CorrectionReport(innovation_angle, False, innovation=residual,
-                                  innovation_covariance=_innovation_covariance(covariance, h, r_matrix), innovation_dof=3)
-        updated, updated_covariance = _kalman_update(state, covariance, residual, h, r_matrix)
-        self._state, self._covariance = self._fold(updated, updated_covariance)
-        return report
+        return CorrectionReport(innovation_angle, False, innovation=residual, innovation_covariance=innovation_covariance,
+                                innovation_dof=3)
 
-    @staticmethod
-    def _fold(state: np.ndarray, covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Keep v >= 0 ((v, g, chi) ~ (-v, -g, chi + pi), Jacobian diag(-1, -1, 1)) and wrap the angles."""
-        state = state.copy()
-        if state[3] < 0.0:
-            state[3], state[4], state[5] = -state[3], -state[4], state[5] + math.pi
-            flip = np.diag([1.0, 1.0, 1.0, -1.0, -1.0, 1.0])
-            covariance = flip @ covariance @ flip
-        state[4] = wrap_angle(state[4])
-        state[5] = wrap_angle(state[5])
-        return state, covariance
+    _fold = staticmethod(_fold_flight_path)
 
     def _cartesian(self) -> tuple[np.ndarray, np.ndarray]:
         """[p_T, v_T] with v_T = velocity(v, gamma, chi) and T P T^T, T = blockdiag(I3, F_rd1)."""
         state, covariance = self._require_state()
-        transform = np.eye(6)
-        transform[3:, 3:] = flight_path_velocity_jacobian(state[3], state[4], state[5])
-        cartesian = np.concatenate([state[:3], flight_path_velocity(state[3], state[4], state[5])])
-        return cartesian, _symmetrize(transform @ covariance @ transform.T)
+        return _flight_path_to_cartesian(state, covariance)
