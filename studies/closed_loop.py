@@ -73,7 +73,13 @@ class FlightLog:
     }
 
     def __init__(self, rows: int) -> None:
-        self._data = {key: np.full((rows, width), np.nan) for key, width in self._WIDTHS.items()}
+        # One table, a row per tick (`_log_row` writes a whole row in one assignment); each column is a view of it.
+        self._table = np.full((rows, sum(self._WIDTHS.values())), np.nan)
+        self._data = {}
+        start = 0
+        for key, width in self._WIDTHS.items():
+            self._data[key] = self._table[:, start:start + width]
+            start += width
         self.rows = 0
 
     def append(self, **values: object) -> None:
@@ -84,7 +90,8 @@ class FlightLog:
 
     def series(self) -> dict[str, np.ndarray]:
         """All columns trimmed to the rows written, plus the derived ones; (N,) or (N, 3)."""
-        out = {key: (array[: self.rows, 0] if array.shape[1] == 1 else array[: self.rows]) for key, array in self._data.items()}
+        # copies: contiguous columns of their own (the table's columns are strided views)
+        out = {key: (array[: self.rows, 0] if array.shape[1] == 1 else array[: self.rows]).copy() for key, array in self._data.items()}
         relative = out["target_position"] - out["pursuer_position"]
         out["range"] = np.linalg.norm(relative, axis=1)
         out["range_estimate"] = np.linalg.norm(out["estimate_position"] - out["pursuer_position"], axis=1)
@@ -142,7 +149,8 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
 
     for index, step in enumerate(event_steps):
         time = step * dt
-        truth = autopilot.state
+        # The true state as tuples (autopilot.kinematics(): the values of autopilot.state, without its arrays).
+        position, velocity, rotation = autopilot.kinematics()
         measured_position, measured_velocity = autopilot.measured_state()
         pursuer = PursuerState(time, measured_position, measured_velocity)
         bearings = []
@@ -150,7 +158,7 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
             # Fixes go through the fault model and the validator, as over the real link; the
             # bearing is then taken at each delivered fix's time from the pursuer's state then.
             if step % every["sensor"] == 0:
-                link.offer(time, target.position, target.velocity, truth, measured_position)
+                link.offer(time, target.position, target.velocity, autopilot.state, measured_position)
             for stamp, fix_position, sample in link.deliver(time, pipeline):
                 bearing = _measure(sensor, stamp, fix_position - sample.true_position, sample.rotation,
                                    sample.measured_position, sensor_rng, range_rng)
@@ -160,8 +168,8 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
                     bearings.append(bearing)
         elif step % every["sensor"] == 0:
             # The camera sees through the vehicle's true attitude; outside its field of view no bearing comes.
-            bearing = _measure(sensor, time, target.position - truth.position, truth.rotation, measured_position,
-                               sensor_rng, range_rng)
+            bearing = _measure(sensor, time, target.position - np.array(position), np.array(rotation).reshape(3, 3),
+                               measured_position, sensor_rng, range_rng)
             if bearing is None:
                 bearings_out_of_view += 1
             else:
@@ -176,9 +184,10 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
         estimate = output.estimate
         if estimate is not None and not math.isfinite(float(estimate.position.sum() + estimate.velocity.sum())):
             termination = Termination.ESTIMATE_NOT_FINITE
-        if truth.rotation[2, 2] < 0.0 or float(truth.velocity @ truth.velocity) > MAX_SPEED**2:
+        speed_check = np.array(velocity)  # numpy's dot, as on state.velocity
+        if rotation[8] < 0.0 or float(speed_check @ speed_check) > MAX_SPEED**2:
             termination = Termination.OUT_OF_CONTROL
-        _log_tick(log, time, truth, target, output, pipeline.estimator)
+        _log_row(log, time, position, velocity, rotation[0::3], rotation[8], target, output, pipeline.estimator)
         if termination is not Termination.COMPLETED or index + 1 == len(event_steps):
             break
         gap = event_steps[index + 1] - step
@@ -372,42 +381,48 @@ class GenuineRecord:
 
 def _log_tick(log: FlightLog, time: float, truth: RigidBodyState, target: TargetMotion, output,
               estimator: object = None) -> None:
-    """One row of the flight log, written straight into its preallocated columns (FlightLog.append's
-    keyword form costs a dict and a call per column: a fifth of the harness's own time per flight)."""
-    data, row = log._data, log.rows
-    estimate, setpoint = output.estimate, output.setpoint
-    data["time"][row, 0] = time
-    data["pursuer_position"][row] = truth.position
-    data["pursuer_velocity"][row] = truth.velocity
+    """One row of the flight log from the true state `truth` (`_log_row`)."""
     rotation = truth.rotation
-    data["pursuer_forward"][row] = rotation[:, 0]
-    data["pursuer_down_z"][row, 0] = rotation[2, 2]
-    data["target_position"][row] = target.position
-    data["target_velocity"][row] = target.velocity
+    _log_row(log, time, truth.position, truth.velocity, rotation[:, 0], rotation[2, 2], target, output, estimator)
+
+
+_NAN3 = (math.nan,) * 3
+
+
+def _log_row(log: FlightLog, time: float, position, velocity, forward, down_z: float, target: TargetMotion, output,
+             estimator: object = None) -> None:
+    """One row of the flight log, the columns in FlightLog._WIDTHS's order, written into its preallocated
+    table in one assignment (a column at a time costs a numpy call each, a keyword append a dict as well).
+    position, velocity: the true ones (3 numbers each); forward: R's first column (3); down_z: R[2, 2]."""
+    estimate, setpoint = output.estimate, output.setpoint
+    nan = math.nan
+    values = [time, *position, *velocity, *forward, down_z, *target.position, *target.velocity]
     if estimate is not None:
-        data["estimate_position"][row] = estimate.position
-        data["estimate_velocity"][row] = estimate.velocity
-        data["estimate_position_std"][row, 0] = estimate.position_std
-        data["track_mode"][row, 0] = TRACK_MODE_CODES[output.mode]
-        data["bearing_age"][row, 0] = output.bearing_age
+        values += [*estimate.position, *estimate.velocity, estimate.position_std]
+    else:
+        values += [nan] * 7
     if setpoint is not None:
-        data["command_acceleration"][row] = setpoint.acceleration
-        data["thrust_normalized"][row, 0] = setpoint.thrust_normalized
+        values += [*setpoint.acceleration, setpoint.thrust_normalized]
+    else:
+        values += [nan] * 4
+    if estimate is not None:
+        values += [TRACK_MODE_CODES[output.mode], output.bearing_age]
+    else:
+        values += [nan, nan]
     observability = output.observability
     if observability is not None:
-        data["observability_log_det"][row, 0] = observability["log_det"]
-        data["observability_min_eigenvalue"][row, 0] = observability["min_eigenvalue"]
+        values += [observability["log_det"], observability["min_eigenvalue"]]
+    else:
+        values += [nan, nan]
     health = output.health
     if health is not None:
-        data["health_suspect"][row, 0] = float(health.state is HealthState.SUSPECT)
-        data["health_reasons"][row, 0] = sum(HEALTH_REASON_BITS[reason] for reason in health.reasons)
-        data["health_nis_ratio"][row, 0] = health.nis_ratio
-        data["health_relative_range_std"][row, 0] = health.relative_range_std
-        data["health_action"][row, 0] = HEALTH_ACTION_CODES[output.health_action]
-        data["process_noise_boost"][row, 0] = output.process_noise_boost
-        data["health_reinitialized"][row, 0] = float(output.health_reinitialized)
-    if estimate is not None:
-        motion = getattr(estimator, "motion_probabilities", None)
-        if motion is not None:
-            data["model_probabilities"][row] = motion
+        values += [float(health.state is HealthState.SUSPECT), sum(HEALTH_REASON_BITS[reason] for reason in health.reasons),
+                   health.nis_ratio, health.relative_range_std, HEALTH_ACTION_CODES[output.health_action],
+                   output.process_noise_boost, float(output.health_reinitialized)]
+    else:
+        values += [nan] * 7
+    motion = getattr(estimator, "motion_probabilities", None) if estimate is not None else None
+    values += _NAN3 if motion is None else motion
+    row = log.rows
+    log._table[row] = values
     log.rows = row + 1

@@ -385,3 +385,17 @@ def test_state_is_a_copy_and_inputs_are_validated() -> None:
         state_with(rotation=np.diag([1.0, 1.0, -1.0]))
     with pytest.raises(ValueError):
         AttitudeThrustVehicle(PARAMS, rng=0).set_attitude_target(2.0 * np.eye(3), M * G)
+
+
+def test_kinematics_reads_the_state_without_building_it():
+    # The in-process simulator's per-tick read-out: the same numbers as state's position, velocity and rotation.
+    vehicle = AttitudeThrustVehicle(PARAMS, RigidBodyState.hover(PARAMS, yaw=0.7), rng=0)
+    tilted = Rotation.from_euler("ZYX", [0.7, 0.2, -0.1]).as_matrix()
+    vehicle.set_attitude_target(tilted, 1.1 * PARAMS.hover_thrust)
+    vehicle.advance(0.5)
+    position, velocity, rotation = vehicle.kinematics()
+    state = vehicle.state
+    assert np.array(position).tobytes() == state.position.tobytes()
+    assert np.array(velocity).tobytes() == state.velocity.tobytes()
+    assert np.array(rotation).reshape(3, 3).tobytes() == state.rotation.tobytes()
+    assert np.linalg.norm(state.velocity) > 0.1  # it moved: the comparison is not of the start

@@ -518,7 +518,8 @@ class IMMEstimator:
     def _require_states(self) -> None:
         """Every model filter has started (else UPLKF's RuntimeError)."""
         for model_filter in self.filters:
-            model_filter._require_state()
+            if model_filter._state is None or model_filter._covariance is None:  # the check, without a call per filter
+                model_filter._require_state()
 
     @property
     def model_probabilities(self) -> np.ndarray:

@@ -146,6 +146,17 @@ class PipelineOutput:
     health_reinitialized: bool = False
 
 
+_OUTPUT_FIELDS = tuple(field.name for field in dataclasses.fields(PipelineOutput))
+
+
+def _output(*values) -> PipelineOutput:
+    """PipelineOutput(*values), every field given in order, without the frozen dataclass's object.__setattr__
+    per field (one is built at every step)."""
+    output = object.__new__(PipelineOutput)
+    output.__dict__.update(zip(_OUTPUT_FIELDS, values))
+    return output
+
+
 @dataclass(frozen=True)
 class Cooperation:
     """What the pipeline does with its neighbours, other pursuers following the same target (issue 15).
@@ -315,13 +326,13 @@ class FollowingPipeline:
         new_setpoint = False
         if time >= self._engaged_at + self._control_ticks * self.control_period - _TIME_EPS:
             self._compute_setpoint(time, pursuer)
-            self._control_ticks = int(np.floor((time - self._engaged_at) / self.control_period + _TIME_EPS)) + 1
+            self._control_ticks = math.floor((time - self._engaged_at) / self.control_period + _TIME_EPS) + 1
             new_setpoint = True
         age = time - self._last_bearing_time if self._last_bearing_time is not None else 0.0
-        return PipelineOutput(time, self._setpoint, new_setpoint, self.estimator.estimate, self._guidance, correction,
-                              self.mode, age, gated_out, reinitialized, self._observability_measure,
-                              self._health_report, self.health_action, self._process_noise_boost,
-                              health_reinitialized)
+        return _output(time, self._setpoint, new_setpoint, self.estimator.estimate, self._guidance, correction,
+                       self.mode, age, gated_out, reinitialized, self._observability_measure,
+                       self._health_report, self.health_action, self._process_noise_boost,
+                       health_reinitialized)
 
     def step_all(self, time: float, pursuer: PursuerState, bearings) -> PipelineOutput:
         """step() once per bearing (in the order given; one step without a bearing when there is none), all at
@@ -383,7 +394,7 @@ class FollowingPipeline:
         distance, range_std = guess_range(float(np.linalg.norm(estimate.position - bearing.pursuer_position)))
         self.estimator.initialize_on_bearing(bearing, InitialGuess(distance, range_std, estimate.velocity,
                                                                    self.initial_guess.velocity_std))
-        self._estimator_ticks = int(np.floor((bearing.time - self._engaged_at) / self.estimator.period + _TIME_EPS))
+        self._estimator_ticks = math.floor((bearing.time - self._engaged_at) / self.estimator.period + _TIME_EPS)
 
     def _use_bearing(self, bearing: BearingMeasurement) -> tuple[CorrectionReport | None, bool, bool]:
         """Correct with a bearing; after a gap, only if it agrees with the prediction (the gate)."""
@@ -492,7 +503,7 @@ class FollowingPipeline:
     def _advance_estimator(self, time: float) -> None:
         assert self._engaged_at is not None
         period = self.estimator.period
-        target_ticks = int(np.floor((time - self._engaged_at) / period + _TIME_EPS))
+        target_ticks = math.floor((time - self._engaged_at) / period + _TIME_EPS)
         while self._estimator_ticks < target_ticks:
             self.estimator.predict()
             self._estimator_ticks += 1

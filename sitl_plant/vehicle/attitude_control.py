@@ -203,6 +203,13 @@ class AttitudeThrustVehicle:
         """Copy of the true plant state."""
         return self._plant.state
 
+    def kinematics(self) -> tuple[Vec3, Vec3, tuple[float, ...]]:
+        """The true position (m, NED), velocity (m/s, NED) and attitude R (body FRD -> NED, row-major 9-tuple)
+        as tuples of floats: the values `state` holds (state.position, state.velocity, state.rotation), read
+        without building a RigidBodyState and its five arrays (the in-process simulator reads them every tick)."""
+        s = self._plant._s
+        return s[0:3], s[3:6], quaternion_to_rotation(*s[6:10])
+
     @property
     def time(self) -> float:
         """Simulated time since construction, s (an integer number of internal steps)."""
