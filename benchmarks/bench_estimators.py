@@ -107,10 +107,17 @@ BASELINES = {"AzElEKF": "ekf", "MSCEKF": "msc_ekf", "RangeAzElEKF": "ekf_rae"}
 def flight_seconds(repeats: int = 5) -> tuple[float, float]:
     """(median wall time, s, of one in-process flight of constant_velocity at seed 1, its simulated duration, s)."""
     from interfaces.scenario import SCENARIOS_DIR, load_scenario
-    from studies.closed_loop import simulate
 
     scenario, vehicle = load_scenario(SCENARIOS_DIR / "constant_velocity.toml")
-    duration = simulate(scenario, vehicle, seed=1).summary["duration"]  # also compiles / warms up
+    return _median_flight(scenario, vehicle, repeats)
+
+
+def _median_flight(scenario, vehicle, repeats: int) -> tuple[float, float]:
+    """(median wall time, s, of `repeats` seed-1 flights of `scenario` after one that compiles / warms up, its
+    simulated duration, s)."""
+    from studies.closed_loop import simulate
+
+    duration = simulate(scenario, vehicle, seed=1).summary["duration"]
     walls = []
     for _ in range(repeats):
         started = time.perf_counter()
@@ -123,20 +130,13 @@ def study_flight_seconds(estimator: str, repeats: int = 3) -> tuple[float, float
     """(median wall time, s, of one flight of the estimator study (studies.montecarlo: constant_velocity, HNG, the
     paper's system) with `estimator` at 50 Hz bearings, the initial estimate of seed 1, its simulated duration, s)."""
     from interfaces.scenario import SCENARIOS_DIR, load_scenario
-    from studies.closed_loop import simulate
     from studies.montecarlo import ESTIMATORS, GUIDANCE, PAPER_INITIAL_BOX, PAPER_SYSTEM, drawn_initial_position, with_overrides
 
     scenario, vehicle = load_scenario(SCENARIOS_DIR / "constant_velocity.toml")
     scenario = with_overrides(scenario, {**PAPER_SYSTEM, **ESTIMATORS[estimator], **GUIDANCE["hng"], "sensor.rate_hz": 50.0,
                                          "estimator.initialize": "position",
                                          "estimator.initial_position": drawn_initial_position(1, PAPER_INITIAL_BOX)})
-    duration = simulate(scenario, vehicle, seed=1).summary["duration"]  # also compiles / warms up
-    walls = []
-    for _ in range(repeats):
-        started = time.perf_counter()
-        simulate(scenario, vehicle, seed=1)
-        walls.append(time.perf_counter() - started)
-    return statistics.median(walls), duration
+    return _median_flight(scenario, vehicle, repeats)
 
 
 def measure(baselines: bool = False) -> dict:

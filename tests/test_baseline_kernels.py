@@ -25,6 +25,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from bitwise import assert_same, seeds
 from paper_reference import floats, symmetric_with_eigenvalues, unit_vectors
 
 from companion.core import _jit
@@ -34,22 +35,6 @@ from companion.core.estimators import limit_range, transition_matrices
 
 ROOT = Path(__file__).resolve().parent.parent
 python = _jit.python_function
-seeds = st.integers(0, 2**32 - 1)
-
-
-def assert_same(actual, expected, path: str = "result") -> None:
-    """Bit for bit: the same values, NaN where NaN, the same signs of zero; tuples entry by entry."""
-    if isinstance(expected, tuple):
-        assert isinstance(actual, tuple) and len(actual) == len(expected), path
-        for k, (a, e) in enumerate(zip(actual, expected)):
-            assert_same(a, e, f"{path}[{k}]")
-        return
-    a, e = np.asarray(actual), np.asarray(expected)
-    assert a.shape == e.shape, f"{path}: shape {a.shape} != {e.shape}"
-    if e.dtype.kind == "f":
-        assert np.array_equal(a, e, equal_nan=True) and np.array_equal(np.signbit(a), np.signbit(e)), f"{path}: {a} != {e}"
-    else:
-        assert np.array_equal(a, e), f"{path}: {a} != {e}"
 
 
 def copies(arguments: tuple) -> list:
@@ -197,7 +182,6 @@ def old_kalman_update(
     return state + gain @ residual, old_symmetrize(updated)
 
 
-
 def old_unit_and_partials(beta: float, eps: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """u(beta, eps) = [cos eps cos beta, cos eps sin beta, -sin eps] (NED, eps up) and du/dbeta, du/deps."""
     cb, sb, ce, se = math.cos(beta), math.sin(beta), math.cos(eps), math.sin(eps)
@@ -316,7 +300,6 @@ def old_msc_from_cartesian_jacobian(relative_state: np.ndarray) -> np.ndarray:
     return jacobian
 
 
-
 def old_flight_path_velocity(speed: float, gamma: float, chi: float) -> np.ndarray:
     """NED velocity of seed 003 eq. (10): v [cos g cos chi, cos g sin chi, -sin g]; m/s, shape (3,).
 
@@ -359,7 +342,6 @@ def old_flight_path_step_jacobian(state: np.ndarray, dt: float) -> np.ndarray:
     jacobian = np.eye(6)
     jacobian[:3, 3:] = dt * old_flight_path_velocity_jacobian(state[3], state[4], state[5])
     return jacobian
-
 
 
 def old_linear_predict(a, q_discrete, state, covariance):

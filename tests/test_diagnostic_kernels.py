@@ -32,6 +32,7 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
+from bitwise import assert_same, seeds
 from paper_reference import floats, symmetric_with_eigenvalues, unit_vectors
 
 from companion.core import _jit, geometry, health, observability, pipeline
@@ -43,23 +44,6 @@ from companion.core.observability import WindowedObservability, _check_bearings,
 pytestmark = pytest.mark.filterwarnings("ignore::RuntimeWarning")
 ROOT = Path(__file__).resolve().parent.parent
 python = _jit.python_function
-seeds = st.integers(0, 2**32 - 1)
-
-
-def assert_same(actual, expected, path: str = "result") -> None:
-    """Bit for bit: the same values, NaN where NaN, the same signs of zero; tuples entry by entry; an exception
-    (type, message) from `outcome` the same exception."""
-    if isinstance(expected, tuple) and expected and isinstance(expected[0], type):
-        assert actual == expected, f"{path}: {actual} != {expected}"
-        return
-    if isinstance(expected, tuple):
-        assert isinstance(actual, tuple) and len(actual) == len(expected), path
-        for k, (a, e) in enumerate(zip(actual, expected)):
-            assert_same(a, e, f"{path}[{k}]")
-        return
-    a, e = np.asarray(actual), np.asarray(expected)
-    assert a.shape == e.shape, f"{path}: shape {a.shape} != {e.shape}"
-    assert np.array_equal(a, e, equal_nan=True) and np.array_equal(np.signbit(a), np.signbit(e)), f"{path}: {a} != {e}"
 
 
 def outcome(function, *args):

@@ -28,6 +28,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
+from bitwise import assert_same, seeds
 from paper_reference import floats, symmetric_with_eigenvalues, unit_vectors
 from scipy.stats import special_ortho_group
 
@@ -42,21 +43,6 @@ ROOT = Path(__file__).resolve().parent.parent
 python = _jit.python_function
 
 
-def assert_same(actual, expected, path: str = "result") -> None:
-    """Bit for bit: the same values, NaN where NaN, the same signs of zero; tuples entry by entry."""
-    if isinstance(expected, tuple):
-        assert isinstance(actual, tuple) and len(actual) == len(expected), path
-        for k, (a, e) in enumerate(zip(actual, expected)):
-            assert_same(a, e, f"{path}[{k}]")
-        return
-    a, e = np.asarray(actual), np.asarray(expected)
-    assert a.shape == e.shape, f"{path}: shape {a.shape} != {e.shape}"
-    if e.dtype.kind == "f":
-        assert np.array_equal(a, e, equal_nan=True) and np.array_equal(np.signbit(a), np.signbit(e)), f"{path}: {a} != {e}"
-    else:
-        assert np.array_equal(a, e), f"{path}: {a} != {e}"
-
-
 def both(kernel, *args):
     """(compiled result, Python result) on copies of the arguments (kernels may write in place), and the copies."""
     compiled_args = [np.array(a) if isinstance(a, np.ndarray) else a for a in args]
@@ -68,9 +54,6 @@ def covariance(seed: int, size: int, exponent: int) -> np.ndarray:
     """A random symmetric positive definite matrix (size, size) of scale 10^exponent."""
     factor = np.random.default_rng(seed).normal(size=(size, size))
     return (factor @ factor.T + 1e-3 * np.eye(size)) * 10.0**exponent
-
-
-seeds = st.integers(0, 2**32 - 1)
 
 
 def _call_dgesv(matrix: np.ndarray, rhs: np.ndarray):

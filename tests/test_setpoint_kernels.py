@@ -20,6 +20,8 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
+from bitwise import assert_same
+
 from companion.core import _jit, attitude, geometry, guidance
 from companion.core.attitude import VehicleLimits
 from companion.core.guidance import HelicalNavigationGuidance, RangeExcitation
@@ -27,13 +29,6 @@ from companion.core.guidance import HelicalNavigationGuidance, RangeExcitation
 E_X = np.array([1.0, 0.0, 0.0])
 E_Z = np.array([0.0, 0.0, 1.0])
 python = _jit.python_function
-
-
-def assert_same(actual, expected) -> None:
-    """Bit for bit: the same values and signs of zero (and the same Python type class: float stays float)."""
-    a, e = np.asarray(actual), np.asarray(expected)
-    assert a.shape == e.shape
-    assert np.array_equal(a, e, equal_nan=True) and np.array_equal(np.signbit(a), np.signbit(e)), f"{a} != {e}"
 
 
 # ----- the old implementation (before the kernels), verbatim -----------------------------------------------------
