@@ -182,7 +182,8 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
             autopilot.set_attitude_target(output.setpoint.rotation, output.setpoint.thrust_normalized * params.max_total_thrust)
 
         estimate = output.estimate
-        if estimate is not None and not math.isfinite(float(estimate.position.sum() + estimate.velocity.sum())):
+        # The sum of the six numbers in numpy's order (ndarray.sum of three adds them left to right), as floats.
+        if estimate is not None and not math.isfinite(_sum3(estimate.position.tolist()) + _sum3(estimate.velocity.tolist())):
             termination = Termination.ESTIMATE_NOT_FINITE
         speed_check = np.array(velocity)  # numpy's dot, as on state.velocity
         if rotation[8] < 0.0 or float(speed_check @ speed_check) > MAX_SPEED**2:
@@ -209,6 +210,12 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
         summary["fault_events"] = [(round(e.time, 3), e.kind, e.detail) for e in link.faults.events]
     summary["seed"] = seed
     return SimulationResult(scenario, series, summary, termination)
+
+
+def _sum3(values: list[float]) -> float:
+    """values[0] + values[1] + values[2]: what ndarray.sum gives for three float64 (left to right, no pairwise
+    split below eight), without its call."""
+    return values[0] + values[1] + values[2]
 
 
 def health_actions_summary(pipeline) -> dict:
@@ -396,13 +403,14 @@ def _log_row(log: FlightLog, time: float, position, velocity, forward, down_z: f
     position, velocity: the true ones (3 numbers each); forward: R's first column (3); down_z: R[2, 2]."""
     estimate, setpoint = output.estimate, output.setpoint
     nan = math.nan
-    values = [time, *position, *velocity, *forward, down_z, *target.position, *target.velocity]
+    # Arrays go in as lists (ndarray.tolist: the same floats, without a numpy scalar per element).
+    values = [time, *position, *velocity, *forward, down_z, *target.position.tolist(), *target.velocity.tolist()]
     if estimate is not None:
-        values += [*estimate.position, *estimate.velocity, estimate.position_std]
+        values += [*estimate.position.tolist(), *estimate.velocity.tolist(), estimate.position_std]
     else:
         values += [nan] * 7
     if setpoint is not None:
-        values += [*setpoint.acceleration, setpoint.thrust_normalized]
+        values += [*setpoint.acceleration.tolist(), setpoint.thrust_normalized]
     else:
         values += [nan] * 4
     if estimate is not None:
@@ -416,7 +424,8 @@ def _log_row(log: FlightLog, time: float, position, velocity, forward, down_z: f
         values += [nan, nan]
     health = output.health
     if health is not None:
-        values += [float(health.state is HealthState.SUSPECT), sum(HEALTH_REASON_BITS[reason] for reason in health.reasons),
+        reasons = health.reasons
+        values += [float(health.state is HealthState.SUSPECT), sum(HEALTH_REASON_BITS[reason] for reason in reasons) if reasons else 0,
                    health.nis_ratio, health.relative_range_std, HEALTH_ACTION_CODES[output.health_action],
                    output.process_noise_boost, float(output.health_reinitialized)]
     else:

@@ -803,7 +803,7 @@ class UPLKF:
         if start is not None:
             self.initialize(bearing.time, start[0], initial_guess.velocity, start[1])
             return
-        direction = unit(bearing.direction)
+        direction = bearing.unit_direction
         bearing_std = float(np.sqrt(np.trace(self.measurement_noise) / 3.0))
         cross_std = max(initial_guess.range * bearing_std, 1e-3)
         covariance = on_bearing_covariance(direction, initial_guess.range_std, cross_std, initial_guess.velocity_std)
@@ -855,7 +855,7 @@ class UPLKF:
         pursuer_position = np.asarray(bearing.pursuer_position, dtype=float)
         relative = state[:3] + lead * state[3:] - pursuer_position  # p^-_T - p
         predicted_range = math.sqrt(float(relative.dot(relative)))  # np.linalg.norm's formula, without its wrapper
-        direction = unit(bearing.direction)
+        direction = bearing.unit_direction
         # min/max on a float clips exactly as np.clip does, without its array machinery
         cos_angle = min(max(float(direction @ relative / max(predicted_range, 1e-12)), -1.0), 1.0)
         innovation_angle = float(np.arccos(cos_angle))

@@ -317,7 +317,7 @@ class HealthMonitor:
             if nis_ratio > 1.0:
                 raised.append("nis")
 
-        range_estimate, relative_std, cosine, speed = (float(value) for value in _evidence(
+        range_estimate, relative_std, cosine, speed = map(float, _evidence(
             _vector(bearing_direction), _vector(estimate_position), _vector(pursuer_position),
             np.ascontiguousarray(np.asarray(estimate_covariance, dtype=float)[:3, :3]), _vector(pursuer_velocity)))
         if range_estimate > 1e-9:
@@ -360,6 +360,8 @@ class HealthMonitor:
 
     def _hold(self, time: float, raised: list[str]) -> tuple[str, ...]:
         """Reasons whose condition has held for flag_after s (behind_sensor counts at once)."""
+        if not raised and not self._since:
+            return ()  # nothing raised now or before: what the loops below give, without them
         for reason in REASONS:
             if reason in raised:
                 self._since.setdefault(reason, time)

@@ -605,7 +605,7 @@ class IMMEstimator:
         self._require_states()
         lead = bearing.time - self.time
         pursuer_position = np.asarray(bearing.pursuer_position, dtype=float)
-        direction = unit(bearing.direction)
+        direction = bearing.unit_direction
         # each model's prior line of sight at the bearing's time, as UPLKF.correct forms it, and the combined one
         model_relative, ranges, model_ranges, relative, predicted_range, cos_angle, every_model_corrects = \
             _prior_lines_of_sight(self._states, self._weights, lead, pursuer_position, direction, self.restart_when_behind)

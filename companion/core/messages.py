@@ -13,6 +13,8 @@ from functools import cached_property
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from companion.core.geometry import unit
+
 
 @dataclass(frozen=True)
 class PursuerState:
@@ -51,6 +53,13 @@ class BearingMeasurement:
     true_direction: np.ndarray | None = None
     source: int = 0
 
+    @cached_property
+    def unit_direction(self) -> np.ndarray:
+        """direction / |direction| (companion.core.geometry.unit; ValueError on a zero or non-finite direction),
+        computed once per bearing: the estimator, the health monitor, the windowed FIM and the track all read
+        it. Treat it as read only (it is shared)."""
+        return unit(self.direction)
+
 
 @dataclass(frozen=True)
 class TargetEstimate:
@@ -65,13 +74,14 @@ class TargetEstimate:
     velocity: np.ndarray
     covariance: np.ndarray
 
-    @property
+    @cached_property
     def position_std(self) -> float:
         """RMS per-axis standard deviation of the position, m: sqrt(trace(P_pos) / 3).
 
         P_pos = covariance[:3, :3]. For an isotropic covariance sigma^2 I it is sigma; it is
         the figure the dropout policy, the companion's state/series and the simulator's
-        flight log all report (one definition, so the harnesses agree).
+        flight log all report (one definition, so the harnesses agree). Computed once per estimate
+        (an estimate is a snapshot).
         """
         c = self.covariance
         # c[0,0] + c[1,1] + c[2,2] in that order is np.trace's sum exactly, without its call overhead.

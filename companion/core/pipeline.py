@@ -18,7 +18,7 @@ from companion.core.attitude import VehicleLimits, attitude_setpoint
 from companion.core.cooperative_guidance import CooperativeContext, SeparationFilter, neighbours_make_range_observable
 from companion.core.estimators import CorrectionReport, InitialGuess, TargetEstimator
 from companion.core._jit import jit, power
-from companion.core.geometry import clip_kernel, norm, relative_range_std, unit
+from companion.core.geometry import clip_kernel, norm, relative_range_std
 from companion.core.guidance import LateralGuidance, RangeController, RangeExcitation
 from companion.core.health import (
     HealthAction,
@@ -268,6 +268,7 @@ class FollowingPipeline:
         self.observability = WindowedObservability(observability_window, self.dropout.bearing_noise_std)
         self._observability_measure: dict | None = None
         self._observed_until = -np.inf  # s, the newest bearing in the windowed FIM
+        self._extrapolation: tuple[TargetEstimate, float, TargetEstimate] | None = None  # _estimate_at's last
         self.health = health if health is not None else HealthMonitor(
             HealthConfig(min_range=0.25 * range_controller.desired_range))
         self._health_report: HealthReport | None = None
@@ -349,10 +350,10 @@ class FollowingPipeline:
 
     def _check_health(self, bearing: BearingMeasurement, pursuer: PursuerState, correction: CorrectionReport) -> None:
         """Hand the monitor what this correction computed (it reads, never writes)."""
-        estimate = self.estimator.estimate.extrapolated(bearing.time)
+        estimate = self._estimate_at(bearing.time)
         fim = self._observability_measure
         self._health_report = self.health.update(
-            bearing.time, unit(bearing.direction), bearing.pursuer_position, pursuer.velocity,
+            bearing.time, bearing.unit_direction, bearing.pursuer_position, pursuer.velocity,
             estimate.position, estimate.covariance, correction.innovation, correction.innovation_covariance,
             correction.innovation_dof, correction.reinitialized,
             None if fim is None else float(fim["min_eigenvalue"]))
@@ -390,7 +391,7 @@ class FollowingPipeline:
         """Remark 3 again, on `bearing`: guess_range(predicted range, m) gives the restart's (range, along-bearing
         std), m; the velocity estimate is kept with the initial guess's velocity std, and the estimator's tick
         count restarts at the bearing's time."""
-        estimate = self.estimator.estimate.extrapolated(bearing.time)
+        estimate = self._estimate_at(bearing.time)
         distance, range_std = guess_range(float(np.linalg.norm(estimate.position - bearing.pursuer_position)))
         self.estimator.initialize_on_bearing(bearing, InitialGuess(distance, range_std, estimate.velocity,
                                                                    self.initial_guess.velocity_std))
@@ -422,7 +423,7 @@ class FollowingPipeline:
         neighbour's bearing (source != 0) keeps the track fresh but is no line of sight from here."""
         if self._last_bearing_time is None or bearing.time >= self._last_bearing_time:
             if bearing.source == 0:
-                self._last_bearing = unit(bearing.direction)
+                self._last_bearing = bearing.unit_direction
             self._last_bearing_time = bearing.time
 
     def _observe(self, bearing: BearingMeasurement) -> None:
@@ -431,11 +432,11 @@ class FollowingPipeline:
             # A late bearing (a neighbour's share that arrived after newer bearings): it has corrected the
             # estimate; the windowed FIM takes bearings in time order only, so it is left out of it.
             return
-        estimate = self.estimator.estimate.extrapolated(bearing.time)
+        estimate = self._estimate_at(bearing.time)
         distance = norm(estimate.position - bearing.pursuer_position)
         if distance > 1e-6:
             self._observed_until = bearing.time
-            self.observability.add(bearing.time, unit(bearing.direction), distance)
+            self.observability.add(bearing.time, bearing.unit_direction, distance)
             self._observability_measure = self.observability.measure()
 
     def line_of_sight_agrees(self, time: float, pursuer_position: np.ndarray, target_position: np.ndarray) -> bool | None:
@@ -452,12 +453,12 @@ class FollowingPipeline:
         return self._agrees_with_prediction(BearingMeasurement(time, relative / distance, np.asarray(pursuer_position, dtype=float)))
 
     def _agrees_with_prediction(self, bearing: BearingMeasurement) -> bool:
-        estimate = self.estimator.estimate.extrapolated(bearing.time)
+        estimate = self._estimate_at(bearing.time)
         relative = np.ascontiguousarray(estimate.position - bearing.pursuer_position, dtype=float)
         distance = norm(relative)
         if distance < 1e-6:
             return False
-        cosine, angular_std = _gate_terms(relative, distance, unit(bearing.direction),
+        cosine, angular_std = _gate_terms(relative, distance, bearing.unit_direction,
                                           np.ascontiguousarray(estimate.covariance[:3, :3], dtype=float),
                                           self.dropout.bearing_noise_std)
         angle = float(np.arccos(cosine))  # numpy's arccos (its SIMD routine where it has one)
@@ -499,6 +500,18 @@ class FollowingPipeline:
         suspect = self._health_report is not None and self._health_report.state == HealthState.SUSPECT
         self.excitation_level = excitation.level(relative_range_std(relative_position, covariance[:3, :3]), suspect)
         return excitation.acceleration(time - self._engaged_at, los, self.excitation_level)
+
+    def _estimate_at(self, time: float) -> TargetEstimate:
+        """The estimator's estimate carried to `time` (s) at constant velocity (TargetEstimate.extrapolated); the
+        last one is kept while the estimate and the time are the same, since a bearing's FIM, health check and
+        setpoint each ask for the same one (a snapshot: the estimator makes a new object when it changes)."""
+        estimate = self.estimator.estimate
+        memo = self._extrapolation
+        if memo is not None and memo[0] is estimate and memo[1] == time and math.copysign(1.0, memo[1]) == math.copysign(1.0, time):
+            return memo[2]
+        extrapolated = estimate.extrapolated(time)
+        self._extrapolation = (estimate, time, extrapolated)
+        return extrapolated
 
     def _advance_estimator(self, time: float) -> None:
         assert self._engaged_at is not None
@@ -543,7 +556,7 @@ class FollowingPipeline:
 
     def _compute_setpoint(self, time: float, pursuer: PursuerState) -> None:
         assert self._engaged_at is not None
-        estimate = self.estimator.estimate.extrapolated(time)
+        estimate = self._estimate_at(time)
         relative_position = estimate.position - pursuer.position
         relative_velocity = estimate.velocity - pursuer.velocity
         range_estimate = norm(relative_position)

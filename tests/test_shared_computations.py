@@ -1,0 +1,113 @@
+"""Values computed once and shared within a step (issue 16) are the values each reader computed for itself.
+
+- BearingMeasurement.unit_direction: the estimator, the health monitor, the windowed FIM and the track read
+  one unit bearing per bearing; it is geometry.unit's, bit for bit, and a bad direction still raises;
+- FollowingPipeline._estimate_at: a bearing's FIM, health check and setpoint share one extrapolated estimate;
+  it is TargetEstimate.extrapolated's, bit for bit, and a new one as soon as the estimate changes;
+- TargetEstimate.position_std is computed once per snapshot: np.trace's float (test_estimator_kernels.py
+  checks the sum itself; here, that the cached value is that of the covariance it was built with);
+- the in-process simulator's finiteness check adds three floats as ndarray.sum does (left to right), so
+  it calls an estimate non-finite exactly when numpy's sum overflowed or met a NaN.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from bitwise import assert_same, seeds
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from companion.assembly import build_pipeline
+from companion.core.geometry import unit
+from companion.core.messages import BearingMeasurement, PursuerState, TargetEstimate
+from interfaces.scenario import load_scenario
+from studies.closed_loop import _sum3
+
+SCENARIO = Path(__file__).resolve().parent.parent / "config" / "scenarios" / "constant_velocity.toml"
+finite = st.floats(-1e6, 1e6, allow_nan=False, allow_infinity=False)
+
+
+@given(arrays(np.float64, 3, elements=finite))
+def test_the_shared_unit_bearing_is_units(direction):
+    bearing = BearingMeasurement(0.0, direction, np.zeros(3))
+    try:
+        expected = unit(direction)
+    except ValueError:  # zero, or so small that its square underflows
+        with pytest.raises(ValueError):
+            bearing.unit_direction
+        return
+    assert_same(bearing.unit_direction, expected)
+    assert bearing.unit_direction is bearing.unit_direction  # once per bearing
+    assert math.isclose(float(np.linalg.norm(bearing.unit_direction)), 1.0, rel_tol=1e-12)
+
+
+@pytest.mark.parametrize("bad", [np.zeros(3), np.array([np.nan, 0.0, 1.0]), np.array([np.inf, 0.0, 0.0])])
+def test_a_bad_bearing_direction_still_raises_every_time(bad):
+    bearing = BearingMeasurement(0.0, bad, np.zeros(3))
+    for _ in range(2):  # a failure is not cached as a value
+        with pytest.raises(ValueError):
+            bearing.unit_direction
+
+
+@settings(max_examples=100, deadline=None)
+@given(seeds, st.integers(-8, 8))
+def test_the_cached_position_std_is_that_of_its_covariance(seed, exponent):
+    covariance = np.random.default_rng(seed).standard_normal((6, 6)) * 10.0**exponent
+    estimate = TargetEstimate(1.0, np.zeros(3), np.zeros(3), covariance)
+    expected = math.sqrt(max(float(np.trace(covariance[:3, :3])), 0.0) / 3.0)
+    assert estimate.position_std == expected
+    assert estimate.position_std == expected  # read twice: the same
+
+
+@given(arrays(np.float64, 3, elements=st.floats(allow_nan=True, allow_infinity=True, width=64)))
+def test_the_finiteness_sum_is_numpys(values):
+    total = _sum3(values.tolist())
+    with np.errstate(over="ignore", invalid="ignore"):
+        expected = values.sum()
+    assert math.isfinite(total) == bool(np.isfinite(expected))
+    if math.isfinite(total):
+        assert total == float(expected)
+
+
+def test_overflow_depends_on_the_order_and_the_check_keeps_numpys():
+    values = np.array([1e308, 1e308, -1e308])  # left to right overflows; the other grouping would not
+    with np.errstate(over="ignore"):
+        assert not np.isfinite(values.sum())
+    assert not math.isfinite(_sum3(values.tolist()))
+
+
+@settings(max_examples=25, deadline=None)
+@given(seeds, st.lists(st.sampled_from(["bearing", "late", "tick", "read"]), min_size=1, max_size=25))
+def test_the_shared_extrapolation_is_the_estimates_and_follows_it(seed, actions):
+    """After any sequence of ticks, bearings (on time and late) and reads, _estimate_at(t) is
+    estimator.estimate.extrapolated(t) bit for bit: never an extrapolation of an older estimate."""
+    scenario, vehicle = load_scenario(SCENARIO)
+    pipeline = build_pipeline(scenario, vehicle, 2.0 / 3.0)
+    rng = np.random.default_rng(seed)
+    target = np.array([30.0, -10.0, -5.0])
+    time = 0.0
+
+    def bearing_at(stamp: float) -> BearingMeasurement:
+        direction = target - np.zeros(3) + rng.normal(0.0, 0.3, 3)
+        return BearingMeasurement(stamp, direction / np.linalg.norm(direction) + rng.normal(0.0, 0.01, 3), np.zeros(3))
+
+    pipeline.step(time, PursuerState(time, np.zeros(3), np.zeros(3)), bearing_at(time))
+    for action in actions:
+        if action in ("bearing", "tick"):
+            time += 0.02
+        bearing = {"bearing": bearing_at(time), "late": bearing_at(time - 0.013)}.get(action)
+        if action != "read":
+            pipeline.step(time, PursuerState(time, np.zeros(3), np.zeros(3)), bearing)
+        # a fixed stamp first and last: after a change of the estimate, the first question is the old one
+        for stamp in (0.5, time, time - 0.013, 0.5):
+            shared = pipeline._estimate_at(stamp)
+            fresh = pipeline.estimator.estimate.extrapolated(stamp)
+            assert shared.time == fresh.time
+            assert_same(shared.position, fresh.position)
+            assert_same(shared.velocity, fresh.velocity)
+            assert_same(shared.covariance, fresh.covariance)
