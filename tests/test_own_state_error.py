@@ -6,7 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from interfaces.scenario import ConfigError, load_vehicle
@@ -81,6 +81,40 @@ def test_white_default_draws_independent_normals_from_the_vehicle_generator():
     expected = np.array([np.concatenate([reference.normal(0.0, PARAMS.position_noise_std, 3),
                                          reference.normal(0.0, PARAMS.velocity_noise_std, 3)]) for _ in range(50)])
     np.testing.assert_allclose(errors, expected, atol=1e-9)
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), position_std=st.sampled_from([0.0, 1e-3, 0.05, 0.3, 7.0]),
+       velocity_std=st.sampled_from([0.0, 0.02, 0.1, 2.5]), tau=st.sampled_from([0.0, 0.4]))
+def test_feedback_noise_is_the_generators_normal_draws_bit_for_bit(seed, position_std, velocity_std, tau):
+    """The vehicle draws its normals a block at a time (AttitudeThrustVehicle._next_normals); every read-out
+    is still truth + Generator.normal(0, sigma_p, 3), then Generator.normal(0, sigma_v, 3) of a generator with
+    the same seed, to the bit, across block boundaries (white), and the Gauss-Markov recursion of those draws."""
+    params = replace(PARAMS, position_noise_std=position_std, velocity_noise_std=velocity_std,
+                     position_noise_time_constant=tau, velocity_noise_time_constant=tau)
+    vehicle = AttitudeThrustVehicle(params, rng=seed)
+    reference = np.random.default_rng(seed)
+    error, then = None, 0.0
+    calls = AttitudeThrustVehicle._NORMALS_BLOCK + 9
+    for k in range(calls):
+        truth, now = vehicle.state, vehicle.time
+        p, v = vehicle.measured_state()
+        white_p, white_v = reference.normal(0.0, position_std, 3), reference.normal(0.0, velocity_std, 3)
+        if tau > 0.0:
+            error = (white_p, white_v) if error is None else (
+                gauss_markov_step(error[0], white_p, now - then, tau), gauss_markov_step(error[1], white_v, now - then, tau))
+            white_p, white_v, then = *error, now
+        assert p.tobytes() == (truth.position + white_p).tobytes() and v.tobytes() == (truth.velocity + white_v).tobytes(), k
+        if k % 64 == 0 or (tau > 0.0 and k % 3 == 0):  # a few read-outs repeat at the same instant
+            vehicle.advance(0.01)
+
+
+def test_a_negative_feedback_noise_std_is_refused_as_numpy_refused_it():
+    vehicle = AttitudeThrustVehicle(replace(PARAMS, position_noise_std=-0.1), rng=0)
+    with pytest.raises(ValueError):
+        vehicle.measured_state()
+    with pytest.raises(ValueError):
+        np.random.default_rng(0).normal(0.0, -0.1, 3)
 
 
 def test_vehicle_gauss_markov_follows_the_closed_form_recursion_in_vehicle_time():

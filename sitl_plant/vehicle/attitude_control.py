@@ -189,6 +189,8 @@ class AttitudeThrustVehicle:
         # Last Gauss-Markov feedback error (position, velocity) and its vehicle time, s.
         self._feedback_error: tuple[np.ndarray, np.ndarray] | None = None
         self._feedback_time = 0.0
+        self._normals: list[list[float]] = []  # _next_normals' block and its next row
+        self._normals_row = 0
         self._steps = 0
         self._qd: Quat = self._plant._s[6:10]  # type: ignore[assignment]
         self._thrust = float(params.hover_thrust)
@@ -266,6 +268,20 @@ class AttitudeThrustVehicle:
         )
         self._steps += n
 
+    _NORMALS_BLOCK = 512
+    """Rows of six standard normals drawn from the generator at a time (measured_state takes one row per call)."""
+
+    def _next_normals(self) -> list[float]:
+        """The next six N(0, 1) draws of the vehicle's generator, in its order: drawn a block of rows at a time
+        (Generator.standard_normal fills an array with the draws a series of smaller calls would take, so the
+        numbers are those of six draws per call; the generator itself runs up to a block ahead)."""
+        block, row = self._normals, self._normals_row
+        if row == len(block):
+            block, row = self._rng.standard_normal((self._NORMALS_BLOCK, 6)).tolist(), 0
+            self._normals = block
+        self._normals_row = row + 1
+        return block[row]
+
     def measured_state(self) -> tuple[np.ndarray, np.ndarray]:
         """Noisy feedback (position m, velocity m/s), each shape (3,) NED.
 
@@ -273,23 +289,32 @@ class AttitudeThrustVehicle:
         per axis. With a zero time constant (the default) it is drawn independently each
         call; with params.position_noise_time_constant / velocity_noise_time_constant
         tau > 0 it is first-order Gauss-Markov in the vehicle's clock (gauss_markov_step),
-        with the same stationary std. Either way each call takes the same six normal draws
-        from the vehicle's generator, so no other random stream moves.
+        with the same stationary std. Either way each call takes the next six normal draws
+        of the vehicle's generator (`_next_normals`: a block at a time, so the generator runs
+        ahead of the calls; give the vehicle a generator of its own), so no other random
+        stream moves.
         """
         s = self._plant._s
         params = self.params
-        white_p = self._rng.normal(0.0, params.position_noise_std, 3)
-        white_v = self._rng.normal(0.0, params.velocity_noise_std, 3)
-        if params.position_noise_time_constant > 0.0 or params.velocity_noise_time_constant > 0.0:
-            now = self.time
-            if self._feedback_error is None:
-                error_p, error_v = white_p, white_v  # start in the stationary distribution
-            else:
-                elapsed = now - self._feedback_time
-                error_p = gauss_markov_step(self._feedback_error[0], white_p, elapsed, params.position_noise_time_constant)
-                error_v = gauss_markov_step(self._feedback_error[1], white_v, elapsed, params.velocity_noise_time_constant)
-            self._feedback_error, self._feedback_time = (error_p, error_v), now
-            white_p, white_v = error_p, error_v
+        sp, sv = params.position_noise_std, params.velocity_noise_std
+        if not (sp >= 0.0 and sv >= 0.0):
+            raise ValueError(f"feedback noise stds must be >= 0, got {sp!r}, {sv!r}")
+        z = self._next_normals()
+        # Generator.normal(0, sigma, 3) is 0 + sigma z per draw (numpy's random_normal): the same floats
+        w0, w1, w2 = 0.0 + sp * z[0], 0.0 + sp * z[1], 0.0 + sp * z[2]
+        u0, u1, u2 = 0.0 + sv * z[3], 0.0 + sv * z[4], 0.0 + sv * z[5]
+        if params.position_noise_time_constant <= 0.0 and params.velocity_noise_time_constant <= 0.0:
+            return np.array((s[0] + w0, s[1] + w1, s[2] + w2)), np.array((s[3] + u0, s[4] + u1, s[5] + u2))
+        white_p, white_v = np.array((w0, w1, w2)), np.array((u0, u1, u2))
+        now = self.time
+        if self._feedback_error is None:
+            error_p, error_v = white_p, white_v  # start in the stationary distribution
+        else:
+            elapsed = now - self._feedback_time
+            error_p = gauss_markov_step(self._feedback_error[0], white_p, elapsed, params.position_noise_time_constant)
+            error_v = gauss_markov_step(self._feedback_error[1], white_v, elapsed, params.velocity_noise_time_constant)
+        self._feedback_error, self._feedback_time = (error_p, error_v), now
+        white_p, white_v = error_p, error_v
         p = np.array(s[0:3]) + white_p
         v = np.array(s[3:6]) + white_v
         return p, v
