@@ -147,6 +147,9 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
     bearings_used = 0
     bearings_out_of_view = 0
 
+    sensor_every = every["sensor"]
+    last_index = len(event_steps) - 1
+    max_speed_squared = MAX_SPEED**2
     for index, step in enumerate(event_steps):
         time = step * dt
         # The true state as tuples (autopilot.kinematics(): the values of autopilot.state, without its arrays).
@@ -157,7 +160,7 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
         if link.enabled:
             # Fixes go through the fault model and the validator, as over the real link; the
             # bearing is then taken at each delivered fix's time from the pursuer's state then.
-            if step % every["sensor"] == 0:
+            if step % sensor_every == 0:
                 link.offer(time, target.position, target.velocity, autopilot.state, measured_position)
             for stamp, fix_position, sample in link.deliver(time, pipeline):
                 bearing = _measure(sensor, stamp, fix_position - sample.true_position, sample.rotation,
@@ -166,7 +169,7 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
                     bearings_out_of_view += 1
                 else:
                     bearings.append(bearing)
-        elif step % every["sensor"] == 0:
+        elif step % sensor_every == 0:
             # The camera sees through the vehicle's true attitude; outside its field of view no bearing comes.
             bearing = _measure(sensor, time, target.position - np.array(position), np.array(rotation).reshape(3, 3),
                                measured_position, sensor_rng, range_rng)
@@ -185,11 +188,11 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
         # The sum of the six numbers in numpy's order (ndarray.sum of three adds them left to right), as floats.
         if estimate is not None and not math.isfinite(_sum3(estimate.position.tolist()) + _sum3(estimate.velocity.tolist())):
             termination = Termination.ESTIMATE_NOT_FINITE
-        speed_check = np.array(velocity)  # numpy's dot, as on state.velocity
-        if rotation[8] < 0.0 or float(speed_check @ speed_check) > MAX_SPEED**2:
+        vx, vy, vz = velocity  # |v|^2 summed left to right (what numpy's dot of three gave here, to the bit)
+        if rotation[8] < 0.0 or vx * vx + vy * vy + vz * vz > max_speed_squared:
             termination = Termination.OUT_OF_CONTROL
         _log_row(log, time, position, velocity, rotation[0::3], rotation[8], target, output, pipeline.estimator)
-        if termination is not Termination.COMPLETED or index + 1 == len(event_steps):
+        if termination is not Termination.COMPLETED or index == last_index:
             break
         gap = event_steps[index + 1] - step
         target.step(gap * dt)

@@ -6,8 +6,8 @@ clip, tan, Python's `**`): each public function is compared with it on random in
 compiled path is checked against numpy's rounding, not only against its own Python function. Where numba's
 arithmetic would differ from numpy's or Python's (numba's `x ** 2` is x * x, Python's is pow(x, 2.0); numpy's
 tan and arctan are its SIMD routines, not the C library's), the kernels take the value from Python
-(VehicleLimits.kernel_terms) or call the C library (companion.core._jit.power); the range controller, whose
-saturation is numpy's arctan, has no kernel. A whole flight compiled against BOF_NO_JIT=1 is
+(VehicleLimits.kernel_terms) or call the C library (companion.core._jit.power); the range controller's
+saturation (numpy's arctan) stays in Python, its dot products and norm are a kernel. A whole flight compiled against BOF_NO_JIT=1 is
 tests/test_estimator_kernels.py's flight test (it runs the setpoint kernels too).
 """
 
@@ -24,7 +24,7 @@ from bitwise import assert_same
 
 from companion.core import _jit, attitude, geometry, guidance
 from companion.core.attitude import VehicleLimits
-from companion.core.guidance import HelicalNavigationGuidance, RangeExcitation
+from companion.core.guidance import HelicalNavigationGuidance, RangeController, RangeErrorState, RangeExcitation
 
 E_X = np.array([1.0, 0.0, 0.0])
 E_Z = np.array([0.0, 0.0, 1.0])
@@ -284,11 +284,50 @@ def test_range_excitation_is_the_old_one(time, los_vector, scale, level, speed, 
         assert excitation.level(value, suspect) == old_excitation_level(excitation, value, suspect)
 
 
+def old_range_error_state(controller, relative_position, relative_velocity):
+    distance = float(np.linalg.norm(relative_position))
+    return RangeErrorState(distance - controller.desired_range,
+                           float(relative_position @ relative_velocity) / max(distance, 1e-6))
+
+
+def old_range_acceleration(controller, relative_position, relative_velocity, los, lateral_acceleration):
+    error = old_range_error_state(controller, relative_position, relative_velocity)
+    distance = float(np.linalg.norm(relative_position))
+    u_star = (
+        -distance * controller.virtual_control(error)
+        + float(relative_velocity @ relative_velocity)
+        - error.range_rate**2
+        - float(relative_position @ lateral_acceleration)
+    )
+    projection = float(los @ relative_position)
+    if projection <= 1e-6 * max(distance, 1.0):
+        return np.zeros(3)
+    return u_star / projection * los
+
+
+@settings(max_examples=400, deadline=None)
+@given(vectors, scales, vectors, vectors, vectors, st.floats(0.5, 50.0), st.floats(0.1, 10.0), st.floats(0.5, 10.0),
+       st.sampled_from(["any", "tiny", "zero", "nan", "behind"]))
+def test_range_controller_is_the_old_one(position, scale, velocity, los_vector, lateral, desired, gain, limit, case):
+    """eq. (15)-(19) with the kernel's products against the old numpy ones: the command and the error state."""
+    relative = {"any": position * scale, "tiny": position * 1e-9, "zero": np.zeros(3),
+                "nan": np.array([np.nan, 1.0, 0.0]), "behind": position * scale}[case]
+    los = direction_of(los_vector, 1.0) if case != "behind" or not np.any(relative) else -relative / np.linalg.norm(relative)
+    controller = RangeController(desired, gain, limit)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        assert_same(controller.acceleration(relative, velocity, los, lateral),
+                    old_range_acceleration(controller, relative, velocity, los, lateral))
+        new, old = controller.error_state(relative, velocity), old_range_error_state(controller, relative, velocity)
+    assert_same((new.range_error, new.range_rate), (old.range_error, old.range_rate))
+    assert type(new.range_rate) is float and type(new.range_error) is float
+
+
 def test_warm_up_compiles_the_setpoint_kernels():
     _jit.warm_up()
     kernels = (attitude._setpoint_kernel, attitude._rotation_kernel, attitude._thrust_kernel,
                attitude._limited_acceleration_kernel, guidance._helical_acceleration_kernel,
-               guidance._virtual_los_kernel, guidance._excitation_acceleration_kernel)
+               guidance._virtual_los_kernel, guidance._excitation_acceleration_kernel, guidance._range_terms,
+               guidance._range_error_terms)
     for kernel in kernels:
         if _jit.ENABLED:
             assert kernel.signatures, kernel

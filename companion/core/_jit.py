@@ -252,7 +252,7 @@ def _warm_up_setpoint() -> None:
     without a heading fallback, so that no setpoint in flight waits for the compiler."""
     from companion.core.attitude import VehicleLimits, attitude_setpoint, collective_thrust, desired_rotation, limit_specific_force
     from companion.core.geometry import rotation_from_x_axis_to
-    from companion.core.guidance import HelicalNavigationGuidance, RangeExcitation
+    from companion.core.guidance import HelicalNavigationGuidance, RangeController, RangeExcitation
 
     limits = VehicleLimits(2.0 / 3.0, max_tilt=0.6, gravity=9.81, mass=1.0)
     los = np.array([0.8, -0.36, -0.48])
@@ -261,6 +261,9 @@ def _warm_up_setpoint() -> None:
     lateral = guidance.acceleration(1.0, velocity, los, 20.0)
     guidance.virtual_los(1.0, los, 20.0)
     lateral = lateral + RangeExcitation().acceleration(1.0, los, 0.5)
+    controller = RangeController(8.0)
+    controller.acceleration(20.0 * los, velocity, los, lateral)
+    controller.error_state(20.0 * los, velocity)
     setpoint = attitude_setpoint(1.0, lateral, los, limits)
     attitude_setpoint(1.02, lateral, los, limits, setpoint.rotation[:, 0])
     flown = limit_specific_force(lateral, limits)

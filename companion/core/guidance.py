@@ -6,13 +6,14 @@ adds the longitudinal term along the line of sight, eq. (18).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
 
 from companion.core._jit import jit
-from companion.core.geometry import (E_X, clip, cross, cross_kernel, norm, rotation_about_y_kernel, rotation_about_z_kernel,
+from companion.core.geometry import (E_X, clip, cross, cross_kernel, rotation_about_y_kernel, rotation_about_z_kernel,
                                      rotation_from_unit_x_axis_to, rotation_from_x_axis_to, unit, unit_kernel)
 
 
@@ -116,6 +117,26 @@ def saturation_slope(x: float, limit: float = 3.0) -> float:
     return 1.0 / (1.0 + (x / limit) ** 2)
 
 
+@jit
+def _range_error_terms(relative_position: np.ndarray, relative_velocity: np.ndarray) -> tuple[float, float]:
+    """(|dp|, xi_2 = dp^T dv / |dp|) of eq. (15)-(16), m and m/s: |dp| as geometry.norm (sqrt(dp . dp)), the
+    denominator max(|dp|, 1e-6) as Python's max takes it (the first argument unless the second is larger,
+    so a NaN stays NaN). dp, dv: float64 (3,)."""
+    distance = math.sqrt(relative_position @ relative_position)
+    floor = 1e-6 if 1e-6 > distance else distance
+    return float(distance), float((relative_position @ relative_velocity) / floor)
+
+
+@jit
+def _range_terms(relative_position: np.ndarray, relative_velocity: np.ndarray, los: np.ndarray,
+                 lateral_acceleration: np.ndarray) -> tuple[float, float, float, float, float]:
+    """The products eq. (18)-(19) need, in one call: (|dp|, xi_2, dv^T dv, dp^T a_HN, lambda^T dp)
+    (`_range_error_terms` for the first two). All float64 (3,)."""
+    distance, range_rate = _range_error_terms(relative_position, relative_velocity)
+    return (distance, range_rate, float(relative_velocity @ relative_velocity),
+            float(relative_position @ lateral_acceleration), float(los @ relative_position))
+
+
 @dataclass(frozen=True)
 class RangeErrorState:
     """xi_1 = |dp| - r_d (eq. 15), m, and xi_2 = dp^T dv / |dp| (eq. 16), m/s."""
@@ -148,8 +169,9 @@ class RangeController:
 
     def error_state(self, relative_position: np.ndarray, relative_velocity: np.ndarray) -> RangeErrorState:
         """eq. (15)-(16) from dp = p^_T - p (m, (3,)) and dv = v^_T - v (m/s, (3,))."""
-        distance = norm(relative_position)
-        return RangeErrorState(distance - self.desired_range, float(relative_position @ relative_velocity) / max(distance, 1e-6))
+        distance, range_rate = _range_error_terms(np.asarray(relative_position, dtype=float),
+                                                  np.asarray(relative_velocity, dtype=float))
+        return RangeErrorState(distance - self.desired_range, range_rate)
 
     def virtual_control(self, error: RangeErrorState) -> float:
         """v* = -k[sigma(xi1) + xi2] - sigma(xi1) - sigma'(xi1) xi2, eq. (17); m/s^2."""
@@ -170,15 +192,17 @@ class RangeController:
         los: unit line of sight lambda, (3,). lateral_acceleration: a_HN, m/s^2, (3,).
         Returns m/s^2, shape (3,).
         """
-        error = self.error_state(relative_position, relative_velocity)
-        distance = norm(relative_position)
+        los = np.asarray(los, dtype=float)
+        distance, range_rate, speed_squared, lateral_work, projection = _range_terms(
+            np.asarray(relative_position, dtype=float), np.asarray(relative_velocity, dtype=float), los,
+            np.asarray(lateral_acceleration, dtype=float))
+        error = RangeErrorState(distance - self.desired_range, range_rate)
         u_star = (
             -distance * self.virtual_control(error)
-            + float(relative_velocity @ relative_velocity)
+            + speed_squared
             - error.range_rate**2
-            - float(relative_position @ lateral_acceleration)
+            - lateral_work
         )
-        projection = float(los @ relative_position)
         if projection <= 1e-6 * max(distance, 1.0):
             # Remark 3: lambda^T dp = 0 means the estimate disagrees with the line of
             # sight by 90 degrees or more; no longitudinal command is meaningful.
