@@ -834,8 +834,10 @@ def _dump(model: Envelope) -> bytes:
 
 
 def _versioned(envelope: Any, current: str, legacy: str) -> dict:
-    """The document of a dataclass envelope: the current schema with its epoch, or the legacy one without."""
-    document = dataclasses.asdict(envelope)
+    """The document of a dataclass envelope: the current schema with its epoch, or the legacy one without.
+    Its fields as they are (what dataclasses.asdict gives for these flat envelopes, without its deep copy:
+    the validation only reads them)."""
+    document = {field.name: getattr(envelope, field.name) for field in dataclasses.fields(envelope)}
     if document["epoch"] is None:
         del document["epoch"]
         return {"schema": legacy, **document}
