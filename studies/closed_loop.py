@@ -21,6 +21,7 @@ from interfaces.scenario import Scenario, VehicleConfig
 from companion.core.fix_validator import FixRejected, FixValidator
 from companion.fix_intake import FixIntake, build_fix_validator
 from interfaces.link_schema import MAX_EPOCH, PayloadError, TargetFix, decode_target_fix, encode_target_fix
+from companion.core.geometry import norm
 from companion.core.messages import BearingMeasurement, PursuerState
 from companion.core.health import REASONS, HealthAction, HealthState
 from companion.core.pipeline import TrackMode
@@ -239,7 +240,7 @@ def _measure(sensor: BearingSensor, time: float, line_of_sight: np.ndarray, rota
     The noise-free direction rides along as true_direction for the simulation-only
     "optimal u-PLKF" benchmark (section VIII-B); every other estimator ignores it.
     """
-    distance = float(np.linalg.norm(line_of_sight))
+    distance = norm(line_of_sight)  # np.linalg.norm's sqrt(x . x), without its wrapper
     true_direction = line_of_sight / distance
     direction = sensor.measure(true_direction, sensor_rng, rotation, true_range=distance)
     if direction is None:
