@@ -52,6 +52,7 @@ when it is installed (companion.core._jit), the same functions either way.
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -364,8 +365,8 @@ def _imm_correct_kernel(states: np.ndarray, covariances: np.ndarray, model_relat
     combined innovation for the health monitor (`_combined_innovation`), the model probabilities (eq. (21),
     `_posterior_probabilities`) and the mixing for the next cycle (eqs. (17)-(19), `_mix_into`).
 
-    The per-model inputs are `_correct_kernel`'s, stacked (references (n, 3), measurement_noises and lead_noises
-    (n, 3, 3)); model_relative (n, 3), ranges and model_ranges (n,) as `_prior_lines_of_sight` gives them; weights: c (n,); relative and predicted_range: the combined line of
+    The per-model inputs are `_correct_kernel`'s, stacked (references (n, 3), or (1, 3) for one reference every
+    model takes (the model filters' shared OwnPositionTracker); measurement_noises and lead_noises (n, 3, 3)); model_relative (n, 3), ranges and model_ranges (n,) as `_prior_lines_of_sight` gives them; weights: c (n,); relative and predicted_range: the combined line of
     sight; stay_probability, stay_time, interval: the Markov matrix p_ij over the interval since the last
     correction (`_markov_matrix_over`). Returns (each model's NIS y_j^T S_j^+ y_j (n,) (zeros unless with_nis),
     the combined innovation (3,) and covariance (3, 3), mu (n,), the next c (n,))."""
@@ -375,7 +376,7 @@ def _imm_correct_kernel(states: np.ndarray, covariances: np.ndarray, model_relat
     nis = np.zeros(count)
     for j in range(count):
         innovation, innovation_covariance, innovation_inverse = _correct_kernel(
-            states[j], covariances[j], model_relative[j], model_ranges[j], direction, references[j], use_reference, True,
+            states[j], covariances[j], model_relative[j], model_ranges[j], direction, references[j if references.shape[0] > 1 else 0], use_reference, True,
             lead, late, measurement_noises[j], add_position_noise, position_variance, lead_noises[j], pursuer_position)
         innovations[j] = innovation
         innovation_covariances[j] = innovation_covariance
@@ -440,6 +441,15 @@ class IMMEstimator:
                                  restart_when_behind, adaptive_noise, transition=a, discrete_process_noise=b @ process_noise @ b.T)
             self.filters.append(model_filter)
         self._bind_storage()
+        # One own-position tracker for every model filter (and one set of neighbours' trackers): they would be fed
+        # the same samples (every correction of `_correct_all` feeds each model filter's), so while they are
+        # shared one reference per correction is every model's. `_correct_each`, where a model filter may restart
+        # and skip its feed, gives each model filter its own copy first (`_separate_trackers`).
+        self._shared_tracks = len(self.filters) > 1 and self.filters[0]._own_track is not None
+        if self._shared_tracks:
+            for model_filter in self.filters[1:]:
+                model_filter._own_track = self.filters[0]._own_track
+                model_filter._neighbour_tracks = self.filters[0]._neighbour_tracks
         # the model filters' fixed matrices, stacked for the kernels
         self._transitions = np.array([model_filter._a for model_filter in self.filters])
         self._discrete_process_noises = np.array([model_filter._q_discrete for model_filter in self.filters])
@@ -630,15 +640,23 @@ class IMMEstimator:
         """The usual correction (PREDICTED gains, no model restarting): every step of the cycle in one
         `_imm_correct_kernel` call. The same arithmetic as `_correct_each`, which takes the other cases."""
         filters = self.filters
-        inputs = [model_filter._correction_inputs(bearing, lead, direction) for model_filter in filters]
-        late = inputs[0][2]
-        use_reference = inputs[0][0] is not None
+        if self._shared_tracks:  # one tracker: fed once, its reference every model's
+            reference, direction, late, lead_noise = filters[0]._correction_inputs(bearing, lead, direction)
+            references = reference[None, :]
+            lead_noises = (np.array([lead_noise] + [model_filter._lead_noise(lead) for model_filter in filters[1:]])
+                           if late else self._no_lead_noises)
+        else:
+            inputs = [model_filter._correction_inputs(bearing, lead, direction) for model_filter in filters]
+            reference, direction, late = inputs[0][:3]
+            references = np.array([reference for reference, *_ in inputs]) if reference is not None else None
+            lead_noises = np.array([lead_noise for *_, lead_noise in inputs]) if late else self._no_lead_noises
+        use_reference = reference is not None
         adaptive = [model_filter.adaptive_noise for model_filter in filters]
         nis, innovation, innovation_covariance, probabilities, predicted = _imm_correct_kernel(
-            self._states, self._covariances, model_relative, ranges, model_ranges, inputs[0][1],
-            np.array([reference for reference, *_ in inputs]) if use_reference else self._no_references, use_reference,
+            self._states, self._covariances, model_relative, ranges, model_ranges, direction,
+            references if use_reference else self._no_references, use_reference,
             lead, late, self._measurement_noises, filters[0].pursuer_position_std > 0.0, filters[0].pursuer_position_std**2,
-            np.array([lead_noise for *_, lead_noise in inputs]) if late else self._no_lead_noises, pursuer_position,
+            lead_noises, pursuer_position,
             self._weights, relative, predicted_range, self.stay_probability, self.stay_time, interval, any(adaptive))
         for j, model_filter in enumerate(filters):
             model_filter._snapshot = None
@@ -653,6 +671,7 @@ class IMMEstimator:
     def _correct_each(self, bearing: BearingMeasurement, model_relative: np.ndarray, ranges: np.ndarray,
                       relative: np.ndarray, predicted_range: float, cos_angle: float, interval: float) -> CorrectionReport:
         """The correction model filter by model filter (any gain projection; models may restart on the bearing)."""
+        self._separate_trackers()
         reports = [model_filter.correct(bearing) for model_filter in self.filters]
         self._snapshot = None
         if all([r.innovation is not None and r.innovation_covariance is not None for r in reports]) and (ranges > 0.0).all():
@@ -683,6 +702,18 @@ class IMMEstimator:
         for model_filter in self.filters:
             model_filter._snapshot = None
         return report
+
+    def _separate_trackers(self) -> None:
+        """Give every model filter its own copy of the shared own-position trackers (from now on each feeds its own):
+        before a correction in which a model filter may restart and skip its feed, so the trackers of the others
+        go on exactly as separate trackers fed the same samples until now would."""
+        if not self._shared_tracks:
+            return
+        self._shared_tracks = False
+        first = self.filters[0]
+        for model_filter in self.filters[1:]:
+            model_filter._own_track = copy.deepcopy(first._own_track)
+            model_filter._neighbour_tracks = copy.deepcopy(first._neighbour_tracks)
 
     # --- the IMM steps -----------------------------------------------------------------
 
