@@ -332,9 +332,13 @@ def test_prior_lines_of_sight(seed, count, lead, behind):
     if behind:
         states[0, :3] = pursuer - 10.0 * direction - lead * states[0, 3:]
     for restart_when_behind in (True, False):
-        compiled, interpreted = both(imm._prior_lines_of_sight, states, weights, lead, pursuer, direction, restart_when_behind)[:2]
+        outputs = (np.full((count, 3), np.nan), np.full(count, np.nan), np.full(count, np.nan), np.full(3, np.nan))
+        compiled, interpreted, compiled_args, python_args = both(
+            imm._prior_lines_of_sight, states, weights, lead, pursuer, direction, restart_when_behind, *outputs)
         assert_same(compiled, interpreted)
-        model_relative, ranges, model_ranges, relative, predicted_range, cos_angle, every_model_corrects = interpreted
+        assert_same(tuple(compiled_args[6:]), tuple(python_args[6:]))  # the lines of sight it writes
+        model_relative, ranges, model_ranges, relative = python_args[6:]
+        predicted_range, cos_angle, every_model_corrects = interpreted
         expected_relative = states[:, :3] + lead * states[:, 3:] - pursuer
         assert_same(model_relative, expected_relative)
         assert_same(ranges, np.sqrt((expected_relative * expected_relative).sum(axis=1)))
@@ -365,16 +369,25 @@ def test_predict_models_and_whole_imm_correction(seed, count, exponent, lead, la
     direction = rng.normal(size=3) * noise_scale + states[0, :3] - pursuer
     direction /= math.sqrt(float(direction @ direction))
     lead = lead if late else 0.0
-    model_relative, ranges, model_ranges, relative, predicted_range, _, _ = imm._prior_lines_of_sight(
-        states, probabilities, lead, pursuer, direction, True)
+    model_relative, ranges, model_ranges, relative = np.empty((count, 3)), np.empty(count), np.empty(count), np.empty(3)
+    predicted_range = imm._prior_lines_of_sight(states, probabilities, lead, pursuer, direction, True, model_relative,
+                                                ranges, model_ranges, relative)[0]
     references = pursuer + rng.normal(size=(count, 3)) * 0.1
     arguments = (states, covariances, model_relative, ranges, model_ranges, direction, references, True, lead, late,
                  np.array([1e-4 * np.eye(3)] * count), True, 0.01,
                  np.array([covariance(seed + j, 3, -3) for j in range(count)]), pursuer, probabilities, relative,
-                 predicted_range, 0.98, 1.0, 0.2, True)
+                 predicted_range, 0.98, 1.0, 0.2, True, np.full(count, np.nan), np.full(count, np.nan))
+    written = (0, 1, 15, 22, 23)  # states, covariances, weights (the next c), nis, probabilities
     compiled, interpreted, compiled_args, python_args = both(imm._imm_correct_kernel, *arguments)
     assert_same(compiled, interpreted)
-    assert_same(tuple(compiled_args[:2]), tuple(python_args[:2]))
+    assert_same(tuple(compiled_args[k] for k in written), tuple(python_args[k] for k in written))
+    assert np.isfinite(python_args[22]).all() and math.isclose(float(python_args[23].sum()), 1.0)
+    # one reference (1, 3) for every model (their shared own-position tracker) is that row repeated per model
+    one = both(imm._imm_correct_kernel, *arguments[:6], references[:1], *arguments[7:])
+    repeated = both(imm._imm_correct_kernel, *arguments[:6], np.repeat(references[:1], count, axis=0), *arguments[7:])
+    for (result, args), (expected, expected_args) in zip((one[0::2], one[1::2]), (repeated[0::2], repeated[1::2])):
+        assert_same(result, expected)
+        assert_same(tuple(args[k] for k in written), tuple(expected_args[k] for k in written))
 
 
 # --- the IMM's one-call correction is its model-by-model correction -----------------------------------

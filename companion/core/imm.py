@@ -52,6 +52,7 @@ when it is installed (companion.core._jit), the same functions either way.
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -321,20 +322,19 @@ def _clipped_cosine(dot: float, length: float) -> float:
 
 @jit
 def _prior_lines_of_sight(states: np.ndarray, weights: np.ndarray, lead: float, pursuer_position: np.ndarray,
-                          direction: np.ndarray, restart_when_behind: bool
-                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, float, bool]:
+                          direction: np.ndarray, restart_when_behind: bool, model_relative: np.ndarray,
+                          ranges: np.ndarray, model_ranges: np.ndarray, relative: np.ndarray) -> tuple[float, float, bool]:
     """Each model's prior line of sight at the bearing's time as UPLKF.correct forms it, and the combined one.
 
     states (n, 6); weights: c (n,); lead: bearing time - filter time, s; pursuer_position (3,); direction: the
-    unit bearing (3,). Returns model_relative (n, 3) = p^-_T,j - p, ranges (n,) (their lengths, summed as the
-    IMM's vectorised form), model_ranges (n,) (each as the model filter's own correct takes it), relative =
-    sum_j c_j model_relative_j (3,), its length, its clipped cosine to the bearing, and whether every model
-    filter corrects (a positive range, and none restarts: remark 3's guard on its own clipped cosine and range
-    when restart_when_behind)."""
+    unit bearing (3,). Writes model_relative (n, 3) = p^-_T,j - p, ranges (n,) (their lengths, summed as the
+    IMM's vectorised form), model_ranges (n,) (each as the model filter's own correct takes it) and relative =
+    sum_j c_j model_relative_j (3,) (the caller's arrays: no new ones to hand back per call); returns the
+    combined line of sight's length, its clipped cosine to the bearing, and whether every model filter corrects
+    (a positive range, and none restarts: remark 3's guard on its own clipped cosine and range when
+    restart_when_behind)."""
     count = states.shape[0]
-    model_relative = states[:, :3] + lead * states[:, 3:] - pursuer_position
-    ranges = np.empty(count)
-    model_ranges = np.empty(count)
+    model_relative[:] = states[:, :3] + lead * states[:, 3:] - pursuer_position
     every_model_corrects = True
     for j in range(count):
         row = model_relative[j]
@@ -343,10 +343,10 @@ def _prior_lines_of_sight(states: np.ndarray, weights: np.ndarray, lead: float, 
         if not ranges[j] > 0.0 or (restart_when_behind and _behind_sensor(
                 _clipped_cosine(float(np.dot(direction, row)), model_ranges[j]), model_ranges[j])):
             every_model_corrects = False
-    relative = weights @ model_relative
+    relative[:] = weights @ model_relative
     predicted_range = math.sqrt(float(np.dot(relative, relative)))
     cos_angle = _clipped_cosine(float(np.dot(direction, relative)), predicted_range)
-    return model_relative, ranges, model_ranges, relative, predicted_range, cos_angle, every_model_corrects
+    return predicted_range, cos_angle, every_model_corrects
 
 
 @jit
@@ -355,7 +355,8 @@ def _imm_correct_kernel(states: np.ndarray, covariances: np.ndarray, model_relat
                         lead: float, late: bool, measurement_noises: np.ndarray, add_position_noise: bool, position_variance: float,
                         lead_noises: np.ndarray, pursuer_position: np.ndarray, weights: np.ndarray,
                         relative: np.ndarray, predicted_range: float, stay_probability: float, stay_time: float,
-                        interval: float, with_nis: bool):
+                        interval: float, with_nis: bool, nis: np.ndarray, probabilities: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray]:
     """One IMM correction of models with the PREDICTED gain, none restarting (IMMEstimator.correct), in place on
     the stacked states (n, 6) and covariances (n, 6, 6):
 
@@ -364,18 +365,18 @@ def _imm_correct_kernel(states: np.ndarray, covariances: np.ndarray, model_relat
     combined innovation for the health monitor (`_combined_innovation`), the model probabilities (eq. (21),
     `_posterior_probabilities`) and the mixing for the next cycle (eqs. (17)-(19), `_mix_into`).
 
-    The per-model inputs are `_correct_kernel`'s, stacked (references (n, 3), measurement_noises and lead_noises
-    (n, 3, 3)); model_relative (n, 3), ranges and model_ranges (n,) as `_prior_lines_of_sight` gives them; weights: c (n,); relative and predicted_range: the combined line of
+    The per-model inputs are `_correct_kernel`'s, stacked (references (n, 3), or (1, 3) for one reference every
+    model takes (the model filters' shared OwnPositionTracker); measurement_noises and lead_noises (n, 3, 3)); model_relative (n, 3), ranges and model_ranges (n,) as `_prior_lines_of_sight` gives them; weights: c (n,); relative and predicted_range: the combined line of
     sight; stay_probability, stay_time, interval: the Markov matrix p_ij over the interval since the last
-    correction (`_markov_matrix_over`). Returns (each model's NIS y_j^T S_j^+ y_j (n,) (zeros unless with_nis),
-    the combined innovation (3,) and covariance (3, 3), mu (n,), the next c (n,))."""
+    correction (`_markov_matrix_over`). Writes each model's NIS y_j^T S_j^+ y_j into nis (n,) (when with_nis; left
+    alone otherwise), mu into probabilities (n,) and the next c into weights (n,) (after every use of the old c),
+    the caller's arrays; returns the combined innovation (3,) and covariance (3, 3)."""
     count = states.shape[0]
     innovations = np.empty((count, 3))
     innovation_covariances = np.empty((count, 3, 3))
-    nis = np.zeros(count)
     for j in range(count):
         innovation, innovation_covariance, innovation_inverse = _correct_kernel(
-            states[j], covariances[j], model_relative[j], model_ranges[j], direction, references[j], use_reference, True,
+            states[j], covariances[j], model_relative[j], model_ranges[j], direction, references[j if references.shape[0] > 1 else 0], use_reference, True,
             lead, late, measurement_noises[j], add_position_noise, position_variance, lead_noises[j], pursuer_position)
         innovations[j] = innovation
         innovation_covariances[j] = innovation_covariance
@@ -385,10 +386,10 @@ def _imm_correct_kernel(states: np.ndarray, covariances: np.ndarray, model_relat
                                                     model_relative / ranges[:, None])
     innovation, innovation_covariance = _combined_innovation(weights, innovations, innovation_covariances, relative,
                                                              predicted_range)
-    probabilities = _posterior_probabilities(log_likelihoods, weights)
-    predicted = _mix_into(probabilities, _markov_matrix_over(count, stay_probability, stay_time, interval), states,
-                          covariances)
-    return nis, innovation, innovation_covariance, probabilities, predicted
+    probabilities[:] = _posterior_probabilities(log_likelihoods, weights)
+    weights[:] = _mix_into(probabilities, _markov_matrix_over(count, stay_probability, stay_time, interval), states,
+                           covariances)
+    return innovation, innovation_covariance
 
 
 class IMMEstimator:
@@ -440,11 +441,24 @@ class IMMEstimator:
                                  restart_when_behind, adaptive_noise, transition=a, discrete_process_noise=b @ process_noise @ b.T)
             self.filters.append(model_filter)
         self._bind_storage()
+        # One own-position tracker for every model filter (and one set of neighbours' trackers): they would be fed
+        # the same samples (every correction of `_correct_all` feeds each model filter's), so while they are
+        # shared one reference per correction is every model's. `_correct_each`, where a model filter may restart
+        # and skip its feed, gives each model filter its own copy first (`_separate_trackers`).
+        self._shared_tracks = len(self.filters) > 1 and self.filters[0]._own_track is not None
+        if self._shared_tracks:
+            for model_filter in self.filters[1:]:
+                model_filter._own_track = self.filters[0]._own_track
+                model_filter._neighbour_tracks = self.filters[0]._neighbour_tracks
         # the model filters' fixed matrices, stacked for the kernels
         self._transitions = np.array([model_filter._a for model_filter in self.filters])
         self._discrete_process_noises = np.array([model_filter._q_discrete for model_filter in self.filters])
         self._measurement_noises = np.array([model_filter.measurement_noise for model_filter in self.filters])
         self._no_references, self._no_lead_noises = np.zeros((count, 3)), np.zeros((count, 3, 3))  # not used / zero
+        # the prior lines of sight of a correction (`_prior_lines_of_sight` writes them): p^-_T,j - p (n, 3), their
+        # lengths twice (n,) (as summed by the IMM, as by each model filter), the combined p^-_T - p (3,)
+        self._lines_of_sight = (np.empty((count, 3)), np.empty(count), np.empty(count), np.empty(3))
+        self._nis = np.zeros(count)  # each model's NIS of the last correction (`_imm_correct_kernel` writes it)
         self._noise_factors: list[tuple[float, float]] = []  # the (scale, boost) of `_scales` and `_boosts`
         self._scales = self._boosts = np.ones(count)
         if initial_probabilities is None:
@@ -607,8 +621,11 @@ class IMMEstimator:
         pursuer_position = np.asarray(bearing.pursuer_position, dtype=float)
         direction = bearing.unit_direction
         # each model's prior line of sight at the bearing's time, as UPLKF.correct forms it, and the combined one
-        model_relative, ranges, model_ranges, relative, predicted_range, cos_angle, every_model_corrects = \
-            _prior_lines_of_sight(self._states, self._weights, lead, pursuer_position, direction, self.restart_when_behind)
+        # (into the IMM's own arrays, read by this correction only)
+        model_relative, ranges, model_ranges, relative = self._lines_of_sight
+        predicted_range, cos_angle, every_model_corrects = _prior_lines_of_sight(
+            self._states, self._weights, lead, pursuer_position, direction, self.restart_when_behind, model_relative,
+            ranges, model_ranges, relative)
         if self.restart_when_behind and _behind_sensor(cos_angle, predicted_range):
             guess = restart_guess(self._initial_guess, predicted_range, self._weights @ self._states[:, 3:])
             for model_filter in filters:
@@ -630,22 +647,32 @@ class IMMEstimator:
         """The usual correction (PREDICTED gains, no model restarting): every step of the cycle in one
         `_imm_correct_kernel` call. The same arithmetic as `_correct_each`, which takes the other cases."""
         filters = self.filters
-        inputs = [model_filter._correction_inputs(bearing, lead, direction) for model_filter in filters]
-        late = inputs[0][2]
-        use_reference = inputs[0][0] is not None
+        if self._shared_tracks:  # one tracker: fed once, its reference every model's
+            reference, direction, late, lead_noise = filters[0]._correction_inputs(bearing, lead, direction)
+            references = reference[None, :]
+            lead_noises = (np.array([lead_noise] + [model_filter._lead_noise(lead) for model_filter in filters[1:]])
+                           if late else self._no_lead_noises)
+        else:
+            inputs = [model_filter._correction_inputs(bearing, lead, direction) for model_filter in filters]
+            reference, direction, late = inputs[0][:3]
+            references = np.array([reference for reference, *_ in inputs]) if reference is not None else None
+            lead_noises = np.array([lead_noise for *_, lead_noise in inputs]) if late else self._no_lead_noises
+        use_reference = reference is not None
         adaptive = [model_filter.adaptive_noise for model_filter in filters]
-        nis, innovation, innovation_covariance, probabilities, predicted = _imm_correct_kernel(
-            self._states, self._covariances, model_relative, ranges, model_ranges, inputs[0][1],
-            np.array([reference for reference, *_ in inputs]) if use_reference else self._no_references, use_reference,
+        # mu and the next c in place: the IMM's own arrays, never handed out (model_probabilities is a copy)
+        nis, probabilities = self._nis, self._probabilities
+        innovation, innovation_covariance = _imm_correct_kernel(
+            self._states, self._covariances, model_relative, ranges, model_ranges, direction,
+            references if use_reference else self._no_references, use_reference,
             lead, late, self._measurement_noises, filters[0].pursuer_position_std > 0.0, filters[0].pursuer_position_std**2,
-            np.array([lead_noise for *_, lead_noise in inputs]) if late else self._no_lead_noises, pursuer_position,
-            self._weights, relative, predicted_range, self.stay_probability, self.stay_time, interval, any(adaptive))
+            lead_noises, pursuer_position,
+            self._weights, relative, predicted_range, self.stay_probability, self.stay_time, interval, any(adaptive), nis,
+            probabilities)
         for j, model_filter in enumerate(filters):
             model_filter._snapshot = None
             if adaptive[j] is not None:  # UPLKF._note_innovation with the kernel's NIS
                 adaptive[j].update(bearing.time, float(nis[j]), 2)
-        self._set_probabilities(probabilities)
-        self._weights = predicted
+        self._set_probabilities(probabilities)  # (its sums by motion anew)
         self._snapshot = None
         return CorrectionReport(float(np.arccos(cos_angle)), True, innovation=innovation,
                                 innovation_covariance=innovation_covariance, innovation_dof=2)
@@ -653,6 +680,7 @@ class IMMEstimator:
     def _correct_each(self, bearing: BearingMeasurement, model_relative: np.ndarray, ranges: np.ndarray,
                       relative: np.ndarray, predicted_range: float, cos_angle: float, interval: float) -> CorrectionReport:
         """The correction model filter by model filter (any gain projection; models may restart on the bearing)."""
+        self._separate_trackers()
         reports = [model_filter.correct(bearing) for model_filter in self.filters]
         self._snapshot = None
         if all([r.innovation is not None and r.innovation_covariance is not None for r in reports]) and (ranges > 0.0).all():
@@ -683,6 +711,18 @@ class IMMEstimator:
         for model_filter in self.filters:
             model_filter._snapshot = None
         return report
+
+    def _separate_trackers(self) -> None:
+        """Give every model filter its own copy of the shared own-position trackers (from now on each feeds its own):
+        before a correction in which a model filter may restart and skip its feed, so the trackers of the others
+        go on exactly as separate trackers fed the same samples until now would."""
+        if not self._shared_tracks:
+            return
+        self._shared_tracks = False
+        first = self.filters[0]
+        for model_filter in self.filters[1:]:
+            model_filter._own_track = copy.deepcopy(first._own_track)
+            model_filter._neighbour_tracks = copy.deepcopy(first._neighbour_tracks)
 
     # --- the IMM steps -----------------------------------------------------------------
 
