@@ -89,6 +89,18 @@ class CorrectionReport:
     innovation_dof: int = 0
 
 
+def _correction_report(innovation_angle: float, used_predicted_projection: bool, innovation: np.ndarray,
+                       innovation_covariance: np.ndarray, innovation_dof: int) -> CorrectionReport:
+    """CorrectionReport(innovation_angle, used_predicted_projection, False, innovation, innovation_covariance,
+    innovation_dof) of a correction that updated, without the frozen dataclass's object.__setattr__ per field
+    (one is built at every correction): the same object, field for field."""
+    report = object.__new__(CorrectionReport)
+    report.__dict__.update(innovation_angle=innovation_angle, used_predicted_projection=used_predicted_projection,
+                           reinitialized=False, innovation=innovation, innovation_covariance=innovation_covariance,
+                           innovation_dof=innovation_dof)
+    return report
+
+
 class GainProjection(enum.Enum):
     """Which bearing builds the projection in the Kalman gain of the u-PLKF."""
 
@@ -337,6 +349,25 @@ def _behind_sensor(cos_angle: float, predicted_range: float) -> bool:
     """Remark 3's guard: a prediction behind the sensor (cosine to the bearing <= 0) or on it (range < 1 um) is
     not corrected but restarted on the bearing."""
     return cos_angle <= 0.0 or predicted_range < 1e-6
+
+
+@jit
+def _prior_line_of_sight(state: np.ndarray, lead: float, pursuer_position: np.ndarray,
+                         direction: np.ndarray) -> tuple[np.ndarray, float, float, bool]:
+    """UPLKF.correct's look at the prior from the bearing: relative = p^-_T + tau v^-_T - p (3,), m, the prior mean
+    carried to the bearing's time (tau = `lead`, s) seen from the bearing's position p (pursuer_position (3,));
+    its length (np.linalg.norm's formula, without its wrapper); the cosine between the unit bearing `direction`
+    (3,) and it, clipped to [-1, 1] as np.clip would (Python's min and max on floats: a NaN stays NaN); and
+    remark 3's guard on them (`_behind_sensor`). state: x^- = [p^-_T, v^-_T] (6,)."""
+    relative = state[:3] + lead * state[3:] - pursuer_position  # p^-_T - p
+    predicted_range = math.sqrt(float(np.dot(relative, relative)))
+    length = 1e-12 if 1e-12 > predicted_range else predicted_range  # max(predicted_range, 1e-12)
+    cosine = float(direction @ relative / length)
+    if -1.0 > cosine:  # max(cosine, -1.0)
+        cosine = -1.0
+    if 1.0 < cosine:  # min(cosine, 1.0)
+        cosine = 1.0
+    return relative, predicted_range, cosine, _behind_sensor(cosine, predicted_range)
 
 
 @jit
@@ -853,29 +884,24 @@ class UPLKF:
         # at arbitrary times): compare it with the prior mean carried to its time stamp.
         lead = bearing.time - self.time
         pursuer_position = np.asarray(bearing.pursuer_position, dtype=float)
-        relative = state[:3] + lead * state[3:] - pursuer_position  # p^-_T - p
-        predicted_range = math.sqrt(float(relative.dot(relative)))  # np.linalg.norm's formula, without its wrapper
-        direction = bearing.unit_direction
-        # min/max on a float clips exactly as np.clip does, without its array machinery
-        cos_angle = min(max(float(direction @ relative / max(predicted_range, 1e-12)), -1.0), 1.0)
+        # p^-_T - p, its length and clipped cosine to the bearing, and remark 3's guard, in one kernel call
+        relative, predicted_range, cos_angle, behind = _prior_line_of_sight(state, lead, pursuer_position,
+                                                                            bearing.unit_direction)
         innovation_angle = float(np.arccos(cos_angle))
-        if self._behind(cos_angle, predicted_range):
+        if self.restart_when_behind and behind:
+            # The guard: a prediction behind the sensor (or on it) restarts the filter on the bearing.
             self._restart_on(bearing, predicted_range, state[3:].copy())  # a copy: the storage is overwritten
             return CorrectionReport(innovation_angle, False, reinitialized=True)
-        reference, direction, late, lead_noise = self._correction_inputs(bearing, lead, direction)
+        reference, direction, late, lead_noise = self._correction_inputs(bearing, lead, bearing.unit_direction)
         use_predicted = self.gain_projection is GainProjection.PREDICTED
         self._snapshot = None
+        position_std = self.pursuer_position_std
         innovation, innovation_covariance, innovation_inverse = _correct_kernel(
             state, covariance, relative, predicted_range, direction, pursuer_position if reference is None else reference,
-            reference is not None, use_predicted, lead, late, self.measurement_noise, self.pursuer_position_std > 0.0,
-            self.pursuer_position_std**2, lead_noise, pursuer_position)
+            reference is not None, use_predicted, lead, late, self.measurement_noise, position_std > 0.0,
+            position_std**2, lead_noise, pursuer_position)
         self._note_innovation(bearing, innovation, innovation_inverse)
-        return CorrectionReport(innovation_angle, use_predicted, innovation=innovation,
-                                innovation_covariance=innovation_covariance, innovation_dof=2)
-
-    def _behind(self, cos_angle: float, predicted_range: float) -> bool:
-        """The guard: a prediction behind the sensor (or on it) restarts the filter on the bearing."""
-        return self.restart_when_behind and _behind_sensor(cos_angle, predicted_range)
+        return _correction_report(innovation_angle, use_predicted, innovation, innovation_covariance, 2)
 
     def _correction_inputs(self, bearing: BearingMeasurement, lead: float,
                            direction: np.ndarray) -> tuple[np.ndarray | None, np.ndarray, bool, np.ndarray]:
