@@ -400,16 +400,28 @@ class WindowedObservability:
         if not math.isfinite(time) or time < self._latest_time:
             raise ValueError(f"time must be finite and non-decreasing, got {time!r}")
         bearing = np.ascontiguousarray(bearing, dtype=float)
-        if bearing.shape == (3,) and isinstance(range_estimate, (float, int)) and _plain_sample(
-                bearing, float(range_estimate), self.sigma):
-            range_estimate = float(range_estimate)
-        else:  # fisher_information's checks decide (ValueError), then Python's ** (OverflowError)
-            bearing = _check_bearings(bearing.reshape(1, 3))[0]
-            range_estimate = float(_check_ranges(np.array([range_estimate], dtype=float), 1)[0])
+        samples = self._samples
+        cutoff = time - self.window_s
+        if bearing.shape == (3,) and isinstance(range_estimate, (float, int)):
+            # The usual sample in one kernel call: the checks, its term added, and the oldest term taken out
+            # when it leaves the window now (_drop_older_than's first subtraction, in the same order).
+            drop = bool(samples) and samples[0][0] < cutoff
+            plain, contribution = _add_plain_sample(self._information, bearing, float(range_estimate), self.sigma,
+                                                    samples[0][1] if drop else _NO_CONTRIBUTION, drop)
+            if plain:
+                if drop:
+                    samples.popleft()
+                samples.append((time, contribution))
+                self._latest_time = time
+                self._drop_older_than(cutoff)
+                return
+        # fisher_information's checks decide (ValueError), then Python's ** (OverflowError)
+        bearing = _check_bearings(bearing.reshape(1, 3))[0]
+        range_estimate = float(_check_ranges(np.array([range_estimate], dtype=float), 1)[0])
         contribution = _add_contribution(self._information, bearing, self.sigma**2 * range_estimate**2)
-        self._samples.append((time, contribution))
+        samples.append((time, contribution))
         self._latest_time = time
-        self._drop_older_than(time - self.window_s)
+        self._drop_older_than(cutoff)
 
     def _drop_older_than(self, cutoff: float) -> None:
         while self._samples and self._samples[0][0] < cutoff:
@@ -451,6 +463,25 @@ def _plain_sample(bearing: np.ndarray, range_estimate: float, sigma: float) -> b
         squared += bearing[k] * bearing[k]
     return (abs(math.sqrt(squared) - 1.0) <= 0.5 * _UNIT_TOLERANCE and math.isfinite(range_estimate)
             and range_estimate > 0.0 and math.isfinite(power(sigma, 2.0)) and math.isfinite(power(range_estimate, 2.0)))
+
+
+_NO_CONTRIBUTION = np.zeros((3, 3))  # the term _add_plain_sample takes out when none leaves the window (never read)
+
+
+@jit
+def _add_plain_sample(information: np.ndarray, bearing: np.ndarray, range_estimate: float, sigma: float,
+                      oldest: np.ndarray, drop_oldest: bool) -> tuple[bool, np.ndarray]:
+    """WindowedObservability.add's usual sample: when `_plain_sample` holds, its term of eq. (7) is added to
+    `information` (3, 3) in place (`_add_contribution`, scale sigma^2 r^2 by the C library's pow as Python's **
+    computes it), then, when drop_oldest, the window's oldest term `oldest` (3, 3) is subtracted (numpy's -=);
+    returns (True, the term). Otherwise (False, an empty (0, 0) array) and nothing changes: the caller runs the
+    checks. bearing: lambda (3,), float64 C-contiguous; range_estimate: m; sigma: rad."""
+    if not _plain_sample(bearing, range_estimate, sigma):
+        return False, np.empty((0, 0))
+    contribution = _add_contribution(information, bearing, power(sigma, 2.0) * power(range_estimate, 2.0))
+    if drop_oldest:
+        information -= oldest
+    return True, contribution
 
 
 @jit
