@@ -9,7 +9,13 @@ expressions it replaced, and each object built without its dataclass constructor
   the old geometry (test_diagnostic_kernels.old_health_geometry), its report (health._health_report) is
   HealthReport(...), and its chi^2 bounds cached across monitors (health._nis_bound) are scipy's each time;
 - a monitor's whole update: the NIS of an empty innovation is 0 and enters the window, a mismatched innovation
-  still raises before anything changes, a restart computes no NIS.
+  still raises before anything changes, a restart computes no NIS;
+- the windowed FIM's usual sample in one call (observability._add_plain_sample): _plain_sample's decision, then
+  _add_contribution's term added and the oldest term subtracted, in that order, as add and _drop_older_than did
+  (test_diagnostic_kernels.test_windowed_fim_is_the_old_one compares whole windows with the old class);
+- the own-position tracker's step in one kernel (estimators._own_position_step, _carried_position): every
+  reference of random sample sequences (repeated stamps, late samples, gaps) is the old tracker's;
+- after _jit.warm_up every new kernel is compiled.
 """
 
 from __future__ import annotations
@@ -28,8 +34,8 @@ from scipy.stats import chi2
 from test_diagnostic_kernels import covariances, families, old_health_geometry, old_normalized_innovation_squared
 
 from companion.core import _jit
-from companion.core import estimators, health
-from companion.core.estimators import CorrectionReport
+from companion.core import estimators, health, observability
+from companion.core.estimators import OWN_ACCELERATION_PSD, OWN_TRACK_MAX_GAP, CorrectionReport, OwnPositionTracker
 from companion.core.health import HealthConfig, HealthMonitor, HealthReport, HealthState
 
 python = _jit.python_function
@@ -166,3 +172,147 @@ def test_update_takes_the_nis_as_normalized_innovation_squared_gives_it():
     assert math.isnan(report.nis) and len(monitor._window.samples) == 0
     report = _update(monitor, 0.4, innovation.tolist(), innovation_covariance.tolist(), 2)  # plain lists
     assert_same(report.nis, health.normalized_innovation_squared(innovation, innovation_covariance))
+
+
+# ----- the windowed FIM --------------------------------------------------------------------------------------------
+
+@settings(max_examples=300, deadline=None)
+@given(seeds, floats(-4.0, -1.0), floats(-1.0, 4.0), st.booleans(),
+       st.sampled_from(["unit", "off", "nan", "range_nan", "range_zero", "range_huge"]))
+def test_add_plain_sample_is_plain_sample_then_add_then_drop(seed, log_sigma, log_range, drop, kind):
+    rng = np.random.default_rng(seed)
+    sigma, range_estimate = 10.0**log_sigma, 10.0**log_range
+    bearing = rng.normal(size=3)
+    bearing /= np.linalg.norm(bearing)
+    if kind == "off":
+        bearing *= 1.0 + 1e-6
+    elif kind == "nan":
+        bearing[1] = math.nan
+    range_estimate = {"range_nan": math.nan, "range_zero": 0.0, "range_huge": 1e200}.get(kind, range_estimate)
+    information = rng.normal(size=(3, 3)) * 10.0 ** rng.uniform(0, 6)
+    oldest = rng.normal(size=(3, 3)) * 10.0 ** rng.uniform(0, 6)
+    try:
+        plain = python(observability._plain_sample)(bearing, range_estimate, sigma)
+    except OverflowError:  # Python's ** overflowed (the compiled pow gives inf, so False): add raises it either way
+        plain = None
+    expected_information = information.copy()
+    if plain:  # WindowedObservability.add and _drop_older_than as they were
+        expected_term = observability._add_contribution(expected_information, bearing, sigma**2 * range_estimate**2)
+        if drop:
+            expected_information -= oldest
+    for function in (observability._add_plain_sample, python(observability._add_plain_sample)):
+        window = information.copy()
+        if plain is None and function is python(observability._add_plain_sample):
+            with pytest.raises(OverflowError):
+                function(window, bearing, range_estimate, sigma, oldest, drop)
+            assert_same(window, information)
+            continue
+        accepted, term = function(window, bearing, range_estimate, sigma, oldest, drop)
+        plain = bool(plain)
+        assert accepted == plain
+        assert_same(window, expected_information)
+        if plain:
+            assert_same(term, expected_term)
+        else:
+            assert term.shape == (0, 0)
+
+
+def test_warm_up_compiles_the_new_kernels():
+    _jit.warm_up()
+    for kernel in (estimators._prior_line_of_sight, health._bearing_evidence, observability._add_plain_sample):
+        if _jit.ENABLED:
+            assert kernel.signatures, kernel
+        else:
+            assert python(kernel) is kernel
+
+
+# ----- the own-position tracker ------------------------------------------------------------------------------------
+
+class OldOwnPositionTracker:
+    """estimators.OwnPositionTracker as it was (505f6f6), verbatim: tuples of Python floats."""
+
+    def __init__(self, position_std: float, acceleration_psd: float = OWN_ACCELERATION_PSD,
+                 max_gap: float = OWN_TRACK_MAX_GAP) -> None:
+        if not position_std > 0.0:
+            raise ValueError("the own-position tracker needs a positive position_std")
+        self.position_std = float(position_std)
+        self.acceleration_psd = float(acceleration_psd)
+        self.max_gap = float(max_gap)
+        self._time: float | None = None
+        # Per-axis floats rather than numpy arrays: at three elements the arithmetic is cheaper
+        # than numpy's per-call overhead, and this runs at every correction.
+        self._position = (0.0, 0.0, 0.0)
+        self._velocity = (0.0, 0.0, 0.0)
+        self._last_prediction = np.zeros(3)
+        self._p00 = self._p01 = self._p11 = 0.0
+
+    def reference(self, time: float, position: np.ndarray) -> np.ndarray:
+        """The own position (m, shape (3,)) at `time` (s) predicted from the samples before
+        this one; then folds this sample (the reported position, m, shape (3,)) in.
+        Special cases (first, repeated, late, after a gap): see the class docstring."""
+        dt = None if self._time is None else time - self._time
+        if dt is None or abs(dt) > self.max_gap:
+            position = np.array(position, dtype=float)
+            if dt is None or dt > 0.0:
+                self._restart(float(time), position)
+            return position
+        if dt == 0.0:
+            # A second bearing at the same stamp: the state already holds that sample's error,
+            # the prediction made before it does not.
+            return self._last_prediction
+        x0, x1, x2 = self._position
+        v0, v1, v2 = self._velocity
+        if dt < 0.0:
+            # A late sample: carried back from later ones, it is not folded in (the tracker
+            # runs forward in time only).
+            return np.array((x0 + dt * v0, x1 + dt * v1, x2 + dt * v2))
+        q = self.acceleration_psd
+        # Time update of the shared 2x2 covariance [[p00, p01], [p01, p11]] and of the state.
+        p00 = self._p00 + dt * (2.0 * self._p01 + dt * self._p11) + q * dt**3 / 3.0
+        p01 = self._p01 + dt * self._p11 + q * dt**2 / 2.0
+        p11 = self._p11 + q * dt
+        a0, a1, a2 = x0 + dt * v0, x1 + dt * v1, x2 + dt * v2
+        # Measurement update with the sample: gains k0 (position), k1 (velocity).
+        innovation_variance = p00 + self.position_std**2
+        k0, k1 = p00 / innovation_variance, p01 / innovation_variance
+        z0, z1, z2 = np.asarray(position, dtype=float).tolist()
+        e0, e1, e2 = z0 - a0, z1 - a1, z2 - a2
+        self._position = (a0 + k0 * e0, a1 + k0 * e1, a2 + k0 * e2)
+        self._velocity = (v0 + k1 * e0, v1 + k1 * e1, v2 + k1 * e2)
+        self._p00, self._p01, self._p11 = (1.0 - k0) * p00, (1.0 - k0) * p01, p11 - k1 * p01
+        self._time = time
+        self._last_prediction = np.array((a0, a1, a2))
+        return self._last_prediction
+
+    def _restart(self, time: float, position: np.ndarray) -> None:
+        self._time = time
+        self._position = tuple(position.tolist())
+        self._velocity = (0.0, 0.0, 0.0)
+        self._last_prediction = position
+        # Unknown velocity: a prior std of 10 m/s, far beyond a following drone's speed changes.
+        self._p00, self._p01, self._p11 = self.position_std**2, 0.0, 100.0
+
+
+@settings(max_examples=200, deadline=None)
+@given(seeds, floats(-3.0, 0.0), floats(0.1, 10.0), st.sampled_from([5.0, 50.0, 100.0]), st.booleans())
+def test_own_position_tracker_is_the_old_one(seed, log_std, psd, rate, python_kernels):
+    """References of a random own-position series (noisy, with repeated stamps, late samples and gaps beyond
+    max_gap) equal the old tracker's, bit for bit; the kernels compiled or as Python functions."""
+    rng = np.random.default_rng(seed)
+    std = 10.0**log_std
+    new, old = OwnPositionTracker(std, psd), OldOwnPositionTracker(std, psd)
+    if python_kernels:
+        import companion.core.estimators as module
+        step, carried = module._own_position_step, module._carried_position
+        module._own_position_step, module._carried_position = python(step), python(carried)
+    try:
+        time = 0.0
+        velocity = rng.normal(size=3) * 5.0
+        for _ in range(int(rng.integers(1, 120))):
+            time += rng.choice([1.0 / rate, 0.0, -0.5 / rate, 2.0 * OWN_TRACK_MAX_GAP, 3.0 / rate],
+                               p=[0.7, 0.08, 0.08, 0.04, 0.1])
+            position = velocity * time + rng.normal(size=3) * std
+            assert_same(new.reference(time, position), old.reference(time, position))
+    finally:
+        if python_kernels:
+            module._own_position_step, module._carried_position = step, carried

@@ -22,7 +22,7 @@ from typing import Protocol
 import numpy as np
 from scipy.linalg import null_space
 
-from companion.core._jit import jit, lapack_dgesv, lapack_dpotrf, objmode
+from companion.core._jit import jit, lapack_dgesv, lapack_dpotrf, objmode, power
 from companion.core.geometry import orthogonal_projection, unit
 from companion.core.messages import BearingMeasurement, TargetEstimate
 
@@ -615,7 +615,7 @@ class OwnPositionTracker:
     prediction made before the first; a late one (older than the last) the state carried back
     to its time, and it is not folded in; the first sample and one more than `max_gap` (s)
     away from the last are their own reference (and the tracker restarts on a later one).
-    Scalar arithmetic only: a few microseconds per sample.
+    Scalar arithmetic only, one kernel call per sample (`_own_position_step`).
     """
 
     def __init__(self, position_std: float, acceleration_psd: float = OWN_ACCELERATION_PSD,
@@ -626,12 +626,10 @@ class OwnPositionTracker:
         self.acceleration_psd = float(acceleration_psd)
         self.max_gap = float(max_gap)
         self._time: float | None = None
-        # Per-axis floats rather than numpy arrays: at three elements the arithmetic is cheaper
-        # than numpy's per-call overhead, and this runs at every correction.
-        self._position = (0.0, 0.0, 0.0)
-        self._velocity = (0.0, 0.0, 0.0)
+        # [x (3), v (3), p00, p01, p11]: the state and the shared covariance, stepped by one kernel call per
+        # sample (_own_position_step: scalar arithmetic, no numpy operation on three elements).
+        self._filter = np.zeros(9)
         self._last_prediction = np.zeros(3)
-        self._p00 = self._p01 = self._p11 = 0.0
 
     def reference(self, time: float, position: np.ndarray) -> np.ndarray:
         """The own position (m, shape (3,)) at `time` (s) predicted from the samples before
@@ -647,37 +645,55 @@ class OwnPositionTracker:
             # A second bearing at the same stamp: the state already holds that sample's error,
             # the prediction made before it does not.
             return self._last_prediction
-        x0, x1, x2 = self._position
-        v0, v1, v2 = self._velocity
         if dt < 0.0:
             # A late sample: carried back from later ones, it is not folded in (the tracker
             # runs forward in time only).
-            return np.array((x0 + dt * v0, x1 + dt * v1, x2 + dt * v2))
-        q = self.acceleration_psd
-        # Time update of the shared 2x2 covariance [[p00, p01], [p01, p11]] and of the state.
-        p00 = self._p00 + dt * (2.0 * self._p01 + dt * self._p11) + q * dt**3 / 3.0
-        p01 = self._p01 + dt * self._p11 + q * dt**2 / 2.0
-        p11 = self._p11 + q * dt
-        a0, a1, a2 = x0 + dt * v0, x1 + dt * v1, x2 + dt * v2
-        # Measurement update with the sample: gains k0 (position), k1 (velocity).
-        innovation_variance = p00 + self.position_std**2
-        k0, k1 = p00 / innovation_variance, p01 / innovation_variance
-        z0, z1, z2 = np.asarray(position, dtype=float).tolist()
-        e0, e1, e2 = z0 - a0, z1 - a1, z2 - a2
-        self._position = (a0 + k0 * e0, a1 + k0 * e1, a2 + k0 * e2)
-        self._velocity = (v0 + k1 * e0, v1 + k1 * e1, v2 + k1 * e2)
-        self._p00, self._p01, self._p11 = (1.0 - k0) * p00, (1.0 - k0) * p01, p11 - k1 * p01
+            return _carried_position(self._filter, dt)
+        self._last_prediction = _own_position_step(self._filter, dt, self.acceleration_psd, self.position_std,
+                                                   np.asarray(position, dtype=float))
         self._time = time
-        self._last_prediction = np.array((a0, a1, a2))
         return self._last_prediction
 
     def _restart(self, time: float, position: np.ndarray) -> None:
         self._time = time
-        self._position = tuple(position.tolist())
-        self._velocity = (0.0, 0.0, 0.0)
+        # [x (3), v (3), p00, p01, p11]; unknown velocity: a prior std of 10 m/s, far beyond a following drone's
+        # speed changes.
+        self._filter = np.array((*position.tolist(), 0.0, 0.0, 0.0, self.position_std**2, 0.0, 100.0))
         self._last_prediction = position
-        # Unknown velocity: a prior std of 10 m/s, far beyond a following drone's speed changes.
-        self._p00, self._p01, self._p11 = self.position_std**2, 0.0, 100.0
+
+
+@jit
+def _carried_position(track: np.ndarray, dt: float) -> np.ndarray:
+    """OwnPositionTracker's state [x, v, ...] (`track`) carried dt s (a late sample: dt < 0): x + dt v, (3,)."""
+    return np.array((track[0] + dt * track[3], track[1] + dt * track[4], track[2] + dt * track[5]))
+
+
+@jit
+def _own_position_step(track: np.ndarray, dt: float, acceleration_psd: float, position_std: float,
+                       position: np.ndarray) -> np.ndarray:
+    """One step of OwnPositionTracker's constant-velocity Kalman filter, in place on `track` = [x (3), v (3), p00,
+    p01, p11] (m, m/s and the shared 2x2 covariance [[p00, p01], [p01, p11]]): the time update over dt > 0 s with
+    white acceleration of density q = acceleration_psd, (m/s^2)^2 s, then the measurement update with the sample
+    `position` (3,), m, of noise std position_std, m. Returns the prediction x + dt v (3,), m. Scalar arithmetic
+    in Python's order, powers by the C library's pow as Python's ** computes them (companion.core._jit.power)."""
+    x0, x1, x2 = float(track[0]), float(track[1]), float(track[2])
+    v0, v1, v2 = float(track[3]), float(track[4]), float(track[5])
+    old_p00, old_p01, old_p11 = float(track[6]), float(track[7]), float(track[8])
+    q = acceleration_psd
+    # Time update of the shared 2x2 covariance [[p00, p01], [p01, p11]] and of the state.
+    p00 = old_p00 + dt * (2.0 * old_p01 + dt * old_p11) + q * power(dt, 3.0) / 3.0
+    p01 = old_p01 + dt * old_p11 + q * power(dt, 2.0) / 2.0
+    p11 = old_p11 + q * dt
+    a0, a1, a2 = x0 + dt * v0, x1 + dt * v1, x2 + dt * v2
+    # Measurement update with the sample: gains k0 (position), k1 (velocity).
+    innovation_variance = p00 + power(position_std, 2.0)
+    k0, k1 = p00 / innovation_variance, p01 / innovation_variance
+    z0, z1, z2 = float(position[0]), float(position[1]), float(position[2])
+    e0, e1, e2 = z0 - a0, z1 - a1, z2 - a2
+    track[0], track[1], track[2] = a0 + k0 * e0, a1 + k0 * e1, a2 + k0 * e2
+    track[3], track[4], track[5] = v0 + k1 * e0, v1 + k1 * e1, v2 + k1 * e2
+    track[6], track[7], track[8] = (1.0 - k0) * p00, (1.0 - k0) * p01, p11 - k1 * p01
+    return np.array((a0, a1, a2))
 
 
 class UPLKF:
