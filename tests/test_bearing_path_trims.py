@@ -15,6 +15,7 @@ expressions it replaced, and each object built without its dataclass constructor
   (test_diagnostic_kernels.test_windowed_fim_is_the_old_one compares whole windows with the old class);
 - the own-position tracker's step in one kernel (estimators._own_position_step, _carried_position): every
   reference of random sample sequences (repeated stamps, late samples, gaps) is the old tracker's;
+- measure's spectrum written into the window's buffer (observability._spectrum_into) is _spectrum's;
 - after _jit.warm_up every new kernel is compiled.
 """
 
@@ -67,7 +68,8 @@ def test_prior_line_of_sight(seed, exponent, lead, where, value):
         state[rng.integers(6)] = value
     expected = old_prior(state, lead, pursuer, direction)
     for function in (estimators._prior_line_of_sight, python(estimators._prior_line_of_sight)):
-        relative, predicted_range, cos_angle, behind = function(state, lead, pursuer, direction)
+        relative = np.full(3, 7.0)
+        predicted_range, cos_angle, behind = function(state, lead, pursuer, direction, relative)
         assert_same((relative, predicted_range, cos_angle), expected[:3])
         assert behind == expected[3]
         assert isinstance(cos_angle, float) and isinstance(predicted_range, float)
@@ -80,7 +82,7 @@ def test_prior_line_of_sight_clips_as_pythons_min_and_max():
     assert float(direction @ ahead[:3] / math.sqrt(float(ahead[:3] @ ahead[:3]))) > 1.0
     for state, cosine in ((ahead, 1.0), (-ahead, -1.0), (np.array([math.nan, 0.0, 0.0, 0, 0, 0]), math.nan)):
         for function in (estimators._prior_line_of_sight, python(estimators._prior_line_of_sight)):
-            assert_same(function(state, 0.0, np.zeros(3), direction)[2], cosine)
+            assert_same(function(state, 0.0, np.zeros(3), direction, np.empty(3))[1], cosine)
 
 
 @given(floats(0.0, math.pi), st.booleans(), seeds, st.integers(0, 3))
@@ -202,24 +204,36 @@ def test_add_plain_sample_is_plain_sample_then_add_then_drop(seed, log_sigma, lo
             expected_information -= oldest
     for function in (observability._add_plain_sample, python(observability._add_plain_sample)):
         window = information.copy()
+        term = np.full((3, 3), 7.0)
         if plain is None and function is python(observability._add_plain_sample):
             with pytest.raises(OverflowError):
-                function(window, bearing, range_estimate, sigma, oldest, drop)
+                function(window, bearing, range_estimate, sigma, oldest, drop, term)
             assert_same(window, information)
             continue
-        accepted, term = function(window, bearing, range_estimate, sigma, oldest, drop)
+        accepted = function(window, bearing, range_estimate, sigma, oldest, drop, term)
         plain = bool(plain)
         assert accepted == plain
         assert_same(window, expected_information)
-        if plain:
-            assert_same(term, expected_term)
-        else:
-            assert term.shape == (0, 0)
+        assert_same(term, expected_term if plain else np.full((3, 3), 7.0))
+
+
+@settings(max_examples=200, deadline=None)
+@given(seeds, families, st.integers(-8, 8))
+def test_spectrum_into_is_spectrum(seed, family, exponent):
+    matrix = np.zeros((3, 3))
+    block = covariances(seed, family, exponent)[0]
+    matrix[: len(block), : len(block)] = block
+    values, minimum, spread = observability._spectrum(matrix)
+    for function in (observability._spectrum_into, python(observability._spectrum_into)):
+        eigenvalues = np.full(3, 7.0)
+        assert_same(function(matrix, eigenvalues), (minimum, spread))
+        assert_same(eigenvalues, values)
 
 
 def test_warm_up_compiles_the_new_kernels():
     _jit.warm_up()
-    for kernel in (estimators._prior_line_of_sight, health._bearing_evidence, observability._add_plain_sample):
+    for kernel in (estimators._prior_line_of_sight, estimators._own_position_step, estimators._carried_position,
+                   health._bearing_evidence, observability._add_plain_sample, observability._spectrum_into):
         if _jit.ENABLED:
             assert kernel.signatures, kernel
         else:

@@ -352,14 +352,15 @@ def _behind_sensor(cos_angle: float, predicted_range: float) -> bool:
 
 
 @jit
-def _prior_line_of_sight(state: np.ndarray, lead: float, pursuer_position: np.ndarray,
-                         direction: np.ndarray) -> tuple[np.ndarray, float, float, bool]:
-    """UPLKF.correct's look at the prior from the bearing: relative = p^-_T + tau v^-_T - p (3,), m, the prior mean
-    carried to the bearing's time (tau = `lead`, s) seen from the bearing's position p (pursuer_position (3,));
-    its length (np.linalg.norm's formula, without its wrapper); the cosine between the unit bearing `direction`
-    (3,) and it, clipped to [-1, 1] as np.clip would (Python's min and max on floats: a NaN stays NaN); and
+def _prior_line_of_sight(state: np.ndarray, lead: float, pursuer_position: np.ndarray, direction: np.ndarray,
+                         relative: np.ndarray) -> tuple[float, float, bool]:
+    """UPLKF.correct's look at the prior from the bearing: writes relative = p^-_T + tau v^-_T - p (3,), m, the prior
+    mean carried to the bearing's time (tau = `lead`, s) seen from the bearing's position p (pursuer_position
+    (3,)), into `relative` (3,) (an argument rather than a result: numba boxes every array it returns); returns
+    its length (np.linalg.norm's formula, without its wrapper), the cosine between the unit bearing `direction`
+    (3,) and it, clipped to [-1, 1] as np.clip would (Python's min and max on floats: a NaN stays NaN), and
     remark 3's guard on them (`_behind_sensor`). state: x^- = [p^-_T, v^-_T] (6,)."""
-    relative = state[:3] + lead * state[3:] - pursuer_position  # p^-_T - p
+    relative[:] = state[:3] + lead * state[3:] - pursuer_position  # p^-_T - p
     predicted_range = math.sqrt(float(np.dot(relative, relative)))
     length = 1e-12 if 1e-12 > predicted_range else predicted_range  # max(predicted_range, 1e-12)
     cosine = float(direction @ relative / length)
@@ -367,7 +368,7 @@ def _prior_line_of_sight(state: np.ndarray, lead: float, pursuer_position: np.nd
         cosine = -1.0
     if 1.0 < cosine:  # min(cosine, 1.0)
         cosine = 1.0
-    return relative, predicted_range, cosine, _behind_sensor(cosine, predicted_range)
+    return predicted_range, cosine, _behind_sensor(cosine, predicted_range)
 
 
 @jit
@@ -649,8 +650,10 @@ class OwnPositionTracker:
             # A late sample: carried back from later ones, it is not folded in (the tracker
             # runs forward in time only).
             return _carried_position(self._filter, dt)
-        self._last_prediction = _own_position_step(self._filter, dt, self.acceleration_psd, self.position_std,
-                                                   np.asarray(position, dtype=float))
+        prediction = np.empty(3)
+        _own_position_step(self._filter, dt, self.acceleration_psd, self.position_std, np.asarray(position, dtype=float),
+                           prediction)
+        self._last_prediction = prediction
         self._time = time
         return self._last_prediction
 
@@ -670,11 +673,12 @@ def _carried_position(track: np.ndarray, dt: float) -> np.ndarray:
 
 @jit
 def _own_position_step(track: np.ndarray, dt: float, acceleration_psd: float, position_std: float,
-                       position: np.ndarray) -> np.ndarray:
+                       position: np.ndarray, prediction: np.ndarray) -> None:
     """One step of OwnPositionTracker's constant-velocity Kalman filter, in place on `track` = [x (3), v (3), p00,
     p01, p11] (m, m/s and the shared 2x2 covariance [[p00, p01], [p01, p11]]): the time update over dt > 0 s with
     white acceleration of density q = acceleration_psd, (m/s^2)^2 s, then the measurement update with the sample
-    `position` (3,), m, of noise std position_std, m. Returns the prediction x + dt v (3,), m. Scalar arithmetic
+    `position` (3,), m, of noise std position_std, m. Writes the prediction x + dt v into `prediction` (3,), m (an
+    argument rather than a result: numba boxes every array it returns). Scalar arithmetic
     in Python's order, powers by the C library's pow as Python's ** computes them (companion.core._jit.power)."""
     x0, x1, x2 = float(track[0]), float(track[1]), float(track[2])
     v0, v1, v2 = float(track[3]), float(track[4]), float(track[5])
@@ -693,7 +697,7 @@ def _own_position_step(track: np.ndarray, dt: float, acceleration_psd: float, po
     track[0], track[1], track[2] = a0 + k0 * e0, a1 + k0 * e1, a2 + k0 * e2
     track[3], track[4], track[5] = v0 + k1 * e0, v1 + k1 * e1, v2 + k1 * e2
     track[6], track[7], track[8] = (1.0 - k0) * p00, (1.0 - k0) * p01, p11 - k1 * p01
-    return np.array((a0, a1, a2))
+    prediction[0], prediction[1], prediction[2] = a0, a1, a2
 
 
 class UPLKF:
@@ -802,6 +806,7 @@ class UPLKF:
         self._ticks = 0
         self._initial_guess: InitialGuess | None = None
         self._snapshot: TargetEstimate | None = None
+        self._relative = np.zeros(3)  # correct's p^-_T - p (`_prior_line_of_sight` writes it; read within correct only)
 
     @property
     def initialized(self) -> bool:
@@ -901,8 +906,9 @@ class UPLKF:
         lead = bearing.time - self.time
         pursuer_position = np.asarray(bearing.pursuer_position, dtype=float)
         # p^-_T - p, its length and clipped cosine to the bearing, and remark 3's guard, in one kernel call
-        relative, predicted_range, cos_angle, behind = _prior_line_of_sight(state, lead, pursuer_position,
-                                                                            bearing.unit_direction)
+        relative = self._relative
+        predicted_range, cos_angle, behind = _prior_line_of_sight(state, lead, pursuer_position, bearing.unit_direction,
+                                                                  relative)
         innovation_angle = float(np.arccos(cos_angle))
         if self.restart_when_behind and behind:
             # The guard: a prediction behind the sensor (or on it) restarts the filter on the bearing.
