@@ -5,6 +5,8 @@ expressions it replaced, and each object built without its dataclass constructor
 - the u-PLKF's prior line of sight (estimators._prior_line_of_sight): p^-_T + tau v^-_T - p, its length, the
   clipped cosine (Python's min and max: a NaN stays NaN) and remark 3's guard, as UPLKF.correct formed them;
 - the u-PLKF's correction report (estimators._correction_report) is CorrectionReport(...);
+- the u-PLKF's one kernel call (estimators._correct_into) is _correct_kernel's update, innovation and S, and the
+  NIS _normalized_innovation_squared gave from S^+ when called after it (adaptive process noise);
 - the health monitor's numbers in one call (health._bearing_evidence): normalized_innovation_squared's NIS and
   the old geometry (test_diagnostic_kernels.old_health_geometry), its report (health._health_report) is
   HealthReport(...), and its chi^2 bounds cached across monitors (health._nis_bound) are scipy's each time;
@@ -33,6 +35,7 @@ from paper_reference import floats
 
 from scipy.stats import chi2
 from test_diagnostic_kernels import covariances, families, old_health_geometry, old_normalized_innovation_squared
+from test_estimator_kernels import correction_arguments
 
 from companion.core import _jit
 from companion.core import estimators, health, observability
@@ -97,6 +100,26 @@ def test_correction_report_is_the_dataclasses(angle, used_predicted, seed, dof):
     assert repr(report) == repr(expected)
     with pytest.raises(dataclasses.FrozenInstanceError):
         report.innovation_dof = 5
+
+
+@settings(max_examples=300, deadline=None)
+@given(seeds, st.integers(-3, 6), floats(-0.3, 0.3), st.booleans(), st.booleans(), st.booleans(),
+       st.sampled_from([0.0, 0.01, 1.0]), st.sampled_from([None, 0.0, 0.1, 1e3]), st.booleans())
+def test_correct_into_is_correct_kernel_then_nis(seed, exponent, lead, late, use_predicted, position_noise,
+                                                 noise_scale, reference_offset, with_nis):
+    """Noisy bearings reach the general pseudo-inverse and the Joseph form, as in test_estimator_kernels.test_correct."""
+    arguments = correction_arguments(seed, exponent, lead if late else 0.0, late, use_predicted, position_noise,
+                                     noise_scale, reference_offset)
+    copies = [np.array(a) if isinstance(a, np.ndarray) else a for a in arguments]
+    innovation, innovation_covariance, innovation_inverse = estimators._correct_kernel(*copies)
+    expected_nis = estimators._normalized_innovation_squared(innovation, innovation_inverse) if with_nis else math.nan
+    for function in (estimators._correct_into, python(estimators._correct_into)):
+        mine = [np.array(a) if isinstance(a, np.ndarray) else a for a in arguments]
+        y, s = np.full(3, 7.0), np.full((3, 3), 7.0)
+        nis = function(*mine, with_nis, y, s)
+        assert_same((y, s, nis), (innovation, innovation_covariance, expected_nis))
+        assert_same(tuple(mine[:2]), tuple(copies[:2]))  # the same state and covariance, updated in place
+        assert type(nis) is float
 
 
 # ----- the health monitor ------------------------------------------------------------------------------------------
@@ -232,7 +255,7 @@ def test_spectrum_into_is_spectrum(seed, family, exponent):
 
 def test_warm_up_compiles_the_new_kernels():
     _jit.warm_up()
-    for kernel in (estimators._prior_line_of_sight, estimators._own_position_step, estimators._carried_position,
+    for kernel in (estimators._prior_line_of_sight, estimators._correct_into, estimators._own_position_step, estimators._carried_position,
                    health._bearing_evidence, observability._add_plain_sample, observability._spectrum_into):
         if _jit.ENABLED:
             assert kernel.signatures, kernel

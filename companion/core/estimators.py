@@ -456,6 +456,26 @@ def _correct_kernel(state: np.ndarray, covariance: np.ndarray, relative: np.ndar
     return innovation, innovation_covariance, innovation_inverse
 
 
+@jit
+def _correct_into(state: np.ndarray, covariance: np.ndarray, relative: np.ndarray, predicted_range: float,
+                  direction: np.ndarray, reference: np.ndarray, use_reference: bool, use_predicted: bool, lead: float,
+                  late: bool, measurement_noise: np.ndarray, add_position_noise: bool, position_variance: float,
+                  lead_noise: np.ndarray, pursuer_position: np.ndarray, with_nis: bool, innovation: np.ndarray,
+                  innovation_covariance: np.ndarray) -> float:
+    """`_correct_kernel` (its arguments first, the same update in place) with the innovation y (3,) and its
+    covariance S (3, 3) written into `innovation` and `innovation_covariance` (arguments rather than results: numba
+    boxes every array it returns), and the NIS y^T S^+ y (`_normalized_innovation_squared`) returned when with_nis
+    (NaN otherwise): UPLKF.correct's one kernel call."""
+    result, result_covariance, result_inverse = _correct_kernel(
+        state, covariance, relative, predicted_range, direction, reference, use_reference, use_predicted, lead, late,
+        measurement_noise, add_position_noise, position_variance, lead_noise, pursuer_position)
+    innovation[:] = result
+    innovation_covariance[:] = result_covariance
+    if with_nis:
+        return _normalized_innovation_squared(result, result_inverse)
+    return math.nan
+
+
 def explicit_start(initial_guess: InitialGuess) -> tuple[np.ndarray, np.ndarray] | None:
     """(position, covariance of [p_T, v_T]) when the guess fixes the start position, else None.
 
@@ -918,11 +938,13 @@ class UPLKF:
         use_predicted = self.gain_projection is GainProjection.PREDICTED
         self._snapshot = None
         position_std = self.pursuer_position_std
-        innovation, innovation_covariance, innovation_inverse = _correct_kernel(
+        innovation, innovation_covariance = np.empty(3), np.empty((3, 3))
+        nis = _correct_into(
             state, covariance, relative, predicted_range, direction, pursuer_position if reference is None else reference,
             reference is not None, use_predicted, lead, late, self.measurement_noise, position_std > 0.0,
-            position_std**2, lead_noise, pursuer_position)
-        self._note_innovation(bearing, innovation, innovation_inverse)
+            position_std**2, lead_noise, pursuer_position, self.adaptive_noise is not None, innovation,
+            innovation_covariance)
+        self._note_innovation(bearing, nis)
         return _correction_report(innovation_angle, use_predicted, innovation, innovation_covariance, 2)
 
     def _correction_inputs(self, bearing: BearingMeasurement, lead: float,
@@ -942,10 +964,11 @@ class UPLKF:
         late = abs(lead) > _LEAD_EPSILON
         return reference, direction, late, self._lead_noise(lead) if late else _ZERO33
 
-    def _note_innovation(self, bearing: BearingMeasurement, innovation: np.ndarray, innovation_inverse: np.ndarray) -> None:
-        """After a correction: the adaptive process noise takes its NIS y^T S^+ y (2 degrees of freedom)."""
+    def _note_innovation(self, bearing: BearingMeasurement, nis: float) -> None:
+        """After a correction: the adaptive process noise takes its NIS y^T S^+ y (2 degrees of freedom; `_correct_into`
+        computes it when there is adaptive noise)."""
         if self.adaptive_noise is not None:
-            self.adaptive_noise.update(bearing.time, _normalized_innovation_squared(innovation, innovation_inverse), 2)
+            self.adaptive_noise.update(bearing.time, nis, 2)
 
     def _source_track(self, source: int) -> OwnPositionTracker:
         """The position tracker of a neighbour's bearings (source != 0): each pursuer's reported positions are
