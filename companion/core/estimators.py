@@ -22,7 +22,7 @@ from typing import Protocol
 import numpy as np
 from scipy.linalg import null_space
 
-from companion.core._jit import jit, lapack_dgesv, lapack_dpotrf, objmode
+from companion.core._jit import jit, lapack_dgesv, lapack_dpotrf, objmode, power
 from companion.core.geometry import orthogonal_projection, unit
 from companion.core.messages import BearingMeasurement, TargetEstimate
 
@@ -87,6 +87,18 @@ class CorrectionReport:
     innovation: np.ndarray | None = None
     innovation_covariance: np.ndarray | None = None
     innovation_dof: int = 0
+
+
+def _correction_report(innovation_angle: float, used_predicted_projection: bool, innovation: np.ndarray,
+                       innovation_covariance: np.ndarray, innovation_dof: int) -> CorrectionReport:
+    """CorrectionReport(innovation_angle, used_predicted_projection, False, innovation, innovation_covariance,
+    innovation_dof) of a correction that updated, without the frozen dataclass's object.__setattr__ per field
+    (one is built at every correction): the same object, field for field."""
+    report = object.__new__(CorrectionReport)
+    report.__dict__.update(innovation_angle=innovation_angle, used_predicted_projection=used_predicted_projection,
+                           reinitialized=False, innovation=innovation, innovation_covariance=innovation_covariance,
+                           innovation_dof=innovation_dof)
+    return report
 
 
 class GainProjection(enum.Enum):
@@ -340,6 +352,26 @@ def _behind_sensor(cos_angle: float, predicted_range: float) -> bool:
 
 
 @jit
+def _prior_line_of_sight(state: np.ndarray, lead: float, pursuer_position: np.ndarray, direction: np.ndarray,
+                         relative: np.ndarray) -> tuple[float, float, bool]:
+    """UPLKF.correct's look at the prior from the bearing: writes relative = p^-_T + tau v^-_T - p (3,), m, the prior
+    mean carried to the bearing's time (tau = `lead`, s) seen from the bearing's position p (pursuer_position
+    (3,)), into `relative` (3,) (an argument rather than a result: numba boxes every array it returns); returns
+    its length (np.linalg.norm's formula, without its wrapper), the cosine between the unit bearing `direction`
+    (3,) and it, clipped to [-1, 1] as np.clip would (Python's min and max on floats: a NaN stays NaN), and
+    remark 3's guard on them (`_behind_sensor`). state: x^- = [p^-_T, v^-_T] (6,)."""
+    relative[:] = state[:3] + lead * state[3:] - pursuer_position  # p^-_T - p
+    predicted_range = math.sqrt(float(np.dot(relative, relative)))
+    length = 1e-12 if 1e-12 > predicted_range else predicted_range  # max(predicted_range, 1e-12)
+    cosine = float(direction @ relative / length)
+    if -1.0 > cosine:  # max(cosine, -1.0)
+        cosine = -1.0
+    if 1.0 < cosine:  # min(cosine, 1.0)
+        cosine = 1.0
+    return predicted_range, cosine, _behind_sensor(cosine, predicted_range)
+
+
+@jit
 def _normalized_innovation_squared(innovation: np.ndarray, innovation_inverse: np.ndarray) -> float:
     """eps = y^T S^+ y, the NIS of a correction (AdaptiveProcessNoise)."""
     return float(innovation @ innovation_inverse @ innovation)
@@ -422,6 +454,26 @@ def _correct_kernel(state: np.ndarray, covariance: np.ndarray, relative: np.ndar
     state[:] = updated
     covariance[:] = posterior
     return innovation, innovation_covariance, innovation_inverse
+
+
+@jit
+def _correct_into(state: np.ndarray, covariance: np.ndarray, relative: np.ndarray, predicted_range: float,
+                  direction: np.ndarray, reference: np.ndarray, use_reference: bool, use_predicted: bool, lead: float,
+                  late: bool, measurement_noise: np.ndarray, add_position_noise: bool, position_variance: float,
+                  lead_noise: np.ndarray, pursuer_position: np.ndarray, with_nis: bool, innovation: np.ndarray,
+                  innovation_covariance: np.ndarray) -> float:
+    """`_correct_kernel` (its arguments first, the same update in place) with the innovation y (3,) and its
+    covariance S (3, 3) written into `innovation` and `innovation_covariance` (arguments rather than results: numba
+    boxes every array it returns), and the NIS y^T S^+ y (`_normalized_innovation_squared`) returned when with_nis
+    (NaN otherwise): UPLKF.correct's one kernel call."""
+    result, result_covariance, result_inverse = _correct_kernel(
+        state, covariance, relative, predicted_range, direction, reference, use_reference, use_predicted, lead, late,
+        measurement_noise, add_position_noise, position_variance, lead_noise, pursuer_position)
+    innovation[:] = result
+    innovation_covariance[:] = result_covariance
+    if with_nis:
+        return _normalized_innovation_squared(result, result_inverse)
+    return math.nan
 
 
 def explicit_start(initial_guess: InitialGuess) -> tuple[np.ndarray, np.ndarray] | None:
@@ -584,7 +636,7 @@ class OwnPositionTracker:
     prediction made before the first; a late one (older than the last) the state carried back
     to its time, and it is not folded in; the first sample and one more than `max_gap` (s)
     away from the last are their own reference (and the tracker restarts on a later one).
-    Scalar arithmetic only: a few microseconds per sample.
+    Scalar arithmetic only, one kernel call per sample (`_own_position_step`).
     """
 
     def __init__(self, position_std: float, acceleration_psd: float = OWN_ACCELERATION_PSD,
@@ -595,12 +647,10 @@ class OwnPositionTracker:
         self.acceleration_psd = float(acceleration_psd)
         self.max_gap = float(max_gap)
         self._time: float | None = None
-        # Per-axis floats rather than numpy arrays: at three elements the arithmetic is cheaper
-        # than numpy's per-call overhead, and this runs at every correction.
-        self._position = (0.0, 0.0, 0.0)
-        self._velocity = (0.0, 0.0, 0.0)
+        # [x (3), v (3), p00, p01, p11]: the state and the shared covariance, stepped by one kernel call per
+        # sample (_own_position_step: scalar arithmetic, no numpy operation on three elements).
+        self._filter = np.zeros(9)
         self._last_prediction = np.zeros(3)
-        self._p00 = self._p01 = self._p11 = 0.0
 
     def reference(self, time: float, position: np.ndarray) -> np.ndarray:
         """The own position (m, shape (3,)) at `time` (s) predicted from the samples before
@@ -616,37 +666,58 @@ class OwnPositionTracker:
             # A second bearing at the same stamp: the state already holds that sample's error,
             # the prediction made before it does not.
             return self._last_prediction
-        x0, x1, x2 = self._position
-        v0, v1, v2 = self._velocity
         if dt < 0.0:
             # A late sample: carried back from later ones, it is not folded in (the tracker
             # runs forward in time only).
-            return np.array((x0 + dt * v0, x1 + dt * v1, x2 + dt * v2))
-        q = self.acceleration_psd
-        # Time update of the shared 2x2 covariance [[p00, p01], [p01, p11]] and of the state.
-        p00 = self._p00 + dt * (2.0 * self._p01 + dt * self._p11) + q * dt**3 / 3.0
-        p01 = self._p01 + dt * self._p11 + q * dt**2 / 2.0
-        p11 = self._p11 + q * dt
-        a0, a1, a2 = x0 + dt * v0, x1 + dt * v1, x2 + dt * v2
-        # Measurement update with the sample: gains k0 (position), k1 (velocity).
-        innovation_variance = p00 + self.position_std**2
-        k0, k1 = p00 / innovation_variance, p01 / innovation_variance
-        z0, z1, z2 = np.asarray(position, dtype=float).tolist()
-        e0, e1, e2 = z0 - a0, z1 - a1, z2 - a2
-        self._position = (a0 + k0 * e0, a1 + k0 * e1, a2 + k0 * e2)
-        self._velocity = (v0 + k1 * e0, v1 + k1 * e1, v2 + k1 * e2)
-        self._p00, self._p01, self._p11 = (1.0 - k0) * p00, (1.0 - k0) * p01, p11 - k1 * p01
+            return _carried_position(self._filter, dt)
+        prediction = np.empty(3)
+        _own_position_step(self._filter, dt, self.acceleration_psd, self.position_std, np.asarray(position, dtype=float),
+                           prediction)
+        self._last_prediction = prediction
         self._time = time
-        self._last_prediction = np.array((a0, a1, a2))
         return self._last_prediction
 
     def _restart(self, time: float, position: np.ndarray) -> None:
         self._time = time
-        self._position = tuple(position.tolist())
-        self._velocity = (0.0, 0.0, 0.0)
+        # [x (3), v (3), p00, p01, p11]; unknown velocity: a prior std of 10 m/s, far beyond a following drone's
+        # speed changes.
+        self._filter = np.array((*position.tolist(), 0.0, 0.0, 0.0, self.position_std**2, 0.0, 100.0))
         self._last_prediction = position
-        # Unknown velocity: a prior std of 10 m/s, far beyond a following drone's speed changes.
-        self._p00, self._p01, self._p11 = self.position_std**2, 0.0, 100.0
+
+
+@jit
+def _carried_position(track: np.ndarray, dt: float) -> np.ndarray:
+    """OwnPositionTracker's state [x, v, ...] (`track`) carried dt s (a late sample: dt < 0): x + dt v, (3,)."""
+    return np.array((track[0] + dt * track[3], track[1] + dt * track[4], track[2] + dt * track[5]))
+
+
+@jit
+def _own_position_step(track: np.ndarray, dt: float, acceleration_psd: float, position_std: float,
+                       position: np.ndarray, prediction: np.ndarray) -> None:
+    """One step of OwnPositionTracker's constant-velocity Kalman filter, in place on `track` = [x (3), v (3), p00,
+    p01, p11] (m, m/s and the shared 2x2 covariance [[p00, p01], [p01, p11]]): the time update over dt > 0 s with
+    white acceleration of density q = acceleration_psd, (m/s^2)^2 s, then the measurement update with the sample
+    `position` (3,), m, of noise std position_std, m. Writes the prediction x + dt v into `prediction` (3,), m (an
+    argument rather than a result: numba boxes every array it returns). Scalar arithmetic
+    in Python's order, powers by the C library's pow as Python's ** computes them (companion.core._jit.power)."""
+    x0, x1, x2 = float(track[0]), float(track[1]), float(track[2])
+    v0, v1, v2 = float(track[3]), float(track[4]), float(track[5])
+    old_p00, old_p01, old_p11 = float(track[6]), float(track[7]), float(track[8])
+    q = acceleration_psd
+    # Time update of the shared 2x2 covariance [[p00, p01], [p01, p11]] and of the state.
+    p00 = old_p00 + dt * (2.0 * old_p01 + dt * old_p11) + q * power(dt, 3.0) / 3.0
+    p01 = old_p01 + dt * old_p11 + q * power(dt, 2.0) / 2.0
+    p11 = old_p11 + q * dt
+    a0, a1, a2 = x0 + dt * v0, x1 + dt * v1, x2 + dt * v2
+    # Measurement update with the sample: gains k0 (position), k1 (velocity).
+    innovation_variance = p00 + power(position_std, 2.0)
+    k0, k1 = p00 / innovation_variance, p01 / innovation_variance
+    z0, z1, z2 = float(position[0]), float(position[1]), float(position[2])
+    e0, e1, e2 = z0 - a0, z1 - a1, z2 - a2
+    track[0], track[1], track[2] = a0 + k0 * e0, a1 + k0 * e1, a2 + k0 * e2
+    track[3], track[4], track[5] = v0 + k1 * e0, v1 + k1 * e1, v2 + k1 * e2
+    track[6], track[7], track[8] = (1.0 - k0) * p00, (1.0 - k0) * p01, p11 - k1 * p01
+    prediction[0], prediction[1], prediction[2] = a0, a1, a2
 
 
 class UPLKF:
@@ -755,6 +826,7 @@ class UPLKF:
         self._ticks = 0
         self._initial_guess: InitialGuess | None = None
         self._snapshot: TargetEstimate | None = None
+        self._relative = np.zeros(3)  # correct's p^-_T - p (`_prior_line_of_sight` writes it; read within correct only)
 
     @property
     def initialized(self) -> bool:
@@ -853,29 +925,27 @@ class UPLKF:
         # at arbitrary times): compare it with the prior mean carried to its time stamp.
         lead = bearing.time - self.time
         pursuer_position = np.asarray(bearing.pursuer_position, dtype=float)
-        relative = state[:3] + lead * state[3:] - pursuer_position  # p^-_T - p
-        predicted_range = math.sqrt(float(relative.dot(relative)))  # np.linalg.norm's formula, without its wrapper
-        direction = bearing.unit_direction
-        # min/max on a float clips exactly as np.clip does, without its array machinery
-        cos_angle = min(max(float(direction @ relative / max(predicted_range, 1e-12)), -1.0), 1.0)
+        # p^-_T - p, its length and clipped cosine to the bearing, and remark 3's guard, in one kernel call
+        relative = self._relative
+        predicted_range, cos_angle, behind = _prior_line_of_sight(state, lead, pursuer_position, bearing.unit_direction,
+                                                                  relative)
         innovation_angle = float(np.arccos(cos_angle))
-        if self._behind(cos_angle, predicted_range):
+        if self.restart_when_behind and behind:
+            # The guard: a prediction behind the sensor (or on it) restarts the filter on the bearing.
             self._restart_on(bearing, predicted_range, state[3:].copy())  # a copy: the storage is overwritten
             return CorrectionReport(innovation_angle, False, reinitialized=True)
-        reference, direction, late, lead_noise = self._correction_inputs(bearing, lead, direction)
+        reference, direction, late, lead_noise = self._correction_inputs(bearing, lead, bearing.unit_direction)
         use_predicted = self.gain_projection is GainProjection.PREDICTED
         self._snapshot = None
-        innovation, innovation_covariance, innovation_inverse = _correct_kernel(
+        position_std = self.pursuer_position_std
+        innovation, innovation_covariance = np.empty(3), np.empty((3, 3))
+        nis = _correct_into(
             state, covariance, relative, predicted_range, direction, pursuer_position if reference is None else reference,
-            reference is not None, use_predicted, lead, late, self.measurement_noise, self.pursuer_position_std > 0.0,
-            self.pursuer_position_std**2, lead_noise, pursuer_position)
-        self._note_innovation(bearing, innovation, innovation_inverse)
-        return CorrectionReport(innovation_angle, use_predicted, innovation=innovation,
-                                innovation_covariance=innovation_covariance, innovation_dof=2)
-
-    def _behind(self, cos_angle: float, predicted_range: float) -> bool:
-        """The guard: a prediction behind the sensor (or on it) restarts the filter on the bearing."""
-        return self.restart_when_behind and _behind_sensor(cos_angle, predicted_range)
+            reference is not None, use_predicted, lead, late, self.measurement_noise, position_std > 0.0,
+            position_std**2, lead_noise, pursuer_position, self.adaptive_noise is not None, innovation,
+            innovation_covariance)
+        self._note_innovation(bearing, nis)
+        return _correction_report(innovation_angle, use_predicted, innovation, innovation_covariance, 2)
 
     def _correction_inputs(self, bearing: BearingMeasurement, lead: float,
                            direction: np.ndarray) -> tuple[np.ndarray | None, np.ndarray, bool, np.ndarray]:
@@ -894,10 +964,11 @@ class UPLKF:
         late = abs(lead) > _LEAD_EPSILON
         return reference, direction, late, self._lead_noise(lead) if late else _ZERO33
 
-    def _note_innovation(self, bearing: BearingMeasurement, innovation: np.ndarray, innovation_inverse: np.ndarray) -> None:
-        """After a correction: the adaptive process noise takes its NIS y^T S^+ y (2 degrees of freedom)."""
+    def _note_innovation(self, bearing: BearingMeasurement, nis: float) -> None:
+        """After a correction: the adaptive process noise takes its NIS y^T S^+ y (2 degrees of freedom; `_correct_into`
+        computes it when there is adaptive noise)."""
         if self.adaptive_noise is not None:
-            self.adaptive_noise.update(bearing.time, _normalized_innovation_squared(innovation, innovation_inverse), 2)
+            self.adaptive_noise.update(bearing.time, nis, 2)
 
     def _source_track(self, source: int) -> OwnPositionTracker:
         """The position tracker of a neighbour's bearings (source != 0): each pursuer's reported positions are

@@ -92,13 +92,19 @@ def normalized_innovation_squared(innovation: np.ndarray, covariance: np.ndarray
     S^+ is numpy.linalg.pinv(S, rcond=1e-10, hermitian=True), computed by the kernel
     _normalized_innovation_squared in numpy's own order (compiled when numba is present). ValueError
     unless y is (m,) and S (m, m); m = 0 gives 0."""
-    y = np.asarray(innovation, dtype=float)
-    s = np.asarray(covariance, dtype=float)
-    if y.ndim != 1 or s.shape != (y.shape[0], y.shape[0]):
-        raise ValueError(f"need an innovation (m,) and its covariance (m, m), got {y.shape} and {s.shape}")
+    y, s = _innovation_arrays(innovation, covariance)
     if y.shape[0] == 0:
         return 0.0
-    return float(_normalized_innovation_squared(np.ascontiguousarray(y), np.ascontiguousarray(s)))
+    return float(_normalized_innovation_squared(y, s))
+
+
+def _innovation_arrays(innovation: np.ndarray, covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """y (m,) and S (m, m) as float64 C-contiguous arrays; ValueError unless their shapes match."""
+    y = np.ascontiguousarray(innovation, dtype=float)
+    s = np.ascontiguousarray(covariance, dtype=float)
+    if y.ndim != 1 or s.shape != (y.shape[0], y.shape[0]):
+        raise ValueError(f"need an innovation (m,) and its covariance (m, m), got {y.shape} and {s.shape}")
+    return y, s
 
 
 @jit
@@ -142,6 +148,26 @@ def _evidence(bearing_direction: np.ndarray, estimate_position: np.ndarray, purs
         relative_std = relative_range_std_kernel(relative, position_covariance)
     return (range_estimate, relative_std, bearing_direction @ relative,
             math.sqrt(pursuer_velocity @ pursuer_velocity))
+
+
+_NO_INNOVATION = (np.zeros(1), np.zeros((1, 1)))  # the arguments of a correction without innovation (never read)
+
+
+@jit
+def _bearing_evidence(innovation: np.ndarray, innovation_covariance: np.ndarray, with_innovation: bool,
+                      bearing_direction: np.ndarray, estimate_position: np.ndarray, pursuer_position: np.ndarray,
+                      estimate_covariance: np.ndarray, pursuer_velocity: np.ndarray
+                      ) -> tuple[float, float, float, float, float]:
+    """HealthMonitor.update's numbers in one call, as floats: (eps = y^T S^+ y (`_normalized_innovation_squared`;
+    NaN unless with_innovation), then `_evidence` on the position block P_pp of estimate_covariance (6, 6)).
+    Arrays float64 C-contiguous: y (m,), S (m, m), m >= 1 (read only with_innovation), vectors (3,)."""
+    nis = math.nan
+    if with_innovation:
+        nis = float(_normalized_innovation_squared(innovation, innovation_covariance))
+    range_estimate, relative_std, cosine, speed = _evidence(
+        bearing_direction, estimate_position, pursuer_position, np.ascontiguousarray(estimate_covariance[:3, :3]),
+        pursuer_velocity)
+    return nis, float(range_estimate), float(relative_std), float(cosine), float(speed)
 
 
 @dataclass(frozen=True)
@@ -216,6 +242,36 @@ class HealthReport:
                 "relative_range_std": self.relative_range_std}
 
 
+_REPORT_FIELDS = ("time", "state", "reasons", "raised", "nis", "nis_ratio", "range_estimate", "relative_range_std")
+
+
+def _health_report(*values) -> HealthReport:
+    """HealthReport(*values), every field given in order, without the frozen dataclass's object.__setattr__ per
+    field (one is built at every correction): the same object, field for field."""
+    report = object.__new__(HealthReport)
+    report.__dict__.update(zip(_REPORT_FIELDS, values))
+    return report
+
+
+_NIS_BOUNDS: dict[tuple[float, float, int], float] = {}
+"""nis_scale x F^-1(nis_probability; dof) by (nis_scale, nis_probability, dof), shared by every monitor of the
+process: scipy's chi^2 quantile costs about 80 us, and a study flies thousands of monitors with the same
+configuration (a deterministic function: the cached value is the value computed again)."""
+
+_NIS_BOUNDS_LIMIT = 100_000  # entries kept before the cache starts over (a bound on memory, never reached in flight)
+
+
+def _nis_bound(scale: float, probability: float, dof: int) -> float:
+    """scale x the upper chi^2 quantile `probability` at `dof` degrees of freedom (HealthMonitor.nis_bound), cached."""
+    key = (scale, probability, dof)
+    bound = _NIS_BOUNDS.get(key)
+    if bound is None:
+        if len(_NIS_BOUNDS) >= _NIS_BOUNDS_LIMIT:
+            _NIS_BOUNDS.clear()
+        bound = _NIS_BOUNDS[key] = scale * float(chi2.ppf(probability, dof))
+    return bound
+
+
 @dataclass
 class _Window:
     """Time-windowed sums of (nis, dof)."""
@@ -270,9 +326,10 @@ class HealthMonitor:
 
     def nis_bound(self, dof: int) -> float:
         """nis_scale x the upper chi^2 quantile (config.nis_probability) for `dof` degrees of freedom, cached."""
-        if dof not in self._bounds:
-            self._bounds[dof] = self.config.nis_scale * float(chi2.ppf(self.config.nis_probability, dof))
-        return self._bounds[dof]
+        bound = self._bounds.get(dof)
+        if bound is None:
+            bound = self._bounds[dof] = _nis_bound(self.config.nis_scale, self.config.nis_probability, dof)
+        return bound
 
     def restart(self) -> None:
         """Forget the innovation window (the estimator was re-initialised: old innovations no longer apply)
@@ -305,11 +362,22 @@ class HealthMonitor:
         """
         config = self.config
         raised: list[str] = []
-        nis = math.nan
+        y, s = _NO_INNOVATION
+        with_innovation = False
         if reinitialized:
             self.restart()
         elif innovation is not None and innovation_covariance is not None and innovation_dof > 0:
-            nis = normalized_innovation_squared(innovation, innovation_covariance)
+            y, s = _innovation_arrays(innovation, innovation_covariance)
+            with_innovation = True
+        # eps_k (normalized_innovation_squared's: 0 for an empty innovation) and the geometry, in one kernel call
+        contiguous = np.ascontiguousarray  # _vector's conversion, without a call of _vector per argument
+        nis, range_estimate, relative_std, cosine, speed = _bearing_evidence(
+            y, s, with_innovation and y.shape[0] > 0, contiguous(bearing_direction, float),
+            contiguous(estimate_position, float), contiguous(pursuer_position, float),
+            contiguous(estimate_covariance, float), contiguous(pursuer_velocity, float))
+        if with_innovation:
+            if y.shape[0] == 0:
+                nis = 0.0
             self._window.add(time, nis, int(innovation_dof))
         nis_ratio = math.nan
         if len(self._window.samples) >= config.min_nis_samples:
@@ -317,9 +385,6 @@ class HealthMonitor:
             if nis_ratio > 1.0:
                 raised.append("nis")
 
-        range_estimate, relative_std, cosine, speed = map(float, _evidence(
-            _vector(bearing_direction), _vector(estimate_position), _vector(pursuer_position),
-            np.ascontiguousarray(np.asarray(estimate_covariance, dtype=float)[:3, :3]), _vector(pursuer_velocity)))
         if range_estimate > 1e-9:
             range_std = relative_std * range_estimate
             if config.max_range_std is not None and range_std <= config.max_range_std:
@@ -355,7 +420,7 @@ class HealthMonitor:
             self._episode.clear()
         if state is HealthState.SUSPECT:
             self._episode.update(reasons)
-        self.report = HealthReport(time, state, reasons, tuple(raised), nis, nis_ratio, range_estimate, relative_std)
+        self.report = _health_report(time, state, reasons, tuple(raised), nis, nis_ratio, range_estimate, relative_std)
         return self.report
 
     def _hold(self, time: float, raised: list[str]) -> tuple[str, ...]:

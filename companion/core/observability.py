@@ -393,6 +393,7 @@ class WindowedObservability:
         self._samples: deque[tuple[float, np.ndarray]] = deque()
         self._information = np.zeros((3, 3))
         self._latest_time = -math.inf
+        self._eigenvalues = np.zeros(3)  # measure's, written by _spectrum_into (read within measure only)
 
     def add(self, time: float, bearing: np.ndarray, range_estimate: float) -> None:
         """Add one bearing (unit, shape (3,)) at `time` (s, non-decreasing) with range (m)."""
@@ -400,16 +401,28 @@ class WindowedObservability:
         if not math.isfinite(time) or time < self._latest_time:
             raise ValueError(f"time must be finite and non-decreasing, got {time!r}")
         bearing = np.ascontiguousarray(bearing, dtype=float)
-        if bearing.shape == (3,) and isinstance(range_estimate, (float, int)) and _plain_sample(
-                bearing, float(range_estimate), self.sigma):
-            range_estimate = float(range_estimate)
-        else:  # fisher_information's checks decide (ValueError), then Python's ** (OverflowError)
-            bearing = _check_bearings(bearing.reshape(1, 3))[0]
-            range_estimate = float(_check_ranges(np.array([range_estimate], dtype=float), 1)[0])
+        samples = self._samples
+        cutoff = time - self.window_s
+        if bearing.shape == (3,) and isinstance(range_estimate, (float, int)):
+            # The usual sample in one kernel call: the checks, its term added, and the oldest term taken out
+            # when it leaves the window now (_drop_older_than's first subtraction, in the same order).
+            drop = bool(samples) and samples[0][0] < cutoff
+            contribution = np.empty((3, 3))
+            if _add_plain_sample(self._information, bearing, float(range_estimate), self.sigma,
+                                 samples[0][1] if drop else _NO_CONTRIBUTION, drop, contribution):
+                if drop:
+                    samples.popleft()
+                samples.append((time, contribution))
+                self._latest_time = time
+                self._drop_older_than(cutoff)
+                return
+        # fisher_information's checks decide (ValueError), then Python's ** (OverflowError)
+        bearing = _check_bearings(bearing.reshape(1, 3))[0]
+        range_estimate = float(_check_ranges(np.array([range_estimate], dtype=float), 1)[0])
         contribution = _add_contribution(self._information, bearing, self.sigma**2 * range_estimate**2)
-        self._samples.append((time, contribution))
+        samples.append((time, contribution))
         self._latest_time = time
-        self._drop_older_than(time - self.window_s)
+        self._drop_older_than(cutoff)
 
     def _drop_older_than(self, cutoff: float) -> None:
         while self._samples and self._samples[0][0] < cutoff:
@@ -430,7 +443,8 @@ class WindowedObservability:
         below 1e-12 of the largest count as 0); spread: J of eq. (8) divided by the squared mean
         eigenvalue (scale-free; 0 for an isotropic FIM, nan when empty); count: samples in window.
         """
-        eigenvalues, minimum, spread = _spectrum(self._information)
+        eigenvalues = self._eigenvalues
+        minimum, spread = _spectrum_into(self._information, eigenvalues)
         log_det = -math.inf
         if minimum > 0.0:
             # numpy's log10 (its SIMD routine where it has one, not the C library's), summed left to right as np.sum sums 3.
@@ -451,6 +465,26 @@ def _plain_sample(bearing: np.ndarray, range_estimate: float, sigma: float) -> b
         squared += bearing[k] * bearing[k]
     return (abs(math.sqrt(squared) - 1.0) <= 0.5 * _UNIT_TOLERANCE and math.isfinite(range_estimate)
             and range_estimate > 0.0 and math.isfinite(power(sigma, 2.0)) and math.isfinite(power(range_estimate, 2.0)))
+
+
+_NO_CONTRIBUTION = np.zeros((3, 3))  # the term _add_plain_sample takes out when none leaves the window (never read)
+
+
+@jit
+def _add_plain_sample(information: np.ndarray, bearing: np.ndarray, range_estimate: float, sigma: float,
+                      oldest: np.ndarray, drop_oldest: bool, term: np.ndarray) -> bool:
+    """WindowedObservability.add's usual sample: when `_plain_sample` holds, its term of eq. (7) is added to
+    `information` (3, 3) in place (`_add_contribution`, scale sigma^2 r^2 by the C library's pow as Python's **
+    computes it) and written into `term` (3, 3) (an argument rather than a result: numba boxes every array it
+    returns), then, when drop_oldest, the window's oldest term `oldest` (3, 3) is subtracted (numpy's -=); True.
+    Otherwise False, and nothing changes: the caller runs the checks. bearing: lambda (3,), float64 C-contiguous;
+    range_estimate: m; sigma: rad."""
+    if not _plain_sample(bearing, range_estimate, sigma):
+        return False
+    term[:] = _add_contribution(information, bearing, power(sigma, 2.0) * power(range_estimate, 2.0))
+    if drop_oldest:
+        information -= oldest
+    return True
 
 
 @jit
@@ -483,3 +517,12 @@ def _spectrum(information: np.ndarray) -> tuple[np.ndarray, float, float]:
         squares = deviations * deviations
         spread = (squares[0] + squares[1] + squares[2]) / power(mean, 2.0)
     return eigenvalues, eigenvalues[0], spread
+
+
+@jit
+def _spectrum_into(information: np.ndarray, eigenvalues: np.ndarray) -> tuple[float, float]:
+    """`_spectrum` of the FIM `information` (3, 3) with its eigenvalues written into `eigenvalues` (3,) (an argument
+    rather than a result: numba boxes every array it returns); returns (the smallest, the spread)."""
+    values, minimum, spread = _spectrum(information)
+    eigenvalues[:] = values
+    return minimum, spread
