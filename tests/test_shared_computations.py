@@ -111,3 +111,21 @@ def test_the_shared_extrapolation_is_the_estimates_and_follows_it(seed, actions)
             assert_same(shared.position, fresh.position)
             assert_same(shared.velocity, fresh.velocity)
             assert_same(shared.covariance, fresh.covariance)
+
+
+def test_once_property_computes_on_the_first_read_only():
+    from companion.core.messages import once_property
+
+    class Message:
+        calls = 0
+
+        @once_property
+        def value(self):
+            """doc"""
+            Message.calls += 1
+            return [Message.calls]
+
+    first, second = Message(), Message()
+    assert first.value is first.value and first.value == [1]  # computed once, then the stored object
+    assert second.value == [2]  # per instance
+    assert Message.calls == 2 and Message.value.__doc__ == "doc" and isinstance(Message.value, once_property)
