@@ -211,6 +211,7 @@ def simulate_swarm(scenario: Scenario, vehicle: VehicleConfig, seed: int | None 
     separations = []
     phase_errors = []
 
+    upper = np.triu_indices(len(pursuers), 1)  # each pair of pursuers once
     for index, step in enumerate(event_steps):
         time = step * dt
         states = {p.ident: (p.plant.state, *p.plant.measured_state()) for p in pursuers}
@@ -266,7 +267,7 @@ def simulate_swarm(scenario: Scenario, vehicle: VehicleConfig, seed: int | None 
         positions = np.array([states[p.ident][0].position for p in pursuers])
         if len(pursuers) > 1:
             gaps = np.linalg.norm(positions[:, None, :] - positions[None, :, :], axis=2)
-            closest = float(np.min(gaps[np.triu_indices(len(pursuers), 1)]))
+            closest = float(np.min(gaps[upper]))
             separation = min(separation, closest)
             separations.append(closest)
             phases = np.arctan2(positions[:, 1] - target.position[1], positions[:, 0] - target.position[0])

@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
 from paper_reference import floats, nonzero_vectors, projector, r_eta, scaled_vectors, unit_vectors, vectors
 from scipy.spatial.transform import Rotation
 
@@ -188,3 +190,11 @@ def test_elementary_rotations_match_their_closed_forms(angle: float) -> None:
     # The same active rotations as scipy builds them.
     np.testing.assert_allclose(rotation_about_z(angle), Rotation.from_euler("z", angle).as_matrix(), atol=1e-12)
     np.testing.assert_allclose(rotation_about_y(angle), Rotation.from_euler("y", angle).as_matrix(), atol=1e-12)
+
+
+@given(arrays(np.float64, st.sampled_from([(3,), (2,), (6,), (3, 3)]),
+              elements=st.floats(allow_nan=True, allow_infinity=True, width=64)))
+def test_all_finite_is_numpys(values):
+    from companion.core.geometry import all_finite
+
+    assert all_finite(values) is bool(np.all(np.isfinite(values)))

@@ -36,6 +36,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from companion.core.geometry import all_finite, norm
 from companion.core.messages import NeighbourState
 
 TWO_PI = 2.0 * math.pi
@@ -48,7 +49,7 @@ _EPS = 1e-9
 
 def _finite_vector(value: object, name: str) -> np.ndarray:
     vector = np.asarray(value, dtype=float)
-    if vector.shape != (3,) or not np.all(np.isfinite(vector)):
+    if vector.shape != (3,) or not all_finite(vector):
         raise ValueError(f"{name} must be a finite vector of shape (3,), got {value!r}")
     return vector
 
@@ -172,8 +173,8 @@ def phase_spacing_errors(phases: np.ndarray | list[float]) -> np.ndarray:
 
 
 def _saturate(vector: np.ndarray, limit: float) -> np.ndarray:
-    norm = float(np.linalg.norm(vector))
-    return vector if norm <= limit else vector * (limit / norm)
+    length = norm(vector)
+    return vector if length <= limit else vector * (limit / length)
 
 
 def _tracking_acceleration(desired_velocity, context: CooperativeContext, velocity_gain: float,
@@ -291,7 +292,7 @@ class CircumnavigationGuidance:
     def desired_velocity(self, context: CooperativeContext) -> np.ndarray:
         """u = v^_T + seed 002 eq. (10) (horizontal) + vertical hold, m/s, shape (3,) NED."""
         offset = _planar(context.target_position - context.own_position)  # pursuer -> target
-        distance = float(np.linalg.norm(offset))
+        distance = norm(offset)
         # Directly above the target the bearing's horizontal part is undefined: take phase 0 (east).
         phi = offset / distance if distance > _EPS else np.array([-1.0, 0.0])
         phi_bar = -_rot90(phi)  # phi rotated by pi/2 clockwise seen from above
@@ -430,33 +431,33 @@ class StandoffTrackingGuidance:
         offset: pursuer minus target, m, (east, north), shape (2,). See the class docstring.
         """
         R, r_min = self.standoff_radius, self.min_turn_radius
-        r = float(np.linalg.norm(offset))
+        r = norm(offset)
         radial = offset / r if r > _EPS else np.array([1.0, 0.0])
         if r >= R:
             # Seed 004 eqs. (26), (28): towards the CCW tangent point of the standoff circle.
             to_tangent = tangent_point(offset, R) - offset
-            length = float(np.linalg.norm(to_tangent))
+            length = norm(to_tangent)
             return to_tangent / length if length > _EPS else _rot90(radial)
         centre_distance = R - r_min  # inner circles are internally tangent to the standoff circle
         if r <= R - 2.0 * r_min:
             centre = centre_distance * radial
             relative = offset - centre
             to_tangent = tangent_point(relative, r_min) - relative
-            length = float(np.linalg.norm(to_tangent))
+            length = norm(to_tangent)
             if length > _EPS:
                 return to_tangent / length
-            return _rot90(relative) / float(np.linalg.norm(relative))
+            return _rot90(relative) / norm(relative)
         # The inner circle through the pursuer, centre ahead in phase by beta (law of cosines).
         cos_beta = (r * r + centre_distance ** 2 - r_min ** 2) / (2.0 * r * centre_distance)
         beta = math.acos(min(1.0, max(-1.0, cos_beta)))
         c, s = math.cos(beta), math.sin(beta)
         centre = centre_distance * np.array([c * radial[0] - s * radial[1], s * radial[0] + c * radial[1]])
         relative = offset - centre
-        return _rot90(relative) / float(np.linalg.norm(relative))
+        return _rot90(relative) / norm(relative)
 
     def relative_horizontal_velocity(self, offset: np.ndarray, speed: float) -> np.ndarray:
         """Relative horizontal command at `speed` m/s (before the moving-target scaling), (east, north), (2,)."""
-        r = float(np.linalg.norm(offset))
+        r = norm(offset)
         if abs(r - self.standoff_radius) <= self.on_circle_band and r > _EPS:
             radial = offset / r
             radial_speed = min(max(-self.radial_gain * (r - self.standoff_radius), -speed), speed)
@@ -579,7 +580,7 @@ class SeparationFilter:
         if speed2 <= _EPS:
             return False
         t_closest = min(max(float(offset @ relative_velocity) / speed2, 0.0), self.horizon)
-        return float(np.linalg.norm(offset - t_closest * relative_velocity)) < self.min_separation
+        return norm(offset - t_closest * relative_velocity) < self.min_separation
 
     def filter(self, own_position: np.ndarray, own_velocity: np.ndarray, acceleration: np.ndarray,
                neighbours: tuple[NeighbourState, ...] | list[NeighbourState]) -> np.ndarray:
@@ -594,7 +595,7 @@ class SeparationFilter:
         geometry = []
         for neighbour in neighbours:
             offset = neighbour.position - position
-            distance = float(np.linalg.norm(offset))
+            distance = norm(offset)
             if distance <= _EPS:
                 continue  # coincident: no direction to push along (cannot be reached from m >= 0)
             normal = offset / distance
@@ -621,12 +622,12 @@ class SeparationFilter:
 
     def _limit_keeping_constraints(self, command: np.ndarray, active: list[tuple[np.ndarray, float]]) -> np.ndarray:
         """|a| <= max_acceleration, shrinking the part of the command outside the constrained directions first."""
-        if float(np.linalg.norm(command)) <= self.max_acceleration:
+        if norm(command) <= self.max_acceleration:
             return command
         basis = np.linalg.qr(np.array([normal for normal, _ in active]).T)[0]  # orthonormal span of normals
         constrained = basis @ (basis.T @ command)
         free = command - constrained
-        constrained_norm = float(np.linalg.norm(constrained))
+        constrained_norm = norm(constrained)
         if constrained_norm >= self.max_acceleration:
             return constrained * (self.max_acceleration / constrained_norm)
         room = math.sqrt(self.max_acceleration ** 2 - constrained_norm ** 2)
@@ -646,10 +647,10 @@ def line_of_sight_angle(own_position: np.ndarray, neighbour_position: np.ndarray
     """
     own = np.asarray(target_position, dtype=float) - np.asarray(own_position, dtype=float)
     other = np.asarray(target_position, dtype=float) - np.asarray(neighbour_position, dtype=float)
-    own_norm, other_norm = float(np.linalg.norm(own)), float(np.linalg.norm(other))
+    own_norm, other_norm = norm(own), norm(other)
     if own_norm <= _EPS or other_norm <= _EPS:
         return math.nan
-    angle = math.atan2(float(np.linalg.norm(np.cross(own, other))), float(own @ other))
+    angle = math.atan2(norm(np.cross(own, other)), float(own @ other))
     return min(angle, math.pi - angle)
 
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from companion.core.geometry import unit
+from companion.core.geometry import all_finite, unit
 
 
 class once_property:
@@ -142,7 +142,7 @@ class NeighbourState:
             raise ValueError(f"neighbour time must be finite, got {self.time!r}")
         for name in ("position", "velocity"):
             vector = np.asarray(getattr(self, name), dtype=float)
-            if vector.shape != (3,) or not np.all(np.isfinite(vector)):
+            if vector.shape != (3,) or not all_finite(vector):
                 raise ValueError(f"neighbour {name} must be a finite vector of shape (3,), got {getattr(self, name)!r}")
             object.__setattr__(self, name, vector)
 
