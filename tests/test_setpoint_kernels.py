@@ -330,12 +330,206 @@ def test_range_controller_is_the_old_one(position, scale, velocity, los_vector, 
     assert type(new.range_rate) is float and type(new.range_error) is float
 
 
+def old_relative_terms(target_position, target_velocity, position, velocity):
+    """The control tick's first lines before _relative_terms (FollowingPipeline._compute_setpoint), verbatim."""
+    relative_position = target_position - position
+    relative_velocity = target_velocity - velocity
+    range_estimate = geometry.norm(relative_position)
+    los = relative_position / max(range_estimate, 1e-9)
+    return relative_position, relative_velocity, range_estimate, los
+
+
+def old_relative_range_std(relative_position, position_covariance):
+    distance = float(np.linalg.norm(relative_position))
+    if distance <= 1e-9:
+        return math.inf
+    los = relative_position / distance
+    return float(np.sqrt(max(los @ position_covariance @ los, 0.0))) / distance
+
+
+@settings(max_examples=400, deadline=None)
+@given(vectors, vectors, vectors, vectors, st.sampled_from(["any", "same", "tiny", "nan"]))
+def test_relative_terms_are_the_old_ones(target_position, target_velocity, position, velocity, case):
+    position = {"any": position, "same": target_position, "tiny": target_position + 1e-12,
+                "nan": np.array([np.nan, 0.0, 0.0])}[case]
+    from companion.core.pipeline import _relative_terms
+    with np.errstate(invalid="ignore"):
+        expected = old_relative_terms(target_position, target_velocity, position, velocity)
+    for kernel in (_relative_terms, python(_relative_terms)):
+        result = kernel(target_position, target_velocity, position, velocity)
+        if case == "nan":  # OpenBLAS's dot gives NaNs of either sign: NaN-ness only there
+            assert math.isnan(result[2]) and np.isnan(result[3]).all() and np.isnan(expected[3]).all()
+            assert_same(result[:2], expected[:2])
+            continue
+        assert_same(result, expected)
+        assert type(result[2]) is float
+
+
+def _covariance(seed, scale):
+    factor = np.random.default_rng(seed).normal(size=(6, 6)) * scale
+    return factor @ factor.T
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.floats(0.0, 1e3), vectors, vectors, scales, st.integers(0, 2**32 - 1), st.floats(1e-4, 1e2),
+       st.sampled_from([0.0, 0.01, 0.1]), st.floats(0.1, 5.0), st.floats(0.0, 5.0), st.floats(0.05, 3.0),
+       st.booleans(), st.sampled_from(["any", "zero", "indefinite"]))
+def test_excitation_terms_are_the_old_ones(time, lateral, position, scale, seed, spread, low, speed, gain, frequency,
+                                           suspect, case):
+    """rho, the level and a_lat + a_X in one kernel against the old pipeline's three calls (relative_range_std on
+    P_pp, RangeExcitation.level with np.isfinite and np.clip, the acceleration) and the numpy sum."""
+    relative = {"any": position * scale, "zero": np.zeros(3), "indefinite": position * scale}[case]
+    assume(case == "zero" or np.linalg.norm(relative) > 1e-6)
+    covariance = _covariance(seed, spread)
+    if case == "indefinite":
+        covariance = -covariance  # lambda P lambda < 0: sigma_r = 0 (Python's max), the level at its low end
+    los = relative / np.linalg.norm(relative) if case != "zero" else E_X
+    excitation = RangeExcitation(speed, gain, frequency, low, low + 0.1)
+    rho = old_relative_range_std(relative, covariance[:3, :3])
+    level = old_excitation_level(excitation, rho, suspect)
+    expected = (level, lateral + old_excitation_acceleration(excitation, time, los, level))
+    args = (time, lateral, relative, covariance, los, suspect, excitation.low, excitation.high, excitation.speed,
+            excitation.damping_gain, excitation.frequency)
+    for kernel in (guidance._excitation_terms_kernel, python(guidance._excitation_terms_kernel)):
+        result = kernel(*args)
+        assert_same(result, expected)
+        assert type(result[0]) is float
+    assert excitation.level(rho, suspect) == level and type(excitation.level(rho, suspect)) is float
+
+
+@settings(max_examples=300, deadline=None)
+@given(vectors, vectors, vectors, scales, limits_strategy, st.booleans())
+def test_attitude_setpoint_after_is_the_old_one(acceleration, los_vector, previous_vector, scale, limits, first):
+    """The control tick's call: the previous setpoint's r1 as heading fallback (or none), built without setattr."""
+    los = direction_of(los_vector, scale)
+    assume(np.linalg.norm(previous_vector + 1.0) > 1e-6)
+    previous = None if first else attitude.attitude_setpoint(0.0, previous_vector, np.ascontiguousarray(
+        old_rotation_from_x_axis_to(previous_vector + 1.0)[:, 0]), limits)
+    fallback = None if previous is None else previous.rotation[:, 0]
+    setpoint = attitude.attitude_setpoint_after(0.5, acceleration, los, limits, previous)
+    rotation, thrust_normalized, thrust, flown = old_attitude_setpoint(acceleration, los, limits, fallback)
+    assert type(setpoint) is attitude.AttitudeSetpoint and setpoint.time == 0.5
+    assert_same(setpoint.rotation, rotation)
+    assert_same(setpoint.acceleration, flown)
+    assert setpoint.thrust == thrust and setpoint.thrust_normalized == thrust_normalized
+    assert type(setpoint.thrust) is float and type(setpoint.thrust_normalized) is float
+    identity = attitude._IDENTITY if previous is None else previous.rotation
+    args = (acceleration, los, identity, *limits.setpoint_terms)
+    assert_same(attitude._setpoint_after_kernel(*args), python(attitude._setpoint_after_kernel)(*args))
+
+
+def test_attitude_setpoint_after_takes_the_fallback_along_the_thrust_axis():
+    """With lambda along the thrust axis the heading is the previous r1 (the branch the fallback exists for)."""
+    limits = VehicleLimits(0.5, max_tilt=0.5, gravity=9.81, mass=1.0)
+    previous = attitude.attitude_setpoint(0.0, np.zeros(3), np.array([0.0, 1.0, 0.0]), limits)
+    below = attitude.attitude_setpoint_after(0.02, np.zeros(3), E_Z, limits, previous)
+    assert_same(below.rotation, old_attitude_setpoint(np.zeros(3), E_Z, limits, previous.rotation[:, 0])[0])
+    assert np.array_equal(below.rotation[:, 0], np.array([0.0, 1.0, 0.0]))
+    first = attitude.attitude_setpoint_after(0.0, np.zeros(3), E_Z, limits, None)
+    assert np.array_equal(first.rotation[:, 0], E_X)  # north without a previous setpoint
+
+
+# ----- the plant's side of a setpoint (sitl_plant.vehicle.quadrotor), old code verbatim ----------------------------
+
+def old_rotation_to_quaternion(rotation):
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = np.asarray(rotation, dtype=float).tolist()
+    trace = m00 + m11 + m22
+    if trace >= m00 and trace >= m11 and trace >= m22:
+        s = 2.0 * math.sqrt(1.0 + trace)
+        q = (0.25 * s, (m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s)
+    elif m00 >= m11 and m00 >= m22:
+        s = 2.0 * math.sqrt(1.0 + m00 - m11 - m22)
+        q = ((m21 - m12) / s, 0.25 * s, (m01 + m10) / s, (m02 + m20) / s)
+    elif m11 >= m22:
+        s = 2.0 * math.sqrt(1.0 + m11 - m00 - m22)
+        q = ((m02 - m20) / s, (m01 + m10) / s, 0.25 * s, (m12 + m21) / s)
+    else:
+        s = 2.0 * math.sqrt(1.0 + m22 - m00 - m11)
+        q = ((m10 - m01) / s, (m02 + m20) / s, (m12 + m21) / s, 0.25 * s)
+    scale = (1.0 if q[0] >= 0.0 else -1.0) / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    return (q[0] * scale, q[1] * scale, q[2] * scale, q[3] * scale)
+
+
+def old_check_rotation(rotation, name="rotation"):
+    r = np.array(rotation, dtype=float)
+    if r.shape != (3, 3):
+        raise ValueError(f"{name} must be a (3, 3) array, got {r!r}")
+    (a0, b0, c0), (a1, b1, c1), (a2, b2, c2) = r.tolist()
+    residuals = (
+        a0 * a0 + a1 * a1 + a2 * a2 - 1.0,
+        b0 * b0 + b1 * b1 + b2 * b2 - 1.0,
+        c0 * c0 + c1 * c1 + c2 * c2 - 1.0,
+        a0 * b0 + a1 * b1 + a2 * b2,
+        a0 * c0 + a1 * c1 + a2 * c2,
+        b0 * c0 + b1 * c1 + b2 * c2,
+        a1 * b2 - a2 * b1 - c0,
+        a2 * b0 - a0 * b2 - c1,
+        a0 * b1 - a1 * b0 - c2,
+    )
+    if not all(abs(x) <= 1e-6 for x in residuals):
+        raise ValueError(f"{name} is not a proper rotation matrix: {r!r}")
+    return r
+
+
+def _outcome(function, *args):
+    try:
+        return function(*args)
+    except ValueError as error:
+        return (ValueError, str(error))
+
+
+@settings(max_examples=400, deadline=None)
+@given(vectors, scales, st.floats(-1e-5, 1e-5), st.integers(0, 8),
+       st.sampled_from(["rotation", "perturbed", "nan", "reflection", "shape", "half turn"]))
+def test_plant_setpoint_in_is_the_old_one(vector, scale, perturbation, entry, case):
+    """AttitudeThrustVehicle.set_attitude_target's check and quaternion (checked_rotation_rows,
+    quaternion_from_rows) against check_rotation + rotation_to_quaternion as they were: the same quaternion, the
+    same rejections with the same messages, near the 1e-6 tolerance too."""
+    from sitl_plant.vehicle import quadrotor
+    rotation = old_rotation_from_x_axis_to(direction_of(vector, scale))
+    if case == "half turn":
+        rotation = old_rodrigues(old_unit(np.array([0.0, vector[1], vector[2]]) + E_Z * 1e-3), math.pi)
+    flat = rotation.reshape(-1).copy()
+    if case == "perturbed":
+        flat[entry] += perturbation
+    elif case == "nan":
+        flat[entry] = math.nan
+    elif case == "reflection":
+        flat[entry % 3::3] *= -1.0  # a column flipped: orthonormal, left-handed
+    matrix = flat.reshape(3, 3) if case != "shape" else flat[:6].reshape(2, 3)
+
+    def old(r):
+        return old_rotation_to_quaternion(old_check_rotation(r, "rotation_desired"))
+
+    def new(r):
+        return quadrotor.quaternion_from_rows(quadrotor.checked_rotation_rows(r, "rotation_desired"))
+
+    expected = _outcome(old, matrix)
+    _assert_same_outcome(_outcome(new, matrix), expected)
+    square = matrix if case != "shape" else rotation
+    _assert_same_outcome(_outcome(quadrotor.rotation_to_quaternion, square), _outcome(old_rotation_to_quaternion, square))
+    checked = _outcome(quadrotor.check_rotation, matrix)
+    _assert_same_outcome(checked, _outcome(old_check_rotation, matrix))
+    assert checked is not matrix  # check_rotation still returns its own copy
+
+
+def _assert_same_outcome(actual, expected):
+    """The same exception and message, or the same numbers bit for bit (NaN where NaN)."""
+    if isinstance(expected, tuple) and isinstance(expected[0], type):
+        assert actual == expected
+    else:
+        assert_same(np.asarray(actual), np.asarray(expected))
+        assert type(actual) is type(expected)
+
+
 def test_warm_up_compiles_the_setpoint_kernels():
     _jit.warm_up()
+    from companion.core.pipeline import _relative_terms
     kernels = (attitude._setpoint_kernel, attitude._rotation_kernel, attitude._thrust_kernel,
                attitude._limited_acceleration_kernel, guidance._helical_acceleration_kernel,
                guidance._virtual_los_kernel, guidance._excitation_acceleration_kernel, guidance._range_terms,
-               guidance._range_error_terms)
+               guidance._range_error_terms, attitude._setpoint_after_kernel, guidance._excitation_terms_kernel,
+               guidance._excitation_level_kernel, _relative_terms)
     for kernel in kernels:
         if _jit.ENABLED:
             assert kernel.signatures, kernel

@@ -250,9 +250,11 @@ def _warm_up_baselines() -> None:
 def _warm_up_setpoint() -> None:
     """The control tick's kernels (companion.core.attitude, guidance, geometry) on made-up commands, with and
     without a heading fallback, so that no setpoint in flight waits for the compiler."""
-    from companion.core.attitude import VehicleLimits, attitude_setpoint, collective_thrust, desired_rotation, limit_specific_force
+    from companion.core.attitude import (VehicleLimits, attitude_setpoint, attitude_setpoint_after, collective_thrust,
+                                         desired_rotation, limit_specific_force)
     from companion.core.geometry import rotation_from_x_axis_to
-    from companion.core.guidance import HelicalNavigationGuidance, RangeController, RangeExcitation
+    from companion.core.guidance import HelicalNavigationGuidance, RangeController, RangeExcitation, _excitation_terms_kernel
+    from companion.core.pipeline import _relative_terms
 
     limits = VehicleLimits(2.0 / 3.0, max_tilt=0.6, gravity=9.81, mass=1.0)
     los = np.array([0.8, -0.36, -0.48])
@@ -269,6 +271,14 @@ def _warm_up_setpoint() -> None:
     flown = limit_specific_force(lateral, limits)
     collective_thrust(flown, desired_rotation(flown, los, limits.gravity), limits.mass, limits.gravity)
     rotation_from_x_axis_to(los)
+    previous = attitude_setpoint_after(1.04, lateral, los, limits, None)
+    attitude_setpoint_after(1.06, lateral, los, limits, previous)
+    relative_position, relative_velocity, _, _ = _relative_terms(20.0 * los, velocity, np.zeros(3), velocity)
+    excitation = RangeExcitation()
+    for suspect in (False, True):
+        _excitation_terms_kernel(1.0, lateral, relative_position, np.eye(6), los, suspect, excitation.low,
+                                 excitation.high, excitation.speed, excitation.damping_gain, excitation.frequency)
+    excitation.level(0.1)
 
 
 def _warm_up_diagnostics() -> None:

@@ -64,6 +64,11 @@ class VehicleLimits:
         return (float(self.gravity), float(maximum), float(maximum**2), float(self.horizontal_margin_specific_force),
                 float(self.min_vertical_specific_force), float(np.tan(self.max_tilt)))
 
+    @cached_property
+    def setpoint_terms(self) -> tuple[float, ...]:
+        """kernel_terms, then the mass (kg) and the hover thrust, as _setpoint takes them."""
+        return (*self.kernel_terms, float(self.mass), float(self.hover_thrust_normalized))
+
     @property
     def horizontal_margin_specific_force(self) -> float:
         """Horizontal specific force (m/s^2) the vertical part may never take away, at most the maximum."""
@@ -168,10 +173,21 @@ def _setpoint(acceleration, los, heading_fallback, gravity, max_specific_force, 
     return flown, rotation, thrust, thrust_normalized
 
 
+def _setpoint_after(acceleration, los, previous_rotation, gravity, max_specific_force, max_specific_force_squared,
+                    horizontal_margin, min_vertical, tan_max_tilt, mass, hover_thrust_normalized):
+    """_setpoint (eq. (21)-(22)) with the heading fallback the previous R_d's first column r1 (3, 3), as the control
+    tick uses it; the identity gives north (r1 = e_X), the fallback when there is no previous setpoint."""
+    return _setpoint_kernel(acceleration, los, np.ascontiguousarray(previous_rotation[:, 0]), gravity,
+                            max_specific_force, max_specific_force_squared, horizontal_margin, min_vertical,
+                            tan_max_tilt, mass, hover_thrust_normalized)
+
+
 _limited_acceleration_kernel = jit(_limited_acceleration)
 _rotation_kernel = jit(_rotation)
 _thrust_kernel = jit(_thrust)
 _setpoint_kernel = jit(_setpoint)
+_setpoint_after_kernel = jit(_setpoint_after)
+_IDENTITY = np.eye(3)
 
 
 def attitude_setpoint(
@@ -193,3 +209,17 @@ def attitude_setpoint(
         np.asarray(acceleration, dtype=float), np.asarray(los, dtype=float), fallback, *_limit_terms(limits),
         float(limits.mass), float(limits.hover_thrust_normalized))
     return AttitudeSetpoint(time, rotation, float(thrust_normalized), float(thrust), flown)
+
+
+def attitude_setpoint_after(time: float, acceleration: np.ndarray, los: np.ndarray, limits: VehicleLimits,
+                            previous: AttitudeSetpoint | None) -> AttitudeSetpoint:
+    """attitude_setpoint(time, acceleration, los, limits, previous.rotation[:, 0]) (eq. (21)-(22)), and with no
+    heading fallback (north) when previous is None: the control tick's call, with the previous setpoint's r1 taken
+    in the kernel (_setpoint_after) and the setpoint built without the frozen dataclass's per-field setattr.
+    acceleration: a_d, m/s^2, float64 (3,); los: lambda, float64 (3,)."""
+    flown, rotation, thrust, thrust_normalized = _setpoint_after_kernel(
+        acceleration, los, _IDENTITY if previous is None else previous.rotation, *limits.setpoint_terms)
+    setpoint = object.__new__(AttitudeSetpoint)
+    setpoint.__dict__.update(time=time, rotation=rotation, thrust_normalized=float(thrust_normalized),
+                             thrust=float(thrust), acceleration=flown)
+    return setpoint

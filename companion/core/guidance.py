@@ -13,8 +13,9 @@ from typing import Protocol
 import numpy as np
 
 from companion.core._jit import jit
-from companion.core.geometry import (E_X, clip, cross, cross_kernel, rotation_about_y_kernel, rotation_about_z_kernel,
-                                     rotation_from_unit_x_axis_to, rotation_from_x_axis_to, unit, unit_kernel)
+from companion.core.geometry import (E_X, clip_kernel, cross, cross_kernel, relative_range_std_kernel,
+                                     rotation_about_y_kernel, rotation_about_z_kernel, rotation_from_unit_x_axis_to,
+                                     rotation_from_x_axis_to, unit, unit_kernel)
 
 
 class LateralGuidance(Protocol):
@@ -175,9 +176,13 @@ class RangeController:
 
     def virtual_control(self, error: RangeErrorState) -> float:
         """v* = -k[sigma(xi1) + xi2] - sigma(xi1) - sigma'(xi1) xi2, eq. (17); m/s^2."""
-        sigma = saturation(error.range_error, self.saturation_limit)
-        slope = saturation_slope(error.range_error, self.saturation_limit)
-        return -self.gain * (sigma + error.range_rate) - sigma - slope * error.range_rate
+        return self._virtual_control(error.range_error, error.range_rate)
+
+    def _virtual_control(self, range_error: float, range_rate: float) -> float:
+        """v* of eq. (17) from xi1 = range_error (m) and xi2 = range_rate (m/s) (virtual_control's arithmetic)."""
+        sigma = saturation(range_error, self.saturation_limit)
+        slope = saturation_slope(range_error, self.saturation_limit)
+        return -self.gain * (sigma + range_rate) - sigma - slope * range_rate
 
     def acceleration(
         self,
@@ -196,11 +201,10 @@ class RangeController:
         distance, range_rate, speed_squared, lateral_work, projection = _range_terms(
             np.asarray(relative_position, dtype=float), np.asarray(relative_velocity, dtype=float), los,
             np.asarray(lateral_acceleration, dtype=float))
-        error = RangeErrorState(distance - self.desired_range, range_rate)
         u_star = (
-            -distance * self.virtual_control(error)
+            -distance * self._virtual_control(distance - self.desired_range, range_rate)  # eq. (15)-(17)
             + speed_squared
-            - error.range_rate**2
+            - range_rate**2
             - lateral_work
         )
         if projection <= 1e-6 * max(distance, 1.0):
@@ -269,10 +273,9 @@ class RangeExcitation:
             raise ValueError("need 0 <= low < high")
 
     def level(self, relative_range_std: float, suspect: bool = False) -> float:
-        """s in [0, 1] from rho = sigma_r / r^ (dimensionless) and the health verdict (see class)."""
-        if suspect or not np.isfinite(relative_range_std):
-            return 1.0
-        return float(clip((relative_range_std - self.low) / (self.high - self.low), 0.0, 1.0))
+        """s in [0, 1] from rho = sigma_r / r^ (dimensionless) and the health verdict (see class); the arithmetic
+        is _excitation_level's."""
+        return _excitation_level_kernel(float(relative_range_std), bool(suspect), float(self.low), float(self.high))
 
     def peak_acceleration(self, level: float = 1.0) -> float:
         """|a_X| = s V_X sqrt(N^2 + w^2), m/s^2 (constant in time)."""
@@ -301,4 +304,25 @@ def _excitation_acceleration(engaged_time, los, level, speed, damping_gain, freq
     return level * speed * (damping_gain * direction + frequency * turning)
 
 
+def _excitation_level(relative_range_std, suspect, low, high):
+    """s = clip((rho - rho_0) / (rho_1 - rho_0), 0, 1), and 1 while suspect or for a rho that is not finite
+    (RangeExcitation.level), on floats: rho, rho_0 = low, rho_1 = high."""
+    if suspect or not math.isfinite(relative_range_std):
+        return 1.0
+    return clip_kernel((relative_range_std - low) / (high - low), 0.0, 1.0)
+
+
+def _excitation_terms(engaged_time, lateral, relative_position, covariance, los, suspect, low, high, speed,
+                      damping_gain, frequency):
+    """(s, a_lat + a_X) in one call, for the control tick: rho = sigma_r / r^ from dp (3,) and the estimate's
+    covariance (6, 6) (geometry.relative_range_std on its P_pp block), the level s of RangeExcitation.level
+    (_excitation_level) and a_X = s V_X (N u + w u_perp) of RangeExcitation.acceleration
+    (_excitation_acceleration) added to the lateral command a_lat (3,). All float64."""
+    rho = relative_range_std_kernel(relative_position, np.ascontiguousarray(covariance[:3, :3]))
+    level = _excitation_level_kernel(rho, suspect, low, high)
+    return level, lateral + _excitation_acceleration_kernel(engaged_time, los, level, speed, damping_gain, frequency)
+
+
 _excitation_acceleration_kernel = jit(_excitation_acceleration)
+_excitation_level_kernel = jit(_excitation_level)
+_excitation_terms_kernel = jit(_excitation_terms)

@@ -14,12 +14,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.core.attitude import VehicleLimits, attitude_setpoint
+from companion.core.attitude import VehicleLimits, attitude_setpoint_after
 from companion.core.cooperative_guidance import CooperativeContext, SeparationFilter, neighbours_make_range_observable
 from companion.core.estimators import CorrectionReport, InitialGuess, TargetEstimator
 from companion.core._jit import jit, power
-from companion.core.geometry import clip_kernel, norm, relative_range_std
-from companion.core.guidance import LateralGuidance, RangeController, RangeExcitation
+from companion.core.geometry import clip_kernel, norm
+from companion.core.guidance import LateralGuidance, RangeController, RangeExcitation, _excitation_terms_kernel
 from companion.core.health import (
     HealthAction,
     HealthActionConfig,
@@ -295,6 +295,8 @@ class FollowingPipeline:
     def _neighbours_at(self, time: float) -> tuple:
         """The neighbours extrapolated to `time` (s) at constant velocity (their shares are late by the link's
         delay and up to a share period)."""
+        if not self._neighbours:
+            return ()
         return tuple(NeighbourState(n.ident, time, n.position + (time - n.time) * n.velocity, n.velocity)
                      for n in self._neighbours)
 
@@ -491,15 +493,19 @@ class FollowingPipeline:
             self.mode_changes.append((time, mode))
             self._blend_until = time + self.dropout.blend_time
 
-    def _excitation_term(self, time: float, relative_position: np.ndarray, los: np.ndarray,
+    def _excitation_term(self, time: float, lateral: np.ndarray, relative_position: np.ndarray, los: np.ndarray,
                          covariance: np.ndarray, excitation: RangeExcitation | None = None) -> np.ndarray:
-        """a_X of RangeExcitation (m/s^2, (3,)) at the level set by rho and the health verdict
-        (`excitation`, default the configured one)."""
+        """The lateral command a_lat (m/s^2, (3,)) plus a_X of RangeExcitation at the level set by rho =
+        sigma_r / r^ (geometry.relative_range_std of dp and the covariance's P_pp) and the health verdict
+        (`excitation`, default the configured one): guidance._excitation_terms, one kernel."""
         excitation = self.excitation if excitation is None else excitation
         assert excitation is not None and self._engaged_at is not None
         suspect = self._health_report is not None and self._health_report.state == HealthState.SUSPECT
-        self.excitation_level = excitation.level(relative_range_std(relative_position, covariance[:3, :3]), suspect)
-        return excitation.acceleration(time - self._engaged_at, los, self.excitation_level)
+        self.excitation_level, lateral = _excitation_terms_kernel(
+            time - self._engaged_at, lateral, relative_position, covariance, los, suspect, float(excitation.low),
+            float(excitation.high), float(excitation.speed), float(excitation.damping_gain),
+            float(excitation.frequency))
+        return lateral
 
     def _estimate_at(self, time: float) -> TargetEstimate:
         """The estimator's estimate carried to `time` (s) at constant velocity (TargetEstimate.extrapolated); the
@@ -557,13 +563,11 @@ class FollowingPipeline:
     def _compute_setpoint(self, time: float, pursuer: PursuerState) -> None:
         assert self._engaged_at is not None
         estimate = self._estimate_at(time)
-        relative_position = estimate.position - pursuer.position
-        relative_velocity = estimate.velocity - pursuer.velocity
-        range_estimate = norm(relative_position)
+        relative_position, relative_velocity, range_estimate, los = _relative_terms(
+            estimate.position, estimate.velocity, np.asarray(pursuer.position, dtype=float),
+            np.asarray(pursuer.velocity, dtype=float))
         if self.los_source == "measurement" and self._last_bearing is not None:
             los = self._last_bearing
-        else:
-            los = relative_position / max(range_estimate, 1e-9)
         neighbours = self._neighbours_at(time)
         law = self._choose_law(time, pursuer, estimate.position, neighbours)
         if self.mode == TrackMode.DEGRADED:
@@ -585,13 +589,13 @@ class FollowingPipeline:
                 longitudinal = np.zeros(3)  # a complete law (PD controller): no range-controller term
             else:
                 if self.excitation is not None:
-                    lateral = lateral + self._excitation_term(time, relative_position, los, estimate.covariance)
+                    lateral = self._excitation_term(time, lateral, relative_position, los, estimate.covariance)
                 elif (self.action_excitation is not None and self.health_action is not HealthAction.OFF
                       and self.actions.config.excite):
                     # Acting without a configured excitation: full while suspect, and never a stop while
                     # sigma_r / r^ is high (the action excitation's own low/high thresholds).
-                    lateral = lateral + self._excitation_term(time, relative_position, los, estimate.covariance,
-                                                              self.action_excitation)
+                    lateral = self._excitation_term(time, lateral, relative_position, los, estimate.covariance,
+                                                    self.action_excitation)
                 longitudinal = self.range_controller.acceleration(relative_position, relative_velocity, los, lateral)
         command = lateral + longitudinal
         if self.mode != TrackMode.TRACKING or self.health_action is HealthAction.RECOVERING or law in ("cooperative", "lone"):
@@ -611,9 +615,24 @@ class FollowingPipeline:
             # Last, so that no mode, law or blend can undo it.
             command = self.cooperation.separation.filter(pursuer.position, pursuer.velocity, command, neighbours)
         self._last_command = command
-        heading_fallback = None if self._setpoint is None else self._setpoint.rotation[:, 0]
-        self._setpoint = attitude_setpoint(time, command, los, self.limits, heading_fallback)
-        self._guidance = GuidanceTerms(lateral, longitudinal, los, range_estimate)
+        # heading fallback: the previous setpoint's r1
+        self._setpoint = attitude_setpoint_after(time, command, los, self.limits, self._setpoint)
+        guidance = object.__new__(GuidanceTerms)  # GuidanceTerms(...) without the per-field setattr
+        guidance.__dict__.update(lateral=lateral, longitudinal=longitudinal, los=los, range_estimate=range_estimate)
+        self._guidance = guidance
+
+
+@jit
+def _relative_terms(target_position: np.ndarray, target_velocity: np.ndarray, position: np.ndarray,
+                    velocity: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+    """The control tick's relative state in one call: dp = p^_T - p (m), dv = v^_T - v (m/s), r^ = |dp| as
+    geometry.norm computes it (sqrt(dp . dp)) and the estimated line of sight dp / max(r^, 1e-9) (Python's max:
+    a NaN r^ stays NaN). All float64 (3,)."""
+    relative_position = target_position - position
+    relative_velocity = target_velocity - velocity
+    distance = math.sqrt(relative_position @ relative_position)
+    floor = 1e-9 if 1e-9 > distance else distance
+    return relative_position, relative_velocity, distance, relative_position / floor
 
 
 @jit

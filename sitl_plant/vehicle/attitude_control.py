@@ -20,6 +20,8 @@ from sitl_plant.vehicle.quadrotor import (
     RigidBodyState,
     Vec3,
     check_rotation,
+    checked_rotation_rows,
+    quaternion_from_rows,
     quaternion_to_rotation,
     rotation_to_quaternion,
     rotor_wrench,
@@ -230,11 +232,11 @@ class AttitudeThrustVehicle:
     def set_attitude_target(self, rotation_desired: np.ndarray, thrust_newton: float) -> None:
         """Hold attitude R_d ((3, 3) desired body FRD -> NED, proper rotation to 1e-6) and
         total thrust (N; the mixer clips it to [0, 1.5 m g]) until the next call."""
-        rd = check_rotation(rotation_desired, "rotation_desired")
+        rows = checked_rotation_rows(rotation_desired, "rotation_desired")
         thrust = float(thrust_newton)
         if not math.isfinite(thrust):
             raise ValueError(f"thrust_newton must be finite, got {thrust_newton!r}")
-        self._qd = rotation_to_quaternion(rd)
+        self._qd = quaternion_from_rows(rows)
         self._thrust = thrust
 
     def set_attitude_target_quaternion(self, quaternion: tuple[float, float, float, float], thrust_newton: float) -> None:

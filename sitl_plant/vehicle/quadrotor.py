@@ -78,8 +78,14 @@ def rotation_to_quaternion(rotation: np.ndarray) -> tuple[float, float, float, f
     Shepperd's method: pivot on the largest of trace and diagonal to stay accurate
     near half turns. Per-tick only (the state write of every ground-contact tick, attitude
     setpoints of the in-process simulator); elsewhere scipy's Rotation is used.
+    The arithmetic is quaternion_from_rows's.
     """
-    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = np.asarray(rotation, dtype=float).tolist()
+    return quaternion_from_rows(np.asarray(rotation, dtype=float).tolist())
+
+
+def quaternion_from_rows(rows: list) -> tuple[float, float, float, float]:
+    """rotation_to_quaternion (Shepperd's method) of a rotation given as its rows of Python floats."""
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = rows
     trace = m00 + m11 + m22
     if trace >= m00 and trace >= m11 and trace >= m22:
         s = 2.0 * math.sqrt(1.0 + trace)
@@ -100,28 +106,34 @@ def rotation_to_quaternion(rotation: np.ndarray) -> tuple[float, float, float, f
 def check_rotation(rotation: np.ndarray, name: str = "rotation") -> np.ndarray:
     """Return rotation as a float (3, 3) array; ValueError unless it is in SO(3) to 1e-6.
 
-    Checked column by column in plain Python: this runs on every attitude setpoint.
+    Checked column by column in plain Python (checked_rotation_rows): this runs on every attitude setpoint.
     """
     r = np.array(rotation, dtype=float)
+    checked_rotation_rows(r, name)
+    return r
+
+
+def checked_rotation_rows(rotation: np.ndarray, name: str = "rotation") -> list:
+    """The rows of `rotation` as lists of Python floats; ValueError unless it is a (3, 3) array in SO(3) to 1e-6
+    (check_rotation's test, without its copy of the array)."""
+    r = np.asarray(rotation, dtype=float)
     if r.shape != (3, 3):
         raise ValueError(f"{name} must be a (3, 3) array, got {r!r}")
-    (a0, b0, c0), (a1, b1, c1), (a2, b2, c2) = r.tolist()
-    # Columns a, b, c must be orthonormal and right-handed (a x b = c).
-    residuals = (
-        a0 * a0 + a1 * a1 + a2 * a2 - 1.0,
-        b0 * b0 + b1 * b1 + b2 * b2 - 1.0,
-        c0 * c0 + c1 * c1 + c2 * c2 - 1.0,
-        a0 * b0 + a1 * b1 + a2 * b2,
-        a0 * c0 + a1 * c1 + a2 * c2,
-        b0 * c0 + b1 * c1 + b2 * c2,
-        a1 * b2 - a2 * b1 - c0,
-        a2 * b0 - a0 * b2 - c1,
-        a0 * b1 - a1 * b0 - c2,
-    )
-    # `not <=` also rejects NaN and infinities.
-    if not all(abs(x) <= _ORTHONORMAL_TOL for x in residuals):
+    rows = r.tolist()
+    (a0, b0, c0), (a1, b1, c1), (a2, b2, c2) = rows
+    # Columns a, b, c must be orthonormal and right-handed (a x b = c). `not <=` also rejects NaN and infinities.
+    tolerance = _ORTHONORMAL_TOL
+    if not (abs(a0 * a0 + a1 * a1 + a2 * a2 - 1.0) <= tolerance
+            and abs(b0 * b0 + b1 * b1 + b2 * b2 - 1.0) <= tolerance
+            and abs(c0 * c0 + c1 * c1 + c2 * c2 - 1.0) <= tolerance
+            and abs(a0 * b0 + a1 * b1 + a2 * b2) <= tolerance
+            and abs(a0 * c0 + a1 * c1 + a2 * c2) <= tolerance
+            and abs(b0 * c0 + b1 * c1 + b2 * c2) <= tolerance
+            and abs(a1 * b2 - a2 * b1 - c0) <= tolerance
+            and abs(a2 * b0 - a0 * b2 - c1) <= tolerance
+            and abs(a0 * b1 - a1 * b0 - c2) <= tolerance):
         raise ValueError(f"{name} is not a proper rotation matrix: {r!r}")
-    return r
+    return rows
 
 
 def _vector(value: object, size: int, name: str) -> np.ndarray:
