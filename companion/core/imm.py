@@ -64,7 +64,7 @@ from companion.core.estimators import (AdaptiveNoiseSettings, CorrectionReport, 
                                        _behind_sensor, _correct_kernel, _normalized_innovation_squared, _predict_kernel,
                                        coordinated_turn_matrices, restart_guess)
 from companion.core.geometry import unit
-from companion.core.messages import BearingMeasurement, TargetEstimate
+from companion.core.messages import BearingMeasurement, TargetEstimate, position_std_of
 
 _LOG_TWO_PI = math.log(2.0 * math.pi)
 
@@ -166,6 +166,34 @@ def _combine_kernel(probabilities: np.ndarray, states: np.ndarray, covariances: 
     covariance = (probabilities @ covariances.reshape(probabilities.shape[0], size * size)).reshape(size, size)
     covariance += (probabilities[:, None] * spread).T @ spread
     return state, 0.5 * (covariance + covariance.T)
+
+
+_position_std = jit(position_std_of)
+"""TargetEstimate.position_std's function (companion.core.messages.position_std_of) as a kernel."""
+
+
+@jit
+def _combined_estimate(probabilities: np.ndarray, states: np.ndarray, covariances: np.ndarray, position: np.ndarray,
+                       velocity: np.ndarray, covariance: np.ndarray) -> float:
+    """The combined estimate, seed 004 eqs. (22)-(23) (`_combine_kernel`), written into the caller's arrays: position
+    (3,) and velocity (3,) from x, covariance (6, 6) from P (fresh arrays for a snapshot: numba would box each array
+    it returned); returns its position std (`position_std_of`, TargetEstimate.position_std) (IMMEstimator.estimate,
+    a kernel: companion.core._jit)."""
+    state, combined = _combine_kernel(probabilities, states, covariances)
+    position[:] = state[:3]
+    velocity[:] = state[3:]
+    covariance[:] = combined
+    return _position_std(covariance)
+
+
+def _target_estimate(time: float, position: np.ndarray, velocity: np.ndarray, covariance: np.ndarray,
+                     position_std: float) -> TargetEstimate:
+    """TargetEstimate(time, position, velocity, covariance) with its position_std already known (the value its
+    once_property would compute, `position_std_of`), without the frozen dataclass's object.__setattr__ per field."""
+    estimate = object.__new__(TargetEstimate)
+    estimate.__dict__.update(time=time, position=position, velocity=velocity, covariance=covariance,
+                             position_std=position_std)
+    return estimate
 
 
 def rank2_log_likelihood(innovation: np.ndarray, covariance: np.ndarray, scale: float = 1.0,
@@ -477,6 +505,7 @@ class IMMEstimator:
         self._initial_guess: InitialGuess | None = None
         self._snapshot: TargetEstimate | None = None
         self._process_noise_boost = 1.0
+        self._started = False  # every model filter has started (`_require_states`)
 
     def _bind_storage(self) -> None:
         """Each model filter keeps its x and P in its row of the stacked arrays (UPLKF._use_storage)."""
@@ -507,14 +536,20 @@ class IMMEstimator:
     @property
     def estimate(self) -> TargetEstimate:
         """The combined estimate, seed 004 eqs. (22)-(23) (a snapshot, kept until the next step changes the states)."""
-        if self._snapshot is None:
-            if len(self.filters) == 1:
-                self._snapshot = self.filters[0].estimate
+        snapshot = self._snapshot
+        if snapshot is None:
+            filters = self.filters
+            if len(filters) == 1:
+                snapshot = self._snapshot = filters[0].estimate
             else:
-                self._require_states()
-                state, covariance = _combine_kernel(self._weights, self._states, self._covariances)
-                self._snapshot = TargetEstimate(self.time, state[:3], state[3:], covariance)
-        return self._snapshot
+                if not self._started:
+                    self._require_states()
+                # fresh arrays every time: the snapshot handed out is never written again
+                position, velocity, covariance = np.empty(3), np.empty(3), np.empty((6, 6))
+                position_std = _combined_estimate(self._weights, self._states, self._covariances, position, velocity,
+                                                  covariance)
+                snapshot = self._snapshot = _target_estimate(filters[0].time, position, velocity, covariance, position_std)
+        return snapshot
 
     @property
     def acceleration(self) -> np.ndarray:
@@ -530,10 +565,12 @@ class IMMEstimator:
         return total
 
     def _require_states(self) -> None:
-        """Every model filter has started (else UPLKF's RuntimeError)."""
+        """Every model filter has started (else UPLKF's RuntimeError). Once they all have, `_started` says so and
+        the steps skip this check (a started filter never stops: its storage is fixed, `_bind_storage`)."""
         for model_filter in self.filters:
             if model_filter._state is None or model_filter._covariance is None:  # the check, without a call per filter
                 model_filter._require_state()
+        self._started = True
 
     @property
     def model_probabilities(self) -> np.ndarray:
