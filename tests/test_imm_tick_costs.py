@@ -98,20 +98,27 @@ def _expected_prediction(estimator: IMMEstimator) -> tuple[np.ndarray, np.ndarra
     return states, covariances
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=150, deadline=None)
 @given(STEPS, st.booleans())
 def test_estimates_stay_snapshots_and_predictions_take_every_noise_factor(steps, adaptive):
+    """After every step one more prediction (checked against each model filter's own, with its factors of the
+    moment), then the estimate (checked against the combination of the current states and every estimate handed
+    out before, unchanged)."""
     estimator = IMMEstimator(0.02, standard_models([0.2], 0.04, 0.04), 1e-4 * np.eye(3), GainProjection.PREDICTED,
                              pursuer_position_std=0.1, adaptive_noise=AdaptiveNoiseSettings() if adaptive else None)
     estimator.initialize_on_bearing(BearingMeasurement(0.0, np.array([1.0, 0.2, -0.3]), np.zeros(3)),
                                     InitialGuess(30.0, 10.0, np.zeros(3), 5.0))
     handed_out = []  # (estimate, copies of its arrays and std when handed out)
+
+    def predict(label: str) -> None:
+        expected = _expected_prediction(estimator)
+        estimator.predict()
+        assert_same((estimator._states, estimator._covariances), expected, label)
+
     for k, (kind, value) in enumerate(steps):
         if kind == "predict":
             for _ in range(value):
-                expected = _expected_prediction(estimator)
-                estimator.predict()
-                assert_same((estimator._states, estimator._covariances), expected, f"step {k}: {kind}")
+                predict(f"step {k}: {kind}")
         elif kind == "correct":
             estimator.correct(_bearing(estimator, value, k))
         elif kind == "imm boost":
@@ -122,17 +129,20 @@ def test_estimates_stay_snapshots_and_predictions_take_every_noise_factor(steps,
             noise = estimator.filters[value[0]].adaptive_noise
             if noise is not None:
                 noise.scale = value[1]
-        elif kind == "model adaptive":  # adaptive noise switched on or off on one model filter
+        elif kind == "model adaptive":  # adaptive noise switched on (at a scale of 2) or off on one model filter
             model_filter = estimator.filters[value]
             if model_filter.adaptive_noise is None:
-                model_filter.adaptive_noise = AdaptiveProcessNoise(AdaptiveNoiseSettings())
-                model_filter.adaptive_noise.scale = 2.0
+                noise = AdaptiveProcessNoise(AdaptiveNoiseSettings())
+                noise.scale = 2.0
+                predict(f"step {k}: before {kind}")  # (the IMM has seen every change but the switch itself)
+                model_filter.adaptive_noise = noise
             else:
                 model_filter.adaptive_noise = None
         else:
             rng = np.random.default_rng(value)
             estimator.set_model_states([(state + rng.normal(size=6), covariance)
                                         for state, covariance in zip(estimator._states, estimator._covariances)])
+        predict(f"after step {k}: {kind}")
         estimate = estimator.estimate
         assert estimator.estimate is estimate  # kept until the next step
         state, covariance = combine(estimator._weights, estimator._states, estimator._covariances)

@@ -59,6 +59,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from companion.core import estimators as _estimators
 from companion.core._jit import jit
 from companion.core.estimators import (AdaptiveNoiseSettings, CorrectionReport, GainProjection, InitialGuess, UPLKF,
                                        _behind_sensor, _correct_kernel, _normalized_innovation_squared, _predict_kernel,
@@ -487,8 +488,10 @@ class IMMEstimator:
         # lengths twice (n,) (as summed by the IMM, as by each model filter), the combined p^-_T - p (3,)
         self._lines_of_sight = (np.empty((count, 3)), np.empty(count), np.empty(count), np.empty(3))
         self._nis = np.zeros(count)  # each model's NIS of the last correction (`_imm_correct_kernel` writes it)
-        self._noise_factors: list[tuple[float, float]] = []  # the (scale, boost) of `_scales` and `_boosts`
-        self._scales = self._boosts = np.ones(count)
+        # each model filter's adaptive scale and boost for `_predict_models`, as collected when estimators._noise_changes
+        # was `_noise_count` (`_collect_noise_factors`)
+        self._scales, self._boosts = np.ones(count), np.ones(count)
+        self._noise_count = -1
         if initial_probabilities is None:
             initial = np.full(count, 0.02 / (count - 1)) if count > 1 else np.ones(1)
             initial[0] = 0.98 if count > 1 else 1.0
@@ -633,16 +636,22 @@ class IMMEstimator:
         if len(filters) == 1:
             filters[0].predict()
             return
-        self._require_states()
-        factors = [(model_filter.process_noise_scale, model_filter.process_noise_boost) for model_filter in filters]
-        if factors != self._noise_factors:  # each model's adaptive scale and boost, as arrays for the kernel
-            self._noise_factors = factors
-            self._scales = np.array([scale for scale, _ in factors], dtype=float)
-            self._boosts = np.array([boost for _, boost in factors], dtype=float)
+        if not self._started:
+            self._require_states()
+        if self._noise_count != _estimators._noise_changes:  # a scale or a boost may have changed since
+            self._collect_noise_factors()
         _predict_models(self._transitions, self._discrete_process_noises, self._scales, self._boosts, self._states,
                         self._covariances)
-        for model_filter in filters:
-            model_filter._advance_clock()
+        for model_filter in filters:  # UPLKF._advance_clock, without a call per model filter
+            model_filter._snapshot = None
+            model_filter._ticks += 1
+
+    def _collect_noise_factors(self) -> None:
+        """Each model filter's adaptive scale and boost (UPLKF.predict's factors) into `_scales` and `_boosts` (new
+        arrays), as of the count of changes read first (a change made meanwhile moves the count again)."""
+        self._noise_count = _estimators._noise_changes
+        self._scales = np.array([model_filter.process_noise_scale for model_filter in self.filters], dtype=float)
+        self._boosts = np.array([float(model_filter.process_noise_boost) for model_filter in self.filters], dtype=float)
 
     def correct(self, bearing: BearingMeasurement) -> CorrectionReport:
         """Model-conditioned corrections, model probabilities, then the mixing for the next cycle.
@@ -695,7 +704,7 @@ class IMMEstimator:
             references = np.array([reference for reference, *_ in inputs]) if reference is not None else None
             lead_noises = np.array([lead_noise for *_, lead_noise in inputs]) if late else self._no_lead_noises
         use_reference = reference is not None
-        adaptive = [model_filter.adaptive_noise for model_filter in filters]
+        adaptive = [model_filter._adaptive_noise for model_filter in filters]
         # mu and the next c in place: the IMM's own arrays, never handed out (model_probabilities is a copy)
         nis, probabilities = self._nis, self._probabilities
         innovation, innovation_covariance = _imm_correct_kernel(
