@@ -8,7 +8,8 @@
   later steps never write its arrays), and every new one is the combination of the model filters' current
   states, with the position std its once_property would compute;
 - on the same sequences, each prediction uses every model filter's current process-noise factors (adaptive scale
-  and boost), however they were changed: through the IMM, on a model filter directly, on its adaptive noise.
+  and boost), however they were changed: through the IMM, on a model filter directly, on its adaptive noise;
+- after _jit.warm_up the new kernel is compiled.
 """
 
 from __future__ import annotations
@@ -155,3 +156,12 @@ def test_estimates_stay_snapshots_and_predictions_take_every_noise_factor(steps,
         for j, (old, kept) in enumerate(handed_out):
             assert_same((old.time, old.position, old.velocity, old.covariance, old.position_std), kept,
                         f"estimate {j} after step {k}: {kind}")
+
+
+def test_warm_up_compiles_the_combined_estimate():
+    """_jit.warm_up reads the IMMs' estimates: no flight waits for `_combined_estimate` (and `_position_std` in it)."""
+    _jit.warm_up()
+    if _jit.ENABLED:
+        assert imm._combined_estimate.signatures
+    else:
+        assert python(imm._combined_estimate) is imm._combined_estimate
