@@ -534,6 +534,20 @@ class AdaptiveNoiseSettings:
             raise ValueError("need max_scale >= 1, nis_threshold > 1 and positive time constants")
 
 
+_noise_changes = 0
+"""How many times a u-PLKF's process-noise factors may have changed: every set of a UPLKF's process_noise_boost or
+adaptive_noise and of an AdaptiveProcessNoise's scale counts one (after the new value is in place). An IMM collects
+its model filters' scales and boosts for its prediction kernel again only when this count has moved since it last
+did (IMMEstimator.predict): one comparison of integers per tick instead of reading every factor, and no change of a
+factor, whoever makes it, goes unseen."""
+
+
+def _count_noise_change() -> None:
+    """One more set of a process-noise factor (`_noise_changes`)."""
+    global _noise_changes
+    _noise_changes += 1
+
+
 class AdaptiveProcessNoise:
     """Process-noise scale s_k >= 1 driven by the innovation statistics (Q_k = s_k Q).
 
@@ -575,26 +589,36 @@ class AdaptiveProcessNoise:
 
     def __init__(self, settings: AdaptiveNoiseSettings) -> None:
         self.settings = settings
-        self.scale = 1.0
+        self._scale = 1.0
         self.mean_nis = 1.0
         self._last_time: float | None = None
+
+    @property
+    def scale(self) -> float:
+        """s_k, the current factor on Q (>= 1)."""
+        return self._scale
+
+    @scale.setter
+    def scale(self, value: float) -> None:
+        self._scale = value
+        _count_noise_change()  # (after the change: an IMM that sees the new count reads the new value)
 
     def update(self, time: float, nis: float, dof: int) -> float:
         """Fold in one correction's NIS eps_k (dimensionless) with dof = d_k degrees of freedom,
         taken at time, s; returns the new scale s_k."""
         if dof <= 0 or not math.isfinite(nis):
-            return self.scale
+            return self._scale
         dt = 0.0 if self._last_time is None else max(float(time) - self._last_time, 0.0)
         self._last_time = float(time)
         settings = self.settings
         self.mean_nis += (1.0 - math.exp(-dt / settings.nis_time_constant)) * (nis / dof - self.mean_nis)
-        log_scale = math.log(self.scale)
+        log_scale = math.log(self._scale)
         if self.mean_nis > settings.nis_threshold:
             log_scale += dt / settings.rise_time_constant * math.log(self.mean_nis / settings.nis_threshold)
         elif self.mean_nis < 1.0:
             log_scale *= math.exp(-dt / settings.relax_time_constant)
         self.scale = math.exp(min(max(log_scale, 0.0), math.log(settings.max_scale)))
-        return self.scale
+        return self._scale
 
 
 OWN_ACCELERATION_PSD = 1.0
@@ -810,7 +834,7 @@ class UPLKF:
         if discrete_process_noise is not None:
             self._q_discrete = np.array(discrete_process_noise, dtype=float).reshape(6, 6)
         self.adaptive_noise = None if adaptive_noise is None else AdaptiveProcessNoise(adaptive_noise)
-        self.process_noise_boost: float = 1.0
+        self._process_noise_boost = 1.0
         # The PREDICTED form's own-position instrumental variable (kept across restarts: it tracks
         # the pursuer, not the target); None where it does not apply.
         self._own_track = (OwnPositionTracker(self.pursuer_position_std)
@@ -831,6 +855,27 @@ class UPLKF:
     @property
     def initialized(self) -> bool:
         return self._state is not None
+
+    @property
+    def adaptive_noise(self) -> AdaptiveProcessNoise | None:
+        """The adaptive process noise (None: Q constant)."""
+        return self._adaptive_noise
+
+    @adaptive_noise.setter
+    def adaptive_noise(self, value: AdaptiveProcessNoise | None) -> None:
+        self._adaptive_noise = value
+        _count_noise_change()  # its scale is this filter's process_noise_scale
+
+    @property
+    def process_noise_boost(self) -> float:
+        """The factor on the discrete process noise of every prediction (class docstring)."""
+        return self._process_noise_boost
+
+    @process_noise_boost.setter
+    def process_noise_boost(self, value: float) -> None:
+        if value is not self._process_noise_boost:  # (the very same object again changes nothing: the health
+            self._process_noise_boost = value       # actions set the boost at every bearing, mostly to 1.0)
+            _count_noise_change()
 
     @property
     def time(self) -> float:
@@ -904,7 +949,7 @@ class UPLKF:
     def predict(self) -> None:
         """Time update over one period, section IV-C: x^- = A x, P^- = A P A^T + B Q B^T (`_predict_kernel`)."""
         state, covariance = self._require_state()
-        _predict_kernel(self._a, self._q_discrete, self.process_noise_scale, float(self.process_noise_boost),
+        _predict_kernel(self._a, self._q_discrete, self.process_noise_scale, float(self._process_noise_boost),
                         state, covariance)
         self._advance_clock()
 
@@ -916,7 +961,7 @@ class UPLKF:
     @property
     def process_noise_scale(self) -> float:
         """s_k, the current factor on Q (1 with adaptive_noise off)."""
-        return 1.0 if self.adaptive_noise is None else self.adaptive_noise.scale
+        return 1.0 if self._adaptive_noise is None else self._adaptive_noise._scale
 
     def correct(self, bearing: BearingMeasurement) -> CorrectionReport:
         """Measurement update with one bearing, eq. (6) and section IV-C (`_correct_kernel`)."""
@@ -942,7 +987,7 @@ class UPLKF:
         nis = _correct_into(
             state, covariance, relative, predicted_range, direction, pursuer_position if reference is None else reference,
             reference is not None, use_predicted, lead, late, self.measurement_noise, position_std > 0.0,
-            position_std**2, lead_noise, pursuer_position, self.adaptive_noise is not None, innovation,
+            position_std**2, lead_noise, pursuer_position, self._adaptive_noise is not None, innovation,
             innovation_covariance)
         self._note_innovation(bearing, nis)
         return _correction_report(innovation_angle, use_predicted, innovation, innovation_covariance, 2)
@@ -967,8 +1012,8 @@ class UPLKF:
     def _note_innovation(self, bearing: BearingMeasurement, nis: float) -> None:
         """After a correction: the adaptive process noise takes its NIS y^T S^+ y (2 degrees of freedom; `_correct_into`
         computes it when there is adaptive noise)."""
-        if self.adaptive_noise is not None:
-            self.adaptive_noise.update(bearing.time, nis, 2)
+        if self._adaptive_noise is not None:
+            self._adaptive_noise.update(bearing.time, nis, 2)
 
     def _source_track(self, source: int) -> OwnPositionTracker:
         """The position tracker of a neighbour's bearings (source != 0): each pursuer's reported positions are
@@ -986,7 +1031,7 @@ class UPLKF:
         the one this filter's discrete model accumulates per second (velocity variance Delta t^2 Q per
         period), with the same adaptive scale and boost as the predictions. The correlation of w_tau with
         the current state (Bar-Shalom's exact out-of-sequence update) is left out."""
-        scale = self.process_noise_boost * (1.0 if self.adaptive_noise is None else self.adaptive_noise.scale)
+        scale = self._process_noise_boost * (1.0 if self._adaptive_noise is None else self._adaptive_noise._scale)
         return (scale * self.period * abs(lead) ** 3 / 3.0) * self.process_noise
 
     def _restart_on(self, bearing: BearingMeasurement, predicted_range: float, velocity: np.ndarray) -> None:

@@ -59,12 +59,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from companion.core import estimators as _estimators
 from companion.core._jit import jit
 from companion.core.estimators import (AdaptiveNoiseSettings, CorrectionReport, GainProjection, InitialGuess, UPLKF,
                                        _behind_sensor, _correct_kernel, _normalized_innovation_squared, _predict_kernel,
                                        coordinated_turn_matrices, restart_guess)
 from companion.core.geometry import unit
-from companion.core.messages import BearingMeasurement, TargetEstimate
+from companion.core.messages import BearingMeasurement, TargetEstimate, position_std_of
 
 _LOG_TWO_PI = math.log(2.0 * math.pi)
 
@@ -166,6 +167,34 @@ def _combine_kernel(probabilities: np.ndarray, states: np.ndarray, covariances: 
     covariance = (probabilities @ covariances.reshape(probabilities.shape[0], size * size)).reshape(size, size)
     covariance += (probabilities[:, None] * spread).T @ spread
     return state, 0.5 * (covariance + covariance.T)
+
+
+_position_std = jit(position_std_of)
+"""TargetEstimate.position_std's function (companion.core.messages.position_std_of) as a kernel."""
+
+
+@jit
+def _combined_estimate(probabilities: np.ndarray, states: np.ndarray, covariances: np.ndarray, position: np.ndarray,
+                       velocity: np.ndarray, covariance: np.ndarray) -> float:
+    """The combined estimate, seed 004 eqs. (22)-(23) (`_combine_kernel`), written into the caller's arrays: position
+    (3,) and velocity (3,) from x, covariance (6, 6) from P (fresh arrays for a snapshot: numba would box each array
+    it returned); returns its position std (`position_std_of`, TargetEstimate.position_std) (IMMEstimator.estimate,
+    a kernel: companion.core._jit)."""
+    state, combined = _combine_kernel(probabilities, states, covariances)
+    position[:] = state[:3]
+    velocity[:] = state[3:]
+    covariance[:] = combined
+    return _position_std(covariance)
+
+
+def _target_estimate(time: float, position: np.ndarray, velocity: np.ndarray, covariance: np.ndarray,
+                     position_std: float) -> TargetEstimate:
+    """TargetEstimate(time, position, velocity, covariance) with its position_std already known (the value its
+    once_property would compute, `position_std_of`), without the frozen dataclass's object.__setattr__ per field."""
+    estimate = object.__new__(TargetEstimate)
+    estimate.__dict__.update(time=time, position=position, velocity=velocity, covariance=covariance,
+                             position_std=position_std)
+    return estimate
 
 
 def rank2_log_likelihood(innovation: np.ndarray, covariance: np.ndarray, scale: float = 1.0,
@@ -459,8 +488,10 @@ class IMMEstimator:
         # lengths twice (n,) (as summed by the IMM, as by each model filter), the combined p^-_T - p (3,)
         self._lines_of_sight = (np.empty((count, 3)), np.empty(count), np.empty(count), np.empty(3))
         self._nis = np.zeros(count)  # each model's NIS of the last correction (`_imm_correct_kernel` writes it)
-        self._noise_factors: list[tuple[float, float]] = []  # the (scale, boost) of `_scales` and `_boosts`
-        self._scales = self._boosts = np.ones(count)
+        # each model filter's adaptive scale and boost for `_predict_models`, as collected when estimators._noise_changes
+        # was `_noise_count` (`_collect_noise_factors`)
+        self._scales, self._boosts = np.ones(count), np.ones(count)
+        self._noise_count = -1
         if initial_probabilities is None:
             initial = np.full(count, 0.02 / (count - 1)) if count > 1 else np.ones(1)
             initial[0] = 0.98 if count > 1 else 1.0
@@ -477,6 +508,7 @@ class IMMEstimator:
         self._initial_guess: InitialGuess | None = None
         self._snapshot: TargetEstimate | None = None
         self._process_noise_boost = 1.0
+        self._started = False  # every model filter has started (`_require_states`)
 
     def _bind_storage(self) -> None:
         """Each model filter keeps its x and P in its row of the stacked arrays (UPLKF._use_storage)."""
@@ -507,14 +539,20 @@ class IMMEstimator:
     @property
     def estimate(self) -> TargetEstimate:
         """The combined estimate, seed 004 eqs. (22)-(23) (a snapshot, kept until the next step changes the states)."""
-        if self._snapshot is None:
-            if len(self.filters) == 1:
-                self._snapshot = self.filters[0].estimate
+        snapshot = self._snapshot
+        if snapshot is None:
+            filters = self.filters
+            if len(filters) == 1:
+                snapshot = self._snapshot = filters[0].estimate
             else:
-                self._require_states()
-                state, covariance = _combine_kernel(self._weights, self._states, self._covariances)
-                self._snapshot = TargetEstimate(self.time, state[:3], state[3:], covariance)
-        return self._snapshot
+                if not self._started:
+                    self._require_states()
+                # fresh arrays every time: the snapshot handed out is never written again
+                position, velocity, covariance = np.empty(3), np.empty(3), np.empty((6, 6))
+                position_std = _combined_estimate(self._weights, self._states, self._covariances, position, velocity,
+                                                  covariance)
+                snapshot = self._snapshot = _target_estimate(filters[0].time, position, velocity, covariance, position_std)
+        return snapshot
 
     @property
     def acceleration(self) -> np.ndarray:
@@ -530,10 +568,12 @@ class IMMEstimator:
         return total
 
     def _require_states(self) -> None:
-        """Every model filter has started (else UPLKF's RuntimeError)."""
+        """Every model filter has started (else UPLKF's RuntimeError). Once they all have, `_started` says so and
+        the steps skip this check (a started filter never stops: its storage is fixed, `_bind_storage`)."""
         for model_filter in self.filters:
             if model_filter._state is None or model_filter._covariance is None:  # the check, without a call per filter
                 model_filter._require_state()
+        self._started = True
 
     @property
     def model_probabilities(self) -> np.ndarray:
@@ -596,16 +636,22 @@ class IMMEstimator:
         if len(filters) == 1:
             filters[0].predict()
             return
-        self._require_states()
-        factors = [(model_filter.process_noise_scale, model_filter.process_noise_boost) for model_filter in filters]
-        if factors != self._noise_factors:  # each model's adaptive scale and boost, as arrays for the kernel
-            self._noise_factors = factors
-            self._scales = np.array([scale for scale, _ in factors], dtype=float)
-            self._boosts = np.array([boost for _, boost in factors], dtype=float)
+        if not self._started:
+            self._require_states()
+        if self._noise_count != _estimators._noise_changes:  # a scale or a boost may have changed since
+            self._collect_noise_factors()
         _predict_models(self._transitions, self._discrete_process_noises, self._scales, self._boosts, self._states,
                         self._covariances)
-        for model_filter in filters:
-            model_filter._advance_clock()
+        for model_filter in filters:  # UPLKF._advance_clock, without a call per model filter
+            model_filter._snapshot = None
+            model_filter._ticks += 1
+
+    def _collect_noise_factors(self) -> None:
+        """Each model filter's adaptive scale and boost (UPLKF.predict's factors) into `_scales` and `_boosts` (new
+        arrays), as of the count of changes read first (a change made meanwhile moves the count again)."""
+        self._noise_count = _estimators._noise_changes
+        self._scales = np.array([model_filter.process_noise_scale for model_filter in self.filters], dtype=float)
+        self._boosts = np.array([float(model_filter.process_noise_boost) for model_filter in self.filters], dtype=float)
 
     def correct(self, bearing: BearingMeasurement) -> CorrectionReport:
         """Model-conditioned corrections, model probabilities, then the mixing for the next cycle.
@@ -658,7 +704,7 @@ class IMMEstimator:
             references = np.array([reference for reference, *_ in inputs]) if reference is not None else None
             lead_noises = np.array([lead_noise for *_, lead_noise in inputs]) if late else self._no_lead_noises
         use_reference = reference is not None
-        adaptive = [model_filter.adaptive_noise for model_filter in filters]
+        adaptive = [model_filter._adaptive_noise for model_filter in filters]
         # mu and the next c in place: the IMM's own arrays, never handed out (model_probabilities is a copy)
         nis, probabilities = self._nis, self._probabilities
         innovation, innovation_covariance = _imm_correct_kernel(

@@ -83,6 +83,17 @@ class BearingMeasurement:
         return unit(self.direction)
 
 
+def position_std_of(covariance: np.ndarray) -> float:
+    """sqrt(max(trace(P_pos), 0) / 3), m, of a covariance of [position, velocity] (6, 6): TargetEstimate.position_std.
+
+    A plain function over a float64 array, so that an estimator's kernel can compile this very function
+    (companion.core.imm's combined estimate) and hand out the std with the estimate. c[0,0] + c[1,1] + c[2,2] in
+    that order is np.trace's sum exactly; `0.0 if 0.0 > total else total` is Python's max(total, 0.0) (a NaN
+    stays NaN, -0.0 stays -0.0), which numba would not necessarily compile to the same comparison."""
+    total = covariance[0, 0] + covariance[1, 1] + covariance[2, 2]
+    return math.sqrt((0.0 if 0.0 > total else total) / 3.0)
+
+
 @dataclass(frozen=True)
 class TargetEstimate:
     """Estimated target state.
@@ -105,9 +116,7 @@ class TargetEstimate:
         flight log all report (one definition, so the harnesses agree). Computed once per estimate
         (an estimate is a snapshot).
         """
-        c = self.covariance
-        # c[0,0] + c[1,1] + c[2,2] in that order is np.trace's sum exactly, without its call overhead.
-        return math.sqrt(max(float(c[0, 0] + c[1, 1] + c[2, 2]), 0.0) / 3.0)
+        return position_std_of(self.covariance)
 
     @property
     def velocity_std(self) -> float:
