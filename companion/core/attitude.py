@@ -16,7 +16,7 @@ import numpy as np
 
 from companion.core._jit import jit, power
 from companion.core.geometry import E_Z, clip_kernel, cross_kernel, unit_kernel
-from companion.core.messages import AttitudeSetpoint
+from companion.core.messages import AttitudeSetpoint, fast_frozen
 
 
 @dataclass(frozen=True)
@@ -219,7 +219,5 @@ def attitude_setpoint_after(time: float, acceleration: np.ndarray, los: np.ndarr
     acceleration: a_d, m/s^2, float64 (3,); los: lambda, float64 (3,)."""
     flown, rotation, thrust, thrust_normalized = _setpoint_after_kernel(
         acceleration, los, _IDENTITY if previous is None else previous.rotation, *limits.setpoint_terms)
-    setpoint = object.__new__(AttitudeSetpoint)
-    setpoint.__dict__.update(time=time, rotation=rotation, thrust_normalized=float(thrust_normalized),
-                             thrust=float(thrust), acceleration=flown)
-    return setpoint
+    return fast_frozen(AttitudeSetpoint, time=time, rotation=rotation, thrust_normalized=float(thrust_normalized),
+                       thrust=float(thrust), acceleration=flown)

@@ -24,7 +24,7 @@ from scipy.linalg import null_space
 
 from companion.core._jit import jit, lapack_dgesv, lapack_dpotrf, objmode, power
 from companion.core.geometry import orthogonal_projection, unit
-from companion.core.messages import BearingMeasurement, TargetEstimate
+from companion.core.messages import BearingMeasurement, TargetEstimate, fast_frozen
 
 
 class TargetEstimator(Protocol):
@@ -94,11 +94,9 @@ def _correction_report(innovation_angle: float, used_predicted_projection: bool,
     """CorrectionReport(innovation_angle, used_predicted_projection, False, innovation, innovation_covariance,
     innovation_dof) of a correction that updated, without the frozen dataclass's object.__setattr__ per field
     (one is built at every correction): the same object, field for field."""
-    report = object.__new__(CorrectionReport)
-    report.__dict__.update(innovation_angle=innovation_angle, used_predicted_projection=used_predicted_projection,
-                           reinitialized=False, innovation=innovation, innovation_covariance=innovation_covariance,
-                           innovation_dof=innovation_dof)
-    return report
+    return fast_frozen(CorrectionReport, innovation_angle=innovation_angle, used_predicted_projection=used_predicted_projection,
+                       reinitialized=False, innovation=innovation, innovation_covariance=innovation_covariance,
+                       innovation_dof=innovation_dof)
 
 
 class GainProjection(enum.Enum):

@@ -64,13 +64,14 @@ from __future__ import annotations
 import enum
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 from scipy.stats import chi2
 
 from companion.core._jit import jit, symmetric_eigen
 from companion.core.geometry import relative_range_std_kernel
+from companion.core.messages import fast_frozen
 
 
 class HealthState(str, enum.Enum):
@@ -242,15 +243,13 @@ class HealthReport:
                 "relative_range_std": self.relative_range_std}
 
 
-_REPORT_FIELDS = ("time", "state", "reasons", "raised", "nis", "nis_ratio", "range_estimate", "relative_range_std")
+_REPORT_FIELDS = tuple(item.name for item in fields(HealthReport))
 
 
 def _health_report(*values) -> HealthReport:
     """HealthReport(*values), every field given in order, without the frozen dataclass's object.__setattr__ per
     field (one is built at every correction): the same object, field for field."""
-    report = object.__new__(HealthReport)
-    report.__dict__.update(zip(_REPORT_FIELDS, values))
-    return report
+    return fast_frozen(HealthReport, zip(_REPORT_FIELDS, values))
 
 
 _NIS_BOUNDS: dict[tuple[float, float, int], float] = {}

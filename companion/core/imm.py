@@ -65,7 +65,7 @@ from companion.core.estimators import (AdaptiveNoiseSettings, CorrectionReport, 
                                        _behind_sensor, _correct_kernel, _normalized_innovation_squared, _predict_kernel,
                                        coordinated_turn_matrices, restart_guess)
 from companion.core.geometry import unit
-from companion.core.messages import BearingMeasurement, TargetEstimate, position_std_of
+from companion.core.messages import BearingMeasurement, TargetEstimate, fast_frozen, position_std_of
 
 _LOG_TWO_PI = math.log(2.0 * math.pi)
 
@@ -191,10 +191,8 @@ def _target_estimate(time: float, position: np.ndarray, velocity: np.ndarray, co
                      position_std: float) -> TargetEstimate:
     """TargetEstimate(time, position, velocity, covariance) with its position_std already known (the value its
     once_property would compute, `position_std_of`), without the frozen dataclass's object.__setattr__ per field."""
-    estimate = object.__new__(TargetEstimate)
-    estimate.__dict__.update(time=time, position=position, velocity=velocity, covariance=covariance,
-                             position_std=position_std)
-    return estimate
+    return fast_frozen(TargetEstimate, time=time, position=position, velocity=velocity, covariance=covariance,
+                       position_std=position_std)
 
 
 def rank2_log_likelihood(innovation: np.ndarray, covariance: np.ndarray, scale: float = 1.0,

@@ -35,6 +35,7 @@ from companion.core.messages import (
     NeighbourState,
     PursuerState,
     TargetEstimate,
+    fast_frozen,
 )
 from companion.core.observability import WindowedObservability
 
@@ -152,9 +153,7 @@ _OUTPUT_FIELDS = tuple(field.name for field in dataclasses.fields(PipelineOutput
 def _output(*values) -> PipelineOutput:
     """PipelineOutput(*values), every field given in order, without the frozen dataclass's object.__setattr__
     per field (one is built at every step)."""
-    output = object.__new__(PipelineOutput)
-    output.__dict__.update(zip(_OUTPUT_FIELDS, values))
-    return output
+    return fast_frozen(PipelineOutput, zip(_OUTPUT_FIELDS, values))
 
 
 @dataclass(frozen=True)
@@ -617,9 +616,8 @@ class FollowingPipeline:
         self._last_command = command
         # heading fallback: the previous setpoint's r1
         self._setpoint = attitude_setpoint_after(time, command, los, self.limits, self._setpoint)
-        guidance = object.__new__(GuidanceTerms)  # GuidanceTerms(...) without the per-field setattr
-        guidance.__dict__.update(lateral=lateral, longitudinal=longitudinal, los=los, range_estimate=range_estimate)
-        self._guidance = guidance
+        self._guidance = fast_frozen(GuidanceTerms, lateral=lateral, longitudinal=longitudinal, los=los,
+                                     range_estimate=range_estimate)
 
 
 @jit
