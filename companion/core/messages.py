@@ -136,7 +136,8 @@ class TargetEstimate:
 
     def extrapolated(self, time: float) -> "TargetEstimate":
         """Constant-velocity extrapolation of the mean to `time` (covariance unchanged)."""
-        return TargetEstimate(time, self.position + self.velocity * (time - self.time), self.velocity, self.covariance)
+        return fast_frozen(TargetEstimate, time=time, position=self.position + self.velocity * (time - self.time),
+                           velocity=self.velocity, covariance=self.covariance)
 
 
 @dataclass(frozen=True)
