@@ -205,7 +205,7 @@ def test_correct(seed, exponent, lead, late, use_predicted, position_noise, nois
        st.one_of(floats(0.0, 1e3), st.sampled_from([math.nan, math.inf, 0.0, 1e-13])))
 def test_clipped_cosine_is_pythons_min_and_max(dot, length):
     expected = min(max(dot / max(length, 1e-12), -1.0), 1.0)
-    for function in (imm._clipped_cosine, python(imm._clipped_cosine)):
+    for function in (uplkf._clipped_cosine, python(uplkf._clipped_cosine)):
         assert_same(function(dot, length), expected)
 
 

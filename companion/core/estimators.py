@@ -350,6 +350,20 @@ def _behind_sensor(cos_angle: float, predicted_range: float) -> bool:
 
 
 @jit
+def _clipped_cosine(dot: float, length: float) -> float:
+    """min(max(dot / max(length, 1e-12), -1.0), 1.0) with Python's min and max (a NaN stays NaN): the cosine
+    between the bearing and the predicted line of sight as UPLKF.correct clips it (`_prior_line_of_sight`; the
+    IMM's models and combined prior take the same)."""
+    length = 1e-12 if 1e-12 > length else length  # max(length, 1e-12): the first argument unless the second is larger
+    cosine = dot / length
+    if -1.0 > cosine:
+        cosine = -1.0
+    if 1.0 < cosine:
+        cosine = 1.0
+    return cosine
+
+
+@jit
 def _prior_line_of_sight(state: np.ndarray, lead: float, pursuer_position: np.ndarray, direction: np.ndarray,
                          relative: np.ndarray) -> tuple[float, float, bool]:
     """UPLKF.correct's look at the prior from the bearing: writes relative = p^-_T + tau v^-_T - p (3,), m, the prior
@@ -360,12 +374,7 @@ def _prior_line_of_sight(state: np.ndarray, lead: float, pursuer_position: np.nd
     remark 3's guard on them (`_behind_sensor`). state: x^- = [p^-_T, v^-_T] (6,)."""
     relative[:] = state[:3] + lead * state[3:] - pursuer_position  # p^-_T - p
     predicted_range = math.sqrt(float(np.dot(relative, relative)))
-    length = 1e-12 if 1e-12 > predicted_range else predicted_range  # max(predicted_range, 1e-12)
-    cosine = float(direction @ relative / length)
-    if -1.0 > cosine:  # max(cosine, -1.0)
-        cosine = -1.0
-    if 1.0 < cosine:  # min(cosine, 1.0)
-        cosine = 1.0
+    cosine = _clipped_cosine(float(direction @ relative), predicted_range)
     return predicted_range, cosine, _behind_sensor(cosine, predicted_range)
 
 

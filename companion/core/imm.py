@@ -62,8 +62,8 @@ import numpy as np
 from companion.core import estimators as _estimators
 from companion.core._jit import jit
 from companion.core.estimators import (AdaptiveNoiseSettings, CorrectionReport, GainProjection, InitialGuess, UPLKF,
-                                       _behind_sensor, _correct_kernel, _normalized_innovation_squared, _predict_kernel,
-                                       coordinated_turn_matrices, restart_guess)
+                                       _behind_sensor, _clipped_cosine, _correct_kernel, _normalized_innovation_squared,
+                                       _predict_kernel, coordinated_turn_matrices, restart_guess)
 from companion.core.geometry import unit
 from companion.core.messages import BearingMeasurement, TargetEstimate, fast_frozen, position_std_of
 
@@ -332,19 +332,6 @@ def _predict_models(transitions: np.ndarray, discrete_process_noises: np.ndarray
     adaptive scale and boost (n,)."""
     for j in range(states.shape[0]):
         _predict_kernel(transitions[j], discrete_process_noises[j], scales[j], boosts[j], states[j], covariances[j])
-
-
-@jit
-def _clipped_cosine(dot: float, length: float) -> float:
-    """min(max(dot / max(length, 1e-12), -1.0), 1.0) with Python's min and max (a NaN stays NaN), as
-    UPLKF.correct clips the cosine between the bearing and the predicted line of sight."""
-    length = 1e-12 if 1e-12 > length else length  # max(length, 1e-12): the first argument unless the second is larger
-    cosine = dot / length
-    if -1.0 > cosine:
-        cosine = -1.0
-    if 1.0 < cosine:
-        cosine = 1.0
-    return cosine
 
 
 @jit
