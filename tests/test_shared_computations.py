@@ -164,3 +164,22 @@ def test_fast_frozen_builds_what_each_constructor_builds():
         assert fast_frozen(cls, values.items()).__dict__ == built.__dict__
         with pytest.raises(dataclasses.FrozenInstanceError):
             built.time = 2.0
+
+
+def test_the_pipeline_output_helper_is_the_constructor_with_the_same_arguments():
+    """pipeline._output(*values) builds PipelineOutput(*values): the same fields in the dataclass's order (a helper
+    whose parameters were in another order, or missed a field added to the class, would fail here)."""
+    import dataclasses
+    import inspect
+
+    from companion.core.pipeline import PipelineOutput, _output
+
+    names = [field.name for field in dataclasses.fields(PipelineOutput)]
+    assert list(inspect.signature(_output).parameters) == names
+    values = [object() for _ in names]  # distinct objects: any mix-up of two fields shows
+    built, constructed = _output(*values), PipelineOutput(*values)
+    assert type(built) is PipelineOutput and vars(built).keys() == vars(constructed).keys()
+    for name in names:
+        assert getattr(built, name) is getattr(constructed, name)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        built.time = 2.0

@@ -147,13 +147,15 @@ class PipelineOutput:
     health_reinitialized: bool = False
 
 
-_OUTPUT_FIELDS = tuple(field.name for field in dataclasses.fields(PipelineOutput))
-
-
-def _output(*values) -> PipelineOutput:
-    """PipelineOutput(*values), every field given in order, without the frozen dataclass's object.__setattr__
-    per field (one is built at every step)."""
-    return fast_frozen(PipelineOutput, zip(_OUTPUT_FIELDS, values))
+def _output(time, setpoint, new_setpoint, estimate, guidance, correction, mode, bearing_age, gated_out, reinitialized,
+            observability, health, health_action, process_noise_boost, health_reinitialized) -> PipelineOutput:
+    """PipelineOutput(...), every field given in order, without the frozen dataclass's object.__setattr__ per
+    field (one is built at every step; by keyword, which is cheaper than pairing names and values)."""
+    return fast_frozen(PipelineOutput, time=time, setpoint=setpoint, new_setpoint=new_setpoint, estimate=estimate,
+                       guidance=guidance, correction=correction, mode=mode, bearing_age=bearing_age,
+                       gated_out=gated_out, reinitialized=reinitialized, observability=observability, health=health,
+                       health_action=health_action, process_noise_boost=process_noise_boost,
+                       health_reinitialized=health_reinitialized)
 
 
 @dataclass(frozen=True)
@@ -342,9 +344,11 @@ class FollowingPipeline:
         the latest). What every harness calls each tick: when several bearings arrive in one tick, the
         setpoint is computed on the first step and a caller that looked only at the last step's new_setpoint
         would never send it."""
+        if not bearings:  # the usual step: no bearing arrived
+            return self.step(time, pursuer, None)
         output = None
         new_setpoint = False
-        for bearing in bearings or [None]:
+        for bearing in bearings:
             output = self.step(time, pursuer, bearing)
             new_setpoint = new_setpoint or output.new_setpoint
         return output if output.new_setpoint == new_setpoint else dataclasses.replace(output, new_setpoint=new_setpoint)
