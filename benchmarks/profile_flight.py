@@ -6,18 +6,26 @@ total, then once with every part below wrapped in a timer (time.perf_counter aro
 Markdown table: calls, total ms, us per call and share of the plain flight. Nested parts (indented) are
 inside the part above them. The timers themselves cost about 0.2-0.4 us per call, so the wrapped flight is
 slower than the plain one (both printed); cProfile distorts far more on code made of many small calls.
+With numba installed, a last line gives the share of the flight spent inside compiled kernels (every kernel a
+module of companion.core or sitl_plant calls from Python, timed the same way, the timers' own cost taken out):
+what a faster kernel, or one batched over flights, could save at most; the rest is the Python around them.
 Figures for notes, never for tests (a shared machine is noisy: run it a few times and quote medians).
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
+import pkgutil
 import time
 from pathlib import Path
 
 import companion.core.pipeline as pipeline_module
 import sitl_plant.vehicle.attitude_control as plant_module
+import companion.core
+import sitl_plant
 import studies.closed_loop as harness
+from companion.core import _jit
 from interfaces.scenario import SCENARIOS_DIR, load_scenario
 from studies.montecarlo import with_overrides
 
@@ -90,6 +98,60 @@ def profile(path: Path, seed: int, overrides: dict) -> str:
     return "\n".join(lines)
 
 
+def _timer_cost(repeats: int = 200_000) -> float:
+    """s per call that a timed wrapper (as in _wrap) adds around a function that does nothing."""
+    totals: dict[str, list[float]] = {}
+
+    class Empty:
+        @staticmethod
+        def call(*args):
+            return None
+
+    _wrap(Empty, "call", "empty", totals)
+    start = time.perf_counter()
+    for _ in range(repeats):
+        Empty.call(1, 2, 3)
+    return (time.perf_counter() - start) / repeats - totals["empty"][0] / repeats
+
+
+def kernel_share(path: Path, seed: int, overrides: dict) -> str:
+    """One line: compiled-kernel calls per loop step and the share of the plain flight spent inside them."""
+    if not _jit.ENABLED:
+        return "(kernels not compiled: numba missing or BOF_NO_JIT set; no kernel share)"
+    from numba.core.registry import CPUDispatcher
+
+    scenario, vehicle = load_scenario(path)
+    if overrides:
+        scenario = with_overrides(scenario, overrides)
+    harness.simulate(scenario, vehicle, seed)  # everything the flight calls is compiled before any is wrapped
+    start = time.perf_counter()
+    result = harness.simulate(scenario, vehicle, seed)
+    plain = time.perf_counter() - start
+    modules = [importlib.import_module(info.name) for package in (companion.core, sitl_plant)
+               for info in pkgutil.walk_packages(package.__path__, package.__name__ + ".")]
+    totals: dict[str, list[float]] = {}
+    originals, timed = [], {}
+    for module in modules:
+        for name, value in list(vars(module).items()):
+            if isinstance(value, CPUDispatcher):
+                if id(value) not in timed:  # one timer per kernel, however many modules import it
+                    _wrap(module, name, "kernels", totals)
+                    timed[id(value)] = getattr(module, name)
+                else:
+                    setattr(module, name, timed[id(value)])
+                originals.append((module, name, value))
+    try:
+        harness.simulate(scenario, vehicle, seed)
+    finally:
+        for module, name, value in originals:
+            setattr(module, name, value)
+    seconds, calls = totals.get("kernels", (0.0, 0))
+    inside = seconds - calls * 0.5 * _timer_cost()  # about half a timer's cost falls inside its own interval
+    steps = len(result.series["time"])
+    return (f"compiled kernels: {calls} calls ({calls / steps:.1f} per loop step), about {inside * 1e3:.1f} ms inside "
+            f"them (dispatch included) = {inside / plain:.0%} of the plain flight ({plain * 1e3:.1f} ms)")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("scenarios", nargs="*", default=["constant_velocity"], help="scenario names or files")
@@ -105,6 +167,8 @@ def main() -> None:
     for name in args.scenarios:
         path = Path(name) if name.endswith(".toml") else SCENARIOS_DIR / f"{name}.toml"
         print(profile(path, args.seed, overrides))
+        print()
+        print(kernel_share(path, args.seed, overrides))
         print()
 
 
