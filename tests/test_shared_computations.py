@@ -166,20 +166,41 @@ def test_fast_frozen_builds_what_each_constructor_builds():
             built.time = 2.0
 
 
-def test_the_pipeline_output_helper_is_the_constructor_with_the_same_arguments():
-    """pipeline._output(*values) builds PipelineOutput(*values): the same fields in the dataclass's order (a helper
-    whose parameters were in another order, or missed a field added to the class, would fail here)."""
+@pytest.mark.parametrize("helper", ["pipeline._output", "health._health_report"])
+def test_the_message_helpers_are_the_constructors_with_the_same_arguments(helper):
+    """pipeline._output(*values) builds PipelineOutput(*values), health._health_report(*values) HealthReport(*values):
+    the same fields in the dataclass's order (a helper whose parameters were in another order, or missed a field
+    added to the class, would fail here)."""
     import dataclasses
+    import importlib
     import inspect
 
-    from companion.core.pipeline import PipelineOutput, _output
-
-    names = [field.name for field in dataclasses.fields(PipelineOutput)]
-    assert list(inspect.signature(_output).parameters) == names
+    module_name, function_name = helper.split(".")
+    module = importlib.import_module(f"companion.core.{module_name}")
+    function = getattr(module, function_name)
+    cls = inspect.signature(function).return_annotation
+    cls = getattr(module, cls) if isinstance(cls, str) else cls
+    names = [field.name for field in dataclasses.fields(cls)]
+    assert list(inspect.signature(function).parameters) == names
     values = [object() for _ in names]  # distinct objects: any mix-up of two fields shows
-    built, constructed = _output(*values), PipelineOutput(*values)
-    assert type(built) is PipelineOutput and vars(built).keys() == vars(constructed).keys()
+    built, constructed = function(*values), cls(*values)
+    assert type(built) is cls and vars(built).keys() == vars(constructed).keys()
     for name in names:
         assert getattr(built, name) is getattr(constructed, name)
     with pytest.raises(dataclasses.FrozenInstanceError):
         built.time = 2.0
+
+
+def test_a_policy_that_only_reports_decides_off_every_time():
+    """With act off, decide gives ActionDecision(OFF) (boost 1, no restart, no excitation) whatever the verdict, and
+    keeps no count of episodes (the shared decision it returns is the value the constructor gives)."""
+    from companion.core.health import (ActionDecision, HealthAction, HealthActionConfig, HealthActionPolicy,
+                                       HealthReport, HealthState)
+
+    policy = HealthActionPolicy(HealthActionConfig(act=False))
+    for time, state, reasons in ((1.0, HealthState.OK, ()), (2.0, HealthState.SUSPECT, ("range_implausible",)),
+                                 (3.0, HealthState.SUSPECT, ("behind_sensor",)), (4.0, HealthState.OK, ())):
+        report = HealthReport(time, state, reasons, reasons)
+        assert policy.decide(report) == ActionDecision(HealthAction.OFF)
+        assert policy.decide(report, estimator_restarted=True) == ActionDecision(HealthAction.OFF, 1.0, False, False)
+    assert policy.episodes == 0 and policy.recoveries == 0 and policy.reinitialize_times == []
