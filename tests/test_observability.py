@@ -169,3 +169,33 @@ def test_figure_command_writes_files(tmp_path):
     assert summary["random_placements"] == 50
     assert summary["bound_isotropic"] < summary["fig3_final_g_norm"] < summary["bound_great_circle"]
     assert 0.0 <= summary["share_random_worse"] <= 1.0
+
+
+def _measures_equal(first: dict, second: dict) -> bool:
+    return first.keys() == second.keys() and all(
+        (math.isnan(a) and math.isnan(b)) or a == b for a, b in ((first[k], second[k]) for k in first))
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.sampled_from([0.0, 0.02, 0.2, 0.7, 1.5, 4.0]), unit_vectors(),
+                          st.one_of(floats(0.5, 500.0), st.sampled_from([0.0, -3.0, math.inf, math.nan, 1e200]))),
+                min_size=1, max_size=40),
+       st.sampled_from([0.5, 1.0, 3.0]))
+def test_add_and_measure_is_add_then_measure(samples, window):
+    """WindowedObservability.add_and_measure (the pipeline's one call per bearing) against add then measure on a
+    twin: the same FIM to the bit, the same measure, the same window, the same error for a bad sample, over
+    sequences whose gaps make none, one or several old terms leave the window at once."""
+    fused, reference = WindowedObservability(window, 0.01), WindowedObservability(window, 0.01)
+    time = 0.0
+    for gap, bearing, distance in samples:
+        time += gap
+        try:
+            reference.add(time, bearing, distance)
+            expected = reference.measure()
+        except (ValueError, OverflowError) as error:
+            with pytest.raises(type(error)):
+                fused.add_and_measure(time, bearing, distance)
+        else:
+            assert _measures_equal(fused.add_and_measure(time, bearing, distance), expected)
+        assert fused.information.tobytes() == reference.information.tobytes()
+        assert [t for t, _ in fused._samples] == [t for t, _ in reference._samples]

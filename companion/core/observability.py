@@ -424,6 +424,35 @@ class WindowedObservability:
         self._latest_time = time
         self._drop_older_than(cutoff)
 
+    def add_and_measure(self, time: float, bearing: np.ndarray, range_estimate: float) -> dict[str, float]:
+        """add(time, bearing, range_estimate), then measure(): what the pipeline calls at every bearing used. The
+        usual sample, when no more than one older term leaves the window with it, takes one kernel call for both
+        (`_add_plain_sample_measured`: the same term, the same subtraction, the spectrum of the same matrix);
+        anything else goes through add and measure themselves."""
+        time = float(time)
+        if not (math.isfinite(time) and time >= self._latest_time):
+            self.add(time, bearing, range_estimate)  # its ValueError
+        bearing = np.ascontiguousarray(bearing, dtype=float)
+        samples = self._samples
+        if bearing.shape == (3,) and isinstance(range_estimate, (float, int)):
+            cutoff = time - self.window_s
+            drop = bool(samples) and samples[0][0] < cutoff
+            contribution = np.empty((3, 3))
+            added, minimum, spread = _add_plain_sample_measured(
+                self._information, bearing, float(range_estimate), self.sigma,
+                samples[0][1] if drop else _NO_CONTRIBUTION, drop, contribution, self._eigenvalues)
+            if added:
+                if drop:
+                    samples.popleft()
+                samples.append((time, contribution))
+                self._latest_time = time
+                if not samples[0][0] < cutoff:  # nothing more leaves: the spectrum is the window's
+                    return self._measure_report(minimum, spread)
+                self._drop_older_than(cutoff)
+                return self.measure()
+        self.add(time, bearing, range_estimate)  # its checks decide (ValueError) as they always did
+        return self.measure()
+
     def _drop_older_than(self, cutoff: float) -> None:
         while self._samples and self._samples[0][0] < cutoff:
             _, contribution = self._samples.popleft()
@@ -443,12 +472,15 @@ class WindowedObservability:
         below 1e-12 of the largest count as 0); spread: J of eq. (8) divided by the squared mean
         eigenvalue (scale-free; 0 for an isotropic FIM, nan when empty); count: samples in window.
         """
-        eigenvalues = self._eigenvalues
-        minimum, spread = _spectrum_into(self._information, eigenvalues)
+        minimum, spread = _spectrum_into(self._information, self._eigenvalues)
+        return self._measure_report(minimum, spread)
+
+    def _measure_report(self, minimum: float, spread: float) -> dict[str, float]:
+        """measure's figures from `_spectrum_into`'s (the eigenvalues in self._eigenvalues)."""
         log_det = -math.inf
         if minimum > 0.0:
             # numpy's log10 (its SIMD routine where it has one, not the C library's), summed left to right as np.sum sums 3.
-            first, second, third = np.log10(eigenvalues).tolist()
+            first, second, third = np.log10(self._eigenvalues).tolist()
             log_det = first + second + third
         return {"log_det": log_det, "min_eigenvalue": float(minimum), "spread": float(spread), "count": len(self._samples)}
 
@@ -485,6 +517,20 @@ def _add_plain_sample(information: np.ndarray, bearing: np.ndarray, range_estima
     if drop_oldest:
         information -= oldest
     return True
+
+
+@jit
+def _add_plain_sample_measured(information: np.ndarray, bearing: np.ndarray, range_estimate: float, sigma: float,
+                               oldest: np.ndarray, drop_oldest: bool, term: np.ndarray,
+                               eigenvalues: np.ndarray) -> tuple[bool, float, float]:
+    """`_add_plain_sample` (its arguments first, the same update in place), then, when it added the sample,
+    `_spectrum_into` of the updated FIM with its eigenvalues written into `eigenvalues` (3,): (added, the smallest
+    eigenvalue, the spread); (False, NaN, NaN) with nothing changed otherwise. WindowedObservability.add_and_measure's
+    one call."""
+    if not _add_plain_sample(information, bearing, range_estimate, sigma, oldest, drop_oldest, term):
+        return False, math.nan, math.nan
+    minimum, spread = _spectrum_into(information, eigenvalues)
+    return True, minimum, spread
 
 
 @jit

@@ -441,8 +441,8 @@ class FollowingPipeline:
         distance = norm(estimate.position - bearing.pursuer_position)
         if distance > 1e-6:
             self._observed_until = bearing.time
-            self.observability.add(bearing.time, bearing.unit_direction, distance)
-            self._observability_measure = self.observability.measure()
+            self._observability_measure = self.observability.add_and_measure(bearing.time, bearing.unit_direction,
+                                                                             distance)
 
     def line_of_sight_agrees(self, time: float, pursuer_position: np.ndarray, target_position: np.ndarray) -> bool | None:
         """Whether the line of sight from `pursuer_position` to `target_position` (NED m, (3,)) at `time` (s)
