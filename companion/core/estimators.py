@@ -718,13 +718,21 @@ class OwnPositionTracker:
         self._time = time
         return self._last_prediction
 
-    def _step_interval(self, time: float) -> float | None:
-        """dt, s, from the last sample to a sample at `time` when that one takes `reference`'s usual step (0 < dt <=
-        max_gap: `_own_position_step`, its prediction the reference); None for the special cases."""
+    def _plan(self, time: float) -> tuple[float | None, np.ndarray | None]:
+        """How `reference` takes a sample at `time`, without taking it: (dt, None) for its usual step over dt s from
+        the last sample (0 < dt <= max_gap: `_own_position_step`, its prediction the reference); (None, the
+        reference) for a repeated or a late sample (which `reference` does not fold in); (None, None) for a first
+        sample or one after a gap (`reference` restarts on it)."""
         if self._time is None:
-            return None
+            return None, None
         dt = time - self._time
-        return dt if dt > 0.0 and not abs(dt) > self.max_gap else None
+        if abs(dt) > self.max_gap:
+            return None, None
+        if dt == 0.0:
+            return None, self._last_prediction
+        if dt < 0.0:
+            return None, _carried_position(self._filter, dt)
+        return dt, None
 
     def _restart(self, time: float, position: np.ndarray) -> None:
         self._time = time

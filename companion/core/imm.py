@@ -724,19 +724,24 @@ class IMMEstimator:
         interval = self.stay_time if self._last_correction_time is None else time - self._last_correction_time
         late = abs(lead) > _LEAD_EPSILON  # (UPLKF._correction_inputs)
         lead_noises = np.array([model_filter._lead_noise(lead) for model_filter in filters]) if late else self._no_lead_noises
-        # The own position the gains start from: none without an own-position tracker; the model filters' shared
-        # tracker's usual step (OwnPositionTracker.reference) inside the kernel; else (a first sample, a gap, a late
-        # or repeated one, trackers no longer shared) `_references`, once the kernel has found that all correct.
+        # The own position the gains start from: none without an own-position tracker; with the model filters' shared
+        # tracker, its usual step inside the kernel, or the reference of a repeated or late sample, which it does not
+        # take in (OwnPositionTracker._plan); else (a first sample or one after a gap, which restart the tracker, or
+        # trackers no longer shared) `_references`, once the kernel has found that every model corrects.
         track, prediction = self._no_track
-        tracker = track_dt = None
+        references, track_dt, tracker = self._no_references, None, None
         own_track = first._own_track
+        have_references = own_track is None
         if own_track is not None and self._shared_tracks:
             tracker = own_track if bearing.source == 0 else first._neighbour_tracks.get(bearing.source)
-            track_dt = None if tracker is None else tracker._step_interval(time)
-            if track_dt is None:
-                tracker = None
-            else:
-                track, prediction = tracker._filter, np.empty(3)
+            if tracker is not None:
+                track_dt, reference = tracker._plan(time)
+                if track_dt is not None:
+                    track, prediction, have_references = tracker._filter, np.empty(3), True
+                else:
+                    tracker = None
+                    if reference is not None:
+                        references, have_references = reference[None, :], True
         model_relative, ranges, model_ranges, relative = self._lines_of_sight
         position_std = first.pursuer_position_std
         arguments = (self._states, self._covariances, self._weights, lead, pursuer_position, direction,
@@ -746,7 +751,7 @@ class IMMEstimator:
                     self.stay_probability, self.stay_time, interval, self._any_adaptive, self._nis, self._probabilities)
         innovation, innovation_covariance = np.empty(3), np.empty((3, 3))
         predicted_range, cos_angle, outcome = _imm_correction(
-            *arguments, own_track is None or tracker is not None, self._no_references, own_track is not None,
+            *arguments, have_references, references, own_track is not None,
             tracker is not None, track, 0.0 if track_dt is None else track_dt,
             0.0 if tracker is None else tracker.acceleration_psd, 0.0 if tracker is None else tracker.position_std,
             prediction, *settings, innovation, innovation_covariance)
@@ -761,7 +766,7 @@ class IMMEstimator:
             self._reset_probabilities()
             return CorrectionReport(float(np.arccos(cos_angle)), False, reinitialized=True)
         if outcome == _CORRECTED:
-            if tracker is not None:  # the rest of the tracker's step (OwnPositionTracker.reference)
+            if tracker is not None:  # the rest of the tracker's usual step (OwnPositionTracker.reference)
                 tracker._last_prediction = prediction
                 tracker._time = time
             if self._any_adaptive:
