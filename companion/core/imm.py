@@ -512,7 +512,7 @@ class IMMEstimator:
         for model_filter in self.filters:
             model_filter._report_noise_changes_to(self._noise_changes)
         # One own-position tracker for every model filter (and one set of neighbours' trackers): they would be fed
-        # the same samples (every correction of `_correct_all` feeds each model filter's), so while they are
+        # the same samples (every one-call correction feeds each model filter's), so while they are
         # shared one reference per correction is every model's. `_correct_each`, where a model filter may restart
         # and skip its feed, gives each model filter its own copy first (`_separate_trackers`).
         self._shared_tracks = len(self.filters) > 1 and self.filters[0]._own_track is not None
