@@ -420,14 +420,15 @@ def test_one_call_correction_is_the_model_by_model_correction(adaptive, monkeypa
     def run(one_call: bool) -> list:
         estimator = IMMEstimator(0.02, standard_models([0.2], 0.04, 0.04), 1e-4 * np.eye(3), GainProjection.PREDICTED,
                                  pursuer_position_std=0.1, adaptive_noise=AdaptiveNoiseSettings() if adaptive else None)
-        if one_call:
-            counting = estimator._correct_all
-            monkeypatch.setattr(estimator, "_correct_all", lambda *arguments: calls.append(1) or counting(*arguments))
-        else:
-            monkeypatch.setattr(estimator, "_correct_all", lambda bearing, lead, pursuer_position, direction, model_relative,
-                                ranges, model_ranges, relative, predicted_range, cos_angle, interval:
-                                estimator._correct_each(bearing, model_relative, ranges, relative, predicted_range,
-                                                        cos_angle, interval))
+        if one_call:  # count the corrections the one call made (and those with the tracker's step in it)
+            def counting(*arguments):
+                result = kernel(*arguments)
+                if result[2] == imm._CORRECTED:
+                    calls.append(arguments[15])
+                return result
+            monkeypatch.setattr(imm, "_imm_correction", counting)
+        else:  # the same kernel told the gains are not PREDICTED: every correction model filter by model filter
+            monkeypatch.setattr(imm, "_imm_correction", lambda *arguments: kernel(*arguments[:7], False, *arguments[8:]))
         ticks = late_and_shared_bearings(11)
         estimator.initialize_on_bearing(ticks[0][0], InitialGuess(15.0, 10.0, np.zeros(3), 5.0))
         rows = []
@@ -444,9 +445,11 @@ def test_one_call_correction_is_the_model_by_model_correction(adaptive, monkeypa
                          estimator.motion_probabilities))
         return rows
 
+    kernel = imm._imm_correction
     calls, corrections = [], []
     one_call = run(True)
     assert len(calls) > 0.9 * len(corrections)  # the one-call path took (nearly) every correction
+    assert sum(calls) > 0.5 * len(calls)  # most with the shared tracker's step inside (the rest: late bearings)
     each = run(False)
     assert len(one_call) == len(each)
     for k, (a, b) in enumerate(zip(one_call, each)):

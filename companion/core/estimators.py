@@ -541,18 +541,21 @@ class AdaptiveNoiseSettings:
             raise ValueError("need max_scale >= 1, nis_threshold > 1 and positive time constants")
 
 
-_noise_changes = 0
-"""How many times a u-PLKF's process-noise factors may have changed: every set of a UPLKF's process_noise_boost or
-adaptive_noise and of an AdaptiveProcessNoise's scale counts one (after the new value is in place). An IMM collects
-its model filters' scales and boosts for its prediction kernel again only when this count has moved since it last
-did (IMMEstimator.predict): one comparison of integers per tick instead of reading every factor, and no change of a
-factor, whoever makes it, goes unseen."""
+class NoiseChanges:
+    """A count of the sets of some u-PLKFs' process-noise factors, owned by whoever reads them.
 
+    Each UPLKF reports to one record (its own, or the one an interacting-multiple-model estimator hands to all its
+    model filters: `UPLKF._report_noise_changes_to`): every set of its process_noise_boost or adaptive_noise, and
+    of its AdaptiveProcessNoise's scale, adds one to `count` after the new value is in place. The IMM collects its
+    model filters' scales and boosts for its prediction kernel again only when the count has moved since it last
+    did (IMMEstimator.predict): one comparison of integers per tick instead of reading every factor, and no change
+    of a factor, whoever makes it, goes unseen. A count may also move without a change (an adaptive noise keeps
+    reporting to a filter's earlier records): that costs a collection, never a missed change."""
 
-def _count_noise_change() -> None:
-    """One more set of a process-noise factor (`_noise_changes`)."""
-    global _noise_changes
-    _noise_changes += 1
+    __slots__ = ("count",)
+
+    def __init__(self) -> None:
+        self.count = 0
 
 
 class AdaptiveProcessNoise:
@@ -599,6 +602,7 @@ class AdaptiveProcessNoise:
         self._scale = 1.0
         self.mean_nis = 1.0
         self._last_time: float | None = None
+        self._records: tuple[NoiseChanges, ...] = ()  # of the filters it serves (UPLKF.adaptive_noise)
 
     @property
     def scale(self) -> float:
@@ -608,7 +612,13 @@ class AdaptiveProcessNoise:
     @scale.setter
     def scale(self, value: float) -> None:
         self._scale = value
-        _count_noise_change()  # (after the change: an IMM that sees the new count reads the new value)
+        for record in self._records:  # (after the change: an IMM that sees the new count reads the new value)
+            record.count += 1
+
+    def _report_to(self, record: NoiseChanges) -> None:
+        """Count every later set of the scale in `record` too (the record of a filter this noise serves)."""
+        if not any(known is record for known in self._records):
+            self._records += (record,)
 
     def update(self, time: float, nis: float, dof: int) -> float:
         """Fold in one correction's NIS eps_k (dimensionless) with dof = d_k degrees of freedom,
@@ -707,6 +717,22 @@ class OwnPositionTracker:
         self._last_prediction = prediction
         self._time = time
         return self._last_prediction
+
+    def _plan(self, time: float) -> tuple[float | None, np.ndarray | None]:
+        """How `reference` takes a sample at `time`, without taking it: (dt, None) for its usual step over dt s from
+        the last sample (0 < dt <= max_gap: `_own_position_step`, its prediction the reference); (None, the
+        reference) for a repeated or a late sample (which `reference` does not fold in); (None, None) for a first
+        sample or one after a gap (`reference` restarts on it)."""
+        if self._time is None:
+            return None, None
+        dt = time - self._time
+        if abs(dt) > self.max_gap:
+            return None, None
+        if dt == 0.0:
+            return None, self._last_prediction
+        if dt < 0.0:
+            return None, _carried_position(self._filter, dt)
+        return dt, None
 
     def _restart(self, time: float, position: np.ndarray) -> None:
         self._time = time
@@ -840,6 +866,7 @@ class UPLKF:
             self._a = np.array(transition, dtype=float).reshape(6, 6)
         if discrete_process_noise is not None:
             self._q_discrete = np.array(discrete_process_noise, dtype=float).reshape(6, 6)
+        self._noise_changes = NoiseChanges()  # where the sets of the factors below are counted (NoiseChanges)
         self.adaptive_noise = None if adaptive_noise is None else AdaptiveProcessNoise(adaptive_noise)
         self._process_noise_boost = 1.0
         # The PREDICTED form's own-position instrumental variable (kept across restarts: it tracks
@@ -871,7 +898,9 @@ class UPLKF:
     @adaptive_noise.setter
     def adaptive_noise(self, value: AdaptiveProcessNoise | None) -> None:
         self._adaptive_noise = value
-        _count_noise_change()  # its scale is this filter's process_noise_scale
+        if value is not None:
+            value._report_to(self._noise_changes)  # its scale is this filter's process_noise_scale
+        self._noise_changes.count += 1
 
     @property
     def process_noise_boost(self) -> float:
@@ -882,7 +911,15 @@ class UPLKF:
     def process_noise_boost(self, value: float) -> None:
         if value is not self._process_noise_boost:  # (the very same object again changes nothing: the health
             self._process_noise_boost = value       # actions set the boost at every bearing, mostly to 1.0)
-            _count_noise_change()
+            self._noise_changes.count += 1
+
+    def _report_noise_changes_to(self, record: NoiseChanges) -> None:
+        """Count the sets of this filter's process-noise factors in `record` from now on (an interacting-multiple-model
+        estimator hands one record to all its model filters); counts one for the switch itself."""
+        self._noise_changes = record
+        if self._adaptive_noise is not None:
+            self._adaptive_noise._report_to(record)
+        record.count += 1
 
     @property
     def time(self) -> float:

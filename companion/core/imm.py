@@ -59,11 +59,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.core import estimators as _estimators
 from companion.core._jit import jit
-from companion.core.estimators import (AdaptiveNoiseSettings, CorrectionReport, GainProjection, InitialGuess, UPLKF,
-                                       _behind_sensor, _clipped_cosine, _correct_kernel, _normalized_innovation_squared,
-                                       _predict_kernel, coordinated_turn_matrices, restart_guess)
+from companion.core.estimators import (_LEAD_EPSILON, AdaptiveNoiseSettings, AdaptiveProcessNoise, CorrectionReport,
+                                       GainProjection, InitialGuess, NoiseChanges, UPLKF, _behind_sensor, _clipped_cosine,
+                                       _correct_kernel, _correction_report, _normalized_innovation_squared,
+                                       _own_position_step, _predict_kernel, coordinated_turn_matrices, restart_guess)
 from companion.core.geometry import unit
 from companion.core.messages import BearingMeasurement, TargetEstimate, fast_frozen, position_std_of
 
@@ -406,6 +406,57 @@ def _imm_correct_kernel(states: np.ndarray, covariances: np.ndarray, model_relat
     return innovation, innovation_covariance
 
 
+_CORRECTED, _RESTART, _MODEL_BY_MODEL, _NEEDS_REFERENCES = 0, 1, 2, 3
+"""What `_imm_correction` did: corrected every model; nothing, the combined prior being behind the sensor (every
+model restarts); nothing, some model filter correcting on its own (one restarts, or the gain is not PREDICTED:
+IMMEstimator._correct_each); nothing, the own positions the gains start from to be given (`have_references`)."""
+
+
+@jit
+def _imm_correction(states: np.ndarray, covariances: np.ndarray, weights: np.ndarray, lead: float,
+                    pursuer_position: np.ndarray, direction: np.ndarray, restart_when_behind: bool, predicted_gain: bool,
+                    model_relative: np.ndarray, ranges: np.ndarray, model_ranges: np.ndarray, relative: np.ndarray,
+                    have_references: bool, references: np.ndarray, use_reference: bool, track_step: bool,
+                    track: np.ndarray, track_dt: float, acceleration_psd: float, track_std: float, prediction: np.ndarray,
+                    late: bool, measurement_noises: np.ndarray, add_position_noise: bool, position_variance: float,
+                    lead_noises: np.ndarray, stay_probability: float, stay_time: float, interval: float, with_nis: bool,
+                    nis: np.ndarray, probabilities: np.ndarray, innovation: np.ndarray,
+                    innovation_covariance: np.ndarray) -> tuple[float, float, int]:
+    """IMMEstimator.correct's kernel: one call for the whole usual correction (a kernel: companion.core._jit).
+
+    First the prior lines of sight (`_prior_lines_of_sight`, into model_relative, ranges, model_ranges, relative);
+    then, unless the combined prior is behind the sensor (remark 3's guard, when restart_when_behind: `_RESTART`),
+    some model filter must correct on its own (a model restarting, or not predicted_gain: `_MODEL_BY_MODEL`) or the
+    own positions are not given (not have_references: `_NEEDS_REFERENCES`), which leave the states alone: the own
+    position the gains start from (the model filters' shared OwnPositionTracker's usual step, `_own_position_step`
+    on `track` over track_dt s with its acceleration_psd and track_std, its prediction written into `prediction`
+    and taken as every model's reference, when track_step; else `references` as `_imm_correct_kernel` takes them)
+    and every step of the IMM cycle (`_imm_correct_kernel`: the models' u-PLKF corrections, eq. (6), their
+    likelihoods, seed 004 eq. (20), the model probabilities, eq. (21), the mixing, eqs. (17)-(19)), the combined
+    innovation and its covariance written into innovation (3,) and innovation_covariance (3, 3) (`_CORRECTED`).
+    The other arguments are `_prior_lines_of_sight`'s and `_imm_correct_kernel`'s. Returns the combined prior's
+    range, its clipped cosine to the bearing and what it did."""
+    predicted_range, cos_angle, every_model_corrects = _prior_lines_of_sight(
+        states, weights, lead, pursuer_position, direction, restart_when_behind, model_relative, ranges, model_ranges,
+        relative)
+    if restart_when_behind and _behind_sensor(cos_angle, predicted_range):
+        return predicted_range, cos_angle, _RESTART
+    if not (every_model_corrects and predicted_gain):
+        return predicted_range, cos_angle, _MODEL_BY_MODEL
+    if not have_references:
+        return predicted_range, cos_angle, _NEEDS_REFERENCES
+    if track_step:  # OwnPositionTracker.reference's usual step, its prediction every model's reference
+        _own_position_step(track, track_dt, acceleration_psd, track_std, pursuer_position, prediction)
+        references = prediction.reshape(1, 3)
+    combined, combined_covariance = _imm_correct_kernel(
+        states, covariances, model_relative, ranges, model_ranges, direction, references, use_reference, lead, late,
+        measurement_noises, add_position_noise, position_variance, lead_noises, pursuer_position, weights, relative,
+        predicted_range, stay_probability, stay_time, interval, with_nis, nis, probabilities)
+    innovation[:] = combined
+    innovation_covariance[:] = combined_covariance
+    return predicted_range, cos_angle, _CORRECTED
+
+
 class IMMEstimator:
     """Interacting-multiple-model estimator over u-PLKF model filters (module docstring).
 
@@ -455,8 +506,13 @@ class IMMEstimator:
                                  restart_when_behind, adaptive_noise, transition=a, discrete_process_noise=b @ process_noise @ b.T)
             self.filters.append(model_filter)
         self._bind_storage()
+        # one record of the sets of the model filters' process-noise factors (estimators.NoiseChanges), theirs and
+        # this IMM's: `_collect_noise_factors` reads the factors again when its count has moved
+        self._noise_changes = NoiseChanges()
+        for model_filter in self.filters:
+            model_filter._report_noise_changes_to(self._noise_changes)
         # One own-position tracker for every model filter (and one set of neighbours' trackers): they would be fed
-        # the same samples (every correction of `_correct_all` feeds each model filter's), so while they are
+        # the same samples (every one-call correction feeds each model filter's), so while they are
         # shared one reference per correction is every model's. `_correct_each`, where a model filter may restart
         # and skip its feed, gives each model filter its own copy first (`_separate_trackers`).
         self._shared_tracks = len(self.filters) > 1 and self.filters[0]._own_track is not None
@@ -469,13 +525,16 @@ class IMMEstimator:
         self._discrete_process_noises = np.array([model_filter._q_discrete for model_filter in self.filters])
         self._measurement_noises = np.array([model_filter.measurement_noise for model_filter in self.filters])
         self._no_references, self._no_lead_noises = np.zeros((count, 3)), np.zeros((count, 3, 3))  # not used / zero
+        self._no_track = np.zeros(9), np.zeros(3)  # `_imm_correction`'s track and prediction without a tracker's step
         # the prior lines of sight of a correction (`_prior_lines_of_sight` writes them): p^-_T,j - p (n, 3), their
         # lengths twice (n,) (as summed by the IMM, as by each model filter), the combined p^-_T - p (3,)
         self._lines_of_sight = (np.empty((count, 3)), np.empty(count), np.empty(count), np.empty(3))
         self._nis = np.zeros(count)  # each model's NIS of the last correction (`_imm_correct_kernel` writes it)
-        # each model filter's adaptive scale and boost for `_predict_models`, as collected when estimators._noise_changes
-        # was `_noise_count` (`_collect_noise_factors`)
+        # each model filter's adaptive scale and boost for `_predict_models` and its adaptive noise (None: off), as
+        # collected when the count of `_noise_changes` was `_noise_count` (`_collect_noise_factors`)
         self._scales, self._boosts = np.ones(count), np.ones(count)
+        self._adaptive_noises: tuple[AdaptiveProcessNoise | None, ...] = (None,) * count
+        self._any_adaptive = False
         self._noise_count = -1
         if initial_probabilities is None:
             initial = np.full(count, 0.02 / (count - 1)) if count > 1 else np.ones(1)
@@ -623,7 +682,7 @@ class IMMEstimator:
             return
         if not self._started:
             self._require_states()
-        if self._noise_count != _estimators._noise_changes:  # a scale or a boost may have changed since
+        if self._noise_count != self._noise_changes.count:  # a scale or a boost may have changed since
             self._collect_noise_factors()
         _predict_models(self._transitions, self._discrete_process_noises, self._scales, self._boosts, self._states,
                         self._covariances)
@@ -633,80 +692,104 @@ class IMMEstimator:
 
     def _collect_noise_factors(self) -> None:
         """Each model filter's adaptive scale and boost (UPLKF.predict's factors) into `_scales` and `_boosts` (new
-        arrays), as of the count of changes read first (a change made meanwhile moves the count again)."""
-        self._noise_count = _estimators._noise_changes
-        self._scales = np.array([model_filter.process_noise_scale for model_filter in self.filters], dtype=float)
-        self._boosts = np.array([float(model_filter.process_noise_boost) for model_filter in self.filters], dtype=float)
+        arrays) and its adaptive noise into `_adaptive_noises` (`_any_adaptive`: any not None), as of the count of
+        `_noise_changes` read first (a change made meanwhile moves the count again)."""
+        self._noise_count = self._noise_changes.count
+        filters = self.filters
+        self._scales = np.array([model_filter.process_noise_scale for model_filter in filters], dtype=float)
+        self._boosts = np.array([float(model_filter.process_noise_boost) for model_filter in filters], dtype=float)
+        self._adaptive_noises = tuple(model_filter._adaptive_noise for model_filter in filters)
+        self._any_adaptive = any(noise is not None for noise in self._adaptive_noises)
 
     def correct(self, bearing: BearingMeasurement) -> CorrectionReport:
         """Model-conditioned corrections, model probabilities, then the mixing for the next cycle.
 
-        The report's innovation is that of the combined prediction (see `_combined_report`).
+        The usual correction (PREDICTED gains, no model restarting) is one `_imm_correction` call, the own-position
+        tracker's step included; `_correct_each` takes the other cases. The report's innovation is that of the
+        combined prediction (see `_combined_report`).
         """
         filters = self.filters
         if len(filters) == 1:
             self._snapshot = None
             return filters[0].correct(bearing)
-        self._require_states()
-        lead = bearing.time - self.time
+        if not self._started:
+            self._require_states()
+        if self._noise_count != self._noise_changes.count:  # an adaptive noise may have come or gone since
+            self._collect_noise_factors()
+        first = filters[0]
+        time = bearing.time
+        lead = time - first.time
         pursuer_position = np.asarray(bearing.pursuer_position, dtype=float)
         direction = bearing.unit_direction
-        # each model's prior line of sight at the bearing's time, as UPLKF.correct forms it, and the combined one
-        # (into the IMM's own arrays, read by this correction only)
+        interval = self.stay_time if self._last_correction_time is None else time - self._last_correction_time
+        late = abs(lead) > _LEAD_EPSILON  # (UPLKF._correction_inputs)
+        lead_noises = np.array([model_filter._lead_noise(lead) for model_filter in filters]) if late else self._no_lead_noises
+        # The own position the gains start from: none without an own-position tracker; with the model filters' shared
+        # tracker, its usual step inside the kernel, or the reference of a repeated or late sample, which it does not
+        # take in (OwnPositionTracker._plan); else (a first sample or one after a gap, which restart the tracker, or
+        # trackers no longer shared) `_references`, once the kernel has found that every model corrects.
+        track, prediction = self._no_track
+        references, track_dt, tracker = self._no_references, None, None
+        own_track = first._own_track
+        have_references = own_track is None
+        if own_track is not None and self._shared_tracks:
+            tracker = own_track if bearing.source == 0 else first._neighbour_tracks.get(bearing.source)
+            if tracker is not None:
+                track_dt, reference = tracker._plan(time)
+                if track_dt is not None:
+                    track, prediction, have_references = tracker._filter, np.empty(3), True
+                else:
+                    tracker = None
+                    if reference is not None:
+                        references, have_references = reference[None, :], True
         model_relative, ranges, model_ranges, relative = self._lines_of_sight
-        predicted_range, cos_angle, every_model_corrects = _prior_lines_of_sight(
-            self._states, self._weights, lead, pursuer_position, direction, self.restart_when_behind, model_relative,
-            ranges, model_ranges, relative)
-        if self.restart_when_behind and _behind_sensor(cos_angle, predicted_range):
+        position_std = first.pursuer_position_std
+        arguments = (self._states, self._covariances, self._weights, lead, pursuer_position, direction,
+                     self.restart_when_behind, first.gain_projection is GainProjection.PREDICTED, model_relative, ranges,
+                     model_ranges, relative)
+        settings = (late, self._measurement_noises, position_std > 0.0, position_std**2, lead_noises,
+                    self.stay_probability, self.stay_time, interval, self._any_adaptive, self._nis, self._probabilities)
+        innovation, innovation_covariance = np.empty(3), np.empty((3, 3))
+        predicted_range, cos_angle, outcome = _imm_correction(
+            *arguments, have_references, references, own_track is not None,
+            tracker is not None, track, 0.0 if track_dt is None else track_dt,
+            0.0 if tracker is None else tracker.acceleration_psd, 0.0 if tracker is None else tracker.position_std,
+            prediction, *settings, innovation, innovation_covariance)
+        if outcome == _NEEDS_REFERENCES:
+            predicted_range, cos_angle, outcome = _imm_correction(
+                *arguments, True, self._references(bearing, lead, direction), True, False, track, 0.0, 0.0, 0.0,
+                prediction, *settings, innovation, innovation_covariance)
+        if outcome == _RESTART:
             guess = restart_guess(self._initial_guess, predicted_range, self._weights @ self._states[:, 3:])
             for model_filter in filters:
                 model_filter.initialize_on_bearing(bearing, guess)
             self._reset_probabilities()
             return CorrectionReport(float(np.arccos(cos_angle)), False, reinitialized=True)
-        interval = self.stay_time if self._last_correction_time is None else bearing.time - self._last_correction_time
-        if every_model_corrects and filters[0].gain_projection is GainProjection.PREDICTED:
-            report = self._correct_all(bearing, lead, pursuer_position, direction, model_relative, ranges, model_ranges,
-                                       relative, predicted_range, cos_angle, interval)
+        if outcome == _CORRECTED:
+            if tracker is not None:  # the rest of the tracker's usual step (OwnPositionTracker.reference)
+                tracker._last_prediction = prediction
+                tracker._time = time
+            if self._any_adaptive:
+                nis = self._nis
+                for j, noise in enumerate(self._adaptive_noises):
+                    if noise is not None:  # UPLKF._note_innovation with the kernel's NIS
+                        noise.update(time, float(nis[j]), 2)
+            for model_filter in filters:
+                model_filter._snapshot = None
+            self._motion_probabilities = None  # mu_k, written in place: its sums by motion anew (`_set_probabilities`)
+            self._snapshot = None
+            report = _correction_report(float(np.arccos(cos_angle)), True, innovation, innovation_covariance, 2)
         else:
             report = self._correct_each(bearing, model_relative, ranges, relative, predicted_range, cos_angle, interval)
-        self._last_correction_time = bearing.time
+        self._last_correction_time = time
         return report
 
-    def _correct_all(self, bearing: BearingMeasurement, lead: float, pursuer_position: np.ndarray, direction: np.ndarray,
-                     model_relative: np.ndarray, ranges: np.ndarray, model_ranges: np.ndarray, relative: np.ndarray,
-                     predicted_range: float, cos_angle: float, interval: float) -> CorrectionReport:
-        """The usual correction (PREDICTED gains, no model restarting): every step of the cycle in one
-        `_imm_correct_kernel` call. The same arithmetic as `_correct_each`, which takes the other cases."""
-        filters = self.filters
-        if self._shared_tracks:  # one tracker: fed once, its reference every model's
-            reference, direction, late, lead_noise = filters[0]._correction_inputs(bearing, lead, direction)
-            references = reference[None, :]
-            lead_noises = (np.array([lead_noise] + [model_filter._lead_noise(lead) for model_filter in filters[1:]])
-                           if late else self._no_lead_noises)
-        else:
-            inputs = [model_filter._correction_inputs(bearing, lead, direction) for model_filter in filters]
-            reference, direction, late = inputs[0][:3]
-            references = np.array([reference for reference, *_ in inputs]) if reference is not None else None
-            lead_noises = np.array([lead_noise for *_, lead_noise in inputs]) if late else self._no_lead_noises
-        use_reference = reference is not None
-        adaptive = [model_filter._adaptive_noise for model_filter in filters]
-        # mu and the next c in place: the IMM's own arrays, never handed out (model_probabilities is a copy)
-        nis, probabilities = self._nis, self._probabilities
-        innovation, innovation_covariance = _imm_correct_kernel(
-            self._states, self._covariances, model_relative, ranges, model_ranges, direction,
-            references if use_reference else self._no_references, use_reference,
-            lead, late, self._measurement_noises, filters[0].pursuer_position_std > 0.0, filters[0].pursuer_position_std**2,
-            lead_noises, pursuer_position,
-            self._weights, relative, predicted_range, self.stay_probability, self.stay_time, interval, any(adaptive), nis,
-            probabilities)
-        for j, model_filter in enumerate(filters):
-            model_filter._snapshot = None
-            if adaptive[j] is not None:  # UPLKF._note_innovation with the kernel's NIS
-                adaptive[j].update(bearing.time, float(nis[j]), 2)
-        self._set_probabilities(probabilities)  # (its sums by motion anew)
-        self._snapshot = None
-        return CorrectionReport(float(np.arccos(cos_angle)), True, innovation=innovation,
-                                innovation_covariance=innovation_covariance, innovation_dof=2)
+    def _references(self, bearing: BearingMeasurement, lead: float, direction: np.ndarray) -> np.ndarray:
+        """The own positions every model's gain starts from (UPLKF._correction_inputs, which feeds the own-position
+        trackers this bearing's position): (1, 3), the one of the shared tracker, or (n, 3), each model filter's."""
+        if self._shared_tracks:
+            return self.filters[0]._correction_inputs(bearing, lead, direction)[0][None, :]
+        return np.array([model_filter._correction_inputs(bearing, lead, direction)[0] for model_filter in self.filters])
 
     def _correct_each(self, bearing: BearingMeasurement, model_relative: np.ndarray, ranges: np.ndarray,
                       relative: np.ndarray, predicted_range: float, cos_angle: float, interval: float) -> CorrectionReport:
