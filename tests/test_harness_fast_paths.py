@@ -1,0 +1,153 @@
+"""The in-process harness's per-step shortcuts (issue 16) against what they replace.
+
+References: PursuerState's own constructor; numpy's `position + velocity * dt` (the expression
+TargetModel.step used for straight flight, copied verbatim); a flight log row written by numpy's
+conversion of the same list (`table[row] = values`, what _log_row did before it packed bytes).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from companion.core.messages import PursuerState, pursuer_state
+from sitl_plant.world.target import Maneuver, TargetModel
+from studies.closed_loop import FlightLog, _log_row
+from tests.bitwise import assert_same
+
+floats = st.floats(allow_nan=True, allow_infinity=True, width=64)
+finite = st.floats(-1e6, 1e6, allow_nan=False)
+vectors = st.lists(floats, min_size=3, max_size=3).map(np.array)
+
+
+@given(floats, vectors, vectors)
+def test_pursuer_state_builds_what_the_constructor_builds(time, position, velocity):
+    built, constructed = pursuer_state(time, position, velocity), PursuerState(time, position, velocity)
+    assert type(built) is PursuerState and "__post_init__" not in vars(PursuerState)
+    assert list(vars(built)) == list(vars(constructed)) == [field.name for field in dataclasses.fields(PursuerState)]
+    for name in vars(constructed):
+        assert getattr(built, name) is getattr(constructed, name)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        built.time = 2.0
+
+
+@given(vectors, vectors, st.floats(0.0, 10.0) | floats)
+def test_straight_target_step_gives_numpys_bits(position, velocity, dt):
+    target = TargetModel(position, velocity)
+    with np.errstate(all="ignore"):
+        expected = position + velocity * dt  # the replaced code, verbatim
+    target.step(dt)
+    assert_same(target.position, expected)
+    assert target.position.dtype == np.float64 and target.position.shape == (3,)
+    assert target.position is not position and target.velocity.tobytes() == velocity.tobytes()
+
+
+@given(st.lists(finite, min_size=3, max_size=3), st.floats(1.0, 30.0), st.floats(0.001, 0.5))
+def test_a_target_between_its_turns_steps_as_numpy_did(position, speed, dt):
+    """Maneuvers scheduled but none active at the step: the straight path, numpy's bits."""
+    velocity = np.array([speed, 0.5, -0.25])
+    target = TargetModel(np.array(position), velocity, (Maneuver(100.0, 110.0, 2.0),))
+    expected = np.array(position) + velocity * dt
+    target.step(dt)
+    assert_same(target.position, expected)
+
+
+def _flight_output():
+    """One PipelineOutput with every field the log reads, from a short flight (the IMM, the default estimator)."""
+    from companion.assembly import build_pipeline
+    from interfaces.scenario import SCENARIOS_DIR, load_scenario
+
+    scenario, vehicle = load_scenario(SCENARIOS_DIR / "constant_velocity.toml")
+    pipeline = build_pipeline(scenario, vehicle, 0.5)
+    from companion.core.messages import BearingMeasurement
+
+    output = None
+    for k in range(40):
+        time = 0.02 * k
+        pursuer = PursuerState(time, np.array([0.0, 0.0, -10.0]), np.zeros(3))
+        bearing = BearingMeasurement(time, np.array([0.8, 0.6, 0.0]), pursuer.position) if k % 5 == 0 else None
+        output = pipeline.step_all(time, pursuer, [bearing] if bearing else [])
+    assert output.estimate is not None and output.health is not None and output.setpoint is not None
+    return output, pipeline.estimator
+
+
+def _old_log_row(table, row, time, position, velocity, forward, down_z, target, output, estimator=None):
+    """studies.closed_loop._log_row as of 1c852b6, verbatim but for writing into `table` (numpy's conversion)."""
+    from studies.closed_loop import HEALTH_ACTION_CODES, HEALTH_REASON_BITS, TRACK_MODE_CODES, HealthState, _NAN3
+
+    estimate, setpoint = output.estimate, output.setpoint
+    nan = math.nan
+    values = [time, *position, *velocity, *forward, down_z, *target.position.tolist(), *target.velocity.tolist()]
+    if estimate is not None:
+        values += [*estimate.position.tolist(), *estimate.velocity.tolist(), estimate.position_std]
+    else:
+        values += [nan] * 7
+    if setpoint is not None:
+        values += [*setpoint.acceleration.tolist(), setpoint.thrust_normalized]
+    else:
+        values += [nan] * 4
+    if estimate is not None:
+        values += [TRACK_MODE_CODES[output.mode], output.bearing_age]
+    else:
+        values += [nan, nan]
+    observability = output.observability
+    if observability is not None:
+        values += [observability["log_det"], observability["min_eigenvalue"]]
+    else:
+        values += [nan, nan]
+    health = output.health
+    if health is not None:
+        reasons = health.reasons
+        values += [float(health.state is HealthState.SUSPECT), sum(HEALTH_REASON_BITS[reason] for reason in reasons) if reasons else 0,
+                   health.nis_ratio, health.relative_range_std, HEALTH_ACTION_CODES[output.health_action],
+                   output.process_noise_boost, float(output.health_reinitialized)]
+    else:
+        values += [nan] * 7
+    motion = getattr(estimator, "motion_probabilities", None) if estimate is not None else None
+    values += _NAN3 if motion is None else motion
+    table[row] = values
+
+
+@given(st.lists(floats, min_size=10, max_size=10), st.sampled_from(["full", "no estimate", "nothing yet"]))
+def test_a_log_row_holds_the_bits_the_old_row_held(numbers, outputs):
+    """_log_row packs a row's floats as bytes: the table must hold what numpy's conversion of the old row held
+    (NaN payloads, signed zeros, infinities), with or without the estimate's numbers handed in."""
+    output, estimator = _OUTPUT
+    if outputs != "full":
+        output = dataclasses.replace(output, estimate=None)
+    if outputs == "nothing yet":
+        output = dataclasses.replace(output, setpoint=None, observability=None, health=None)
+    target = TargetModel(np.array(numbers[7:10]), np.array(numbers[4:7]))
+    arguments = (numbers[9], numbers[0:3], tuple(numbers[3:6]), numbers[6:9], numbers[0], target, output, estimator)
+    log = FlightLog(3)
+    _log_row(log, *arguments)
+    values = None if output.estimate is None else output.estimate.position.tolist() + output.estimate.velocity.tolist()
+    _log_row(log, *arguments, values)
+    reference = np.full((1, FlightLog._WIDTH), 7.0)
+    _old_log_row(reference, 0, *arguments)
+    assert log.rows == 2 and log._table[0].tobytes() == log._table[1].tobytes() == reference[0].tobytes()
+    assert np.isnan(log._table[2]).all()
+
+
+def test_a_log_value_struct_refuses_goes_through_numpys_conversion():
+    """A value that is not a float or int (here a string numpy reads as a number, and None, which numpy writes as
+    NaN) takes numpy's conversion, as every row did before; what numpy refuses raises as before."""
+    output, estimator = _OUTPUT
+    target = TargetModel(np.zeros(3), np.ones(3))
+    log, reference = FlightLog(2), np.full((1, FlightLog._WIDTH), 7.0)
+    arguments = ("1.5", (1.0, 2.0, 3.0), (4.0, 5.0, 6.0), (1.0, 0.0, 0.0), None, target, output, estimator)
+    _log_row(log, *arguments)
+    _old_log_row(reference, 0, *arguments)
+    assert log._table[0, 0] == 1.5 and math.isnan(log._table[0, 10])
+    assert log._table[0].tobytes() == reference[0].tobytes()
+    with pytest.raises(ValueError):
+        _log_row(log, "not a number", *arguments[1:])
+    assert log.rows == 1 and np.isnan(log._table[1]).all()
+
+
+_OUTPUT = _flight_output()
