@@ -21,7 +21,7 @@ from companion.core.bearing_sensor import BearingSensor
 from interfaces.scenario import Scenario, VehicleConfig
 from companion.core.fix_validator import FixRejected, FixValidator
 from companion.fix_intake import FixIntake, build_fix_validator
-from interfaces.link_schema import MAX_EPOCH, PayloadError, TargetFix, decode_target_fix, encode_target_fix
+from interfaces.link_schema import MAX_EPOCH, TargetFix, encode_target_fix
 from companion.core.geometry import norm
 from companion.core.messages import BearingMeasurement, pursuer_state
 from companion.core.health import REASONS, HealthAction, HealthState
@@ -320,9 +320,16 @@ class InProcessLink:
 
         for payload in self.faults.due(time):
             self.delivered += 1
-            genuine, off_truth = self._origin(payload)
+            # intake.check(payload) in its two steps, so that the payload is decoded once: by intake.decode
+            # (a payload it refuses is counted there), for both _origin's bookkeeping and the validator.
             try:
-                fix, position = self.intake.check(payload, now=time, agrees=agrees)
+                fix = self.intake.decode(payload)
+            except FixRejected:
+                self.genuine.note(time, None, False, math.nan)  # bytes that do not decode: nobody's
+                continue
+            genuine, off_truth = self._origin(fix)
+            try:
+                fix, position = self.intake.check_decoded(fix, now=time, agrees=agrees)
             except FixRejected:
                 self.genuine.note(time, genuine, False, off_truth)
                 continue
@@ -331,13 +338,9 @@ class InProcessLink:
             if sample is not None:
                 yield fix.stamp, position, sample
 
-    def _origin(self, payload: bytes) -> tuple[bool | None, float]:
-        """(genuine?, distance m of its position from the offered fix of its stamp) of a delivered payload:
-        genuine is the first delivery of an offered fix, unchanged; None for bytes that do not decode."""
-        try:
-            fix = decode_target_fix(payload)
-        except PayloadError:
-            return None, math.nan
+    def _origin(self, fix: TargetFix) -> tuple[bool, float]:
+        """(genuine?, distance m of its position from the offered fix of its stamp) of a delivered fix (decoded):
+        genuine is the first delivery of an offered fix, unchanged (bytes that do not decode are nobody's)."""
         key = round(fix.stamp * self._rate)
         offered = self._offered.get(key)
         if offered is None or abs(fix.stamp - key / self._rate) > 1e-6 or fix.frame != "ned":

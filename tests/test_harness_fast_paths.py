@@ -151,3 +151,72 @@ def test_a_log_value_struct_refuses_goes_through_numpys_conversion():
 
 
 _OUTPUT = _flight_output()
+
+
+HOME = (47.397742, 8.545594, 488.0)
+
+
+def _payloads(data):
+    """A stream of target-fix payloads: plausible ones, off-track, stale, from someone else, in another epoch, and
+    each of the link model's corruptions of them (sitl_plant.world.link_faults.corrupt_payload), or raw bytes."""
+    from interfaces import link_schema
+    from interfaces.scenario import CORRUPT_KINDS
+    from sitl_plant.world.link_faults import corrupt_payload
+
+    stream = []
+    for k in range(data.draw(st.integers(1, 12))):
+        seq = data.draw(st.sampled_from([k, k, k - 3, k + 2**40]))
+        sender = data.draw(st.sampled_from(["target-1", "target-1", "impostor-1"]))
+        offset = data.draw(st.sampled_from([0.0, 0.0, 3.0, 40.0]))
+        fix = link_schema.TargetFix(sender, max(seq, 0), 0.2 * k, "ned", (10.0 + 2.0 * k + offset, -5.0, -20.0),
+                                    (10.0, 0.0, 0.0), data.draw(st.sampled_from([7, 7, 8])))
+        payload = link_schema.encode_target_fix(fix)
+        how = data.draw(st.sampled_from(["as sent", *CORRUPT_KINDS, "bytes"]))
+        if how == "bytes":
+            payload = data.draw(st.binary(max_size=64))
+        elif how != "as sent":
+            payload, _ = corrupt_payload(payload, how, np.array(data.draw(st.lists(st.floats(0.0, 0.999), min_size=4,
+                                                                                   max_size=4))))
+        stream.append((0.2 * k + data.draw(st.sampled_from([0.0, 0.0, -5.0, 10.0])), payload))  # late, early
+    return stream
+
+
+def _old_check(intake, payload, now=None, agrees=None):
+    """companion.fix_intake.FixIntake.check as of 1c852b6 (before it was split in decode and check_decoded), verbatim."""
+    from companion.core.fix_validator import FixRejected
+    from interfaces import link_schema
+
+    self = intake
+    try:
+        fix = link_schema.decode_target_fix(payload)
+    except link_schema.PayloadError as error:
+        self.validator.reject(error.reason)
+        raise FixRejected(error.reason, error.detail) from None
+    position = link_schema.fix_to_ned(fix, self.home)
+    return fix, self.validator.check(fix.sender, fix.seq, fix.stamp, position, epoch=fix.epoch, now=now,
+                                     agrees=agrees)
+
+
+@given(st.data())
+def test_decode_then_check_decoded_is_check(data):
+    """The in-process link decodes a payload once (FixIntake.decode, then check_decoded): the same fixes, positions
+    and refusals, counted the same, as FixIntake.check did on the payload (twin intakes fed the same stream; the
+    reference is the old check, verbatim), and check is still that."""
+    from companion.core.fix_validator import FixRejected, FixValidator
+    from companion.fix_intake import FixIntake
+
+    def outcome(check):
+        try:
+            fix, position = check()
+        except FixRejected as error:
+            return "refused", error.reason, str(error)
+        return "accepted", fix, position.tobytes()
+
+    whole, split, current = (FixIntake(FixValidator("target-1", silence=1.0), HOME) for _ in range(3))
+    for now, payload in _payloads(data):
+        expected = outcome(lambda: _old_check(whole, payload, now=now))
+        assert outcome(lambda: split.check_decoded(split.decode(payload), now=now)) == expected
+        assert outcome(lambda: current.check(payload, now=now)) == expected
+    for intake in (split, current):
+        assert (intake.validator.accepted, dict(intake.validator.rejected), intake.validator.reanchors) == (
+            whole.validator.accepted, dict(whole.validator.rejected), whole.validator.reanchors)
