@@ -455,6 +455,6 @@ def _log_row(log: FlightLog, time: float, position, velocity, forward, down_z: f
     size = log._ROW.size
     try:
         log._bytes[row * size:(row + 1) * size] = log._ROW.pack(*values)
-    except Exception:  # a value struct refuses (not a float or int): numpy's own conversion, as before
+    except struct.error:  # a value struct refuses (not a float, or an int too large): numpy's conversion, as before
         log._table[row] = values
     log.rows = row + 1

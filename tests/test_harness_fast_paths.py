@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from companion.core.messages import PursuerState, pursuer_state
@@ -78,7 +78,13 @@ def _flight_output():
 
 def _old_log_row(table, row, time, position, velocity, forward, down_z, target, output, estimator=None):
     """studies.closed_loop._log_row as of 1c852b6, verbatim but for writing into `table` (numpy's conversion)."""
-    from studies.closed_loop import HEALTH_ACTION_CODES, HEALTH_REASON_BITS, TRACK_MODE_CODES, HealthState, _NAN3
+    from studies.closed_loop import (
+        _NAN3,
+        HEALTH_ACTION_CODES,
+        HEALTH_REASON_BITS,
+        TRACK_MODE_CODES,
+        HealthState,
+    )
 
     estimate, setpoint = output.estimate, output.setpoint
     nan = math.nan
@@ -205,18 +211,124 @@ def test_decode_then_check_decoded_is_check(data):
     from companion.core.fix_validator import FixRejected, FixValidator
     from companion.fix_intake import FixIntake
 
-    def outcome(check):
+    def outcome(check, *args, **keywords):
         try:
-            fix, position = check()
+            fix, position = check(*args, **keywords)
         except FixRejected as error:
             return "refused", error.reason, str(error)
         return "accepted", fix, position.tobytes()
 
     whole, split, current = (FixIntake(FixValidator("target-1", silence=1.0), HOME) for _ in range(3))
+
+    def decoded_once(payload, now):
+        return split.check_decoded(split.decode(payload), now=now)
+
     for now, payload in _payloads(data):
-        expected = outcome(lambda: _old_check(whole, payload, now=now))
-        assert outcome(lambda: split.check_decoded(split.decode(payload), now=now)) == expected
-        assert outcome(lambda: current.check(payload, now=now)) == expected
+        expected = outcome(_old_check, whole, payload, now=now)
+        assert outcome(decoded_once, payload, now) == expected
+        assert outcome(current.check, payload, now=now) == expected
     for intake in (split, current):
         assert (intake.validator.accepted, dict(intake.validator.rejected), intake.validator.reanchors) == (
             whole.validator.accepted, dict(whole.validator.rejected), whole.validator.reanchors)
+
+
+def _old_setpoint_in(rotation_desired):
+    """sitl_plant.vehicle.quadrotor's checked_rotation_rows + quaternion_from_rows as of 1c852b6 (what
+    AttitudeThrustVehicle.set_attitude_target ran), verbatim: the quaternion, or ValueError."""
+    name = "rotation_desired"
+    r = np.asarray(rotation_desired, dtype=float)
+    if r.shape != (3, 3):
+        raise ValueError(f"{name} must be a (3, 3) array, got {r!r}")
+    rows = r.tolist()
+    (a0, b0, c0), (a1, b1, c1), (a2, b2, c2) = rows
+    tolerance = 1e-6
+    if not (abs(a0 * a0 + a1 * a1 + a2 * a2 - 1.0) <= tolerance
+            and abs(b0 * b0 + b1 * b1 + b2 * b2 - 1.0) <= tolerance
+            and abs(c0 * c0 + c1 * c1 + c2 * c2 - 1.0) <= tolerance
+            and abs(a0 * b0 + a1 * b1 + a2 * b2) <= tolerance
+            and abs(a0 * c0 + a1 * c1 + a2 * c2) <= tolerance
+            and abs(b0 * c0 + b1 * c1 + b2 * c2) <= tolerance
+            and abs(a1 * b2 - a2 * b1 - c0) <= tolerance
+            and abs(a2 * b0 - a0 * b2 - c1) <= tolerance
+            and abs(a0 * b1 - a1 * b0 - c2) <= tolerance):
+        raise ValueError(f"{name} is not a proper rotation matrix: {r!r}")
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = rows
+    trace = m00 + m11 + m22
+    if trace >= m00 and trace >= m11 and trace >= m22:
+        s = 2.0 * math.sqrt(1.0 + trace)
+        q = (0.25 * s, (m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s)
+    elif m00 >= m11 and m00 >= m22:
+        s = 2.0 * math.sqrt(1.0 + m00 - m11 - m22)
+        q = ((m21 - m12) / s, 0.25 * s, (m01 + m10) / s, (m02 + m20) / s)
+    elif m11 >= m22:
+        s = 2.0 * math.sqrt(1.0 + m11 - m00 - m22)
+        q = ((m02 - m20) / s, (m01 + m10) / s, 0.25 * s, (m12 + m21) / s)
+    else:
+        s = 2.0 * math.sqrt(1.0 + m22 - m00 - m11)
+        q = ((m10 - m01) / s, (m02 + m20) / s, (m12 + m21) / s, 0.25 * s)
+    scale = (1.0 if q[0] >= 0.0 else -1.0) / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    return (q[0] * scale, q[1] * scale, q[2] * scale, q[3] * scale)
+
+
+def _setpoint_matrices():
+    """Rotations (every Shepperd branch: small angles, half turns about each axis), perturbed ones near the 1e-6
+    tolerance, NaN, infinity, reflections, and wrong shapes."""
+    from scipy.spatial.transform import Rotation
+
+    rotations = st.lists(st.floats(-1.0, 1.0), min_size=4, max_size=4).filter(
+        lambda q: sum(x * x for x in q) > 1e-3).map(lambda q: Rotation.from_quat(q).as_matrix())
+    half_turns = st.sampled_from([np.diag([1.0, -1.0, -1.0]), np.diag([-1.0, 1.0, -1.0]), np.diag([-1.0, -1.0, 1.0])])
+
+    def spoil(matrix, how, entry, amount):
+        flat = matrix.reshape(-1).copy()
+        if how == "perturbed":
+            flat[entry] += amount
+        elif how == "nan":
+            flat[entry] = math.nan
+        elif how == "infinite":
+            flat[entry] = math.inf
+        elif how == "reflection":
+            flat[entry % 3::3] *= -1.0
+        elif how == "shape":
+            return flat[:6].reshape(2, 3)
+        return flat.reshape(3, 3)
+
+    return st.builds(spoil, rotations | half_turns,
+                     st.sampled_from(["rotation", "rotation", "perturbed", "nan", "infinite", "reflection", "shape"]),
+                     st.integers(0, 8), st.floats(-2e-6, 2e-6))
+
+
+def _outcome_of(function, *args):
+    try:
+        return function(*args)
+    except ValueError as error:
+        return ValueError, str(error)
+
+
+@settings(max_examples=300, deadline=None)
+@given(_setpoint_matrices())
+def test_the_vehicle_takes_a_setpoint_as_it_did(matrix):
+    """AttitudeThrustVehicle.set_attitude_target (kernels.setpoint_quaternion, compiled when numba is there): the
+    quaternion it holds and the errors it raises, with their messages, are the old code's (verbatim copy); the
+    compiled kernel and its plain-Python twin give the same bits."""
+    from sitl_plant.vehicle import kernels
+    from sitl_plant.vehicle.attitude_control import AttitudeThrustVehicle
+    from sitl_plant.vehicle.params import table1_params
+
+    vehicle = AttitudeThrustVehicle(table1_params(), rng=0)
+
+    def held(rotation):
+        vehicle.set_attitude_target(rotation, 10.0)
+        return vehicle._qd
+
+    expected = _outcome_of(_old_setpoint_in, matrix)
+    actual = _outcome_of(held, matrix)
+    if isinstance(expected[0], type):
+        assert actual == expected
+    else:
+        assert [x.hex() for x in actual] == [x.hex() for x in expected] and vehicle._thrust == 10.0
+    if matrix.shape == (3, 3):
+        entries = matrix.ravel().tolist()
+        compiled, plain = kernels.setpoint_quaternion(*entries), kernels.setpoint_quaternion.py_func(*entries)
+        assert compiled[0] is plain[0] is (not isinstance(expected[0], type))
+        assert [x.hex() for x in compiled[1:]] == [x.hex() for x in plain[1:]]
