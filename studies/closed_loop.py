@@ -171,7 +171,9 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
             # Fixes go through the fault model and the validator, as over the real link; the
             # bearing is then taken at each delivered fix's time from the pursuer's state then.
             if step % sensor_every == 0:
-                link.offer(time, target.position, target.velocity, autopilot.state, measured_position)
+                # The true position and attitude as autopilot.state holds them (the same arrays of the same floats)
+                link.offer(time, target.position, target.velocity, np.array(position), np.array(rotation).reshape(3, 3),
+                           measured_position)
             for stamp, fix_position, sample in link.deliver(time, pipeline):
                 bearing = _measure(sensor, stamp, fix_position - sample.true_position, sample.rotation,
                                    sample.measured_position, sensor_rng, range_rng)
@@ -297,12 +299,14 @@ class InProcessLink:
         self._offered: dict[int, np.ndarray] = {}
         self.genuine = GenuineRecord()
 
-    def offer(self, time: float, position: np.ndarray, velocity: np.ndarray, truth: RigidBodyState,
-              measured_position: np.ndarray) -> None:
+    def offer(self, time: float, position: np.ndarray, velocity: np.ndarray, true_position: np.ndarray,
+              rotation: np.ndarray, measured_position: np.ndarray) -> None:
+        """Publish the target's fix of `time` (s; position m, velocity m/s, NED) through the fault model, and keep
+        the pursuer's sample then: its true position (m, NED), attitude R ((3, 3) body -> NED) and measured position."""
         payload = encode_target_fix(TargetFix(self.sender, self._seq, time, "ned", position, velocity, self.epoch))
         self._seq += 1
         key = round(time * self._rate)
-        self._samples[key] = _Sample(truth.position, truth.rotation, measured_position)
+        self._samples[key] = _Sample(true_position, rotation, measured_position)
         self._samples.pop(key - round(30.0 * self._rate), None)  # keep 30 s for stale fixes
         self._offered[key] = np.asarray(position, dtype=float).copy()
         self._offered.pop(key - round(30.0 * self._rate), None)
