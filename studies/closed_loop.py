@@ -303,14 +303,15 @@ class InProcessLink:
               rotation: np.ndarray, measured_position: np.ndarray) -> None:
         """Publish the target's fix of `time` (s; position m, velocity m/s, NED) through the fault model, and keep
         the pursuer's sample then: its true position (m, NED), attitude R ((3, 3) body -> NED) and measured position."""
-        payload = encode_target_fix(TargetFix(self.sender, self._seq, time, "ned", position, velocity, self.epoch))
+        fix = TargetFix(self.sender, self._seq, time, "ned", position, velocity, self.epoch)
+        payload = encode_target_fix(fix)
         self._seq += 1
         key = round(time * self._rate)
         self._samples[key] = _Sample(true_position, rotation, measured_position)
         self._samples.pop(key - round(30.0 * self._rate), None)  # keep 30 s for stale fixes
         self._offered[key] = np.asarray(position, dtype=float).copy()
         self._offered.pop(key - round(30.0 * self._rate), None)
-        self.faults.offer(time, payload, time)
+        self.faults.offer(time, payload, time, fix)  # the fix too: the attack model need not decode the payload
         self.offered += 1
 
     def deliver(self, time: float, pipeline=None):
