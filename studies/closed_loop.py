@@ -199,7 +199,7 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
         estimate = output.estimate
         if estimate is not None:
             # The estimate's six numbers as floats, read once for this check and the log row. The check: the sum of
-            # the three positions plus that of the three velocities (ndarray.sum of three adds left to right).
+            # the three positions plus that of the three velocities (_sum3's order: what ndarray.sum of three adds).
             estimate_values = estimate.position.tolist() + estimate.velocity.tolist()
             e0, e1, e2, e3, e4, e5 = estimate_values
             if not math.isfinite((e0 + e1 + e2) + (e3 + e4 + e5)):
