@@ -49,11 +49,22 @@ class FixIntake:
         now: the receiver's time, s, in the stamps' clock (the freshness window; None: not checked).
         agrees: the filter's verdict on a fix's bearing, for the re-anchor rule (FixValidator).
         """
+        return self.check_decoded(self.decode(payload), now, agrees)
+
+    def decode(self, payload: bytes) -> link_schema.TargetFix:
+        """check's first step: link_schema.decode_target_fix of the payload; a payload it refuses is counted
+        (validator.reject, its reason) and raised as FixRejected."""
         try:
-            fix = link_schema.decode_target_fix(payload)
+            return link_schema.decode_target_fix(payload)
         except link_schema.PayloadError as error:
             self.validator.reject(error.reason)
             raise FixRejected(error.reason, error.detail) from None
+
+    def check_decoded(self, fix: link_schema.TargetFix, now: float | None = None,
+                      agrees: Agreement | None = None) -> tuple[link_schema.TargetFix, np.ndarray]:
+        """check's other steps (geodesy, FixValidator) for a fix that `decode` gave: for a caller that reads the
+        decoded fix itself first (the in-process simulator's record of whose fixes were delivered), so the
+        payload is decoded once. check(payload) is check_decoded(decode(payload))."""
         position = link_schema.fix_to_ned(fix, self.home)
         return fix, self.validator.check(fix.sender, fix.seq, fix.stamp, position, epoch=fix.epoch, now=now,
                                          agrees=agrees)

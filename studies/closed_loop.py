@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import enum
 import math
+import struct
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,9 +21,9 @@ from companion.core.bearing_sensor import BearingSensor
 from interfaces.scenario import Scenario, VehicleConfig
 from companion.core.fix_validator import FixRejected, FixValidator
 from companion.fix_intake import FixIntake, build_fix_validator
-from interfaces.link_schema import MAX_EPOCH, PayloadError, TargetFix, decode_target_fix, encode_target_fix
+from interfaces.link_schema import MAX_EPOCH, TargetFix, encode_target_fix
 from companion.core.geometry import norm
-from companion.core.messages import BearingMeasurement, PursuerState
+from companion.core.messages import BearingMeasurement, pursuer_state
 from companion.core.health import REASONS, HealthAction, HealthState
 from companion.core.pipeline import TrackMode
 from sitl_plant.vehicle.attitude_control import AttitudeThrustVehicle
@@ -73,9 +74,17 @@ class FlightLog:
         "model_probabilities": 3,  # IMM estimator only: (straight, right turn, left turn), IMMEstimator.motion_probabilities
     }
 
+    _WIDTH = sum(_WIDTHS.values())
+    #: A row as the bytes of its float64s in the machine's order: struct's packing of a row of Python floats is
+    #: about a third cheaper than numpy's conversion of the same list (the same float64s, NaN payloads included).
+    _ROW = struct.Struct(f"={_WIDTH}d")
+
     def __init__(self, rows: int) -> None:
         # One table, a row per tick (`_log_row` writes a whole row in one assignment); each column is a view of it.
-        self._table = np.full((rows, sum(self._WIDTHS.values())), np.nan)
+        # The table lives in a bytearray so that a row can be written as bytes (_log_row); NaN until written.
+        self._bytes = bytearray(rows * self._ROW.size)
+        self._table = np.frombuffer(self._bytes, dtype=np.float64).reshape(rows, self._WIDTH)
+        self._table[:] = np.nan
         self._data = {}
         start = 0
         for key, width in self._WIDTHS.items():
@@ -156,13 +165,15 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
         # The true state as tuples (autopilot.kinematics(): the values of autopilot.state, without its arrays).
         position, velocity, rotation = autopilot.kinematics()
         measured_position, measured_velocity = autopilot.measured_state()
-        pursuer = PursuerState(time, measured_position, measured_velocity)
+        pursuer = pursuer_state(time, measured_position, measured_velocity)  # PursuerState(...), see there
         bearings = []
         if link.enabled:
             # Fixes go through the fault model and the validator, as over the real link; the
             # bearing is then taken at each delivered fix's time from the pursuer's state then.
             if step % sensor_every == 0:
-                link.offer(time, target.position, target.velocity, autopilot.state, measured_position)
+                # The true position and attitude as autopilot.state holds them (the same arrays of the same floats)
+                link.offer(time, target.position, target.velocity, np.array(position), np.array(rotation).reshape(3, 3),
+                           measured_position)
             for stamp, fix_position, sample in link.deliver(time, pipeline):
                 bearing = _measure(sensor, stamp, fix_position - sample.true_position, sample.rotation,
                                    sample.measured_position, sensor_rng, range_rng)
@@ -186,18 +197,25 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
             autopilot.set_attitude_target(output.setpoint.rotation, output.setpoint.thrust_normalized * params.max_total_thrust)
 
         estimate = output.estimate
-        # The sum of the six numbers in numpy's order (ndarray.sum of three adds them left to right), as floats.
-        if estimate is not None and not math.isfinite(_sum3(estimate.position.tolist()) + _sum3(estimate.velocity.tolist())):
-            termination = Termination.ESTIMATE_NOT_FINITE
+        if estimate is not None:
+            # The estimate's six numbers as floats, read once for this check and the log row. The check: the sum of
+            # the three positions plus that of the three velocities (_sum3's order: what ndarray.sum of three adds).
+            estimate_values = estimate.position.tolist() + estimate.velocity.tolist()
+            e0, e1, e2, e3, e4, e5 = estimate_values
+            if not math.isfinite((e0 + e1 + e2) + (e3 + e4 + e5)):
+                termination = Termination.ESTIMATE_NOT_FINITE
+        else:
+            estimate_values = None
         vx, vy, vz = velocity  # |v|^2 summed left to right (what numpy's dot of three gave here, to the bit)
-        if rotation[8] < 0.0 or vx * vx + vy * vy + vz * vz > max_speed_squared:
+        down_z = rotation[8]
+        if down_z < 0.0 or vx * vx + vy * vy + vz * vz > max_speed_squared:
             termination = Termination.OUT_OF_CONTROL
-        _log_row(log, time, position, velocity, rotation[0::3], rotation[8], target, output, pipeline.estimator)
+        _log_row(log, time, position, velocity, rotation[0::3], down_z, target, output, pipeline.estimator, estimate_values)
         if termination is not Termination.COMPLETED or index == last_index:
             break
-        gap = event_steps[index + 1] - step
-        target.step(gap * dt)
-        autopilot.advance(gap * dt)
+        gap = (event_steps[index + 1] - step) * dt
+        target.step(gap)
+        autopilot.advance(gap)
 
     series = log.series()
     summary = summarize(series, scenario, termination)
@@ -281,16 +299,19 @@ class InProcessLink:
         self._offered: dict[int, np.ndarray] = {}
         self.genuine = GenuineRecord()
 
-    def offer(self, time: float, position: np.ndarray, velocity: np.ndarray, truth: RigidBodyState,
-              measured_position: np.ndarray) -> None:
-        payload = encode_target_fix(TargetFix(self.sender, self._seq, time, "ned", position, velocity, self.epoch))
+    def offer(self, time: float, position: np.ndarray, velocity: np.ndarray, true_position: np.ndarray,
+              rotation: np.ndarray, measured_position: np.ndarray) -> None:
+        """Publish the target's fix of `time` (s; position m, velocity m/s, NED) through the fault model, and keep
+        the pursuer's sample then: its true position (m, NED), attitude R ((3, 3) body -> NED) and measured position."""
+        fix = TargetFix(self.sender, self._seq, time, "ned", position, velocity, self.epoch)
+        payload = encode_target_fix(fix)
         self._seq += 1
         key = round(time * self._rate)
-        self._samples[key] = _Sample(truth.position, truth.rotation, measured_position)
+        self._samples[key] = _Sample(true_position, rotation, measured_position)
         self._samples.pop(key - round(30.0 * self._rate), None)  # keep 30 s for stale fixes
         self._offered[key] = np.asarray(position, dtype=float).copy()
         self._offered.pop(key - round(30.0 * self._rate), None)
-        self.faults.offer(time, payload, time)
+        self.faults.offer(time, payload, time, fix)  # the fix too: the attack model need not decode the payload
         self.offered += 1
 
     def deliver(self, time: float, pipeline=None):
@@ -304,9 +325,16 @@ class InProcessLink:
 
         for payload in self.faults.due(time):
             self.delivered += 1
-            genuine, off_truth = self._origin(payload)
+            # intake.check(payload) in its two steps, so that the payload is decoded once: by intake.decode
+            # (a payload it refuses is counted there), for both _origin's bookkeeping and the validator.
             try:
-                fix, position = self.intake.check(payload, now=time, agrees=agrees)
+                fix = self.intake.decode(payload)
+            except FixRejected:
+                self.genuine.note(time, None, False, math.nan)  # bytes that do not decode: nobody's
+                continue
+            genuine, off_truth = self._origin(fix)
+            try:
+                fix, position = self.intake.check_decoded(fix, now=time, agrees=agrees)
             except FixRejected:
                 self.genuine.note(time, genuine, False, off_truth)
                 continue
@@ -315,13 +343,9 @@ class InProcessLink:
             if sample is not None:
                 yield fix.stamp, position, sample
 
-    def _origin(self, payload: bytes) -> tuple[bool | None, float]:
-        """(genuine?, distance m of its position from the offered fix of its stamp) of a delivered payload:
-        genuine is the first delivery of an offered fix, unchanged; None for bytes that do not decode."""
-        try:
-            fix = decode_target_fix(payload)
-        except PayloadError:
-            return None, math.nan
+    def _origin(self, fix: TargetFix) -> tuple[bool, float]:
+        """(genuine?, distance m of its position from the offered fix of its stamp) of a delivered fix (decoded):
+        genuine is the first delivery of an offered fix, unchanged (bytes that do not decode are nobody's)."""
         key = round(fix.stamp * self._rate)
         offered = self._offered.get(key)
         if offered is None or abs(fix.stamp - key / self._rate) > 1e-6 or fix.frame != "ned":
@@ -397,45 +421,45 @@ def _log_tick(log: FlightLog, time: float, truth: RigidBodyState, target: Target
     _log_row(log, time, truth.position, truth.velocity, rotation[:, 0], rotation[2, 2], target, output, estimator)
 
 
-_NAN3 = (math.nan,) * 3
+_NAN2, _NAN3, _NAN4, _NAN7 = ((math.nan,) * n for n in (2, 3, 4, 7))
 
 
 def _log_row(log: FlightLog, time: float, position, velocity, forward, down_z: float, target: TargetMotion, output,
-             estimator: object = None) -> None:
+             estimator: object = None, estimate_values: list[float] | None = None) -> None:
     """One row of the flight log, the columns in FlightLog._WIDTHS's order, written into its preallocated
     table in one assignment (a column at a time costs a numpy call each, a keyword append a dict as well).
-    position, velocity: the true ones (3 numbers each); forward: R's first column (3); down_z: R[2, 2]."""
+    position, velocity: the true ones (3 numbers each); forward: R's first column (3); down_z: R[2, 2];
+    estimate_values: output.estimate's position and velocity as six floats when the caller has them already."""
     estimate, setpoint = output.estimate, output.setpoint
-    nan = math.nan
     # Arrays go in as lists (ndarray.tolist: the same floats, without a numpy scalar per element).
     values = [time, *position, *velocity, *forward, down_z, *target.position.tolist(), *target.velocity.tolist()]
     if estimate is not None:
-        values += [*estimate.position.tolist(), *estimate.velocity.tolist(), estimate.position_std]
+        values += estimate.position.tolist() + estimate.velocity.tolist() if estimate_values is None else estimate_values
+        values.append(estimate.position_std)
     else:
-        values += [nan] * 7
+        values += _NAN7
     if setpoint is not None:
-        values += [*setpoint.acceleration.tolist(), setpoint.thrust_normalized]
+        values += setpoint.acceleration.tolist()
+        values.append(setpoint.thrust_normalized)
     else:
-        values += [nan] * 4
-    if estimate is not None:
-        values += [TRACK_MODE_CODES[output.mode], output.bearing_age]
-    else:
-        values += [nan, nan]
+        values += _NAN4
+    values += (TRACK_MODE_CODES[output.mode], output.bearing_age) if estimate is not None else _NAN2
     observability = output.observability
-    if observability is not None:
-        values += [observability["log_det"], observability["min_eigenvalue"]]
-    else:
-        values += [nan, nan]
+    values += _NAN2 if observability is None else (observability["log_det"], observability["min_eigenvalue"])
     health = output.health
     if health is not None:
         reasons = health.reasons
-        values += [float(health.state is HealthState.SUSPECT), sum(HEALTH_REASON_BITS[reason] for reason in reasons) if reasons else 0,
+        values += (float(health.state is HealthState.SUSPECT), sum(HEALTH_REASON_BITS[reason] for reason in reasons) if reasons else 0,
                    health.nis_ratio, health.relative_range_std, HEALTH_ACTION_CODES[output.health_action],
-                   output.process_noise_boost, float(output.health_reinitialized)]
+                   output.process_noise_boost, float(output.health_reinitialized))
     else:
-        values += [nan] * 7
+        values += _NAN7
     motion = getattr(estimator, "motion_probabilities", None) if estimate is not None else None
     values += _NAN3 if motion is None else motion
     row = log.rows
-    log._table[row] = values
+    size = log._ROW.size
+    try:
+        log._bytes[row * size:(row + 1) * size] = log._ROW.pack(*values)
+    except struct.error:  # a value struct refuses (not a float, or an int too large): numpy's conversion, as before
+        log._table[row] = values
     log.rows = row + 1

@@ -36,7 +36,8 @@ from sitl_plant.vehicle.quadrotor import Quadrotor
 PARAMS = table1_params()
 ROOT = Path(__file__).resolve().parent.parent
 KERNELS = ("quaternion_to_rotation", "rotor_wrench", "rigid_body_rhs", "rk4_step", "error_quaternion",
-           "attitude_torque", "mixer_speeds", "advance_steps")
+           "attitude_torque", "mixer_speeds", "advance_steps", "is_rotation", "quaternion_from_matrix",
+           "setpoint_quaternion")
 
 
 def bits(value) -> list[str]:

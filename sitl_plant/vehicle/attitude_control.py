@@ -20,8 +20,6 @@ from sitl_plant.vehicle.quadrotor import (
     RigidBodyState,
     Vec3,
     check_rotation,
-    checked_rotation_rows,
-    quaternion_from_rows,
     quaternion_to_rotation,
     rotation_to_quaternion,
     rotor_wrench,
@@ -232,11 +230,17 @@ class AttitudeThrustVehicle:
     def set_attitude_target(self, rotation_desired: np.ndarray, thrust_newton: float) -> None:
         """Hold attitude R_d ((3, 3) desired body FRD -> NED, proper rotation to 1e-6) and
         total thrust (N; the mixer clips it to [0, 1.5 m g]) until the next call."""
-        rows = checked_rotation_rows(rotation_desired, "rotation_desired")
+        # checked_rotation_rows + quaternion_from_rows in one kernel call (kernels.setpoint_quaternion)
+        r = np.asarray(rotation_desired, dtype=float)
+        if r.shape != (3, 3):
+            raise ValueError(f"rotation_desired must be a (3, 3) array, got {r!r}")
+        proper, qw, qx, qy, qz = kernels.setpoint_quaternion(*r.ravel().tolist())
+        if not proper:
+            raise ValueError(f"rotation_desired is not a proper rotation matrix: {r!r}")
         thrust = float(thrust_newton)
         if not math.isfinite(thrust):
             raise ValueError(f"thrust_newton must be finite, got {thrust_newton!r}")
-        self._qd = quaternion_from_rows(rows)
+        self._qd = (qw, qx, qy, qz)
         self._thrust = thrust
 
     def set_attitude_target_quaternion(self, quaternion: tuple[float, float, float, float], thrust_newton: float) -> None:

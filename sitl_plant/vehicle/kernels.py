@@ -222,6 +222,65 @@ def rk4_step(
     )
 
 
+# --------------------------------------------------------------------------- attitude setpoint in
+
+#: Tolerance of the SO(3) test of an attitude setpoint (`is_rotation`).
+ORTHONORMAL_TOL = 1e-6
+
+
+@jit
+def is_rotation(m00: float, m01: float, m02: float, m10: float, m11: float, m12: float,
+                m20: float, m21: float, m22: float) -> bool:
+    """Whether the matrix of these entries (row-major) is a proper rotation to ORTHONORMAL_TOL: its columns
+    a, b, c orthonormal and right-handed (a x b = c). `not <=` also refuses NaN and infinities."""
+    a0, a1, a2 = m00, m10, m20
+    b0, b1, b2 = m01, m11, m21
+    c0, c1, c2 = m02, m12, m22
+    tolerance = ORTHONORMAL_TOL
+    return (abs(a0 * a0 + a1 * a1 + a2 * a2 - 1.0) <= tolerance
+            and abs(b0 * b0 + b1 * b1 + b2 * b2 - 1.0) <= tolerance
+            and abs(c0 * c0 + c1 * c1 + c2 * c2 - 1.0) <= tolerance
+            and abs(a0 * b0 + a1 * b1 + a2 * b2) <= tolerance
+            and abs(a0 * c0 + a1 * c1 + a2 * c2) <= tolerance
+            and abs(b0 * c0 + b1 * c1 + b2 * c2) <= tolerance
+            and abs(a1 * b2 - a2 * b1 - c0) <= tolerance
+            and abs(a2 * b0 - a0 * b2 - c1) <= tolerance
+            and abs(a0 * b1 - a1 * b0 - c2) <= tolerance)
+
+
+@jit
+def quaternion_from_matrix(m00: float, m01: float, m02: float, m10: float, m11: float, m12: float,
+                           m20: float, m21: float, m22: float) -> Quat:
+    """Unit quaternion (w, x, y, z), w >= 0, of a rotation matrix given by its entries (row-major): Shepperd's
+    method, pivoting on the largest of trace and diagonal to stay accurate near half turns."""
+    trace = m00 + m11 + m22
+    if trace >= m00 and trace >= m11 and trace >= m22:
+        s = 2.0 * math.sqrt(1.0 + trace)
+        q = (0.25 * s, (m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s)
+    elif m00 >= m11 and m00 >= m22:
+        s = 2.0 * math.sqrt(1.0 + m00 - m11 - m22)
+        q = ((m21 - m12) / s, 0.25 * s, (m01 + m10) / s, (m02 + m20) / s)
+    elif m11 >= m22:
+        s = 2.0 * math.sqrt(1.0 + m11 - m00 - m22)
+        q = ((m02 - m20) / s, (m01 + m10) / s, 0.25 * s, (m12 + m21) / s)
+    else:
+        s = 2.0 * math.sqrt(1.0 + m22 - m00 - m11)
+        q = ((m10 - m01) / s, (m02 + m20) / s, (m12 + m21) / s, 0.25 * s)
+    scale = (1.0 if q[0] >= 0.0 else -1.0) / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    return (q[0] * scale, q[1] * scale, q[2] * scale, q[3] * scale)
+
+
+@jit
+def setpoint_quaternion(m00: float, m01: float, m02: float, m10: float, m11: float, m12: float,
+                        m20: float, m21: float, m22: float) -> tuple[bool, float, float, float, float]:
+    """(is_rotation, and if so quaternion_from_matrix's w, x, y, z; else zeros) of an attitude setpoint's nine
+    entries (row-major): the vehicle's check and conversion of R_d in one call (one compiled dispatch)."""
+    if not is_rotation(m00, m01, m02, m10, m11, m12, m20, m21, m22):
+        return False, 0.0, 0.0, 0.0, 0.0
+    qw, qx, qy, qz = quaternion_from_matrix(m00, m01, m02, m10, m11, m12, m20, m21, m22)
+    return True, qw, qx, qy, qz
+
+
 # --------------------------------------------------------------------------- attitude control
 
 
@@ -375,3 +434,4 @@ def warm_up() -> None:
     attitude_torque(q, ZERO3, q, ZERO3, ZERO3, True, c)
     mixer_speeds(0.5, 0.0, 0.0, 0.0, m)
     advance_steps(1, 0.002, 0.9, 0.8, s, w, q, 0.5, k, c, m)
+    setpoint_quaternion(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)

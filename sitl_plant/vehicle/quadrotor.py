@@ -60,7 +60,7 @@ ROTOR_LAYOUT: tuple[tuple[int, int, int], ...] = (
     (-1, 1, -1),
 )
 
-_ORTHONORMAL_TOL = 1e-6
+_ORTHONORMAL_TOL = kernels.ORTHONORMAL_TOL
 
 
 #: Rotation matrix of a unit quaternion (w, x, y, z), row-major 9-tuple (body FRD -> NED).
@@ -84,23 +84,14 @@ def rotation_to_quaternion(rotation: np.ndarray) -> tuple[float, float, float, f
 
 
 def quaternion_from_rows(rows: list) -> tuple[float, float, float, float]:
-    """rotation_to_quaternion (Shepperd's method) of a rotation given as its rows of Python floats."""
+    """rotation_to_quaternion (Shepperd's method) of a rotation given as its rows of Python floats
+    (kernels.quaternion_from_matrix, run as plain Python like quaternion_to_rotation above)."""
     (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = rows
-    trace = m00 + m11 + m22
-    if trace >= m00 and trace >= m11 and trace >= m22:
-        s = 2.0 * math.sqrt(1.0 + trace)
-        q = (0.25 * s, (m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s)
-    elif m00 >= m11 and m00 >= m22:
-        s = 2.0 * math.sqrt(1.0 + m00 - m11 - m22)
-        q = ((m21 - m12) / s, 0.25 * s, (m01 + m10) / s, (m02 + m20) / s)
-    elif m11 >= m22:
-        s = 2.0 * math.sqrt(1.0 + m11 - m00 - m22)
-        q = ((m02 - m20) / s, (m01 + m10) / s, 0.25 * s, (m12 + m21) / s)
-    else:
-        s = 2.0 * math.sqrt(1.0 + m22 - m00 - m11)
-        q = ((m10 - m01) / s, (m02 + m20) / s, (m12 + m21) / s, 0.25 * s)
-    scale = (1.0 if q[0] >= 0.0 else -1.0) / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    return (q[0] * scale, q[1] * scale, q[2] * scale, q[3] * scale)
+    return _quaternion_from_matrix(m00, m01, m02, m10, m11, m12, m20, m21, m22)
+
+
+_quaternion_from_matrix = kernels.quaternion_from_matrix.py_func
+_is_rotation = kernels.is_rotation.py_func
 
 
 def check_rotation(rotation: np.ndarray, name: str = "rotation") -> np.ndarray:
@@ -120,18 +111,8 @@ def checked_rotation_rows(rotation: np.ndarray, name: str = "rotation") -> list:
     if r.shape != (3, 3):
         raise ValueError(f"{name} must be a (3, 3) array, got {r!r}")
     rows = r.tolist()
-    (a0, b0, c0), (a1, b1, c1), (a2, b2, c2) = rows
-    # Columns a, b, c must be orthonormal and right-handed (a x b = c). `not <=` also rejects NaN and infinities.
-    tolerance = _ORTHONORMAL_TOL
-    if not (abs(a0 * a0 + a1 * a1 + a2 * a2 - 1.0) <= tolerance
-            and abs(b0 * b0 + b1 * b1 + b2 * b2 - 1.0) <= tolerance
-            and abs(c0 * c0 + c1 * c1 + c2 * c2 - 1.0) <= tolerance
-            and abs(a0 * b0 + a1 * b1 + a2 * b2) <= tolerance
-            and abs(a0 * c0 + a1 * c1 + a2 * c2) <= tolerance
-            and abs(b0 * c0 + b1 * c1 + b2 * c2) <= tolerance
-            and abs(a1 * b2 - a2 * b1 - c0) <= tolerance
-            and abs(a2 * b0 - a0 * b2 - c1) <= tolerance
-            and abs(a0 * b1 - a1 * b0 - c2) <= tolerance):
+    # Columns orthonormal and right-handed (a x b = c) to 1e-6 (kernels.is_rotation, as plain Python)
+    if not _is_rotation(*rows[0], *rows[1], *rows[2]):
         raise ValueError(f"{name} is not a proper rotation matrix: {r!r}")
     return rows
 

@@ -360,22 +360,28 @@ class LinkFaults:
         self._reset_state()
         self._log(now, "restart", f"clock went back; {discarded} messages in flight discarded", discarded=discarded)
 
-    def offer(self, now: float, payload: bytes, scenario_time: float) -> None:
-        """Take one message produced at simulated time `now` (s); scenario_time: s since the scenario started."""
-        payload = bytes(payload)
+    def offer(self, now: float, payload: bytes, scenario_time: float, fix: TargetFix | None = None) -> None:
+        """Take one message produced at simulated time `now` (s); scenario_time: s since the scenario started.
+
+        fix: the TargetFix that `payload` encodes (payload = encode_target_fix(fix)), when the caller has it: the
+        attacks and the impostor then take it as the overheard fix instead of decoding the payload again (the
+        decoded payload is that fix, field for field). Not used once the payload is changed (a restarted publisher's).
+        """
+        offered = payload = bytes(payload)
         if not self._enabled:
             self._push(now, payload)
             return
         payload = self._restarted(now, payload, scenario_time)
         if payload is None:
             return
-        self._attack(now, payload, scenario_time)
+        known = fix if payload is offered else None
+        self._attack(now, payload, scenario_time, known)
         dt = None if self._last_offer is None else max(0.0, now - self._last_offer)
         self._last_offer = now
         if math.isfinite(scenario_time):
             self._scenario_offset = now - scenario_time
         self._history.append((now, payload))
-        self._note_impostor_template(payload)
+        self._note_impostor_template(payload, known)
         self._run_impostor(now)
         self._advance_blackouts(now, scenario_time)
         draws = self._draw_all(dt)
@@ -514,10 +520,11 @@ class LinkFaults:
         self._log(now, "stale", f"seq={'?' if stale_seq is None else stale_seq} ({now - time:.2f} s old) after {seq}",
                   seq=seq.value, stale_seq=stale_seq, age_s=now - time)
 
-    def _note_impostor_template(self, payload: bytes) -> None:
+    def _note_impostor_template(self, payload: bytes, known: TargetFix | None = None) -> None:
+        """The impostor copies the latest genuine fix: `known` (offer's fix of this payload) or the payload decoded."""
         if self.config.impostor_rate_hz > 0:
             try:
-                self._impostor_template = decode_target_fix(payload)
+                self._impostor_template = decode_target_fix(payload) if known is None else known
             except PayloadError:
                 pass  # keep the previous template
 
@@ -597,8 +604,9 @@ class LinkFaults:
         self._log(now, kind, f"seq={fix.seq} epoch={fix.epoch} stamp={fix.stamp:.3f} as {fix.sender}", seq=fix.seq,
                   epoch=fix.epoch, stamp=fix.stamp, sender=fix.sender)
 
-    def _attack(self, now: float, payload: bytes, scenario_time: float) -> None:
-        """Note the genuine payload for the attacks and fire the one-shot attacks that are due."""
+    def _attack(self, now: float, payload: bytes, scenario_time: float, known: TargetFix | None = None) -> None:
+        """Note the genuine payload for the attacks and fire the one-shot attacks that are due; known: offer's fix
+        of this payload (else the payload is decoded)."""
         config = self.config
         if not attacks_anything(config):
             return
@@ -610,7 +618,7 @@ class LinkFaults:
             else:
                 self._replayable.append(payload)
         try:
-            fix = decode_target_fix(payload)
+            fix = decode_target_fix(payload) if known is None else known
         except PayloadError:
             return
         self._attack_template = fix

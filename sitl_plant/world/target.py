@@ -96,9 +96,13 @@ class TargetModel:
 
     def step(self, dt: float) -> None:
         """Advance by dt seconds (the maneuver active at the start of the step holds through it)."""
-        turn_rate = self.lateral_acceleration(self.time) / self._speed if self._speed > 0.0 else 0.0
+        turn_rate = self.lateral_acceleration(self.time) / self._speed if self.maneuvers and self._speed > 0.0 else 0.0
         if turn_rate == 0.0:
-            self.position = self.position + self.velocity * dt
+            # position + velocity * dt element by element on floats: numpy's elementwise multiply and add, the
+            # same IEEE operations in the same order (the same bits), without two temporary arrays.
+            p0, p1, p2 = self.position.tolist()
+            v0, v1, v2 = self.velocity.tolist()
+            self.position = np.array((p0 + v0 * dt, p1 + v1 * dt, p2 + v2 * dt))
         else:
             heading = math.atan2(self.velocity[1], self.velocity[0])
             new_heading = heading + turn_rate * dt
