@@ -452,7 +452,7 @@ class FollowingPipeline:
         if self._engaged_at is None:
             return None
         relative = np.asarray(target_position, dtype=float) - np.asarray(pursuer_position, dtype=float)
-        distance = float(np.linalg.norm(relative))
+        distance = norm(relative)  # np.linalg.norm's bits (geometry.norm)
         if not math.isfinite(distance) or distance < 1e-6:
             return None
         return self._agrees_with_prediction(BearingMeasurement(time, relative / distance, np.asarray(pursuer_position, dtype=float)))
