@@ -36,8 +36,9 @@ from typing import ClassVar
 
 import numpy as np
 
+from companion.core._jit import jit, python_function
 from companion.core.geometry import all_finite, norm
-from companion.core.messages import NeighbourState
+from companion.core.messages import NeighbourState, fast_frozen, once_property
 
 TWO_PI = 2.0 * math.pi
 _EPS = 1e-9
@@ -88,17 +89,31 @@ class CooperativeContext:
         object.__setattr__(self, "neighbours", neighbours)
 
     def advanced(self, horizon: float) -> "CooperativeContext":
-        """Every vehicle moved at constant velocity by `horizon` s (may be negative; velocities unchanged)."""
-        return CooperativeContext(
-            self.time + horizon,
-            self.own_position + horizon * self.own_velocity,
-            self.own_velocity,
-            self.target_position + horizon * self.target_velocity,
-            self.target_velocity,
-            tuple(NeighbourState(n.ident, n.time + horizon, n.position + horizon * n.velocity, n.velocity)
-                  for n in self.neighbours),
-            self.target_acceleration,
-        )
+        """Every vehicle moved at constant velocity by `horizon` s (may be negative; velocities unchanged).
+        What the constructors would build, without checking again what this context's construction checked:
+        only the moved positions and times (ValueError if one overflows to infinity or the horizon is not finite)."""
+        time = self.time + horizon
+        own_position = self.own_position + horizon * self.own_velocity
+        target_position = self.target_position + horizon * self.target_velocity
+        neighbours = tuple(fast_frozen(NeighbourState, ident=n.ident, time=n.time + horizon,
+                                       position=n.position + horizon * n.velocity, velocity=n.velocity)
+                           for n in self.neighbours)
+        if not (math.isfinite(float(time)) and all_finite(own_position) and all_finite(target_position)
+                and all(math.isfinite(float(n.time)) and all_finite(n.position) for n in neighbours)):
+            raise ValueError(f"the context advanced by {horizon!r} s is not finite")
+        return fast_frozen(CooperativeContext, time=time, own_position=own_position, own_velocity=self.own_velocity,
+                           target_position=target_position, target_velocity=self.target_velocity,
+                           neighbours=neighbours, target_acceleration=self.target_acceleration)
+
+    @once_property
+    def neighbour_positions(self) -> np.ndarray:
+        """The neighbours' positions, m, shape (len(neighbours), 3) (the laws' kernels take arrays)."""
+        return np.array([n.position for n in self.neighbours], dtype=float).reshape(len(self.neighbours), 3)
+
+    @once_property
+    def neighbour_velocities(self) -> np.ndarray:
+        """The neighbours' velocities, m/s, shape (len(neighbours), 3)."""
+        return np.array([n.velocity for n in self.neighbours], dtype=float).reshape(len(self.neighbours), 3)
 
 
 def _planar(vector: np.ndarray) -> np.ndarray:
@@ -127,10 +142,14 @@ def phase(own_position: np.ndarray, target_position: np.ndarray) -> float:
     return math.atan2(float(offset[0]), float(offset[1]))
 
 
-def _ccw_gap(from_phase: float, to_phase: float) -> float:
+@jit
+def _ccw_gap_kernel(from_phase: float, to_phase: float) -> float:
     """Counter-clockwise angle from one phase to another, rad in [0, 2 pi)."""
     gap = (to_phase - from_phase) % TWO_PI
     return 0.0 if gap >= TWO_PI else gap  # float % can return 2 pi for a tiny negative difference
+
+
+_ccw_gap = python_function(_ccw_gap_kernel)  # the same function, without numba's dispatch, for Python callers
 
 
 def phase_gaps(own_phase: float, neighbour_phases: list[float] | np.ndarray) -> tuple[float, float] | None:
@@ -181,16 +200,17 @@ def _tracking_acceleration(desired_velocity, context: CooperativeContext, veloci
                            feedforward_horizon: float, max_acceleration: float) -> np.ndarray:
     """a = k_v (u - v) + du/dt (+ target acceleration), saturated to max_acceleration (m/s^2, shape (3,)).
 
-    desired_velocity: the law, context -> u (m/s, (3,)). du/dt is the finite difference of u over a
+    desired_velocity: the law, (context, horizon) -> u (m/s, (3,)) of the context advanced by horizon s
+    (`CooperativeContext.advanced`; horizon 0: the context itself). du/dt is the finite difference of u over a
     constant-velocity advance of every vehicle by feedforward_horizon s (0 disables it).
     """
-    u = desired_velocity(context)
+    u = desired_velocity(context, 0.0)
     command = velocity_gain * (u - context.own_velocity)
     if feedforward_horizon > 0.0:
         # Central difference: a one-sided step leaves the orbit (the chord lies outside the circle) and
         # biases the radius; the symmetric one cancels that to second order.
-        command = command + (desired_velocity(context.advanced(feedforward_horizon))
-                             - desired_velocity(context.advanced(-feedforward_horizon))) / (2.0 * feedforward_horizon)
+        command = command + (desired_velocity(context, feedforward_horizon)
+                             - desired_velocity(context, -feedforward_horizon)) / (2.0 * feedforward_horizon)
     if context.target_acceleration is not None:
         command = command + context.target_acceleration
     return _saturate(command, max_acceleration)
@@ -290,26 +310,97 @@ class CircumnavigationGuidance:
         return 0.0 if gaps is None else gaps[0]
 
     def desired_velocity(self, context: CooperativeContext) -> np.ndarray:
-        """u = v^_T + seed 002 eq. (10) (horizontal) + vertical hold, m/s, shape (3,) NED."""
-        offset = _planar(context.target_position - context.own_position)  # pursuer -> target
-        distance = norm(offset)
-        # Directly above the target the bearing's horizontal part is undefined: take phase 0 (east).
-        phi = offset / distance if distance > _EPS else np.array([-1.0, 0.0])
-        phi_bar = -_rot90(phi)  # phi rotated by pi/2 clockwise seen from above
-        delta = self.spacing_angle(context)
-        tangential = self.g2 * self.desired_radius * (self.alpha + self.g3 * delta)
-        # Not in the seed (a kinematic law): cap the orbit speed where its centripetal acceleration v^2 / D
-        # would exceed the turn budget, so a vehicle with bounded acceleration can still follow the field.
-        tangential = min(tangential, math.sqrt(self._turn_acceleration * max(distance, _EPS)))
-        horizontal = self.g1 * (distance - self.desired_radius) * phi + tangential * phi_bar
-        desired_down = context.target_position[2] - self.altitude_offset
-        relative = _ned(horizontal, self.vertical_gain * (desired_down - context.own_position[2]))
-        return context.target_velocity + _saturate(relative, self.max_relative_speed)
+        """u = v^_T + seed 002 eq. (10) (horizontal) + vertical hold, m/s, shape (3,) NED
+        (_circumnavigation_velocity_kernel)."""
+        return self._velocity_after(context, 0.0)
+
+    def _velocity_after(self, context: CooperativeContext, horizon: float) -> np.ndarray:
+        """desired_velocity(context.advanced(horizon)), the advance done in the kernel (horizon s; 0: none)."""
+        velocity = np.empty(3)
+        if not _circumnavigation_velocity_kernel(
+                context.own_position, context.own_velocity, context.target_position, context.target_velocity,
+                context.neighbour_positions, context.neighbour_velocities, float(horizon), self.g1, self.g2,
+                self.g3, self.alpha, self.desired_radius, self._turn_acceleration, self.altitude_offset,
+                self.vertical_gain, self.max_relative_speed, velocity):
+            raise ValueError(f"the context advanced by {horizon!r} s is not finite")
+        return velocity
 
     def acceleration(self, context: CooperativeContext) -> np.ndarray:
         """Acceleration command, m/s^2, shape (3,) NED: k_v (u - v) + du/dt (+ a^_T), norm <= max_acceleration."""
-        return _tracking_acceleration(self.desired_velocity, context, self.velocity_gain,
+        return _tracking_acceleration(self._velocity_after, context, self.velocity_gain,
                                       self.feedforward_horizon, self.max_acceleration)
+
+
+@jit
+def _circumnavigation_velocity_kernel(own_position: np.ndarray, own_velocity: np.ndarray, target_position: np.ndarray,
+                                      target_velocity: np.ndarray, neighbour_positions: np.ndarray,
+                                      neighbour_velocities: np.ndarray, horizon: float, g1: float, g2: float,
+                                      g3: float, alpha: float, desired_radius: float, turn_acceleration: float,
+                                      altitude_offset: float, vertical_gain: float, max_relative_speed: float,
+                                      out: np.ndarray) -> bool:
+    """CircumnavigationGuidance's desired velocity u = v^_T + seed 002 eq. (10) (horizontal) + vertical hold,
+    m/s, into out (3,), for every vehicle moved at constant velocity by `horizon` s first (as
+    CooperativeContext.advanced; not moved when horizon is 0). False (out unset) if a moved position is not
+    finite (where `advanced` raises). Positions m, velocities m/s, NED, float64 (3,); the neighbours' (k, 3).
+
+    D = |planar offset to the target|; phi its unit vector (phase 0, east, directly above the target);
+    phi_bar = phi rotated by pi/2 clockwise seen from above; Delta = the CCW gap to the nearest neighbour ahead
+    (0 without neighbours); tangential speed g2 D* (alpha + g3 Delta), capped at sqrt(a_turn max(D, eps));
+    u_h = g1 (D - D*) phi + tangential phi_bar; u_down = k_z (z_T - altitude_offset - z); |u - v^_T| capped at
+    max_relative_speed. The arithmetic of the class's law in the order it was written with numpy arrays (norms as
+    sqrt(x @ x), elementwise products and sums), so compiled or not it gives the same bits."""
+    own = own_position
+    target = target_position
+    neighbours = neighbour_positions
+    if horizon != 0.0:
+        own = own_position + horizon * own_velocity
+        target = target_position + horizon * target_velocity
+        neighbours = neighbour_positions + horizon * neighbour_velocities
+        for k in range(3):
+            if not (math.isfinite(own[k]) and math.isfinite(target[k])):
+                return False
+        for i in range(neighbours.shape[0]):
+            for k in range(3):
+                if not math.isfinite(neighbours[i, k]):
+                    return False
+    offset = np.empty(2)  # planar (east, north), pursuer -> target
+    offset[0] = target[1] - own[1]
+    offset[1] = target[0] - own[0]
+    distance = math.sqrt(offset @ offset)
+    # Directly above the target the bearing's horizontal part is undefined: take phase 0 (east).
+    if distance > _EPS:
+        phi_east = offset[0] / distance
+        phi_north = offset[1] / distance
+    else:
+        phi_east = -1.0
+        phi_north = 0.0
+    # phi_bar: phi rotated by pi/2 clockwise seen from above, (phi_north, -phi_east)
+    delta = 0.0  # Delta_i of seed 002 (spacing_angle): the CCW gap to the nearest neighbour ahead, phases about the target
+    if neighbours.shape[0] > 0:
+        own_phase = math.atan2(own[0] - target[0], own[1] - target[1])
+        for i in range(neighbours.shape[0]):
+            gap = _ccw_gap_kernel(own_phase, math.atan2(neighbours[i, 0] - target[0], neighbours[i, 1] - target[1]))
+            if i == 0 or gap < delta:  # min() over the neighbours, the first of equal ones
+                delta = gap
+    tangential = g2 * desired_radius * (alpha + g3 * delta)
+    # Not in the seed (a kinematic law): cap the orbit speed where its centripetal acceleration v^2 / D
+    # would exceed the turn budget, so a vehicle with bounded acceleration can still follow the field.
+    cap = math.sqrt(turn_acceleration * (_EPS if _EPS > distance else distance))
+    if cap < tangential:
+        tangential = cap
+    radial = g1 * (distance - desired_radius)
+    relative = np.empty(3)  # NED: (north, east) of the planar u_h, then down
+    relative[0] = radial * phi_north + tangential * -phi_east
+    relative[1] = radial * phi_east + tangential * phi_north
+    relative[2] = vertical_gain * ((target[2] - altitude_offset) - own[2])
+    length = math.sqrt(relative @ relative)
+    if not length <= max_relative_speed:
+        scale = max_relative_speed / length
+        for k in range(3):
+            relative[k] = relative[k] * scale
+    for k in range(3):
+        out[k] = target_velocity[k] + relative[k]
+    return True
 
 
 # --------------------------------------------------------------------------------------------------
@@ -499,8 +590,12 @@ class StandoffTrackingGuidance:
 
     def acceleration(self, context: CooperativeContext) -> np.ndarray:
         """Acceleration command, m/s^2, shape (3,) NED: k_v (u - v) + du/dt (+ a^_T), norm <= max_acceleration."""
-        return _tracking_acceleration(self.desired_velocity, context, self.velocity_gain,
+        return _tracking_acceleration(self._velocity_after, context, self.velocity_gain,
                                       self.feedforward_horizon, self.max_acceleration)
+
+    def _velocity_after(self, context: CooperativeContext, horizon: float) -> np.ndarray:
+        """desired_velocity(context.advanced(horizon)) (horizon s; 0: the context itself)."""
+        return self.desired_velocity(context if horizon == 0.0 else context.advanced(horizon))
 
 
 # --------------------------------------------------------------------------------------------------
