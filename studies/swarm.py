@@ -4,8 +4,10 @@ Each pursuer is what the single-pursuer simulator flies (studies.closed_loop): i
 own bearing sensor and its own FollowingPipeline, built by the same assembly (companion.assembly). What is
 added is the share link between them, as the networked companions have it: every pursuer publishes a
 ``bof.pursuer_share/1`` (interfaces.link_schema) at [swarm] share_rate_hz with its own measured state and its
-latest bearing (and its estimate); the share goes through the neighbour-link fault model
-(interfaces.neighbour_link: radius, loss, latency, blackouts) and is decoded by the receiver, which then
+latest bearing (and its estimate), checked by the payload schema as its encoder checks it and handed over as
+the receivers would decode it (interfaces.link_schema.checked_pursuer_share: the encoder's JSON carries every
+value exactly, so the bytes in between change nothing in process); the share goes through the neighbour-link fault
+model (interfaces.neighbour_link: radius, loss, latency, blackouts) and the receiver
 
 * hands the neighbour's bearing to its estimator at the bearing's own stamp, from the neighbour's position
   then (estimator 'shared_bearings' and 'triangulation_kf'; 'own' and 'fusion' keep to their own bearings);
@@ -38,8 +40,7 @@ from interfaces.link_schema import (
     PursuerShare,
     SharedBearing,
     SharedEstimate,
-    decode_pursuer_share,
-    encode_pursuer_share,
+    checked_pursuer_share,
 )
 from interfaces.neighbour_link import NeighbourLink
 from interfaces.scenario import (
@@ -127,9 +128,10 @@ def _pursuer(scenario: Scenario, vehicle: VehicleConfig, start: PursuerStart, se
                     build_sensor(scenario.sensor), sensor_rng, range_rng, epoch, FlightLog(rows))
 
 
-def _share(pursuer: _Pursuer, time: float, position: np.ndarray, velocity: np.ndarray) -> bytes:
+def _share(pursuer: _Pursuer, time: float, position: np.ndarray, velocity: np.ndarray) -> PursuerShare:
     """Pursuer's bof.pursuer_share/1 at `time`: its measured state, its newest bearing if not shared yet,
-    its estimate."""
+    its estimate; as its receivers decode it (interfaces.link_schema.checked_pursuer_share: what
+    decode_pursuer_share(encode_pursuer_share(share)) gives, without the JSON in between)."""
     bearing = None
     latest = pursuer.latest_bearing
     if latest is not None and latest.time > pursuer.shared_bearing_time:
@@ -142,26 +144,21 @@ def _share(pursuer: _Pursuer, time: float, position: np.ndarray, velocity: np.nd
     share = PursuerShare(pursuer.ident, pursuer.seq, time, pursuer.epoch, tuple(position), tuple(velocity), bearing, estimate)
     pursuer.seq += 1
     try:
-        return encode_pursuer_share(share)
+        return checked_pursuer_share(share)
     except PayloadError as error:
         if estimate is None:
             raise
         # An estimate the schema refuses (a diverged one: |v| > 1e3 m/s, a covariance out of range) is left out
         # of the share, and counted; the rest of the share still goes.
         pursuer.estimates_not_shared[error.reason] = pursuer.estimates_not_shared.get(error.reason, 0) + 1
-        return encode_pursuer_share(dataclasses.replace(share, estimate=None))
+        return checked_pursuer_share(dataclasses.replace(share, estimate=None))
 
 
-def _receive(receiver: _Pursuer, payload: bytes, uses_bearings: bool, uses_estimates: bool = False) -> None:
-    """Decode one share and keep what it says: the neighbour's state, and its bearing for the estimator.
-    A share that does not decode, or that is older than one already heard from its sender and epoch,
-    is counted and dropped. With uses_estimates the neighbour's shared estimate waits for the estimator's
-    absorb (estimator 'fusion')."""
-    try:
-        share = decode_pursuer_share(payload)
-    except PayloadError as error:
-        receiver.shares_rejected[error.reason] = receiver.shares_rejected.get(error.reason, 0) + 1
-        return
+def _receive(receiver: _Pursuer, share: PursuerShare, uses_bearings: bool, uses_estimates: bool = False) -> None:
+    """Keep what one share (as decoded: `_share`) says: the neighbour's state, and its bearing for the estimator.
+    A share that is older than one already heard from its sender and epoch is counted and dropped. With
+    uses_estimates the neighbour's shared estimate waits for the estimator's absorb (estimator 'fusion'). (The
+    schema checked the share when it was made, as the encoder does: nothing the decoder would refuse is sent.)"""
     if share.sender == receiver.ident:
         receiver.shares_rejected["own_sender"] = receiver.shares_rejected.get("own_sender", 0) + 1
         return
@@ -205,7 +202,7 @@ def simulate_swarm(scenario: Scenario, vehicle: VehicleConfig, seed: int | None 
     timeout = math.inf if swarm is None else swarm.neighbour_timeout_s
     uses_bearings = swarm is not None and swarm.estimator in ("shared_bearings", "triangulation_kf")
     uses_estimates = swarm is not None and swarm.estimator == "fusion"
-    in_flight: list[tuple[float, int, int, bytes]] = []  # (delivery time, order, receiver id, payload)
+    in_flight: list[tuple[float, int, int, PursuerShare]] = []  # (delivery time, order, receiver id, share)
     order = 0
     separation = math.inf
     separations = []
@@ -227,18 +224,18 @@ def simulate_swarm(scenario: Scenario, vehicle: VehicleConfig, seed: int | None 
                         p.first_bearing = time
         if link is not None and step % every["share"] == 0:
             for sender in pursuers:
-                payload = _share(sender, time, states[sender.ident][1], states[sender.ident][2])
+                share = _share(sender, time, states[sender.ident][1], states[sender.ident][2])
                 for receiver in pursuers:
                     if receiver is sender:
                         continue
                     delivery = link.transmit(time, sender.ident, receiver.ident, states[sender.ident][1],
                                              states[receiver.ident][1])
                     if delivery.delivered:
-                        heapq.heappush(in_flight, (delivery.time, order, receiver.ident, payload))
+                        heapq.heappush(in_flight, (delivery.time, order, receiver.ident, share))
                         order += 1
         while in_flight and in_flight[0][0] <= time + 1e-9:
-            _, _, receiver_id, payload = heapq.heappop(in_flight)
-            _receive(pursuers[receiver_id - 1], payload, uses_bearings, uses_estimates)
+            _, _, receiver_id, share = heapq.heappop(in_flight)
+            _receive(pursuers[receiver_id - 1], share, uses_bearings, uses_estimates)
 
         for p in pursuers:
             truth, measured_position, measured_velocity = states[p.ident]
