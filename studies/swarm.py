@@ -32,7 +32,8 @@ import numpy as np
 
 from companion.assembly import build_pipeline, build_sensor, pursuer_scenario
 from companion.core.cooperative_guidance import phase_spacing_errors
-from companion.core.messages import BearingMeasurement, NeighbourState, PursuerState, TargetEstimate
+from companion.core.geometry import all_finite
+from companion.core.messages import BearingMeasurement, NeighbourState, PursuerState, TargetEstimate, fast_frozen
 from companion.core.pipeline import FollowingPipeline
 from interfaces.link_schema import (
     MAX_EPOCH,
@@ -60,8 +61,9 @@ from studies.closed_loop import (
     FlightLog,
     Termination,
     _initial_state,
-    _log_tick,
+    _log_row,
     _measure,
+    _sum3,
     health_actions_summary,
 )
 from studies.metrics import rms, summarize
@@ -205,31 +207,35 @@ def simulate_swarm(scenario: Scenario, vehicle: VehicleConfig, seed: int | None 
     in_flight: list[tuple[float, int, int, PursuerShare]] = []  # (delivery time, order, receiver id, share)
     order = 0
     separation = math.inf
-    separations = []
-    phase_errors = []
+    phase_errors = []  # (time, phases): the spacing errors of the summary window are computed at the end
 
     upper = np.triu_indices(len(pursuers), 1)  # each pair of pursuers once
+    # The true positions of every tick, for the separation figures (computed at the end: _closest_separation).
+    positions = np.empty((len(event_steps), len(pursuers), 3))
+    sensor_every, share_every = every["sensor"], every["share"]
+    max_speed_squared = MAX_SPEED**2
+    last_index = len(event_steps) - 1
     for index, step in enumerate(event_steps):
         time = step * dt
-        states = {p.ident: (p.plant.state, *p.plant.measured_state()) for p in pursuers}
-        for p in pursuers:
-            truth = states[p.ident][0]
-            if step % every["sensor"] == 0:
-                bearing = _measure(p.sensor, time, target.position - truth.position, truth.rotation,
-                                   states[p.ident][1], p.sensor_rng, p.range_rng)
+        # The true state as tuples (plant.kinematics(): the values of plant.state, without its arrays), then the
+        # measured one, pursuer by pursuer.
+        states = [(*p.plant.kinematics(), *p.plant.measured_state()) for p in pursuers]
+        if step % sensor_every == 0:
+            for p, (position, _, rotation, measured_position, _) in zip(pursuers, states):
+                bearing = _measure(p.sensor, time, target.position - np.array(position), np.array(rotation).reshape(3, 3),
+                                   measured_position, p.sensor_rng, p.range_rng)
                 if bearing is not None:
                     p.inbox.append(bearing)
                     p.latest_bearing = bearing
                     if p.first_bearing is None:
                         p.first_bearing = time
-        if link is not None and step % every["share"] == 0:
-            for sender in pursuers:
-                share = _share(sender, time, states[sender.ident][1], states[sender.ident][2])
-                for receiver in pursuers:
+        if link is not None and step % share_every == 0:
+            for sender, sender_state in zip(pursuers, states):
+                share = _share(sender, time, sender_state[3], sender_state[4])
+                for receiver, receiver_state in zip(pursuers, states):
                     if receiver is sender:
                         continue
-                    delivery = link.transmit(time, sender.ident, receiver.ident, states[sender.ident][1],
-                                             states[receiver.ident][1])
+                    delivery = link.transmit(time, sender.ident, receiver.ident, sender_state[3], receiver_state[3])
                     if delivery.delivered:
                         heapq.heappush(in_flight, (delivery.time, order, receiver.ident, share))
                         order += 1
@@ -237,46 +243,65 @@ def simulate_swarm(scenario: Scenario, vehicle: VehicleConfig, seed: int | None 
             _, _, receiver_id, share = heapq.heappop(in_flight)
             _receive(pursuers[receiver_id - 1], share, uses_bearings, uses_estimates)
 
-        for p in pursuers:
-            truth, measured_position, measured_velocity = states[p.ident]
-            own = PursuerState(time, measured_position, measured_velocity)
-            fresh = tuple(n for n in p.neighbours.values() if time - n.time <= timeout)
-            p.pipeline.set_neighbours(fresh)
+        for k, (p, (position, velocity, rotation, measured_position, measured_velocity)) in enumerate(zip(pursuers, states)):
+            own = fast_frozen(PursuerState, time=time, position=measured_position, velocity=measured_velocity)
+            p.pipeline.set_neighbours(tuple(n for n in p.neighbours.values() if time - n.time <= timeout)
+                                      if p.neighbours else ())
             if p.estimate_inbox:
                 # estimator 'fusion': the shares that arrived since the last tick, fused into the own filter at once
                 p.pipeline.estimator.absorb(p.estimate_inbox)
                 p.estimate_inbox.clear()
-            bearings = sorted(p.inbox, key=lambda b: b.time)
+            bearings = sorted(p.inbox, key=_bearing_time) if p.inbox else []
             p.inbox.clear()
             output = p.pipeline.step_all(time, own, bearings)
-            p.bearings_used += sum(1 for b in bearings if b.source == 0)
-            p.neighbour_bearings_used += sum(1 for b in bearings if b.source != 0)
+            if bearings:
+                own_bearings = sum(1 for b in bearings if b.source == 0)
+                p.bearings_used += own_bearings
+                p.neighbour_bearings_used += len(bearings) - own_bearings
             if output.new_setpoint and output.setpoint is not None:
                 p.plant.set_attitude_target(output.setpoint.rotation,
                                             output.setpoint.thrust_normalized * p.plant.params.max_total_thrust)
             estimate = output.estimate
-            if estimate is not None and not math.isfinite(float(estimate.position.sum() + estimate.velocity.sum())):
+            # The sum of the six numbers in numpy's order (ndarray.sum of three adds them left to right), as floats.
+            if estimate is not None and not math.isfinite(_sum3(estimate.position.tolist()) + _sum3(estimate.velocity.tolist())):
                 p.termination = Termination.ESTIMATE_NOT_FINITE
-            if truth.rotation[2, 2] < 0.0 or float(truth.velocity @ truth.velocity) > MAX_SPEED**2:
+            vx, vy, vz = velocity  # |v|^2 summed left to right (as studies.closed_loop)
+            if rotation[8] < 0.0 or vx * vx + vy * vy + vz * vz > max_speed_squared:
                 p.termination = Termination.OUT_OF_CONTROL
-            _log_tick(p.log, time, truth, target, output, p.pipeline.estimator)
+            _log_row(p.log, time, position, velocity, rotation[0::3], rotation[8], target, output, p.pipeline.estimator)
+            positions[index, k] = position
 
-        positions = np.array([states[p.ident][0].position for p in pursuers])
         if len(pursuers) > 1:
-            gaps = np.linalg.norm(positions[:, None, :] - positions[None, :, :], axis=2)
-            closest = float(np.min(gaps[upper]))
-            separation = min(separation, closest)
-            separations.append(closest)
-            phases = np.arctan2(positions[:, 1] - target.position[1], positions[:, 0] - target.position[0])
-            phase_errors.append((time, phase_spacing_errors(phases)))
-        if any(p.termination is not Termination.COMPLETED for p in pursuers) or index + 1 == len(event_steps):
+            phases = np.arctan2(positions[index, :, 1] - target.position[1], positions[index, :, 0] - target.position[0])
+            if not all_finite(phases):
+                phase_spacing_errors(phases)  # raises, as it would have here
+            phase_errors.append((time, phases))
+        if any(p.termination is not Termination.COMPLETED for p in pursuers) or index == last_index:
             break
         gap = event_steps[index + 1] - step
         target.step(gap * dt)
         for p in pursuers:
             p.plant.advance(gap * dt)
 
+    if len(pursuers) > 1:
+        separation = _closest_separation(positions[:index + 1], upper)
     return _result(scenario, pursuers, link, seed, separation, phase_errors)
+
+
+def _bearing_time(bearing: BearingMeasurement) -> float:
+    return bearing.time
+
+
+def _closest_separation(positions: np.ndarray, upper: tuple[np.ndarray, np.ndarray]) -> float:
+    """The closest two pursuers ever came, m: positions (ticks, pursuers, 3) m; upper, each pair once
+    (np.triu_indices). Tick by tick the smallest distance of a pair (np.min of the pairs' norms: NaN if one is
+    NaN), then the smallest of those as min() folds them (a NaN tick is passed over). The norms of all ticks at
+    once: numpy reduces each pair's three squares alone, in the same order whatever the number of ticks."""
+    gaps = np.linalg.norm(positions[:, :, None, :] - positions[:, None, :, :], axis=3)
+    separation = math.inf
+    for closest in np.min(gaps[:, upper[0], upper[1]], axis=1).tolist():
+        separation = min(separation, closest)
+    return separation
 
 
 def _all_bearings_time(pursuers: list[_Pursuer]) -> float | None:
@@ -295,6 +320,7 @@ def _settled_under(time: np.ndarray, error: np.ndarray, bound: float, after: flo
 
 def _result(scenario: Scenario, pursuers: list[_Pursuer], link: NeighbourLink | None, seed: int, separation: float,
             phase_errors: list[tuple[float, np.ndarray]]) -> SwarmResult:
+    """phase_errors: (time s, the pursuers' orbit phases about the target then, rad), every tick."""
     all_bearings = _all_bearings_time(pursuers)
     series = {}
     entries = []
@@ -323,7 +349,7 @@ def _result(scenario: Scenario, pursuers: list[_Pursuer], link: NeighbourLink | 
     top = dict(entries[0])
     top["pursuers"] = entries
     window_start = entries[0]["duration"] - scenario.simulation.summary_window
-    recent = [errors for time, errors in phase_errors if time >= window_start]
+    recent = [phase_spacing_errors(phases) for time, phases in phase_errors if time >= window_start]
     top["phase_spacing_error_deg_rms"] = (float(np.degrees(rms(np.concatenate(recent)))) if recent else None)
     top["min_pursuer_separation"] = separation if math.isfinite(separation) else None
     top["min_separation"] = None if scenario.swarm is None else scenario.swarm.min_separation
