@@ -1,9 +1,10 @@
 """The cooperative laws' kernels (issue 16) against the code they replaced, bit for bit.
 
-The reference below is a VERBATIM COPY of CircumnavigationGuidance.desired_velocity and of the feed-forward it was
-flown with (_tracking_acceleration over CooperativeContext.advanced, the helpers phase, phase_gaps, _ccw_gap,
-_planar, _ned, _rot90, _saturate, geometry.norm) as they were at 1c852b6, before the law became
-_circumnavigation_velocity_kernel. Contexts are drawn at random (neighbours at any phase, the pursuer above the
+The references below are VERBATIM COPIES, as they were at 1c852b6, of CircumnavigationGuidance.desired_velocity and
+of the feed-forward it was flown with (_tracking_acceleration over CooperativeContext.advanced, the helpers phase,
+phase_gaps, _ccw_gap, _planar, _ned, _rot90, _saturate, geometry.norm), before the law became
+_circumnavigation_velocity_kernel, and of SeparationFilter.filter (with braking_margin, _trigger_margin,
+_threatening, _limit_keeping_constraints), before its parts 1 and 2 became _separation_kernel. Contexts are drawn at random (neighbours at any phase, the pursuer above the
 target, capped and uncapped relative speeds) and the law's outputs must equal the reference's to the last bit, with
 the kernel compiled and as plain Python.
 """
@@ -18,8 +19,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from companion.core import _jit
-from companion.core.cooperative_guidance import (CircumnavigationGuidance, CooperativeContext,
-                                                 _circumnavigation_velocity_kernel, _ccw_gap_kernel)
+from companion.core.cooperative_guidance import (CircumnavigationGuidance, CooperativeContext, SeparationFilter,
+                                                 _braking_margin, _circumnavigation_velocity_kernel, _ccw_gap_kernel,
+                                                 _separation_kernel, _trigger_margin)
 from companion.core.messages import NeighbourState
 
 FUZZ = settings(max_examples=400, deadline=None, database=None, suppress_health_check=[HealthCheck.too_slow])
@@ -116,6 +118,73 @@ def _ref_acceleration(self, context):
     return _ref_saturate(command, max_acceleration)
 
 
+def _ref_braking_margin(self, distance, closing_speed):
+    closing = max(closing_speed, 0.0)
+    sharing = 2.0 if self.reciprocal else 1.0
+    return distance - self.min_separation - closing * closing / (2.0 * sharing * self.braking_acceleration)
+
+
+def _ref_trigger_margin(self, closing_speed):
+    closing = max(closing_speed, 0.0)
+    tau = self.horizon
+    return (1.0 + self.max_acceleration / self.braking_acceleration) * (
+        closing * tau + self.max_acceleration * tau * tau)
+
+
+def _ref_threatening(self, offset, relative_velocity, distance, closing_speed):
+    if _ref_braking_margin(self, distance, closing_speed) <= _ref_trigger_margin(self, closing_speed):
+        return True
+    speed2 = float(relative_velocity @ relative_velocity)
+    if speed2 <= _EPS:
+        return False
+    t_closest = min(max(float(offset @ relative_velocity) / speed2, 0.0), self.horizon)
+    return _ref_norm(offset - t_closest * relative_velocity) < self.min_separation
+
+
+def _ref_filter(self, own_position, own_velocity, acceleration, neighbours):
+    position = np.asarray(own_position, dtype=float)
+    velocity = np.asarray(own_velocity, dtype=float)
+    command = np.asarray(acceleration, dtype=float).copy()
+    geometry = []
+    for neighbour in neighbours:
+        offset = neighbour.position - position
+        distance = _ref_norm(offset)
+        if distance <= _EPS:
+            continue  # coincident: no direction to push along (cannot be reached from m >= 0)
+        normal = offset / distance
+        relative_velocity = velocity - neighbour.velocity
+        geometry.append((offset, normal, relative_velocity, distance, float(relative_velocity @ normal)))
+    for _, normal, _, distance, _ in geometry:
+        if distance < self._influence:
+            depth = (self._influence - distance) / (self._influence - self.min_separation)
+            command = command - self.repulsion_gain * min(depth, 1.0) ** 2 * normal
+    active = []
+    for offset, normal, relative_velocity, distance, closing in geometry:
+        if _ref_threatening(self, offset, relative_velocity, distance, closing):
+            active.append((normal, -self.braking_acceleration if closing > 0.0 else 0.0))
+    if not active:
+        return _ref_saturate(command, self.max_acceleration)
+    for _ in range(self.passes):
+        for normal, bound in active:
+            along = float(command @ normal)
+            if along > bound:
+                command = command + (bound - along) * normal
+    return _ref_limit_keeping_constraints(self, command, active)
+
+
+def _ref_limit_keeping_constraints(self, command, active):
+    if _ref_norm(command) <= self.max_acceleration:
+        return command
+    basis = np.linalg.qr(np.array([normal for normal, _ in active]).T)[0]  # orthonormal span of normals
+    constrained = basis @ (basis.T @ command)
+    free = command - constrained
+    constrained_norm = _ref_norm(constrained)
+    if constrained_norm >= self.max_acceleration:
+        return constrained * (self.max_acceleration / constrained_norm)
+    room = math.sqrt(self.max_acceleration ** 2 - constrained_norm ** 2)
+    return constrained + _ref_saturate(free, room)
+
+
 # --- random laws and contexts --------------------------------------------------------------------------------
 
 def _bits(array) -> list[str]:
@@ -160,10 +229,39 @@ def kernel_mode(request, monkeypatch):
     """Run each test with the kernels as they are (compiled when numba is) and as plain Python."""
     if request.param == "plain":
         import companion.core.cooperative_guidance as module
-        monkeypatch.setattr(module, "_circumnavigation_velocity_kernel",
-                            _jit.python_function(_circumnavigation_velocity_kernel))
-        monkeypatch.setattr(module, "_ccw_gap_kernel", _jit.python_function(_ccw_gap_kernel))
+        for kernel in (_circumnavigation_velocity_kernel, _ccw_gap_kernel, _separation_kernel, _braking_margin,
+                       _trigger_margin):
+            monkeypatch.setattr(module, kernel.__name__, _jit.python_function(kernel))
     return request.param
+
+
+@st.composite
+def separation_filters(draw) -> SeparationFilter:
+    min_separation = draw(st.floats(0.2, 5.0))
+    max_acceleration = draw(st.floats(0.5, 10.0))
+    return SeparationFilter(
+        min_separation, influence_distance=draw(st.one_of(st.none(), st.floats(1.01, 4.0).map(lambda f: f * min_separation))),
+        repulsion_gain=draw(st.floats(0.0, 3.0)), braking_acceleration=draw(st.floats(0.1, 1.0)) * max_acceleration,
+        max_acceleration=max_acceleration, horizon=draw(st.floats(0.01, 1.0)), passes=draw(st.integers(1, 4)),
+        reciprocal=draw(st.booleans()))
+
+
+@st.composite
+def separation_cases(draw):
+    """(own position, own velocity, command, neighbours): neighbours close by (inside the influence distance, at
+    the pursuer's own position, within a metre), closing and not."""
+    own = draw(vectors)
+    velocity = draw(velocities)
+    near = st.tuples(*[st.floats(-6.0, 6.0)] * 3).map(np.array)
+    neighbours = []
+    for ident in range(2, 2 + draw(st.integers(0, 4))):
+        position = draw(st.one_of(near.map(lambda d: own + d), st.just(own.copy()), vectors,
+                                  st.floats(-1.0, 1.0).map(lambda x: own + np.array([x, 0.3, 0.0]))))
+        approaching = st.floats(0.01, 0.5).map(lambda rate: velocity + rate * (own - position))  # slowly, head on
+        neighbour_velocity = draw(st.one_of(velocities, st.just(velocity.copy()), st.just(-velocity), approaching))
+        neighbours.append(NeighbourState(ident, 0.0, position, neighbour_velocity))
+    command = draw(st.one_of(st.tuples(*[st.floats(-15.0, 15.0)] * 3).map(np.array), st.just(np.zeros(3))))
+    return own, velocity, command, tuple(neighbours)
 
 
 @settings(FUZZ, suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])  # set once per mode
@@ -227,13 +325,83 @@ def test_advanced_is_what_the_constructors_build(context, horizon):
 def test_warm_up_compiles_the_kernel_a_cooperative_tick_calls():
     """After _jit.warm_up, a control tick of the law compiles nothing more (the same argument types)."""
     _jit.warm_up()
+    kernels = (_circumnavigation_velocity_kernel, _separation_kernel)
     if not _jit.ENABLED:
-        assert _jit.python_function(_circumnavigation_velocity_kernel) is _circumnavigation_velocity_kernel
+        assert all(_jit.python_function(kernel) is kernel for kernel in kernels)
         return
-    compiled = list(_circumnavigation_velocity_kernel.signatures)
-    assert compiled
+    compiled = [list(kernel.signatures) for kernel in kernels]
+    assert all(compiled)
     neighbours = tuple(NeighbourState(k, 1.0, np.array([5.0 * k, 1.0, -20.0]), np.ones(3)) for k in (2, 3))
     for present in ((), neighbours):
-        CircumnavigationGuidance().acceleration(CooperativeContext(
-            1.0, np.array([0.0, 0.0, -20.0]), np.ones(3), np.array([30.0, 5.0, -20.0]), np.ones(3), present))
-    assert list(_circumnavigation_velocity_kernel.signatures) == compiled
+        context = CooperativeContext(1.0, np.array([0.0, 0.0, -20.0]), np.ones(3), np.array([30.0, 5.0, -20.0]),
+                                     np.ones(3), present)
+        command = CircumnavigationGuidance().acceleration(context)
+        SeparationFilter(2.0).filter(context.own_position, context.own_velocity, command, present)
+    assert [list(kernel.signatures) for kernel in kernels] == compiled
+
+
+@settings(FUZZ, suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])  # set once per mode
+@given(guard=separation_filters(), case=separation_cases())
+def test_the_separation_filter_gives_the_replaced_code_bits(kernel_mode, guard, case):
+    own, velocity, command, neighbours = case
+    before = command.copy()
+    assert _bits(guard.filter(own, velocity, command, neighbours)) == _bits(_ref_filter(guard, own, velocity, command, neighbours))
+    assert _bits(command) == _bits(before)  # the caller's command is not written
+    for neighbour in neighbours:
+        offset = neighbour.position - own
+        distance, closing = _ref_norm(offset), float((velocity - neighbour.velocity) @ offset)
+        assert guard.braking_margin(distance, closing) == _ref_braking_margin(guard, distance, closing)
+        assert guard._trigger_margin(closing) == _ref_trigger_margin(guard, closing)
+
+
+def test_the_separation_cases_reach_every_branch():
+    """The drawn cases repel, threaten and constrain (else the test above would check little)."""
+    seen = set()
+
+    @settings(FUZZ, max_examples=300)
+    @given(guard=separation_filters(), case=separation_cases())
+    def look(guard, case):
+        own, velocity, command, neighbours = case
+        normals, bounds = np.empty((len(neighbours), 3)), np.empty(len(neighbours))
+        repelled = command.copy()
+        threatening = _separation_kernel(own, velocity, repelled, np.array([n.position for n in neighbours]).reshape(-1, 3),
+                                         np.array([n.velocity for n in neighbours]).reshape(-1, 3), guard.min_separation,
+                                         guard._influence, guard.repulsion_gain, guard.braking_acceleration,
+                                         guard.max_acceleration, guard.horizon, 2.0 if guard.reciprocal else 1.0,
+                                         normals, bounds)
+        seen.add("repelled" if not np.array_equal(repelled, command) else "not repelled")
+        seen.add("threatened" if threatening else "not threatened")
+        if threatening and _ref_norm(_ref_filter(guard, own, velocity, command, neighbours)) > 0.0:
+            seen.add("constrained")
+        if any(np.array_equal(n.position, own) for n in neighbours):
+            seen.add("coincident")
+
+    look()
+    assert seen >= {"repelled", "not repelled", "threatened", "not threatened", "constrained", "coincident"}
+
+
+@FUZZ
+@given(contexts(), st.floats(0.0, 200.0))
+def test_the_pipelines_moved_neighbours_are_what_the_constructor_builds(context, time):
+    """FollowingPipeline._neighbours_at builds checked neighbours with fast_frozen; the reference is its code at
+    1c852b6 (the NeighbourState constructor)."""
+    from companion.core.pipeline import FollowingPipeline
+
+    holder = object.__new__(FollowingPipeline)  # only the neighbours are needed
+    holder._neighbours = context.neighbours
+    moved = holder._neighbours_at(time)
+    reference = tuple(NeighbourState(n.ident, time, n.position + (time - n.time) * n.velocity, n.velocity)
+                      for n in context.neighbours)
+    assert len(moved) == len(reference)
+    for mine, theirs in zip(moved, reference):
+        assert type(mine) is NeighbourState and mine.ident == theirs.ident and mine.time == theirs.time
+        assert _bits(mine.position) == _bits(theirs.position) and mine.velocity is theirs.velocity
+
+
+def test_a_moved_neighbour_that_overflows_raises_as_the_constructor_did():
+    from companion.core.pipeline import FollowingPipeline
+
+    holder = object.__new__(FollowingPipeline)
+    holder._neighbours = (NeighbourState(2, 0.0, np.array([1.7e308, 0.0, 0.0]), np.array([1e308, 0.0, 0.0])),)
+    with pytest.raises(ValueError, match="neighbour position must be a finite vector"):
+        holder._neighbours_at(1.0)

@@ -36,7 +36,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from companion.core._jit import jit, python_function
+from companion.core._jit import jit, power, python_function
 from companion.core.geometry import all_finite, norm
 from companion.core.messages import NeighbourState, fast_frozen, once_property
 
@@ -656,26 +656,12 @@ class SeparationFilter:
 
     def braking_margin(self, distance: float, closing_speed: float) -> float:
         """m = d - d_min - max(w, 0)^2 / (2 c a_b), m: the separation left after braking (c = 2 if reciprocal)."""
-        closing = max(closing_speed, 0.0)
-        sharing = 2.0 if self.reciprocal else 1.0
-        return distance - self.min_separation - closing * closing / (2.0 * sharing * self.braking_acceleration)
+        return _braking_margin(distance, closing_speed, self.min_separation, self.braking_acceleration,
+                               2.0 if self.reciprocal else 1.0)
 
     def _trigger_margin(self, closing_speed: float) -> float:
-        closing = max(closing_speed, 0.0)
-        tau = self.horizon
-        return (1.0 + self.max_acceleration / self.braking_acceleration) * (
-            closing * tau + self.max_acceleration * tau * tau)
-
-    def _threatening(self, offset: np.ndarray, relative_velocity: np.ndarray, distance: float,
-                     closing_speed: float) -> bool:
-        if self.braking_margin(distance, closing_speed) <= self._trigger_margin(closing_speed):
-            return True
-        # Constant-velocity closest approach within the horizon. offset = p_j - p, relative_velocity = v - v_j.
-        speed2 = float(relative_velocity @ relative_velocity)
-        if speed2 <= _EPS:
-            return False
-        t_closest = min(max(float(offset @ relative_velocity) / speed2, 0.0), self.horizon)
-        return norm(offset - t_closest * relative_velocity) < self.min_separation
+        """(1 + a_max / a_b)(max(w, 0) tau + a_max tau^2), m: the braking margin at or below which a neighbour threatens."""
+        return _trigger_margin(closing_speed, self.max_acceleration, self.braking_acceleration, self.horizon)
 
     def filter(self, own_position: np.ndarray, own_velocity: np.ndarray, acceleration: np.ndarray,
                neighbours: tuple[NeighbourState, ...] | list[NeighbourState]) -> np.ndarray:
@@ -687,25 +673,17 @@ class SeparationFilter:
         position = _finite_vector(own_position, "own_position")
         velocity = _finite_vector(own_velocity, "own_velocity")
         command = _finite_vector(acceleration, "acceleration").copy()
-        geometry = []
-        for neighbour in neighbours:
-            offset = neighbour.position - position
-            distance = norm(offset)
-            if distance <= _EPS:
-                continue  # coincident: no direction to push along (cannot be reached from m >= 0)
-            normal = offset / distance
-            relative_velocity = velocity - neighbour.velocity
-            geometry.append((offset, normal, relative_velocity, distance, float(relative_velocity @ normal)))
-        for _, normal, _, distance, _ in geometry:
-            if distance < self._influence:
-                depth = (self._influence - distance) / (self._influence - self.min_separation)
-                command = command - self.repulsion_gain * min(depth, 1.0) ** 2 * normal
-        active = []
-        for offset, normal, relative_velocity, distance, closing in geometry:
-            if self._threatening(offset, relative_velocity, distance, closing):
-                active.append((normal, -self.braking_acceleration if closing > 0.0 else 0.0))
-        if not active:
+        count = len(neighbours)
+        normals, bounds = np.empty((count, 3)), np.empty(count)
+        # the repulsion (part 1) into command, the threatening neighbours' normals and bounds (part 2)
+        threatening = _separation_kernel(
+            position, velocity, command, np.array([n.position for n in neighbours], dtype=float).reshape(count, 3),
+            np.array([n.velocity for n in neighbours], dtype=float).reshape(count, 3), self.min_separation,
+            self._influence, self.repulsion_gain, self.braking_acceleration, self.max_acceleration, self.horizon,
+            2.0 if self.reciprocal else 1.0, normals, bounds)
+        if not threatening:
             return _saturate(command, self.max_acceleration)
+        active = list(zip(normals[:threatening], bounds[:threatening].tolist()))
         for _ in range(self.passes):
             for normal, bound in active:
                 along = float(command @ normal)
@@ -727,6 +705,82 @@ class SeparationFilter:
             return constrained * (self.max_acceleration / constrained_norm)
         room = math.sqrt(self.max_acceleration ** 2 - constrained_norm ** 2)
         return constrained + _saturate(free, room)
+
+
+@jit
+def _braking_margin(distance: float, closing_speed: float, min_separation: float, braking_acceleration: float,
+                    sharing: float) -> float:
+    """m = d - d_min - max(w, 0)^2 / (2 c a_b), m (SeparationFilter.braking_margin; c = sharing)."""
+    closing = 0.0 if 0.0 > closing_speed else closing_speed  # max(closing_speed, 0.0)
+    return distance - min_separation - closing * closing / (2.0 * sharing * braking_acceleration)
+
+
+@jit
+def _trigger_margin(closing_speed: float, max_acceleration: float, braking_acceleration: float, horizon: float) -> float:
+    """(1 + a_max / a_b)(max(w, 0) tau + a_max tau^2), m (SeparationFilter._trigger_margin; tau = horizon)."""
+    closing = 0.0 if 0.0 > closing_speed else closing_speed  # max(closing_speed, 0.0)
+    return (1.0 + max_acceleration / braking_acceleration) * (closing * horizon + max_acceleration * horizon * horizon)
+
+
+@jit
+def _separation_kernel(position: np.ndarray, velocity: np.ndarray, command: np.ndarray,
+                       neighbour_positions: np.ndarray, neighbour_velocities: np.ndarray, min_separation: float,
+                       influence: float, repulsion_gain: float, braking_acceleration: float, max_acceleration: float,
+                       horizon: float, sharing: float, normals: np.ndarray, bounds: np.ndarray) -> int:
+    """SeparationFilter.filter's parts 1 and 2 up to the constraints (its docstring): the repulsion of every
+    neighbour inside the influence distance subtracted from `command` (m/s^2, (3,), in place), then the threatening
+    neighbours' unit normals n (into normals, (k, 3)) and bounds on a . n (-a_b when closing, else 0; into bounds,
+    (k,)), in the neighbours' order; returns how many are threatening. position m, velocity m/s, (3,); the
+    neighbours' (k, 3); a neighbour at the pursuer's own position (d <= eps) is skipped. sharing: c of the braking
+    margin (2 reciprocal, 1 not). The arithmetic of the filter as it was written over numpy arrays (norms and dot
+    products as x @ y, max/min as Python's), so compiled or not it gives the same bits."""
+    count = neighbour_positions.shape[0]
+    offsets, units, relatives = np.empty((count, 3)), np.empty((count, 3)), np.empty((count, 3))
+    distances, closings = np.empty(count), np.empty(count)
+    kept = 0
+    for i in range(count):
+        offset = offsets[kept]
+        for k in range(3):
+            offset[k] = neighbour_positions[i, k] - position[k]
+        distance = math.sqrt(offset @ offset)
+        if distance <= _EPS:
+            continue  # coincident: no direction to push along (cannot be reached from m >= 0)
+        normal, relative = units[kept], relatives[kept]
+        for k in range(3):
+            normal[k] = offset[k] / distance
+            relative[k] = velocity[k] - neighbour_velocities[i, k]
+        distances[kept] = distance
+        closings[kept] = relative @ normal
+        kept += 1
+    for g in range(kept):  # 1. the smooth repulsion: -k ((d_inf - d) / (d_inf - d_min))^2 n
+        if distances[g] < influence:
+            depth = (influence - distances[g]) / (influence - min_separation)
+            push = repulsion_gain * power(1.0 if 1.0 < depth else depth, 2.0)  # k min(depth, 1)^2
+            for k in range(3):
+                command[k] = command[k] - push * units[g, k]
+    threatening = 0
+    miss = np.empty(3)
+    for g in range(kept):  # 2. the threatening neighbours: braking margin at or below the trigger margin, or ...
+        closing_speed = closings[g]
+        threat = (_braking_margin(distances[g], closing_speed, min_separation, braking_acceleration, sharing)
+                  <= _trigger_margin(closing_speed, max_acceleration, braking_acceleration, horizon))
+        if not threat:
+            # ... a constant-velocity closest approach within the horizon under d_min (offset = p_j - p, v - v_j).
+            offset, relative = offsets[g], relatives[g]
+            speed2 = relative @ relative
+            if speed2 > _EPS:
+                t_closest = (offset @ relative) / speed2
+                t_closest = 0.0 if 0.0 > t_closest else t_closest  # min(max(t, 0), horizon)
+                t_closest = horizon if horizon < t_closest else t_closest
+                for k in range(3):
+                    miss[k] = offset[k] - t_closest * relative[k]
+                threat = math.sqrt(miss @ miss) < min_separation
+        if threat:
+            for k in range(3):
+                normals[threatening, k] = units[g, k]
+            bounds[threatening] = -braking_acceleration if closing_speed > 0.0 else 0.0
+            threatening += 1
+    return threatening
 
 
 # --------------------------------------------------------------------------------------------------
