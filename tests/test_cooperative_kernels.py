@@ -20,8 +20,10 @@ from hypothesis import strategies as st
 
 from companion.core import _jit
 from companion.core.cooperative_guidance import (CircumnavigationGuidance, CooperativeContext, SeparationFilter,
-                                                 _braking_margin, _circumnavigation_velocity_kernel, _ccw_gap_kernel,
-                                                 _separation_kernel, _trigger_margin)
+                                                 StandoffTrackingGuidance, _braking_margin,
+                                                 _circumnavigation_acceleration_kernel,
+                                                 _circumnavigation_velocity_kernel, _ccw_gap_kernel, _separation_kernel,
+                                                 _tracking_kernel, _trigger_margin)
 from companion.core.messages import NeighbourState
 
 FUZZ = settings(max_examples=400, deadline=None, database=None, suppress_health_check=[HealthCheck.too_slow])
@@ -105,8 +107,8 @@ def _ref_desired_velocity(self, context):
     return context.target_velocity + _ref_saturate(relative, self.max_relative_speed)
 
 
-def _ref_acceleration(self, context):
-    desired_velocity = lambda c: _ref_desired_velocity(self, c)
+def _ref_acceleration(self, context, desired_velocity=None):
+    desired_velocity = desired_velocity or (lambda c: _ref_desired_velocity(self, c))
     velocity_gain, feedforward_horizon, max_acceleration = self.velocity_gain, self.feedforward_horizon, self.max_acceleration
     u = desired_velocity(context)
     command = velocity_gain * (u - context.own_velocity)
@@ -230,7 +232,7 @@ def kernel_mode(request, monkeypatch):
     if request.param == "plain":
         import companion.core.cooperative_guidance as module
         for kernel in (_circumnavigation_velocity_kernel, _ccw_gap_kernel, _separation_kernel, _braking_margin,
-                       _trigger_margin):
+                       _trigger_margin, _tracking_kernel, _circumnavigation_acceleration_kernel):
             monkeypatch.setattr(module, kernel.__name__, _jit.python_function(kernel))
     return request.param
 
@@ -325,7 +327,8 @@ def test_advanced_is_what_the_constructors_build(context, horizon):
 def test_warm_up_compiles_the_kernel_a_cooperative_tick_calls():
     """After _jit.warm_up, a control tick of the law compiles nothing more (the same argument types)."""
     _jit.warm_up()
-    kernels = (_circumnavigation_velocity_kernel, _separation_kernel)
+    kernels = (_circumnavigation_velocity_kernel, _circumnavigation_acceleration_kernel, _tracking_kernel,
+               _separation_kernel)
     if not _jit.ENABLED:
         assert all(_jit.python_function(kernel) is kernel for kernel in kernels)
         return
@@ -336,6 +339,7 @@ def test_warm_up_compiles_the_kernel_a_cooperative_tick_calls():
         context = CooperativeContext(1.0, np.array([0.0, 0.0, -20.0]), np.ones(3), np.array([30.0, 5.0, -20.0]),
                                      np.ones(3), present)
         command = CircumnavigationGuidance().acceleration(context)
+        StandoffTrackingGuidance().acceleration(context)
         SeparationFilter(2.0).filter(context.own_position, context.own_velocity, command, present)
     assert [list(kernel.signatures) for kernel in kernels] == compiled
 
@@ -405,3 +409,24 @@ def test_a_moved_neighbour_that_overflows_raises_as_the_constructor_did():
     holder._neighbours = (NeighbourState(2, 0.0, np.array([1.7e308, 0.0, 0.0]), np.array([1e308, 0.0, 0.0])),)
     with pytest.raises(ValueError, match="neighbour position must be a finite vector"):
         holder._neighbours_at(1.0)
+
+
+@st.composite
+def standoff_laws(draw) -> StandoffTrackingGuidance:
+    radius = draw(st.floats(2.0, 30.0))
+    speed = draw(st.floats(1.0, 8.0))
+    return StandoffTrackingGuidance(
+        standoff_radius=radius, min_turn_radius=draw(st.floats(0.1, 0.45)) * radius, speed=speed,
+        min_speed=draw(st.floats(0.2, 1.0)) * speed, max_speed=speed * draw(st.floats(1.0, 3.0)),
+        phase_gain=draw(st.floats(0.0, 1.0)), standoff_height=draw(st.floats(-10.0, 10.0)),
+        velocity_gain=draw(st.floats(0.1, 4.0)), max_acceleration=draw(st.floats(0.5, 10.0)),
+        feedforward_horizon=draw(st.sampled_from([0.0, 0.05, draw(st.floats(1e-3, 0.5))])))
+
+
+@settings(FUZZ, suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])  # set once per mode
+@given(law=standoff_laws(), context=contexts())
+def test_the_standoff_laws_tracking_command_gives_the_replaced_code_bits(kernel_mode, law, context):
+    """The standoff law's desired velocity is its own (unchanged) code; its feed-forward and saturation are now
+    _tracking_kernel's: the reference is the replaced _tracking_acceleration over the same desired velocity."""
+    expected = _ref_acceleration(law, context, law.desired_velocity)
+    assert _bits(law.acceleration(context)) == _bits(expected)

@@ -283,16 +283,19 @@ def _warm_up_setpoint() -> None:
 
 
 def _warm_up_cooperative() -> None:
-    """The cooperative laws' kernels (companion.core.cooperative_guidance: the circumnavigation law's desired velocity,
-    advanced and not; the separation filter's) on a made-up context with a neighbour, so that no cooperative control
-    tick waits for the compiler."""
-    from companion.core.cooperative_guidance import CircumnavigationGuidance, CooperativeContext, SeparationFilter
+    """The cooperative laws' kernels (companion.core.cooperative_guidance: the circumnavigation law's, the tracking
+    command the standoff law uses, the separation filter's) on a made-up context with a neighbour, so that no
+    cooperative control tick waits for the compiler."""
+    from companion.core.cooperative_guidance import (CircumnavigationGuidance, CooperativeContext, SeparationFilter,
+                                                     StandoffTrackingGuidance)
     from companion.core.messages import NeighbourState
 
     neighbour = NeighbourState(2, 0.0, np.array([10.0, 5.0, -20.0]), np.array([0.0, 1.0, 0.0]))
     context = CooperativeContext(0.0, np.array([0.0, 0.0, -20.0]), np.array([1.0, 0.0, 0.0]), np.array([20.0, 0.0, -20.0]),
                                  np.array([3.0, 4.0, 0.0]), (neighbour,), np.zeros(3))
     CircumnavigationGuidance().acceleration(context)
+    CircumnavigationGuidance().desired_velocity(context)
+    StandoffTrackingGuidance().acceleration(context)
     SeparationFilter(2.0).filter(context.own_position, context.own_velocity, np.ones(3), (neighbour,))
 
 

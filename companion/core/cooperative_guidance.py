@@ -202,18 +202,52 @@ def _tracking_acceleration(desired_velocity, context: CooperativeContext, veloci
 
     desired_velocity: the law, (context, horizon) -> u (m/s, (3,)) of the context advanced by horizon s
     (`CooperativeContext.advanced`; horizon 0: the context itself). du/dt is the finite difference of u over a
-    constant-velocity advance of every vehicle by feedforward_horizon s (0 disables it).
+    constant-velocity advance of every vehicle by feedforward_horizon s (0 disables it). The arithmetic:
+    _tracking_kernel.
     """
     u = desired_velocity(context, 0.0)
-    command = velocity_gain * (u - context.own_velocity)
+    ahead = behind = u
     if feedforward_horizon > 0.0:
-        # Central difference: a one-sided step leaves the orbit (the chord lies outside the circle) and
-        # biases the radius; the symmetric one cancels that to second order.
-        command = command + (desired_velocity(context, feedforward_horizon)
-                             - desired_velocity(context, -feedforward_horizon)) / (2.0 * feedforward_horizon)
-    if context.target_acceleration is not None:
-        command = command + context.target_acceleration
-    return _saturate(command, max_acceleration)
+        ahead, behind = desired_velocity(context, feedforward_horizon), desired_velocity(context, -feedforward_horizon)
+    command = np.empty(3)
+    _tracking_kernel(u, ahead, behind, context.own_velocity, velocity_gain, feedforward_horizon,
+                     _NO_ACCELERATION if context.target_acceleration is None else context.target_acceleration,
+                     max_acceleration, command)
+    return command
+
+
+_NO_ACCELERATION = np.empty(0)  # _tracking_kernel's "no target acceleration"
+
+
+@jit
+def _tracking_kernel(u: np.ndarray, ahead: np.ndarray, behind: np.ndarray, own_velocity: np.ndarray,
+                     velocity_gain: float, feedforward_horizon: float, target_acceleration: np.ndarray,
+                     max_acceleration: float, out: np.ndarray) -> None:
+    """The velocity-tracking command of the module docstring into out (m/s^2, (3,)):
+    a = k_v (u - v) + (u(+tau) - u(-tau)) / (2 tau) + a^_T, saturated to max_acceleration.
+
+    u: the law's desired velocity now, ahead/behind: with every vehicle moved at constant velocity by +tau / -tau
+    (tau = feedforward_horizon s; not used when tau is 0), m/s (3,); own_velocity m/s (3,); target_acceleration
+    m/s^2, (3,), or empty for none. Central difference: a one-sided step leaves the orbit (the chord lies outside
+    the circle) and biases the radius; the symmetric one cancels that to second order. The arithmetic as it was
+    written over numpy arrays (elementwise; the norm as sqrt(a @ a)), so compiled or not it gives the same bits."""
+    command = np.empty(3)
+    for k in range(3):
+        command[k] = velocity_gain * (u[k] - own_velocity[k])
+    if feedforward_horizon > 0.0:
+        for k in range(3):
+            command[k] = command[k] + (ahead[k] - behind[k]) / (2.0 * feedforward_horizon)
+    if target_acceleration.shape[0] != 0:
+        for k in range(3):
+            command[k] = command[k] + target_acceleration[k]
+    length = math.sqrt(command @ command)  # saturated to max_acceleration (_saturate)
+    if length <= max_acceleration:
+        for k in range(3):
+            out[k] = command[k]
+    else:
+        scale = max_acceleration / length
+        for k in range(3):
+            out[k] = command[k] * scale
 
 
 def _check_positive(**values: float) -> None:
@@ -326,9 +360,48 @@ class CircumnavigationGuidance:
         return velocity
 
     def acceleration(self, context: CooperativeContext) -> np.ndarray:
-        """Acceleration command, m/s^2, shape (3,) NED: k_v (u - v) + du/dt (+ a^_T), norm <= max_acceleration."""
-        return _tracking_acceleration(self._velocity_after, context, self.velocity_gain,
-                                      self.feedforward_horizon, self.max_acceleration)
+        """Acceleration command, m/s^2, shape (3,) NED: k_v (u - v) + du/dt (+ a^_T), norm <= max_acceleration
+        (_tracking_acceleration's, in one kernel: _circumnavigation_acceleration_kernel)."""
+        command = np.empty(3)
+        if not _circumnavigation_acceleration_kernel(
+                context.own_position, context.own_velocity, context.target_position, context.target_velocity,
+                context.neighbour_positions, context.neighbour_velocities,
+                _NO_ACCELERATION if context.target_acceleration is None else context.target_acceleration,
+                self.g1, self.g2, self.g3, self.alpha, self.desired_radius, self._turn_acceleration,
+                self.altitude_offset, self.vertical_gain, self.max_relative_speed, self.velocity_gain,
+                self.feedforward_horizon, self.max_acceleration, command):
+            raise ValueError(f"the context advanced by +-{self.feedforward_horizon!r} s is not finite")
+        return command
+
+
+@jit
+def _circumnavigation_acceleration_kernel(own_position: np.ndarray, own_velocity: np.ndarray,
+                                          target_position: np.ndarray, target_velocity: np.ndarray,
+                                          neighbour_positions: np.ndarray, neighbour_velocities: np.ndarray,
+                                          target_acceleration: np.ndarray, g1: float, g2: float, g3: float,
+                                          alpha: float, desired_radius: float, turn_acceleration: float,
+                                          altitude_offset: float, vertical_gain: float, max_relative_speed: float,
+                                          velocity_gain: float, feedforward_horizon: float, max_acceleration: float,
+                                          out: np.ndarray) -> bool:
+    """CircumnavigationGuidance.acceleration into out (m/s^2, (3,)): _tracking_acceleration over
+    _circumnavigation_velocity_kernel (u now, and with every vehicle moved by +-feedforward_horizon s when it is
+    > 0), then _tracking_kernel. False (out unset) where a moved context is not finite. target_acceleration:
+    (3,), or empty for none."""
+    u, ahead, behind = np.empty(3), np.empty(3), np.empty(3)
+    arguments = (g1, g2, g3, alpha, desired_radius, turn_acceleration, altitude_offset, vertical_gain,
+                 max_relative_speed)
+    if not _circumnavigation_velocity_kernel(own_position, own_velocity, target_position, target_velocity,
+                                             neighbour_positions, neighbour_velocities, 0.0, *arguments, u):
+        return False
+    if feedforward_horizon > 0.0:
+        for horizon, velocity in ((feedforward_horizon, ahead), (-feedforward_horizon, behind)):
+            if not _circumnavigation_velocity_kernel(own_position, own_velocity, target_position, target_velocity,
+                                                     neighbour_positions, neighbour_velocities, horizon, *arguments,
+                                                     velocity):
+                return False
+    _tracking_kernel(u, ahead, behind, own_velocity, velocity_gain, feedforward_horizon, target_acceleration,
+                     max_acceleration, out)
+    return True
 
 
 @jit
