@@ -137,13 +137,16 @@ def _share(pursuer: _Pursuer, time: float, position: np.ndarray, velocity: np.nd
     bearing = None
     latest = pursuer.latest_bearing
     if latest is not None and latest.time > pursuer.shared_bearing_time:
-        bearing = SharedBearing(latest.time, tuple(latest.direction), tuple(latest.pursuer_position))
+        bearing = SharedBearing(latest.time, latest.direction.tolist(), latest.pursuer_position.tolist())
         pursuer.shared_bearing_time = latest.time
     estimate = None
     if pursuer.pipeline.engaged_at is not None:
         current = pursuer.pipeline.estimator.estimate
-        estimate = SharedEstimate(current.time, tuple(current.position), tuple(current.velocity), current.covariance)
-    share = PursuerShare(pursuer.ident, pursuer.seq, time, pursuer.epoch, tuple(position), tuple(velocity), bearing, estimate)
+        # the covariance as 36 floats, row by row (what SharedEstimate makes of a (6, 6) array, without numpy)
+        estimate = SharedEstimate(current.time, current.position.tolist(), current.velocity.tolist(),
+                                  tuple(np.asarray(current.covariance, dtype=float).ravel().tolist()))
+    share = PursuerShare(pursuer.ident, pursuer.seq, time, pursuer.epoch, position.tolist(), velocity.tolist(), bearing,
+                         estimate)
     pursuer.seq += 1
     try:
         return checked_pursuer_share(share)
