@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from companion.assembly import build_pipeline, build_sensor, pursuer_scenario
-from companion.core.cooperative_guidance import phase_spacing_errors
+from companion.core.cooperative_guidance import phase_spacing_error_rows, phase_spacing_errors
 from companion.core.geometry import all_finite
 from companion.core.messages import BearingMeasurement, NeighbourState, PursuerState, TargetEstimate, fast_frozen
 from companion.core.pipeline import FollowingPipeline
@@ -352,8 +352,10 @@ def _result(scenario: Scenario, pursuers: list[_Pursuer], link: NeighbourLink | 
     top = dict(entries[0])
     top["pursuers"] = entries
     window_start = entries[0]["duration"] - scenario.simulation.summary_window
-    recent = [phase_spacing_errors(phases) for time, phases in phase_errors if time >= window_start]
-    top["phase_spacing_error_deg_rms"] = (float(np.degrees(rms(np.concatenate(recent)))) if recent else None)
+    recent = [phases for time, phases in phase_errors if time >= window_start]
+    # the window's spacing errors tick after tick, all ticks at once (phase_spacing_error_rows)
+    top["phase_spacing_error_deg_rms"] = (float(np.degrees(rms(phase_spacing_error_rows(np.array(recent)).ravel())))
+                                          if recent else None)
     top["min_pursuer_separation"] = separation if math.isfinite(separation) else None
     top["min_separation"] = None if scenario.swarm is None else scenario.swarm.min_separation
     top["all_pursuers_had_a_bearing_at"] = all_bearings

@@ -430,3 +430,30 @@ def test_the_standoff_laws_tracking_command_gives_the_replaced_code_bits(kernel_
     _tracking_kernel's: the reference is the replaced _tracking_acceleration over the same desired velocity."""
     expected = _ref_acceleration(law, context, law.desired_velocity)
     assert _bits(law.acceleration(context)) == _bits(expected)
+
+
+def _ref_phase_spacing_errors(phases):
+    """phase_spacing_errors at 1c852b6, verbatim."""
+    values = np.asarray(phases, dtype=float).reshape(-1)
+    if values.size == 0:
+        return np.zeros(0)
+    if not np.all(np.isfinite(values)):
+        raise ValueError("phases must be finite")
+    ordered = np.sort(np.mod(values, TWO_PI))
+    gaps = np.diff(np.append(ordered, ordered[0] + TWO_PI))
+    return gaps - TWO_PI / values.size
+
+
+@FUZZ
+@given(st.integers(1, 6).flatmap(lambda n: st.lists(st.lists(st.one_of(st.floats(-1e4, 1e4), st.sampled_from(
+    [0.0, -0.0, math.pi, -math.pi, TWO_PI, -1e-300])), min_size=n, max_size=n), min_size=1, max_size=30)))
+def test_the_spacing_error_rows_are_the_replaced_function_row_by_row(rows):
+    from companion.core.cooperative_guidance import phase_spacing_error_rows, phase_spacing_errors
+
+    phases = np.array(rows)
+    expected = [_bits(_ref_phase_spacing_errors(row)) for row in phases]
+    assert [_bits(row) for row in phase_spacing_error_rows(phases)] == expected
+    assert [_bits(phase_spacing_errors(row)) for row in phases] == expected
+    assert phase_spacing_errors([]).shape == (0,)
+    with pytest.raises(ValueError, match="finite"):
+        phase_spacing_error_rows(np.array([[0.0, math.nan]]))

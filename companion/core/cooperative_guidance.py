@@ -184,11 +184,19 @@ def phase_spacing_errors(phases: np.ndarray | list[float]) -> np.ndarray:
     values = np.asarray(phases, dtype=float).reshape(-1)
     if values.size == 0:
         return np.zeros(0)
+    return phase_spacing_error_rows(values.reshape(1, -1))[0]
+
+
+def phase_spacing_error_rows(phases: np.ndarray) -> np.ndarray:
+    """`phase_spacing_errors` of each row of phases (rad, shape (T, N), N >= 1), shape (T, N): row t is
+    phase_spacing_errors(phases[t]), the same numbers (elementwise operations and a sort along the rows).
+    ValueError if a phase is not finite."""
+    values = np.asarray(phases, dtype=float)
     if not np.all(np.isfinite(values)):
         raise ValueError("phases must be finite")
-    ordered = np.sort(np.mod(values, TWO_PI))
-    gaps = np.diff(np.append(ordered, ordered[0] + TWO_PI))
-    return gaps - TWO_PI / values.size
+    ordered = np.sort(np.mod(values, TWO_PI), axis=1)
+    gaps = np.diff(np.concatenate([ordered, ordered[:, :1] + TWO_PI], axis=1), axis=1)
+    return gaps - TWO_PI / values.shape[1]
 
 
 def _saturate(vector: np.ndarray, limit: float) -> np.ndarray:
