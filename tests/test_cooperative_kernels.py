@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
 
 from companion.core import _jit
 from companion.core.cooperative_guidance import (CircumnavigationGuidance, CooperativeContext, SeparationFilter,
@@ -457,3 +458,54 @@ def test_the_spacing_error_rows_are_the_replaced_function_row_by_row(rows):
     assert phase_spacing_errors([]).shape == (0,)
     with pytest.raises(ValueError, match="finite"):
         phase_spacing_error_rows(np.array([[0.0, math.nan]]))
+
+
+def _ref_finite_vector(value, name):
+    """_finite_vector at 1c852b6, verbatim."""
+    vector = np.asarray(value, dtype=float)
+    if vector.shape != (3,) or not _jit_free_all_finite(vector):
+        raise ValueError(f"{name} must be a finite vector of shape (3,), got {value!r}")
+    return vector
+
+
+def _jit_free_all_finite(vector):
+    return bool(np.all(np.isfinite(vector)))
+
+
+shapes = st.sampled_from([(3,), (3,), (3,), (2,), (4,), (1, 3), ()])
+vector_like = st.one_of(
+    hnp.arrays(st.sampled_from([np.float64, np.float32, np.dtype(">f8")]), shapes,
+               elements=st.floats(allow_nan=True, allow_infinity=True, width=32)),
+    hnp.arrays(np.int64, shapes, elements=st.integers(-10, 10)),
+    hnp.arrays(np.float64, (3,), elements=st.sampled_from([0.0, -1.5, math.nan, math.inf, -math.inf])),
+    st.lists(st.floats(allow_nan=True, allow_infinity=True), min_size=2, max_size=4),
+    st.tuples(*[st.integers(-10, 10)] * 3))
+
+
+@FUZZ
+@given(vector_like)
+def test_the_checked_vector_is_the_replaced_check(value):
+    from companion.core.cooperative_guidance import _finite_vector
+
+    try:
+        expected = _ref_finite_vector(value, "v")
+    except ValueError as error:
+        with pytest.raises(ValueError) as raised:
+            _finite_vector(value, "v")
+        assert str(raised.value) == str(error)
+        return
+    actual = _finite_vector(value, "v")
+    assert (actual is value) == (expected is value)
+    assert actual.dtype == expected.dtype and _bits(actual) == _bits(expected)
+
+
+@FUZZ
+@given(contexts())
+def test_a_context_holds_what_its_constructor_was_given_checked(context):
+    rebuilt = CooperativeContext(context.time, list(context.own_position), context.own_velocity,
+                                 context.target_position, context.target_velocity, list(context.neighbours),
+                                 context.target_acceleration)
+    assert type(rebuilt.own_position) is np.ndarray and rebuilt.own_velocity is context.own_velocity
+    assert type(rebuilt.neighbours) is tuple and rebuilt.neighbours == context.neighbours
+    with pytest.raises(Exception):
+        rebuilt.time = 1.0  # still frozen

@@ -49,10 +49,18 @@ _EPS = 1e-9
 # --------------------------------------------------------------------------------------------------
 
 def _finite_vector(value: object, name: str) -> np.ndarray:
+    if type(value) is np.ndarray and value.dtype == _FLOAT64 and value.shape == (3,):
+        # np.asarray(value, dtype=float) is value itself: only its finiteness to check
+        x, y, z = value.tolist()
+        if math.isfinite(x) and math.isfinite(y) and math.isfinite(z):
+            return value
     vector = np.asarray(value, dtype=float)
     if vector.shape != (3,) or not all_finite(vector):
         raise ValueError(f"{name} must be a finite vector of shape (3,), got {value!r}")
     return vector
+
+
+_FLOAT64 = np.dtype(np.float64)
 
 
 @dataclass(frozen=True)
@@ -77,16 +85,16 @@ class CooperativeContext:
     def __post_init__(self) -> None:
         if not math.isfinite(float(self.time)):
             raise ValueError(f"time must be finite, got {self.time!r}")
+        fields = self.__dict__  # the checked values stored as object.__setattr__ would, without its cost
         for name in ("own_position", "own_velocity", "target_position", "target_velocity"):
-            object.__setattr__(self, name, _finite_vector(getattr(self, name), name))
+            fields[name] = _finite_vector(fields[name], name)
         if self.target_acceleration is not None:
-            object.__setattr__(self, "target_acceleration",
-                               _finite_vector(self.target_acceleration, "target_acceleration"))
+            fields["target_acceleration"] = _finite_vector(self.target_acceleration, "target_acceleration")
         neighbours = tuple(self.neighbours)
         for neighbour in neighbours:
             if not isinstance(neighbour, NeighbourState):
                 raise ValueError(f"neighbours must be NeighbourState, got {type(neighbour).__name__}")
-        object.__setattr__(self, "neighbours", neighbours)
+        fields["neighbours"] = neighbours
 
     def advanced(self, horizon: float) -> "CooperativeContext":
         """Every vehicle moved at constant velocity by `horizon` s (may be negative; velocities unchanged).
