@@ -342,7 +342,12 @@ class SharedEstimate:
     def __post_init__(self) -> None:
         object.__setattr__(self, "position", tuple(float(v) for v in self.position))
         object.__setattr__(self, "velocity", tuple(float(v) for v in self.velocity))
-        matrix = np.reshape(np.asarray(self.covariance, dtype=float), (6, 6))
+        covariance = self.covariance
+        if type(covariance) is tuple and len(covariance) == 36 and all(type(v) is float for v in covariance):
+            # flat floats (what a checked payload holds): the rows as they are, the values the general path gives
+            object.__setattr__(self, "covariance", tuple(covariance[i:i + 6] for i in range(0, 36, 6)))
+            return
+        matrix = np.reshape(np.asarray(covariance, dtype=float), (6, 6))
         object.__setattr__(self, "covariance", tuple(tuple(float(v) for v in row) for row in matrix))
 
     @property
@@ -808,7 +813,11 @@ def decode_state(payload: Payload) -> CompanionState:
 
 def decode_pursuer_share(payload: Payload) -> PursuerShare:
     """Parse and check a ``bof.pursuer_share/1`` payload; PayloadError (with .reason) if it is refused."""
-    share = _validate(_SHARE, _parse(payload))
+    return _share_of(_validate(_SHARE, _parse(payload)))
+
+
+def _share_of(share: PursuerSharePayload) -> PursuerShare:
+    """The `PursuerShare` a checked payload model says."""
     bearing = estimate = None
     if share.bearing is not None:
         bearing = SharedBearing(share.bearing.stamp, share.bearing.direction, share.bearing.position)
@@ -861,19 +870,38 @@ def encode_command(command: Command) -> bytes:
     return _dump(_validate(_COMMAND, _versioned(command, COMMAND_SCHEMA, COMMAND_SCHEMA_V1), tagged=True))
 
 
-def encode_pursuer_share(share: PursuerShare) -> bytes:
-    """The ``bof.pursuer_share/1`` payload of `share` (covariance written flat, row by row); PayloadError if a
-    decoder would refuse it."""
+def _share_document(share: PursuerShare) -> dict[str, Any]:
+    """The document of `share` that the encoder checks and writes (covariance flat, row by row)."""
     document: dict[str, Any] = {"schema": PURSUER_SHARE_SCHEMA, "sender": share.sender, "seq": share.seq,
                                 "stamp": share.stamp, "epoch": share.epoch, "position": share.position,
                                 "velocity": share.velocity}
     if share.bearing is not None:
-        document["bearing"] = dataclasses.asdict(share.bearing)
+        bearing = share.bearing
+        document["bearing"] = {"stamp": bearing.stamp, "direction": bearing.direction, "position": bearing.position}
     if share.estimate is not None:
         estimate = share.estimate
         document["estimate"] = {"stamp": estimate.stamp, "position": estimate.position, "velocity": estimate.velocity,
                                 "covariance": [entry for row in estimate.covariance for entry in row]}
-    return _dump(_validate(_SHARE, document))
+    return document
+
+
+def encode_pursuer_share(share: PursuerShare) -> bytes:
+    """The ``bof.pursuer_share/1`` payload of `share` (covariance written flat, row by row); PayloadError if a
+    decoder would refuse it."""
+    return _dump(_validate(_SHARE, _share_document(share)))
+
+
+def checked_pursuer_share(share: PursuerShare) -> PursuerShare:
+    """decode_pursuer_share(encode_pursuer_share(share)) without the bytes in between, for a harness that hands
+    shares from pursuer to pursuer in one process (studies.swarm): `share` checked by the same model the encoder
+    checks it with (PayloadError with the encoder's reason if it is refused), then rebuilt from the checked model
+    as the decoder rebuilds what it checked. The same share, value for value and bit for bit: the JSON the encoder
+    writes carries every number exactly (Python writes a float's shortest repr, which reads back to the same
+    float; integers are exact), the decoder's model checks the same values the encoder's passed, and a share the
+    model accepts is far below MAX_PAYLOAD_BYTES (a few hundred bytes, every field bounded); checked against the
+    round trip on arbitrary shares in tests/test_swarm_schema.py. Bytes that arrive over a network are decoded and
+    checked by decode_pursuer_share, as before."""
+    return _share_of(_validate(_SHARE, _share_document(share)))
 
 
 def encode_state(state: dict) -> bytes:

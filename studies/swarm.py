@@ -4,8 +4,10 @@ Each pursuer is what the single-pursuer simulator flies (studies.closed_loop): i
 own bearing sensor and its own FollowingPipeline, built by the same assembly (companion.assembly). What is
 added is the share link between them, as the networked companions have it: every pursuer publishes a
 ``bof.pursuer_share/1`` (interfaces.link_schema) at [swarm] share_rate_hz with its own measured state and its
-latest bearing (and its estimate); the share goes through the neighbour-link fault model
-(interfaces.neighbour_link: radius, loss, latency, blackouts) and is decoded by the receiver, which then
+latest bearing (and its estimate), checked by the payload schema as its encoder checks it and handed over as
+the receivers would decode it (interfaces.link_schema.checked_pursuer_share: the encoder's JSON carries every
+value exactly, so the bytes in between change nothing in process); the share goes through the neighbour-link fault
+model (interfaces.neighbour_link: radius, loss, latency, blackouts) and the receiver
 
 * hands the neighbour's bearing to its estimator at the bearing's own stamp, from the neighbour's position
   then (estimator 'shared_bearings' and 'triangulation_kf'; 'own' and 'fusion' keep to their own bearings);
@@ -29,8 +31,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from companion.assembly import build_pipeline, build_sensor, pursuer_scenario
-from companion.core.cooperative_guidance import phase_spacing_errors
-from companion.core.messages import BearingMeasurement, NeighbourState, PursuerState, TargetEstimate
+from companion.core.cooperative_guidance import phase_spacing_error_rows, phase_spacing_errors
+from companion.core.geometry import all_finite
+from companion.core.messages import BearingMeasurement, NeighbourState, PursuerState, TargetEstimate, fast_frozen
 from companion.core.pipeline import FollowingPipeline
 from interfaces.link_schema import (
     MAX_EPOCH,
@@ -38,8 +41,7 @@ from interfaces.link_schema import (
     PursuerShare,
     SharedBearing,
     SharedEstimate,
-    decode_pursuer_share,
-    encode_pursuer_share,
+    checked_pursuer_share,
 )
 from interfaces.neighbour_link import NeighbourLink
 from interfaces.scenario import (
@@ -59,8 +61,9 @@ from studies.closed_loop import (
     FlightLog,
     Termination,
     _initial_state,
-    _log_tick,
+    _log_row,
     _measure,
+    _sum3,
     health_actions_summary,
 )
 from studies.metrics import rms, summarize
@@ -127,41 +130,40 @@ def _pursuer(scenario: Scenario, vehicle: VehicleConfig, start: PursuerStart, se
                     build_sensor(scenario.sensor), sensor_rng, range_rng, epoch, FlightLog(rows))
 
 
-def _share(pursuer: _Pursuer, time: float, position: np.ndarray, velocity: np.ndarray) -> bytes:
+def _share(pursuer: _Pursuer, time: float, position: np.ndarray, velocity: np.ndarray) -> PursuerShare:
     """Pursuer's bof.pursuer_share/1 at `time`: its measured state, its newest bearing if not shared yet,
-    its estimate."""
+    its estimate; as its receivers decode it (interfaces.link_schema.checked_pursuer_share: what
+    decode_pursuer_share(encode_pursuer_share(share)) gives, without the JSON in between)."""
     bearing = None
     latest = pursuer.latest_bearing
     if latest is not None and latest.time > pursuer.shared_bearing_time:
-        bearing = SharedBearing(latest.time, tuple(latest.direction), tuple(latest.pursuer_position))
+        bearing = SharedBearing(latest.time, latest.direction.tolist(), latest.pursuer_position.tolist())
         pursuer.shared_bearing_time = latest.time
     estimate = None
     if pursuer.pipeline.engaged_at is not None:
         current = pursuer.pipeline.estimator.estimate
-        estimate = SharedEstimate(current.time, tuple(current.position), tuple(current.velocity), current.covariance)
-    share = PursuerShare(pursuer.ident, pursuer.seq, time, pursuer.epoch, tuple(position), tuple(velocity), bearing, estimate)
+        # the covariance as 36 floats, row by row (what SharedEstimate makes of a (6, 6) array, without numpy)
+        estimate = SharedEstimate(current.time, current.position.tolist(), current.velocity.tolist(),
+                                  tuple(np.asarray(current.covariance, dtype=float).ravel().tolist()))
+    share = PursuerShare(pursuer.ident, pursuer.seq, time, pursuer.epoch, position.tolist(), velocity.tolist(), bearing,
+                         estimate)
     pursuer.seq += 1
     try:
-        return encode_pursuer_share(share)
+        return checked_pursuer_share(share)
     except PayloadError as error:
         if estimate is None:
             raise
         # An estimate the schema refuses (a diverged one: |v| > 1e3 m/s, a covariance out of range) is left out
         # of the share, and counted; the rest of the share still goes.
         pursuer.estimates_not_shared[error.reason] = pursuer.estimates_not_shared.get(error.reason, 0) + 1
-        return encode_pursuer_share(dataclasses.replace(share, estimate=None))
+        return checked_pursuer_share(dataclasses.replace(share, estimate=None))
 
 
-def _receive(receiver: _Pursuer, payload: bytes, uses_bearings: bool, uses_estimates: bool = False) -> None:
-    """Decode one share and keep what it says: the neighbour's state, and its bearing for the estimator.
-    A share that does not decode, or that is older than one already heard from its sender and epoch,
-    is counted and dropped. With uses_estimates the neighbour's shared estimate waits for the estimator's
-    absorb (estimator 'fusion')."""
-    try:
-        share = decode_pursuer_share(payload)
-    except PayloadError as error:
-        receiver.shares_rejected[error.reason] = receiver.shares_rejected.get(error.reason, 0) + 1
-        return
+def _receive(receiver: _Pursuer, share: PursuerShare, uses_bearings: bool, uses_estimates: bool = False) -> None:
+    """Keep what one share (as decoded: `_share`) says: the neighbour's state, and its bearing for the estimator.
+    A share that is older than one already heard from its sender and epoch is counted and dropped. With
+    uses_estimates the neighbour's shared estimate waits for the estimator's absorb (estimator 'fusion'). (The
+    schema checked the share when it was made, as the encoder does: nothing the decoder would refuse is sent.)"""
     if share.sender == receiver.ident:
         receiver.shares_rejected["own_sender"] = receiver.shares_rejected.get("own_sender", 0) + 1
         return
@@ -205,81 +207,104 @@ def simulate_swarm(scenario: Scenario, vehicle: VehicleConfig, seed: int | None 
     timeout = math.inf if swarm is None else swarm.neighbour_timeout_s
     uses_bearings = swarm is not None and swarm.estimator in ("shared_bearings", "triangulation_kf")
     uses_estimates = swarm is not None and swarm.estimator == "fusion"
-    in_flight: list[tuple[float, int, int, bytes]] = []  # (delivery time, order, receiver id, payload)
+    in_flight: list[tuple[float, int, int, PursuerShare]] = []  # (delivery time, order, receiver id, share)
     order = 0
     separation = math.inf
-    separations = []
-    phase_errors = []
+    phase_errors = []  # (time, phases): the spacing errors of the summary window are computed at the end
 
     upper = np.triu_indices(len(pursuers), 1)  # each pair of pursuers once
+    # The true positions of every tick, for the separation figures (computed at the end: _closest_separation).
+    positions = np.empty((len(event_steps), len(pursuers), 3))
+    sensor_every, share_every = every["sensor"], every["share"]
+    max_speed_squared = MAX_SPEED**2
+    last_index = len(event_steps) - 1
     for index, step in enumerate(event_steps):
         time = step * dt
-        states = {p.ident: (p.plant.state, *p.plant.measured_state()) for p in pursuers}
-        for p in pursuers:
-            truth = states[p.ident][0]
-            if step % every["sensor"] == 0:
-                bearing = _measure(p.sensor, time, target.position - truth.position, truth.rotation,
-                                   states[p.ident][1], p.sensor_rng, p.range_rng)
+        # The true state as tuples (plant.kinematics(): the values of plant.state, without its arrays), then the
+        # measured one, pursuer by pursuer.
+        states = [(*p.plant.kinematics(), *p.plant.measured_state()) for p in pursuers]
+        if step % sensor_every == 0:
+            for p, (position, _, rotation, measured_position, _) in zip(pursuers, states):
+                bearing = _measure(p.sensor, time, target.position - np.array(position), np.array(rotation).reshape(3, 3),
+                                   measured_position, p.sensor_rng, p.range_rng)
                 if bearing is not None:
                     p.inbox.append(bearing)
                     p.latest_bearing = bearing
                     if p.first_bearing is None:
                         p.first_bearing = time
-        if link is not None and step % every["share"] == 0:
-            for sender in pursuers:
-                payload = _share(sender, time, states[sender.ident][1], states[sender.ident][2])
-                for receiver in pursuers:
+        if link is not None and step % share_every == 0:
+            for sender, sender_state in zip(pursuers, states):
+                share = _share(sender, time, sender_state[3], sender_state[4])
+                for receiver, receiver_state in zip(pursuers, states):
                     if receiver is sender:
                         continue
-                    delivery = link.transmit(time, sender.ident, receiver.ident, states[sender.ident][1],
-                                             states[receiver.ident][1])
+                    delivery = link.transmit(time, sender.ident, receiver.ident, sender_state[3], receiver_state[3])
                     if delivery.delivered:
-                        heapq.heappush(in_flight, (delivery.time, order, receiver.ident, payload))
+                        heapq.heappush(in_flight, (delivery.time, order, receiver.ident, share))
                         order += 1
         while in_flight and in_flight[0][0] <= time + 1e-9:
-            _, _, receiver_id, payload = heapq.heappop(in_flight)
-            _receive(pursuers[receiver_id - 1], payload, uses_bearings, uses_estimates)
+            _, _, receiver_id, share = heapq.heappop(in_flight)
+            _receive(pursuers[receiver_id - 1], share, uses_bearings, uses_estimates)
 
-        for p in pursuers:
-            truth, measured_position, measured_velocity = states[p.ident]
-            own = PursuerState(time, measured_position, measured_velocity)
-            fresh = tuple(n for n in p.neighbours.values() if time - n.time <= timeout)
-            p.pipeline.set_neighbours(fresh)
+        for k, (p, (position, velocity, rotation, measured_position, measured_velocity)) in enumerate(zip(pursuers, states)):
+            own = fast_frozen(PursuerState, time=time, position=measured_position, velocity=measured_velocity)
+            p.pipeline.set_neighbours(tuple(n for n in p.neighbours.values() if time - n.time <= timeout)
+                                      if p.neighbours else ())
             if p.estimate_inbox:
                 # estimator 'fusion': the shares that arrived since the last tick, fused into the own filter at once
                 p.pipeline.estimator.absorb(p.estimate_inbox)
                 p.estimate_inbox.clear()
-            bearings = sorted(p.inbox, key=lambda b: b.time)
+            bearings = sorted(p.inbox, key=_bearing_time) if p.inbox else []
             p.inbox.clear()
             output = p.pipeline.step_all(time, own, bearings)
-            p.bearings_used += sum(1 for b in bearings if b.source == 0)
-            p.neighbour_bearings_used += sum(1 for b in bearings if b.source != 0)
+            if bearings:
+                own_bearings = sum(1 for b in bearings if b.source == 0)
+                p.bearings_used += own_bearings
+                p.neighbour_bearings_used += len(bearings) - own_bearings
             if output.new_setpoint and output.setpoint is not None:
                 p.plant.set_attitude_target(output.setpoint.rotation,
                                             output.setpoint.thrust_normalized * p.plant.params.max_total_thrust)
             estimate = output.estimate
-            if estimate is not None and not math.isfinite(float(estimate.position.sum() + estimate.velocity.sum())):
+            # The sum of the six numbers in numpy's order (ndarray.sum of three adds them left to right), as floats.
+            if estimate is not None and not math.isfinite(_sum3(estimate.position.tolist()) + _sum3(estimate.velocity.tolist())):
                 p.termination = Termination.ESTIMATE_NOT_FINITE
-            if truth.rotation[2, 2] < 0.0 or float(truth.velocity @ truth.velocity) > MAX_SPEED**2:
+            vx, vy, vz = velocity  # |v|^2 summed left to right (as studies.closed_loop)
+            if rotation[8] < 0.0 or vx * vx + vy * vy + vz * vz > max_speed_squared:
                 p.termination = Termination.OUT_OF_CONTROL
-            _log_tick(p.log, time, truth, target, output, p.pipeline.estimator)
+            _log_row(p.log, time, position, velocity, rotation[0::3], rotation[8], target, output, p.pipeline.estimator)
+            positions[index, k] = position
 
-        positions = np.array([states[p.ident][0].position for p in pursuers])
         if len(pursuers) > 1:
-            gaps = np.linalg.norm(positions[:, None, :] - positions[None, :, :], axis=2)
-            closest = float(np.min(gaps[upper]))
-            separation = min(separation, closest)
-            separations.append(closest)
-            phases = np.arctan2(positions[:, 1] - target.position[1], positions[:, 0] - target.position[0])
-            phase_errors.append((time, phase_spacing_errors(phases)))
-        if any(p.termination is not Termination.COMPLETED for p in pursuers) or index + 1 == len(event_steps):
+            phases = np.arctan2(positions[index, :, 1] - target.position[1], positions[index, :, 0] - target.position[0])
+            if not all_finite(phases):
+                phase_spacing_errors(phases)  # raises, as it would have here
+            phase_errors.append((time, phases))
+        if any(p.termination is not Termination.COMPLETED for p in pursuers) or index == last_index:
             break
         gap = event_steps[index + 1] - step
         target.step(gap * dt)
         for p in pursuers:
             p.plant.advance(gap * dt)
 
+    if len(pursuers) > 1:
+        separation = _closest_separation(positions[:index + 1], upper)
     return _result(scenario, pursuers, link, seed, separation, phase_errors)
+
+
+def _bearing_time(bearing: BearingMeasurement) -> float:
+    return bearing.time
+
+
+def _closest_separation(positions: np.ndarray, upper: tuple[np.ndarray, np.ndarray]) -> float:
+    """The closest two pursuers ever came, m: positions (ticks, pursuers, 3) m; upper, each pair once
+    (np.triu_indices). Tick by tick the smallest distance of a pair (np.min of the pairs' norms: NaN if one is
+    NaN), then the smallest of those as min() folds them (a NaN tick is passed over). The norms of all ticks at
+    once: numpy reduces each pair's three squares alone, in the same order whatever the number of ticks."""
+    gaps = np.linalg.norm(positions[:, :, None, :] - positions[:, None, :, :], axis=3)
+    separation = math.inf
+    for closest in np.min(gaps[:, upper[0], upper[1]], axis=1).tolist():
+        separation = min(separation, closest)
+    return separation
 
 
 def _all_bearings_time(pursuers: list[_Pursuer]) -> float | None:
@@ -298,6 +323,7 @@ def _settled_under(time: np.ndarray, error: np.ndarray, bound: float, after: flo
 
 def _result(scenario: Scenario, pursuers: list[_Pursuer], link: NeighbourLink | None, seed: int, separation: float,
             phase_errors: list[tuple[float, np.ndarray]]) -> SwarmResult:
+    """phase_errors: (time s, the pursuers' orbit phases about the target then, rad), every tick."""
     all_bearings = _all_bearings_time(pursuers)
     series = {}
     entries = []
@@ -326,8 +352,10 @@ def _result(scenario: Scenario, pursuers: list[_Pursuer], link: NeighbourLink | 
     top = dict(entries[0])
     top["pursuers"] = entries
     window_start = entries[0]["duration"] - scenario.simulation.summary_window
-    recent = [errors for time, errors in phase_errors if time >= window_start]
-    top["phase_spacing_error_deg_rms"] = (float(np.degrees(rms(np.concatenate(recent)))) if recent else None)
+    recent = [phases for time, phases in phase_errors if time >= window_start]
+    # the window's spacing errors tick after tick, all ticks at once (phase_spacing_error_rows)
+    top["phase_spacing_error_deg_rms"] = (float(np.degrees(rms(phase_spacing_error_rows(np.array(recent)).ravel())))
+                                          if recent else None)
     top["min_pursuer_separation"] = separation if math.isfinite(separation) else None
     top["min_separation"] = None if scenario.swarm is None else scenario.swarm.min_separation
     top["all_pursuers_had_a_bearing_at"] = all_bearings

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import socket
@@ -251,6 +252,82 @@ def test_round_trip(share):
     payload = encode_pursuer_share(share)
     assert len(payload) <= link.MAX_PAYLOAD_BYTES
     assert decode_pursuer_share(payload) == share
+
+
+def _bits(value):
+    """A share (or any part of it) as nested tuples of (type, exact value): floats by their hex form, so -0.0 and
+    0.0 differ and an int is not a float."""
+    if dataclasses.is_dataclass(value):
+        return (type(value).__name__, tuple(_bits(getattr(value, f.name)) for f in dataclasses.fields(value)))
+    if isinstance(value, tuple):
+        return tuple(_bits(item) for item in value)
+    return (type(value).__name__, value.hex() if type(value) is float else value)
+
+
+# Shares from anywhere, valid or not: every number of any size and sign, NaN and infinities, integers where the
+# schema wants floats, stamps after the share's, covariances that are not symmetric or not semidefinite. Each
+# field is mostly valid (so that about a third of the shares are), with exact integers and signed zeros among them.
+anything = st.one_of(st.floats(), st.integers(-2**64, 2**64), st.sampled_from([0.0, -0.0, 1e-300, 1e300]))
+
+
+def _mostly(valid, other=anything):
+    """`valid` seven times in eight, else `other`."""
+    return st.integers(0, 7).flatmap(lambda pick: other if pick == 0 else valid)
+
+
+@st.composite
+def any_shares(draw) -> PursuerShare:
+    number = st.one_of(st.floats(-900.0, 900.0), st.integers(-900, 900), st.sampled_from([0.0, -0.0]))
+    vector = lambda: draw(_mostly(st.tuples(number, number, number), st.tuples(anything, anything, anything)))
+    stamp_of = lambda: draw(_mostly(st.one_of(stamps, st.integers(0, 10**9), st.sampled_from([0.0, -0.0]))))
+    stamp = stamp_of()
+    section_stamp = lambda: draw(_mostly(st.just(stamp), st.one_of(stamps, anything)))
+    bearing = estimate = None
+    if draw(st.booleans()):
+        bearing = SharedBearing(section_stamp(), draw(_mostly(st.tuples(*[st.floats(-120.0, 120.0)] * 3),
+                                                         st.tuples(*[st.floats(-0.02, 0.02)] * 3))), vector())
+    if draw(st.booleans()):
+        factor = np.array(draw(st.lists(st.floats(-1e5, 1e5), min_size=36, max_size=36))).reshape(6, 6)
+        covariance = draw(_mostly(st.just(factor @ factor.T), st.sampled_from([factor, 0.5 * (factor + factor.T)])))
+        estimate = SharedEstimate(section_stamp(), vector(), vector(), covariance)
+    return PursuerShare(draw(_mostly(st.integers(1, 255), st.one_of(st.integers(-2, 300), st.booleans()))),
+                        draw(_mostly(st.integers(0, 2**63 - 1), st.integers(-2**64, 2**64))), stamp,
+                        draw(_mostly(st.integers(0, 2**63 - 1), st.integers(-2**64, 2**64))), vector(), vector(),
+                        bearing, estimate)
+
+
+def _check_in_process(share: PursuerShare) -> None:
+    try:
+        decoded = decode_pursuer_share(encode_pursuer_share(share))
+    except PayloadError as error:
+        with pytest.raises(PayloadError) as refused:
+            link.checked_pursuer_share(share)
+        assert refused.value.reason == error.reason
+        return
+    assert _bits(link.checked_pursuer_share(share)) == _bits(decoded)
+
+
+@FUZZ
+@given(shares())
+def test_a_checked_valid_share_is_the_encoded_one_decoded_bit_for_bit(share):
+    """The in-process harness's shortcut (checked_pursuer_share) against the wire: encode, then decode."""
+    _check_in_process(share)
+
+
+@FUZZ
+@given(any_shares())
+def test_a_checked_share_is_the_encoded_one_decoded_or_refused_for_the_same_reason(share):
+    _check_in_process(share)
+
+
+@FUZZ
+@given(st.lists(st.one_of(st.floats(), st.sampled_from([0.0, -0.0])), min_size=36, max_size=36))
+def test_a_flat_covariance_of_floats_gives_the_rows_the_general_path_gives(entries):
+    """SharedEstimate keeps 36 flat floats as six slices; a (6, 6) array goes through numpy (the general path)."""
+    flat = SharedEstimate(0.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), tuple(entries))
+    general = SharedEstimate(0.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), np.array(entries).reshape(6, 6))
+    assert _bits(flat.covariance) == _bits(general.covariance)
+    assert all(type(row) is tuple and len(row) == 6 for row in flat.covariance)
 
 
 def _number(value) -> bool:

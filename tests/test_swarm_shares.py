@@ -1,5 +1,6 @@
-"""The in-process harness's shares (studies/swarm.py): what a pursuer says to its neighbours goes through the
-payload schema's own encoder and decoder (interfaces.link_schema), so the reference is the schema."""
+"""The in-process harness's shares (studies/swarm.py): what a pursuer says to its neighbours is checked by the
+payload schema (interfaces.link_schema.checked_pursuer_share: what its encoder and decoder give, tested against
+them in tests/test_swarm_schema.py), so the reference is the schema."""
 
 from __future__ import annotations
 
@@ -8,7 +9,6 @@ import math
 import numpy as np
 
 from companion.core.messages import BearingMeasurement, TargetEstimate
-from interfaces.link_schema import decode_pursuer_share
 from interfaces.scenario import SCENARIOS_DIR, load_scenario, pursuer_starts
 from studies import swarm
 
@@ -32,8 +32,8 @@ def test_a_share_carries_the_newest_bearing_once_and_an_estimate_a_rounding_step
     loop): the schema allows 1 us, so the share decodes with its estimate."""
     estimate = TargetEstimate(math.nextafter(11.75, 12.0), np.zeros(3), np.ones(3), np.eye(6))
     pursuer = _pursuer(estimate)
-    first = decode_pursuer_share(swarm._share(pursuer, 11.75, np.zeros(3), np.zeros(3)))
-    second = decode_pursuer_share(swarm._share(pursuer, 11.95, np.zeros(3), np.zeros(3)))
+    first = swarm._share(pursuer, 11.75, np.zeros(3), np.zeros(3))
+    second = swarm._share(pursuer, 11.95, np.zeros(3), np.zeros(3))
     assert first.sender == 2 and first.estimate is not None and first.bearing.stamp == 11.5
     assert second.bearing is None and second.seq == first.seq + 1  # the bearing is shared once
     assert pursuer.estimates_not_shared == {}
@@ -44,6 +44,6 @@ def test_a_diverged_estimate_is_left_out_of_the_share_and_counted():
     goes without it and the pursuer counts it by the schema's reason."""
     estimate = TargetEstimate(11.0, np.zeros(3), np.array([2000.0, 0.0, 0.0]), np.eye(6))
     pursuer = _pursuer(estimate)
-    share = decode_pursuer_share(swarm._share(pursuer, 11.75, np.zeros(3), np.zeros(3)))
+    share = swarm._share(pursuer, 11.75, np.zeros(3), np.zeros(3))
     assert share.estimate is None and share.bearing is not None
     assert sum(pursuer.estimates_not_shared.values()) == 1

@@ -101,6 +101,7 @@ def warm_up() -> None:
     _warm_up_baselines()
     _warm_up_setpoint()
     _warm_up_diagnostics()
+    _warm_up_cooperative()
     _warmed_up = True
 
 
@@ -279,6 +280,23 @@ def _warm_up_setpoint() -> None:
         _excitation_terms_kernel(1.0, lateral, relative_position, np.eye(6), los, suspect, excitation.low,
                                  excitation.high, excitation.speed, excitation.damping_gain, excitation.frequency)
     excitation.level(0.1)
+
+
+def _warm_up_cooperative() -> None:
+    """The cooperative laws' kernels (companion.core.cooperative_guidance: the circumnavigation law's, the tracking
+    command the standoff law uses, the separation filter's) on a made-up context with a neighbour, so that no
+    cooperative control tick waits for the compiler."""
+    from companion.core.cooperative_guidance import (CircumnavigationGuidance, CooperativeContext, SeparationFilter,
+                                                     StandoffTrackingGuidance)
+    from companion.core.messages import NeighbourState
+
+    neighbour = NeighbourState(2, 0.0, np.array([10.0, 5.0, -20.0]), np.array([0.0, 1.0, 0.0]))
+    context = CooperativeContext(0.0, np.array([0.0, 0.0, -20.0]), np.array([1.0, 0.0, 0.0]), np.array([20.0, 0.0, -20.0]),
+                                 np.array([3.0, 4.0, 0.0]), (neighbour,), np.zeros(3))
+    CircumnavigationGuidance().acceleration(context)
+    CircumnavigationGuidance().desired_velocity(context)
+    StandoffTrackingGuidance().acceleration(context)
+    SeparationFilter(2.0).filter(context.own_position, context.own_velocity, np.ones(3), (neighbour,))
 
 
 def _warm_up_diagnostics() -> None:

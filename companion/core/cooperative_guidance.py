@@ -36,8 +36,9 @@ from typing import ClassVar
 
 import numpy as np
 
+from companion.core._jit import jit, power, python_function
 from companion.core.geometry import all_finite, norm
-from companion.core.messages import NeighbourState
+from companion.core.messages import NeighbourState, fast_frozen, once_property
 
 TWO_PI = 2.0 * math.pi
 _EPS = 1e-9
@@ -48,10 +49,18 @@ _EPS = 1e-9
 # --------------------------------------------------------------------------------------------------
 
 def _finite_vector(value: object, name: str) -> np.ndarray:
+    if type(value) is np.ndarray and value.dtype == _FLOAT64 and value.shape == (3,):
+        # np.asarray(value, dtype=float) is value itself: only its finiteness to check
+        x, y, z = value.tolist()
+        if math.isfinite(x) and math.isfinite(y) and math.isfinite(z):
+            return value
     vector = np.asarray(value, dtype=float)
     if vector.shape != (3,) or not all_finite(vector):
         raise ValueError(f"{name} must be a finite vector of shape (3,), got {value!r}")
     return vector
+
+
+_FLOAT64 = np.dtype(np.float64)
 
 
 @dataclass(frozen=True)
@@ -76,29 +85,43 @@ class CooperativeContext:
     def __post_init__(self) -> None:
         if not math.isfinite(float(self.time)):
             raise ValueError(f"time must be finite, got {self.time!r}")
+        fields = self.__dict__  # the checked values stored as object.__setattr__ would, without its cost
         for name in ("own_position", "own_velocity", "target_position", "target_velocity"):
-            object.__setattr__(self, name, _finite_vector(getattr(self, name), name))
+            fields[name] = _finite_vector(fields[name], name)
         if self.target_acceleration is not None:
-            object.__setattr__(self, "target_acceleration",
-                               _finite_vector(self.target_acceleration, "target_acceleration"))
+            fields["target_acceleration"] = _finite_vector(self.target_acceleration, "target_acceleration")
         neighbours = tuple(self.neighbours)
         for neighbour in neighbours:
             if not isinstance(neighbour, NeighbourState):
                 raise ValueError(f"neighbours must be NeighbourState, got {type(neighbour).__name__}")
-        object.__setattr__(self, "neighbours", neighbours)
+        fields["neighbours"] = neighbours
 
     def advanced(self, horizon: float) -> "CooperativeContext":
-        """Every vehicle moved at constant velocity by `horizon` s (may be negative; velocities unchanged)."""
-        return CooperativeContext(
-            self.time + horizon,
-            self.own_position + horizon * self.own_velocity,
-            self.own_velocity,
-            self.target_position + horizon * self.target_velocity,
-            self.target_velocity,
-            tuple(NeighbourState(n.ident, n.time + horizon, n.position + horizon * n.velocity, n.velocity)
-                  for n in self.neighbours),
-            self.target_acceleration,
-        )
+        """Every vehicle moved at constant velocity by `horizon` s (may be negative; velocities unchanged).
+        What the constructors would build, without checking again what this context's construction checked:
+        only the moved positions and times (ValueError if one overflows to infinity or the horizon is not finite)."""
+        time = self.time + horizon
+        own_position = self.own_position + horizon * self.own_velocity
+        target_position = self.target_position + horizon * self.target_velocity
+        neighbours = tuple(fast_frozen(NeighbourState, ident=n.ident, time=n.time + horizon,
+                                       position=n.position + horizon * n.velocity, velocity=n.velocity)
+                           for n in self.neighbours)
+        if not (math.isfinite(float(time)) and all_finite(own_position) and all_finite(target_position)
+                and all(math.isfinite(float(n.time)) and all_finite(n.position) for n in neighbours)):
+            raise ValueError(f"the context advanced by {horizon!r} s is not finite")
+        return fast_frozen(CooperativeContext, time=time, own_position=own_position, own_velocity=self.own_velocity,
+                           target_position=target_position, target_velocity=self.target_velocity,
+                           neighbours=neighbours, target_acceleration=self.target_acceleration)
+
+    @once_property
+    def neighbour_positions(self) -> np.ndarray:
+        """The neighbours' positions, m, shape (len(neighbours), 3) (the laws' kernels take arrays)."""
+        return np.array([n.position for n in self.neighbours], dtype=float).reshape(len(self.neighbours), 3)
+
+    @once_property
+    def neighbour_velocities(self) -> np.ndarray:
+        """The neighbours' velocities, m/s, shape (len(neighbours), 3)."""
+        return np.array([n.velocity for n in self.neighbours], dtype=float).reshape(len(self.neighbours), 3)
 
 
 def _planar(vector: np.ndarray) -> np.ndarray:
@@ -127,10 +150,14 @@ def phase(own_position: np.ndarray, target_position: np.ndarray) -> float:
     return math.atan2(float(offset[0]), float(offset[1]))
 
 
-def _ccw_gap(from_phase: float, to_phase: float) -> float:
+@jit
+def _ccw_gap_kernel(from_phase: float, to_phase: float) -> float:
     """Counter-clockwise angle from one phase to another, rad in [0, 2 pi)."""
     gap = (to_phase - from_phase) % TWO_PI
     return 0.0 if gap >= TWO_PI else gap  # float % can return 2 pi for a tiny negative difference
+
+
+_ccw_gap = python_function(_ccw_gap_kernel)  # the same function, without numba's dispatch, for Python callers
 
 
 def phase_gaps(own_phase: float, neighbour_phases: list[float] | np.ndarray) -> tuple[float, float] | None:
@@ -165,11 +192,19 @@ def phase_spacing_errors(phases: np.ndarray | list[float]) -> np.ndarray:
     values = np.asarray(phases, dtype=float).reshape(-1)
     if values.size == 0:
         return np.zeros(0)
+    return phase_spacing_error_rows(values.reshape(1, -1))[0]
+
+
+def phase_spacing_error_rows(phases: np.ndarray) -> np.ndarray:
+    """`phase_spacing_errors` of each row of phases (rad, shape (T, N), N >= 1), shape (T, N): row t is
+    phase_spacing_errors(phases[t]), the same numbers (elementwise operations and a sort along the rows).
+    ValueError if a phase is not finite."""
+    values = np.asarray(phases, dtype=float)
     if not np.all(np.isfinite(values)):
         raise ValueError("phases must be finite")
-    ordered = np.sort(np.mod(values, TWO_PI))
-    gaps = np.diff(np.append(ordered, ordered[0] + TWO_PI))
-    return gaps - TWO_PI / values.size
+    ordered = np.sort(np.mod(values, TWO_PI), axis=1)
+    gaps = np.diff(np.concatenate([ordered, ordered[:, :1] + TWO_PI], axis=1), axis=1)
+    return gaps - TWO_PI / values.shape[1]
 
 
 def _saturate(vector: np.ndarray, limit: float) -> np.ndarray:
@@ -181,19 +216,54 @@ def _tracking_acceleration(desired_velocity, context: CooperativeContext, veloci
                            feedforward_horizon: float, max_acceleration: float) -> np.ndarray:
     """a = k_v (u - v) + du/dt (+ target acceleration), saturated to max_acceleration (m/s^2, shape (3,)).
 
-    desired_velocity: the law, context -> u (m/s, (3,)). du/dt is the finite difference of u over a
-    constant-velocity advance of every vehicle by feedforward_horizon s (0 disables it).
+    desired_velocity: the law, (context, horizon) -> u (m/s, (3,)) of the context advanced by horizon s
+    (`CooperativeContext.advanced`; horizon 0: the context itself). du/dt is the finite difference of u over a
+    constant-velocity advance of every vehicle by feedforward_horizon s (0 disables it). The arithmetic:
+    _tracking_kernel.
     """
-    u = desired_velocity(context)
-    command = velocity_gain * (u - context.own_velocity)
+    u = desired_velocity(context, 0.0)
+    ahead = behind = u
     if feedforward_horizon > 0.0:
-        # Central difference: a one-sided step leaves the orbit (the chord lies outside the circle) and
-        # biases the radius; the symmetric one cancels that to second order.
-        command = command + (desired_velocity(context.advanced(feedforward_horizon))
-                             - desired_velocity(context.advanced(-feedforward_horizon))) / (2.0 * feedforward_horizon)
-    if context.target_acceleration is not None:
-        command = command + context.target_acceleration
-    return _saturate(command, max_acceleration)
+        ahead, behind = desired_velocity(context, feedforward_horizon), desired_velocity(context, -feedforward_horizon)
+    command = np.empty(3)
+    _tracking_kernel(u, ahead, behind, context.own_velocity, velocity_gain, feedforward_horizon,
+                     _NO_ACCELERATION if context.target_acceleration is None else context.target_acceleration,
+                     max_acceleration, command)
+    return command
+
+
+_NO_ACCELERATION = np.empty(0)  # _tracking_kernel's "no target acceleration"
+
+
+@jit
+def _tracking_kernel(u: np.ndarray, ahead: np.ndarray, behind: np.ndarray, own_velocity: np.ndarray,
+                     velocity_gain: float, feedforward_horizon: float, target_acceleration: np.ndarray,
+                     max_acceleration: float, out: np.ndarray) -> None:
+    """The velocity-tracking command of the module docstring into out (m/s^2, (3,)):
+    a = k_v (u - v) + (u(+tau) - u(-tau)) / (2 tau) + a^_T, saturated to max_acceleration.
+
+    u: the law's desired velocity now, ahead/behind: with every vehicle moved at constant velocity by +tau / -tau
+    (tau = feedforward_horizon s; not used when tau is 0), m/s (3,); own_velocity m/s (3,); target_acceleration
+    m/s^2, (3,), or empty for none. Central difference: a one-sided step leaves the orbit (the chord lies outside
+    the circle) and biases the radius; the symmetric one cancels that to second order. The arithmetic as it was
+    written over numpy arrays (elementwise; the norm as sqrt(a @ a)), so compiled or not it gives the same bits."""
+    command = np.empty(3)
+    for k in range(3):
+        command[k] = velocity_gain * (u[k] - own_velocity[k])
+    if feedforward_horizon > 0.0:
+        for k in range(3):
+            command[k] = command[k] + (ahead[k] - behind[k]) / (2.0 * feedforward_horizon)
+    if target_acceleration.shape[0] != 0:
+        for k in range(3):
+            command[k] = command[k] + target_acceleration[k]
+    length = math.sqrt(command @ command)  # saturated to max_acceleration (_saturate)
+    if length <= max_acceleration:
+        for k in range(3):
+            out[k] = command[k]
+    else:
+        scale = max_acceleration / length
+        for k in range(3):
+            out[k] = command[k] * scale
 
 
 def _check_positive(**values: float) -> None:
@@ -290,26 +360,136 @@ class CircumnavigationGuidance:
         return 0.0 if gaps is None else gaps[0]
 
     def desired_velocity(self, context: CooperativeContext) -> np.ndarray:
-        """u = v^_T + seed 002 eq. (10) (horizontal) + vertical hold, m/s, shape (3,) NED."""
-        offset = _planar(context.target_position - context.own_position)  # pursuer -> target
-        distance = norm(offset)
-        # Directly above the target the bearing's horizontal part is undefined: take phase 0 (east).
-        phi = offset / distance if distance > _EPS else np.array([-1.0, 0.0])
-        phi_bar = -_rot90(phi)  # phi rotated by pi/2 clockwise seen from above
-        delta = self.spacing_angle(context)
-        tangential = self.g2 * self.desired_radius * (self.alpha + self.g3 * delta)
-        # Not in the seed (a kinematic law): cap the orbit speed where its centripetal acceleration v^2 / D
-        # would exceed the turn budget, so a vehicle with bounded acceleration can still follow the field.
-        tangential = min(tangential, math.sqrt(self._turn_acceleration * max(distance, _EPS)))
-        horizontal = self.g1 * (distance - self.desired_radius) * phi + tangential * phi_bar
-        desired_down = context.target_position[2] - self.altitude_offset
-        relative = _ned(horizontal, self.vertical_gain * (desired_down - context.own_position[2]))
-        return context.target_velocity + _saturate(relative, self.max_relative_speed)
+        """u = v^_T + seed 002 eq. (10) (horizontal) + vertical hold, m/s, shape (3,) NED
+        (_circumnavigation_velocity_kernel)."""
+        return self._velocity_after(context, 0.0)
+
+    def _velocity_after(self, context: CooperativeContext, horizon: float) -> np.ndarray:
+        """desired_velocity(context.advanced(horizon)), the advance done in the kernel (horizon s; 0: none)."""
+        velocity = np.empty(3)
+        if not _circumnavigation_velocity_kernel(
+                context.own_position, context.own_velocity, context.target_position, context.target_velocity,
+                context.neighbour_positions, context.neighbour_velocities, float(horizon), self.g1, self.g2,
+                self.g3, self.alpha, self.desired_radius, self._turn_acceleration, self.altitude_offset,
+                self.vertical_gain, self.max_relative_speed, velocity):
+            raise ValueError(f"the context advanced by {horizon!r} s is not finite")
+        return velocity
 
     def acceleration(self, context: CooperativeContext) -> np.ndarray:
-        """Acceleration command, m/s^2, shape (3,) NED: k_v (u - v) + du/dt (+ a^_T), norm <= max_acceleration."""
-        return _tracking_acceleration(self.desired_velocity, context, self.velocity_gain,
-                                      self.feedforward_horizon, self.max_acceleration)
+        """Acceleration command, m/s^2, shape (3,) NED: k_v (u - v) + du/dt (+ a^_T), norm <= max_acceleration
+        (_tracking_acceleration's, in one kernel: _circumnavigation_acceleration_kernel)."""
+        command = np.empty(3)
+        if not _circumnavigation_acceleration_kernel(
+                context.own_position, context.own_velocity, context.target_position, context.target_velocity,
+                context.neighbour_positions, context.neighbour_velocities,
+                _NO_ACCELERATION if context.target_acceleration is None else context.target_acceleration,
+                self.g1, self.g2, self.g3, self.alpha, self.desired_radius, self._turn_acceleration,
+                self.altitude_offset, self.vertical_gain, self.max_relative_speed, self.velocity_gain,
+                self.feedforward_horizon, self.max_acceleration, command):
+            raise ValueError(f"the context advanced by +-{self.feedforward_horizon!r} s is not finite")
+        return command
+
+
+@jit
+def _circumnavigation_acceleration_kernel(own_position: np.ndarray, own_velocity: np.ndarray,
+                                          target_position: np.ndarray, target_velocity: np.ndarray,
+                                          neighbour_positions: np.ndarray, neighbour_velocities: np.ndarray,
+                                          target_acceleration: np.ndarray, g1: float, g2: float, g3: float,
+                                          alpha: float, desired_radius: float, turn_acceleration: float,
+                                          altitude_offset: float, vertical_gain: float, max_relative_speed: float,
+                                          velocity_gain: float, feedforward_horizon: float, max_acceleration: float,
+                                          out: np.ndarray) -> bool:
+    """CircumnavigationGuidance.acceleration into out (m/s^2, (3,)): _tracking_acceleration over
+    _circumnavigation_velocity_kernel (u now, and with every vehicle moved by +-feedforward_horizon s when it is
+    > 0), then _tracking_kernel. False (out unset) where a moved context is not finite. target_acceleration:
+    (3,), or empty for none."""
+    u, ahead, behind = np.empty(3), np.empty(3), np.empty(3)
+    arguments = (g1, g2, g3, alpha, desired_radius, turn_acceleration, altitude_offset, vertical_gain,
+                 max_relative_speed)
+    if not _circumnavigation_velocity_kernel(own_position, own_velocity, target_position, target_velocity,
+                                             neighbour_positions, neighbour_velocities, 0.0, *arguments, u):
+        return False
+    if feedforward_horizon > 0.0:
+        for horizon, velocity in ((feedforward_horizon, ahead), (-feedforward_horizon, behind)):
+            if not _circumnavigation_velocity_kernel(own_position, own_velocity, target_position, target_velocity,
+                                                     neighbour_positions, neighbour_velocities, horizon, *arguments,
+                                                     velocity):
+                return False
+    _tracking_kernel(u, ahead, behind, own_velocity, velocity_gain, feedforward_horizon, target_acceleration,
+                     max_acceleration, out)
+    return True
+
+
+@jit
+def _circumnavigation_velocity_kernel(own_position: np.ndarray, own_velocity: np.ndarray, target_position: np.ndarray,
+                                      target_velocity: np.ndarray, neighbour_positions: np.ndarray,
+                                      neighbour_velocities: np.ndarray, horizon: float, g1: float, g2: float,
+                                      g3: float, alpha: float, desired_radius: float, turn_acceleration: float,
+                                      altitude_offset: float, vertical_gain: float, max_relative_speed: float,
+                                      out: np.ndarray) -> bool:
+    """CircumnavigationGuidance's desired velocity u = v^_T + seed 002 eq. (10) (horizontal) + vertical hold,
+    m/s, into out (3,), for every vehicle moved at constant velocity by `horizon` s first (as
+    CooperativeContext.advanced; not moved when horizon is 0). False (out unset) if a moved position is not
+    finite (where `advanced` raises). Positions m, velocities m/s, NED, float64 (3,); the neighbours' (k, 3).
+
+    D = |planar offset to the target|; phi its unit vector (phase 0, east, directly above the target);
+    phi_bar = phi rotated by pi/2 clockwise seen from above; Delta = the CCW gap to the nearest neighbour ahead
+    (0 without neighbours); tangential speed g2 D* (alpha + g3 Delta), capped at sqrt(a_turn max(D, eps));
+    u_h = g1 (D - D*) phi + tangential phi_bar; u_down = k_z (z_T - altitude_offset - z); |u - v^_T| capped at
+    max_relative_speed. The arithmetic of the class's law in the order it was written with numpy arrays (norms as
+    sqrt(x @ x), elementwise products and sums), so compiled or not it gives the same bits."""
+    own = own_position
+    target = target_position
+    neighbours = neighbour_positions
+    if horizon != 0.0:
+        own = own_position + horizon * own_velocity
+        target = target_position + horizon * target_velocity
+        neighbours = neighbour_positions + horizon * neighbour_velocities
+        for k in range(3):
+            if not (math.isfinite(own[k]) and math.isfinite(target[k])):
+                return False
+        for i in range(neighbours.shape[0]):
+            for k in range(3):
+                if not math.isfinite(neighbours[i, k]):
+                    return False
+    offset = np.empty(2)  # planar (east, north), pursuer -> target
+    offset[0] = target[1] - own[1]
+    offset[1] = target[0] - own[0]
+    distance = math.sqrt(offset @ offset)
+    # Directly above the target the bearing's horizontal part is undefined: take phase 0 (east).
+    if distance > _EPS:
+        phi_east = offset[0] / distance
+        phi_north = offset[1] / distance
+    else:
+        phi_east = -1.0
+        phi_north = 0.0
+    # phi_bar: phi rotated by pi/2 clockwise seen from above, (phi_north, -phi_east)
+    delta = 0.0  # Delta_i of seed 002 (spacing_angle): the CCW gap to the nearest neighbour ahead, phases about the target
+    if neighbours.shape[0] > 0:
+        own_phase = math.atan2(own[0] - target[0], own[1] - target[1])
+        for i in range(neighbours.shape[0]):
+            gap = _ccw_gap_kernel(own_phase, math.atan2(neighbours[i, 0] - target[0], neighbours[i, 1] - target[1]))
+            if i == 0 or gap < delta:  # min() over the neighbours, the first of equal ones
+                delta = gap
+    tangential = g2 * desired_radius * (alpha + g3 * delta)
+    # Not in the seed (a kinematic law): cap the orbit speed where its centripetal acceleration v^2 / D
+    # would exceed the turn budget, so a vehicle with bounded acceleration can still follow the field.
+    cap = math.sqrt(turn_acceleration * (_EPS if _EPS > distance else distance))
+    if cap < tangential:
+        tangential = cap
+    radial = g1 * (distance - desired_radius)
+    relative = np.empty(3)  # NED: (north, east) of the planar u_h, then down
+    relative[0] = radial * phi_north + tangential * -phi_east
+    relative[1] = radial * phi_east + tangential * phi_north
+    relative[2] = vertical_gain * ((target[2] - altitude_offset) - own[2])
+    length = math.sqrt(relative @ relative)
+    if not length <= max_relative_speed:
+        scale = max_relative_speed / length
+        for k in range(3):
+            relative[k] = relative[k] * scale
+    for k in range(3):
+        out[k] = target_velocity[k] + relative[k]
+    return True
 
 
 # --------------------------------------------------------------------------------------------------
@@ -499,8 +679,12 @@ class StandoffTrackingGuidance:
 
     def acceleration(self, context: CooperativeContext) -> np.ndarray:
         """Acceleration command, m/s^2, shape (3,) NED: k_v (u - v) + du/dt (+ a^_T), norm <= max_acceleration."""
-        return _tracking_acceleration(self.desired_velocity, context, self.velocity_gain,
+        return _tracking_acceleration(self._velocity_after, context, self.velocity_gain,
                                       self.feedforward_horizon, self.max_acceleration)
+
+    def _velocity_after(self, context: CooperativeContext, horizon: float) -> np.ndarray:
+        """desired_velocity(context.advanced(horizon)) (horizon s; 0: the context itself)."""
+        return self.desired_velocity(context if horizon == 0.0 else context.advanced(horizon))
 
 
 # --------------------------------------------------------------------------------------------------
@@ -561,26 +745,12 @@ class SeparationFilter:
 
     def braking_margin(self, distance: float, closing_speed: float) -> float:
         """m = d - d_min - max(w, 0)^2 / (2 c a_b), m: the separation left after braking (c = 2 if reciprocal)."""
-        closing = max(closing_speed, 0.0)
-        sharing = 2.0 if self.reciprocal else 1.0
-        return distance - self.min_separation - closing * closing / (2.0 * sharing * self.braking_acceleration)
+        return _braking_margin(distance, closing_speed, self.min_separation, self.braking_acceleration,
+                               2.0 if self.reciprocal else 1.0)
 
     def _trigger_margin(self, closing_speed: float) -> float:
-        closing = max(closing_speed, 0.0)
-        tau = self.horizon
-        return (1.0 + self.max_acceleration / self.braking_acceleration) * (
-            closing * tau + self.max_acceleration * tau * tau)
-
-    def _threatening(self, offset: np.ndarray, relative_velocity: np.ndarray, distance: float,
-                     closing_speed: float) -> bool:
-        if self.braking_margin(distance, closing_speed) <= self._trigger_margin(closing_speed):
-            return True
-        # Constant-velocity closest approach within the horizon. offset = p_j - p, relative_velocity = v - v_j.
-        speed2 = float(relative_velocity @ relative_velocity)
-        if speed2 <= _EPS:
-            return False
-        t_closest = min(max(float(offset @ relative_velocity) / speed2, 0.0), self.horizon)
-        return norm(offset - t_closest * relative_velocity) < self.min_separation
+        """(1 + a_max / a_b)(max(w, 0) tau + a_max tau^2), m: the braking margin at or below which a neighbour threatens."""
+        return _trigger_margin(closing_speed, self.max_acceleration, self.braking_acceleration, self.horizon)
 
     def filter(self, own_position: np.ndarray, own_velocity: np.ndarray, acceleration: np.ndarray,
                neighbours: tuple[NeighbourState, ...] | list[NeighbourState]) -> np.ndarray:
@@ -592,25 +762,17 @@ class SeparationFilter:
         position = _finite_vector(own_position, "own_position")
         velocity = _finite_vector(own_velocity, "own_velocity")
         command = _finite_vector(acceleration, "acceleration").copy()
-        geometry = []
-        for neighbour in neighbours:
-            offset = neighbour.position - position
-            distance = norm(offset)
-            if distance <= _EPS:
-                continue  # coincident: no direction to push along (cannot be reached from m >= 0)
-            normal = offset / distance
-            relative_velocity = velocity - neighbour.velocity
-            geometry.append((offset, normal, relative_velocity, distance, float(relative_velocity @ normal)))
-        for _, normal, _, distance, _ in geometry:
-            if distance < self._influence:
-                depth = (self._influence - distance) / (self._influence - self.min_separation)
-                command = command - self.repulsion_gain * min(depth, 1.0) ** 2 * normal
-        active = []
-        for offset, normal, relative_velocity, distance, closing in geometry:
-            if self._threatening(offset, relative_velocity, distance, closing):
-                active.append((normal, -self.braking_acceleration if closing > 0.0 else 0.0))
-        if not active:
+        count = len(neighbours)
+        normals, bounds = np.empty((count, 3)), np.empty(count)
+        # the repulsion (part 1) into command, the threatening neighbours' normals and bounds (part 2)
+        threatening = _separation_kernel(
+            position, velocity, command, np.array([n.position for n in neighbours], dtype=float).reshape(count, 3),
+            np.array([n.velocity for n in neighbours], dtype=float).reshape(count, 3), self.min_separation,
+            self._influence, self.repulsion_gain, self.braking_acceleration, self.max_acceleration, self.horizon,
+            2.0 if self.reciprocal else 1.0, normals, bounds)
+        if not threatening:
             return _saturate(command, self.max_acceleration)
+        active = list(zip(normals[:threatening], bounds[:threatening].tolist()))
         for _ in range(self.passes):
             for normal, bound in active:
                 along = float(command @ normal)
@@ -632,6 +794,82 @@ class SeparationFilter:
             return constrained * (self.max_acceleration / constrained_norm)
         room = math.sqrt(self.max_acceleration ** 2 - constrained_norm ** 2)
         return constrained + _saturate(free, room)
+
+
+@jit
+def _braking_margin(distance: float, closing_speed: float, min_separation: float, braking_acceleration: float,
+                    sharing: float) -> float:
+    """m = d - d_min - max(w, 0)^2 / (2 c a_b), m (SeparationFilter.braking_margin; c = sharing)."""
+    closing = 0.0 if 0.0 > closing_speed else closing_speed  # max(closing_speed, 0.0)
+    return distance - min_separation - closing * closing / (2.0 * sharing * braking_acceleration)
+
+
+@jit
+def _trigger_margin(closing_speed: float, max_acceleration: float, braking_acceleration: float, horizon: float) -> float:
+    """(1 + a_max / a_b)(max(w, 0) tau + a_max tau^2), m (SeparationFilter._trigger_margin; tau = horizon)."""
+    closing = 0.0 if 0.0 > closing_speed else closing_speed  # max(closing_speed, 0.0)
+    return (1.0 + max_acceleration / braking_acceleration) * (closing * horizon + max_acceleration * horizon * horizon)
+
+
+@jit
+def _separation_kernel(position: np.ndarray, velocity: np.ndarray, command: np.ndarray,
+                       neighbour_positions: np.ndarray, neighbour_velocities: np.ndarray, min_separation: float,
+                       influence: float, repulsion_gain: float, braking_acceleration: float, max_acceleration: float,
+                       horizon: float, sharing: float, normals: np.ndarray, bounds: np.ndarray) -> int:
+    """SeparationFilter.filter's parts 1 and 2 up to the constraints (its docstring): the repulsion of every
+    neighbour inside the influence distance subtracted from `command` (m/s^2, (3,), in place), then the threatening
+    neighbours' unit normals n (into normals, (k, 3)) and bounds on a . n (-a_b when closing, else 0; into bounds,
+    (k,)), in the neighbours' order; returns how many are threatening. position m, velocity m/s, (3,); the
+    neighbours' (k, 3); a neighbour at the pursuer's own position (d <= eps) is skipped. sharing: c of the braking
+    margin (2 reciprocal, 1 not). The arithmetic of the filter as it was written over numpy arrays (norms and dot
+    products as x @ y, max/min as Python's), so compiled or not it gives the same bits."""
+    count = neighbour_positions.shape[0]
+    offsets, units, relatives = np.empty((count, 3)), np.empty((count, 3)), np.empty((count, 3))
+    distances, closings = np.empty(count), np.empty(count)
+    kept = 0
+    for i in range(count):
+        offset = offsets[kept]
+        for k in range(3):
+            offset[k] = neighbour_positions[i, k] - position[k]
+        distance = math.sqrt(offset @ offset)
+        if distance <= _EPS:
+            continue  # coincident: no direction to push along (cannot be reached from m >= 0)
+        normal, relative = units[kept], relatives[kept]
+        for k in range(3):
+            normal[k] = offset[k] / distance
+            relative[k] = velocity[k] - neighbour_velocities[i, k]
+        distances[kept] = distance
+        closings[kept] = relative @ normal
+        kept += 1
+    for g in range(kept):  # 1. the smooth repulsion: -k ((d_inf - d) / (d_inf - d_min))^2 n
+        if distances[g] < influence:
+            depth = (influence - distances[g]) / (influence - min_separation)
+            push = repulsion_gain * power(1.0 if 1.0 < depth else depth, 2.0)  # k min(depth, 1)^2
+            for k in range(3):
+                command[k] = command[k] - push * units[g, k]
+    threatening = 0
+    miss = np.empty(3)
+    for g in range(kept):  # 2. the threatening neighbours: braking margin at or below the trigger margin, or ...
+        closing_speed = closings[g]
+        threat = (_braking_margin(distances[g], closing_speed, min_separation, braking_acceleration, sharing)
+                  <= _trigger_margin(closing_speed, max_acceleration, braking_acceleration, horizon))
+        if not threat:
+            # ... a constant-velocity closest approach within the horizon under d_min (offset = p_j - p, v - v_j).
+            offset, relative = offsets[g], relatives[g]
+            speed2 = relative @ relative
+            if speed2 > _EPS:
+                t_closest = (offset @ relative) / speed2
+                t_closest = 0.0 if 0.0 > t_closest else t_closest  # min(max(t, 0), horizon)
+                t_closest = horizon if horizon < t_closest else t_closest
+                for k in range(3):
+                    miss[k] = offset[k] - t_closest * relative[k]
+                threat = math.sqrt(miss @ miss) < min_separation
+        if threat:
+            for k in range(3):
+                normals[threatening, k] = units[g, k]
+            bounds[threatening] = -braking_acceleration if closing_speed > 0.0 else 0.0
+            threatening += 1
+    return threatening
 
 
 # --------------------------------------------------------------------------------------------------

@@ -18,7 +18,7 @@ from companion.core.attitude import VehicleLimits, attitude_setpoint_after
 from companion.core.cooperative_guidance import CooperativeContext, SeparationFilter, neighbours_make_range_observable
 from companion.core.estimators import CorrectionReport, InitialGuess, TargetEstimator
 from companion.core._jit import jit, power
-from companion.core.geometry import clip_kernel, norm
+from companion.core.geometry import all_finite, clip_kernel, norm
 from companion.core.guidance import LateralGuidance, RangeController, RangeExcitation, _excitation_terms_kernel
 from companion.core.health import (
     HealthAction,
@@ -298,8 +298,14 @@ class FollowingPipeline:
         delay and up to a share period)."""
         if not self._neighbours:
             return ()
-        return tuple(NeighbourState(n.ident, time, n.position + (time - n.time) * n.velocity, n.velocity)
-                     for n in self._neighbours)
+        moved = []
+        for n in self._neighbours:
+            position = n.position + (time - n.time) * n.velocity
+            if type(n) is not NeighbourState or not (math.isfinite(time) and all_finite(position)):
+                moved.append(NeighbourState(n.ident, time, position, n.velocity))  # checks (ValueError), converts
+            else:  # what the constructor builds from a checked neighbour and a finite move, without its checks
+                moved.append(fast_frozen(NeighbourState, ident=n.ident, time=time, position=position, velocity=n.velocity))
+        return tuple(moved)
 
     @property
     def engaged_at(self) -> float | None:
@@ -537,7 +543,7 @@ class FollowingPipeline:
         if acceleration is None:
             return None
         acceleration = np.asarray(acceleration, dtype=float)
-        return acceleration if acceleration.shape == (3,) and np.all(np.isfinite(acceleration)) else None
+        return acceleration if acceleration.shape == (3,) and all_finite(acceleration) else None
 
     def _choose_law(self, time: float, pursuer: PursuerState, target_position: np.ndarray, neighbours: tuple) -> str:
         """'cooperative', 'lone' (the cooperative law's own layer, no neighbour heard), 'steady' (lateral law
