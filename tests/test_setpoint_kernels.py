@@ -292,8 +292,8 @@ def old_range_error_state(controller, relative_position, relative_velocity):
 
 def old_virtual_control(controller, error):
     """RangeController.virtual_control before its kernel (saturation and saturation_slope in Python), verbatim."""
-    sigma = guidance.saturation(error.range_error, controller.saturation_limit)
-    slope = guidance.saturation_slope(error.range_error, controller.saturation_limit)
+    sigma = controller.saturation_limit * float(np.arctan(error.range_error / controller.saturation_limit))
+    slope = 1.0 / (1.0 + (error.range_error / controller.saturation_limit) ** 2)
     return -controller.gain * (sigma + error.range_rate) - sigma - slope * error.range_rate
 
 
@@ -347,9 +347,10 @@ def test_virtual_control_is_the_old_one(range_error, range_rate, gain, limit):
     expected = old_virtual_control(controller, error)
     assert_same(controller.virtual_control(error), expected)
     assert type(controller.virtual_control(error)) is float
-    ratio = range_error / limit
+    sigma = guidance.saturation(range_error, limit)
     for kernel in (guidance._virtual_control_terms_kernel, python(guidance._virtual_control_terms_kernel)):
-        assert_same(kernel(float(np.arctan(ratio)), ratio, range_rate, gain, limit), expected)
+        assert_same(kernel(sigma, range_error, range_rate, gain, limit), expected)
+    assert_same(guidance._saturation_slope_kernel(range_error, limit), 1.0 / (1.0 + (range_error / limit) ** 2))
 
 
 def old_relative_terms(target_position, target_velocity, position, velocity):
@@ -592,9 +593,9 @@ def test_tracking_kernels_are_the_old_tick(target, target_velocity, position, ve
                                                                     np.empty((3, 3)), np.empty(3))
             terms = terms_kernel(target, target_velocity, position, velocity, time, *law.kernel_terms, excite,
                                  covariance, suspect, *(excitation.kernel_terms if excite else guidance._NO_EXCITATION),
-                                 desired_range, limit, los, lateral)
+                                 desired_range, los, lateral)
             thrust, thrust_normalized = command_kernel(
-                *terms[2:], float(np.arctan(terms[-1])), range_gain, limit, los, lateral, longitudinal, command,
+                *terms[2:], guidance.saturation(terms[-1], limit), range_gain, limit, los, lateral, longitudinal, command,
                 with_setpoint, attitude._IDENTITY if previous is None else previous, *limits.setpoint_terms, rotation,
                 flown)
             assert_same((los, lateral, terms[0], terms[1], longitudinal, command), expected[:6])
@@ -644,7 +645,7 @@ def test_warm_up_compiles_the_setpoint_kernels():
                guidance._range_command_kernel, guidance._virtual_control_terms_kernel, guidance._range_error_terms,
                attitude._setpoint_after_into_kernel, guidance._excitation_terms_kernel,
                guidance._excitation_level_kernel, _relative_terms, guidance._tracking_terms_kernel,
-               guidance._tracking_command_kernel)
+               guidance._tracking_command_kernel, guidance._saturation_slope_kernel)
     for kernel in kernels:
         if _jit.ENABLED:
             assert kernel.signatures, kernel

@@ -254,7 +254,8 @@ def _warm_up_setpoint() -> None:
                                          desired_rotation, limit_specific_force)
     from companion.core.geometry import rotation_from_x_axis_to
     from companion.core.guidance import (_NO_EXCITATION, HelicalNavigationGuidance, RangeController, RangeExcitation,
-                                         _excitation_terms_kernel, _tracking_command_kernel, _tracking_terms_kernel)
+                                         _excitation_terms_kernel, _tracking_command_kernel, _tracking_terms_kernel,
+                                         saturation)
     from companion.core.pipeline import _relative_terms
 
     limits = VehicleLimits(2.0 / 3.0, max_tilt=0.6, gravity=9.81, mass=1.0)
@@ -287,8 +288,8 @@ def _warm_up_setpoint() -> None:
                                                                         np.empty(3), np.empty((3, 3)), np.empty(3))
         terms = _tracking_terms_kernel(20.0 * los, velocity, np.zeros(3), 0.5 * velocity, 1.0, *guidance.kernel_terms,
                                        excite, np.eye(6), excite, *(excitation.kernel_terms if excite else _NO_EXCITATION),
-                                       desired_range, limit, los_out, lateral_out)
-        _tracking_command_kernel(*terms[2:], float(np.arctan(terms[-1])), gain, limit, los_out, lateral_out,
+                                       desired_range, los_out, lateral_out)
+        _tracking_command_kernel(*terms[2:], saturation(terms[-1], limit), gain, limit, los_out, lateral_out,
                                  longitudinal, command, with_setpoint, previous.rotation, *limits.setpoint_terms,
                                  rotation, flown)
 

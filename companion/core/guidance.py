@@ -121,8 +121,11 @@ def saturation(x: float, limit: float = 3.0) -> float:
 
 
 def saturation_slope(x: float, limit: float = 3.0) -> float:
-    """sigma'(x) = 1 / (1 + (x/3)^2)."""
-    return 1.0 / (1.0 + (x / limit) ** 2)
+    """sigma'(x) = 1 / (1 + (x/3)^2) (Python's ** as _jit.power, so that the compiled kernel computes the same)."""
+    return 1.0 / (1.0 + power(x / limit, 2.0))
+
+
+_saturation_slope_kernel = jit(saturation_slope)
 
 
 @jit
@@ -187,10 +190,10 @@ class RangeController:
 
     def _virtual_control(self, range_error: float, range_rate: float) -> float:
         """v* of eq. (17) from xi1 = range_error (m) and xi2 = range_rate (m/s) (virtual_control's arithmetic):
-        numpy's arctan of xi1 / 3 here, the rest _virtual_control_terms's."""
+        sigma(xi1) here (saturation: numpy's arctan), the rest _virtual_control_terms's."""
         _, gain, limit = self.kernel_terms
-        ratio = range_error / limit
-        return float(_virtual_control_terms_kernel(float(np.arctan(ratio)), ratio, range_rate, gain, limit))
+        return float(_virtual_control_terms_kernel(saturation(range_error, limit), range_error, range_rate, gain,
+                                                   limit))
 
     @once_property
     def kernel_terms(self) -> tuple[float, float, float]:
@@ -209,47 +212,45 @@ class RangeController:
 
         relative_position: dp = p^_T - p, m, (3,). relative_velocity: dv = v^_T - v, m/s, (3,).
         los: unit line of sight lambda, (3,). lateral_acceleration: a_HN, m/s^2, (3,).
-        Returns m/s^2, shape (3,). The arithmetic is _range_ratio_terms's, numpy's arctan (saturation), then
-        _range_command's.
+        Returns m/s^2, shape (3,). The arithmetic is _range_ratio_terms's, sigma(xi1) (saturation: numpy's arctan),
+        then _range_command's.
         """
         desired_range, gain, limit = self.kernel_terms
         los = np.asarray(los, dtype=float)
-        distance, range_rate, speed_squared, lateral_work, projection, ratio = _range_ratio_terms(
+        distance, range_rate, speed_squared, lateral_work, projection, range_error = _range_ratio_terms(
             np.asarray(relative_position, dtype=float), np.asarray(relative_velocity, dtype=float), los,
-            np.asarray(lateral_acceleration, dtype=float), desired_range, limit)
-        return _range_command_kernel(distance, range_rate, speed_squared, lateral_work, projection, ratio,
-                                     float(np.arctan(ratio)), gain, limit, los)
+            np.asarray(lateral_acceleration, dtype=float), desired_range)
+        return _range_command_kernel(distance, range_rate, speed_squared, lateral_work, projection, range_error,
+                                     saturation(range_error, limit), gain, limit, los)
 
 
 @jit
 def _range_ratio_terms(relative_position: np.ndarray, relative_velocity: np.ndarray, los: np.ndarray,
-                       lateral_acceleration: np.ndarray, desired_range: float,
-                       saturation_limit: float) -> tuple[float, float, float, float, float, float]:
-    """_range_terms (|dp|, xi_2, dv^T dv, dp^T a_HN, lambda^T dp), then xi_1 / 3 = (|dp| - r_d) / 3, eq. (15), the
-    argument of sigma's arctan (which is numpy's, taken between this kernel and _range_command)."""
+                       lateral_acceleration: np.ndarray,
+                       desired_range: float) -> tuple[float, float, float, float, float, float]:
+    """_range_terms (|dp|, xi_2, dv^T dv, dp^T a_HN, lambda^T dp), then xi_1 = |dp| - r_d, eq. (15), whose
+    sigma(xi1) (saturation: numpy's arctan) is taken between this kernel and _range_command."""
     distance, range_rate, speed_squared, lateral_work, projection = _range_terms(
         relative_position, relative_velocity, los, lateral_acceleration)
-    return (distance, range_rate, speed_squared, lateral_work, projection,
-            (distance - desired_range) / saturation_limit)
+    return distance, range_rate, speed_squared, lateral_work, projection, distance - desired_range
 
 
-def _virtual_control_terms(arctangent, ratio, range_rate, gain, saturation_limit):
-    """v* = -k[sigma(xi1) + xi2] - sigma(xi1) - sigma'(xi1) xi2, eq. (17), on floats, with sigma(xi1) = 3
-    arctan(xi1 / 3) (section VI-B) from arctangent = numpy's arctan of ratio = xi1 / 3 (saturation) and
-    sigma'(xi1) = 1 / (1 + (xi1 / 3)^2) (saturation_slope, Python's ** as _jit.power)."""
-    sigma = saturation_limit * arctangent
-    slope = 1.0 / (1.0 + power(ratio, 2.0))
+def _virtual_control_terms(sigma, range_error, range_rate, gain, saturation_limit):
+    """v* = -k[sigma(xi1) + xi2] - sigma(xi1) - sigma'(xi1) xi2, eq. (17), on floats: sigma = sigma(xi1) given
+    (saturation, section VI-B: numpy's arctan, which a kernel cannot call), xi1 = range_error, xi2 = range_rate,
+    sigma' = saturation_slope."""
+    slope = _saturation_slope_kernel(range_error, saturation_limit)
     return -gain * (sigma + range_rate) - sigma - slope * range_rate
 
 
-def _range_command(distance, range_rate, speed_squared, lateral_work, projection, ratio, arctangent, gain,
+def _range_command(distance, range_rate, speed_squared, lateral_work, projection, range_error, sigma, gain,
                    saturation_limit, los):
     """a_RC = u* / (lambda^T dp) lambda, eq. (18), u* = -|dp| v* + dv^T dv - xi_2^2 - dp^T a_HN, eq. (19), v* of
-    eq. (17) (_virtual_control_terms), from _range_ratio_terms's terms and numpy's arctan of its ratio; zero when
+    eq. (17) (_virtual_control_terms), from _range_ratio_terms's terms and sigma(xi1) (saturation); zero when
     lambda^T dp <= 1e-6 max(|dp|, 1) (remark 3: the estimate disagrees with the line of sight by 90 degrees or
     more; no longitudinal command is meaningful). Python's max (a NaN |dp| stays NaN). los: float64 (3,)."""
     u_star = (
-        -distance * _virtual_control_terms_kernel(arctangent, ratio, range_rate, gain, saturation_limit)
+        -distance * _virtual_control_terms_kernel(sigma, range_error, range_rate, gain, saturation_limit)
         + speed_squared
         - power(range_rate, 2.0)
         - lateral_work
@@ -390,15 +391,15 @@ _NO_EXCITATION = (0.0, 1.0, 1.0, 0.0, 1.0)  # RangeExcitation.kernel_terms' plac
 
 def _tracking_terms(target_position, target_velocity, position, velocity, engaged_time, navigation_gain, c_z, c_y,
                     weave_frequency, scale_with_range, excite, covariance, suspect, low, high, speed, damping_gain,
-                    frequency, desired_range, saturation_limit, los_out, lateral_out):
+                    frequency, desired_range, los_out, lateral_out):
     """The control tick's guidance up to the range controller's arctan, in one call (FollowingPipeline's usual
     tick: HNG, the excitation when `excite`, the range controller), calling the kernels the objects call:
     geometry.relative_terms (dp, dv, r^, lambda), HNG's a_HN, eq. (14) (_helical_acceleration, on the pursuer's
     velocity), when `excite` the excitation's level and a_lat + a_X (_excitation_terms on the estimate's covariance
     (6, 6) and the health verdict `suspect`), and the range controller's terms (_range_ratio_terms).
     Writes lambda into los_out and a_lat into lateral_out (float64 (3,)); returns (r^, the excitation level s (0
-    when not excited), |dp|, xi_2, dv^T dv, dp^T a_lat, lambda^T dp, xi_1 / 3): _range_command's terms follow r^
-    and s, the last one being the argument of numpy's arctan."""
+    when not excited), |dp|, xi_2, dv^T dv, dp^T a_lat, lambda^T dp, xi_1): _range_command's terms follow r^ and s,
+    the last one the argument of sigma (saturation: numpy's arctan), taken between this kernel and the next."""
     relative_position, relative_velocity, range_estimate, los = relative_terms_kernel(
         target_position, target_velocity, position, velocity)
     lateral = _helical_acceleration_kernel(engaged_time, velocity, los, range_estimate, navigation_gain, c_z, c_y,
@@ -407,24 +408,24 @@ def _tracking_terms(target_position, target_velocity, position, velocity, engage
     if excite:
         level, lateral = _excitation_terms_kernel(engaged_time, lateral, relative_position, covariance, los, suspect,
                                                   low, high, speed, damping_gain, frequency)
-    distance, range_rate, speed_squared, lateral_work, projection, ratio = _range_ratio_terms(
-        relative_position, relative_velocity, los, lateral, desired_range, saturation_limit)
+    distance, range_rate, speed_squared, lateral_work, projection, range_error = _range_ratio_terms(
+        relative_position, relative_velocity, los, lateral, desired_range)
     los_out[:] = los
     lateral_out[:] = lateral
-    return range_estimate, level, distance, range_rate, speed_squared, lateral_work, projection, ratio
+    return range_estimate, level, distance, range_rate, speed_squared, lateral_work, projection, range_error
 
 
-def _tracking_command(distance, range_rate, speed_squared, lateral_work, projection, ratio, arctangent, gain,
+def _tracking_command(distance, range_rate, speed_squared, lateral_work, projection, range_error, sigma, gain,
                       saturation_limit, los, lateral, longitudinal_out, command_out, with_setpoint, previous_rotation,
                       gravity, max_specific_force, max_specific_force_squared, horizontal_margin, min_vertical,
                       tan_max_tilt, mass, hover_thrust_normalized, rotation_out, flown_out):
-    """The rest of _tracking_terms's tick after numpy's arctan: a_RC of eq. (18)-(19) (_range_command) into
-    longitudinal_out and the command a_d = a_lat + a_RC, eq. (13), into command_out; with `with_setpoint` also
-    the setpoint of eq. (21)-(22) for that command (attitude._setpoint_after_into, the previous R_d (3, 3) giving the
+    """The rest of _tracking_terms's tick after sigma(xi1) (saturation, numpy's arctan): a_RC of eq. (18)-(19)
+    (_range_command) into longitudinal_out and the command a_d = a_lat + a_RC, eq. (13), into command_out; with
+    `with_setpoint` also the setpoint of eq. (21)-(22) for that command (attitude._setpoint_after_into, the previous R_d (3, 3) giving the
     heading fallback): R_d into rotation_out (3, 3), the flown a_d into flown_out, and returns (T N, normalised
     thrust); without, (nan, nan)."""
-    longitudinal = _range_command_kernel(distance, range_rate, speed_squared, lateral_work, projection, ratio,
-                                         arctangent, gain, saturation_limit, los)
+    longitudinal = _range_command_kernel(distance, range_rate, speed_squared, lateral_work, projection, range_error,
+                                         sigma, gain, saturation_limit, los)
     longitudinal_out[:] = longitudinal
     command_out[:] = lateral + longitudinal
     if not with_setpoint:

@@ -21,7 +21,7 @@ from companion.core._jit import jit, power
 from companion.core.geometry import clip_kernel, norm, relative_terms_kernel as _relative_terms
 from companion.core.guidance import (_NO_EXCITATION, HelicalNavigationGuidance, LateralGuidance, RangeController,
                                      RangeExcitation, _excitation_terms_kernel, _tracking_command_kernel,
-                                     _tracking_terms_kernel)
+                                     _tracking_terms_kernel, saturation)
 from companion.core.health import (
     HealthAction,
     HealthActionConfig,
@@ -576,7 +576,7 @@ class FollowingPipeline:
                 and type(lateral_law) is HelicalNavigationGuidance and type(controller) is RangeController
                 and (self.los_source == "estimate" or self._last_bearing is None)):
             # The usual tick (HNG, its excitation, the range controller), the branch below's arithmetic in two
-            # kernels (guidance._tracking_terms and _tracking_command) around the range controller's numpy arctan,
+            # kernels (guidance._tracking_terms and _tracking_command) around the range controller's sigma (numpy's arctan),
             # with the setpoint when the command needs none of the adjustments that follow (the tracking mode,
             # not recovering, no blend, no separation filter).
             excitation = self.excitation
@@ -588,12 +588,12 @@ class FollowingPipeline:
             desired_range, gain, limit = controller.kernel_terms
             los = np.empty(3)
             lateral = np.empty(3)
-            range_estimate, level, distance, range_rate, speed_squared, lateral_work, projection, ratio = (
+            range_estimate, level, distance, range_rate, speed_squared, lateral_work, projection, range_error = (
                 _tracking_terms_kernel(
                     estimate.position, estimate.velocity, np.asarray(pursuer.position, dtype=float),
                     np.asarray(pursuer.velocity, dtype=float), time - self._engaged_at, *lateral_law.kernel_terms,
                     excitation is not None, estimate.covariance, suspect,
-                    *(_NO_EXCITATION if excitation is None else excitation.kernel_terms), desired_range, limit, los,
+                    *(_NO_EXCITATION if excitation is None else excitation.kernel_terms), desired_range, los,
                     lateral))
             if excitation is not None:
                 self.excitation_level = level
@@ -606,8 +606,8 @@ class FollowingPipeline:
             flown = np.empty(3)
             previous = self._setpoint
             thrust, thrust_normalized = _tracking_command_kernel(
-                distance, range_rate, speed_squared, lateral_work, projection, ratio, float(np.arctan(ratio)), gain,
-                limit, los, lateral, longitudinal, command, plain,
+                distance, range_rate, speed_squared, lateral_work, projection, range_error,
+                saturation(range_error, limit), gain, limit, los, lateral, longitudinal, command, plain,
                 _IDENTITY if previous is None else previous.rotation, *self.limits.setpoint_terms, rotation, flown)
             if plain:
                 self._last_command = command
