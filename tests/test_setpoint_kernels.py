@@ -20,7 +20,7 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from bitwise import assert_same
+from bitwise import assert_same, seeds
 
 from companion.core import _jit, attitude, geometry, guidance
 from companion.core.attitude import VehicleLimits
@@ -290,11 +290,18 @@ def old_range_error_state(controller, relative_position, relative_velocity):
                            float(relative_position @ relative_velocity) / max(distance, 1e-6))
 
 
+def old_virtual_control(controller, error):
+    """RangeController.virtual_control before its kernel (saturation and saturation_slope in Python), verbatim."""
+    sigma = controller.saturation_limit * float(np.arctan(error.range_error / controller.saturation_limit))
+    slope = 1.0 / (1.0 + (error.range_error / controller.saturation_limit) ** 2)
+    return -controller.gain * (sigma + error.range_rate) - sigma - slope * error.range_rate
+
+
 def old_range_acceleration(controller, relative_position, relative_velocity, los, lateral_acceleration):
     error = old_range_error_state(controller, relative_position, relative_velocity)
     distance = float(np.linalg.norm(relative_position))
     u_star = (
-        -distance * controller.virtual_control(error)
+        -distance * old_virtual_control(controller, error)
         + float(relative_velocity @ relative_velocity)
         - error.range_rate**2
         - float(relative_position @ lateral_acceleration)
@@ -328,6 +335,22 @@ def test_range_controller_is_the_old_one(position, scale, velocity, los_vector, 
     assert_same(command, expected)
     assert_same((new.range_error, new.range_rate), (old.range_error, old.range_rate))
     assert type(new.range_rate) is float and type(new.range_error) is float
+
+
+@settings(max_examples=500, deadline=None)
+@given(st.floats(-1e4, 1e4), st.floats(-1e3, 1e3), st.floats(0.1, 10.0), st.floats(0.5, 10.0))
+def test_virtual_control_is_the_old_one(range_error, range_rate, gain, limit):
+    """v* of eq. (17): numpy's arctan in Python, the rest _virtual_control_terms (compiled and not), against the old
+    method (saturation, saturation_slope)."""
+    controller = RangeController(8.0, gain, limit)
+    error = RangeErrorState(range_error, range_rate)
+    expected = old_virtual_control(controller, error)
+    assert_same(controller.virtual_control(error), expected)
+    assert type(controller.virtual_control(error)) is float
+    sigma = guidance.saturation(range_error, limit)
+    for kernel in (guidance._virtual_control_terms_kernel, python(guidance._virtual_control_terms_kernel)):
+        assert_same(kernel(sigma, range_error, range_rate, gain, limit), expected)
+    assert_same(guidance._saturation_slope_kernel(range_error, limit), 1.0 / (1.0 + (range_error / limit) ** 2))
 
 
 def old_relative_terms(target_position, target_velocity, position, velocity):
@@ -522,14 +545,107 @@ def _assert_same_outcome(actual, expected):
         assert type(actual) is type(expected)
 
 
+def old_tracking_tick(law, controller, excitation, limits, engaged_time, target_position, target_velocity, position,
+                      velocity, covariance, suspect, previous):
+    """The pipeline's usual control tick before guidance._tracking_terms/_tracking_command (FollowingPipeline.
+    _compute_setpoint's single-law branch, then attitude_setpoint_after) in the old code of this file: the old
+    relative terms, HNG, excitation (rho, level, a_X) and range controller, and the setpoint of a_HN + a_RC."""
+    relative_position, relative_velocity, range_estimate, los = old_relative_terms(
+        target_position, target_velocity, position, velocity)
+    lateral = old_helical_acceleration(law, engaged_time, velocity, los, range_estimate)
+    level = 0.0
+    if excitation is not None:
+        level = old_excitation_level(excitation, old_relative_range_std(relative_position, covariance[:3, :3]), suspect)
+        lateral = lateral + old_excitation_acceleration(excitation, engaged_time, los, level)
+    longitudinal = old_range_acceleration(controller, relative_position, relative_velocity, los, lateral)
+    command = lateral + longitudinal
+    fallback = None if previous is None else previous[:, 0]
+    rotation, thrust_normalized, thrust, flown = old_attitude_setpoint(command, los, limits, fallback)
+    return los, lateral, range_estimate, level, longitudinal, command, rotation, flown, thrust, thrust_normalized
+
+
+@settings(max_examples=300, deadline=None)
+@given(vectors, vectors, vectors, vectors, scales, st.floats(0.0, 100.0), st.floats(0.1, 6.0), st.floats(-5.0, 5.0),
+       st.floats(-5.0, 5.0), st.floats(0.5, 50.0), st.floats(0.1, 10.0), st.floats(0.5, 10.0), st.booleans(),
+       st.booleans(), seeds, st.sampled_from([0.0, 0.01, 0.1]), limits_strategy, st.booleans(),
+       st.sampled_from(["any", "behind"]))
+def test_tracking_kernels_are_the_old_tick(target, target_velocity, position, velocity, scale, time, gain, c_z, c_y,
+                                           desired, range_gain, limit, excite, suspect, seed, spread, limits, first,
+                                           case):
+    """guidance._tracking_terms, numpy's arctan and _tracking_command (compiled and not) against the old tick
+    verbatim (old_tracking_tick): lambda, a_lat, r^, the level, a_RC, a_d and the setpoint, bit for bit."""
+    target = target * scale
+    assume(np.linalg.norm(target - position) > 1e-6)
+    law = HelicalNavigationGuidance(gain, c_z, c_y)
+    controller = RangeController(desired, range_gain, limit)
+    excitation = RangeExcitation() if excite else None
+    covariance = _covariance(seed, spread)
+    previous = None if first else old_rotation_from_x_axis_to(velocity + 1.0)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        expected = old_tracking_tick(law, controller, excitation, limits, time, target, target_velocity, position,
+                                     velocity, covariance, suspect, previous)
+    assume(np.linalg.norm(limits.gravity * E_Z - expected[7]) > 1e-9)  # a thrust axis to normalise
+    desired_range, range_gain, limit = controller.kernel_terms
+    terms_kernel, command_kernel = guidance._tracking_terms_kernel, guidance._tracking_command_kernel
+    for terms_kernel, command_kernel in ((terms_kernel, command_kernel), (python(terms_kernel), python(command_kernel))):
+        for with_setpoint in (True, False):
+            los, lateral, longitudinal, command, rotation, flown = (np.empty(3), np.empty(3), np.empty(3), np.empty(3),
+                                                                    np.empty((3, 3)), np.empty(3))
+            terms = terms_kernel(target, target_velocity, position, velocity, time, *law.kernel_terms, excite,
+                                 covariance, suspect, *(excitation.kernel_terms if excite else guidance._NO_EXCITATION),
+                                 desired_range, los, lateral)
+            thrust, thrust_normalized = command_kernel(
+                *terms[2:], guidance.saturation(terms[-1], limit), range_gain, limit, los, lateral, longitudinal, command,
+                with_setpoint, attitude._IDENTITY if previous is None else previous, *limits.setpoint_terms, rotation,
+                flown)
+            assert_same((los, lateral, terms[0], terms[1], longitudinal, command), expected[:6])
+            assert type(terms[0]) is float and type(terms[1]) is float
+            if with_setpoint:
+                assert_same((rotation, flown, thrust, thrust_normalized), expected[6:])
+            else:
+                assert math.isnan(thrust) and math.isnan(thrust_normalized)
+
+
+def test_the_usual_tick_is_the_general_one(monkeypatch):
+    """FollowingPipeline._compute_setpoint's usual-tick branch (the two tracking kernels) against its general branch
+    (the law objects' methods, then the adjustments): whole flights with dropouts (coasting, degraded, blends) and
+    the health actions, every series bit for bit, with the general branch forced by hiding HNG's type from the
+    pipeline. The usual branch runs, with the setpoint in its kernel and without (a blend)."""
+    from interfaces.scenario import SCENARIOS_DIR, load_scenario
+    from companion.core import pipeline
+    from studies.closed_loop import simulate
+
+    calls = {True: 0, False: 0}
+    command_kernel = pipeline._tracking_command_kernel
+
+    def counted(*args):
+        calls[args[13]] += 1
+        return command_kernel(*args)
+
+    flights = [load_scenario(SCENARIOS_DIR / f"{name}.toml") for name in ("constant_velocity_dropout", "stop_and_go")]
+    monkeypatch.setattr(pipeline, "_tracking_command_kernel", counted)
+    usual = [simulate(scenario, vehicle, 3).series for scenario, vehicle in flights]
+    assert calls[True] > 100 and calls[False] > 0
+    counted_so_far = dict(calls)
+    monkeypatch.setattr(pipeline, "HelicalNavigationGuidance", type("NotTheLaw", (), {}))
+    general = [simulate(scenario, vehicle, 3).series for scenario, vehicle in flights]
+    assert calls == counted_so_far  # the general branch only
+    for fast, slow in zip(usual, general):
+        assert fast.keys() == slow.keys()
+        for key in fast:
+            assert_same(fast[key], slow[key], key)
+
+
 def test_warm_up_compiles_the_setpoint_kernels():
     _jit.warm_up()
     from companion.core.pipeline import _relative_terms
     kernels = (attitude._setpoint_kernel, attitude._rotation_kernel, attitude._thrust_kernel,
                attitude._limited_acceleration_kernel, guidance._helical_acceleration_kernel,
-               guidance._virtual_los_kernel, guidance._excitation_acceleration_kernel, guidance._range_terms,
-               guidance._range_error_terms, attitude._setpoint_after_kernel, guidance._excitation_terms_kernel,
-               guidance._excitation_level_kernel, _relative_terms)
+               guidance._virtual_los_kernel, guidance._excitation_acceleration_kernel, guidance._range_ratio_terms,
+               guidance._range_command_kernel, guidance._virtual_control_terms_kernel, guidance._range_error_terms,
+               attitude._setpoint_after_into_kernel, guidance._excitation_terms_kernel,
+               guidance._excitation_level_kernel, _relative_terms, guidance._tracking_terms_kernel,
+               guidance._tracking_command_kernel, guidance._saturation_slope_kernel)
     for kernel in kernels:
         if _jit.ENABLED:
             assert kernel.signatures, kernel

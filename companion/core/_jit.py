@@ -254,7 +254,9 @@ def _warm_up_setpoint() -> None:
     from companion.core.attitude import (VehicleLimits, attitude_setpoint, attitude_setpoint_after, collective_thrust,
                                          desired_rotation, limit_specific_force)
     from companion.core.geometry import rotation_from_x_axis_to
-    from companion.core.guidance import HelicalNavigationGuidance, RangeController, RangeExcitation, _excitation_terms_kernel
+    from companion.core.guidance import (_NO_EXCITATION, HelicalNavigationGuidance, RangeController, RangeExcitation,
+                                         _excitation_terms_kernel, _tracking_command_kernel, _tracking_terms_kernel,
+                                         saturation)
     from companion.core.pipeline import _relative_terms
 
     limits = VehicleLimits(2.0 / 3.0, max_tilt=0.6, gravity=9.81, mass=1.0)
@@ -280,6 +282,17 @@ def _warm_up_setpoint() -> None:
         _excitation_terms_kernel(1.0, lateral, relative_position, np.eye(6), los, suspect, excitation.low,
                                  excitation.high, excitation.speed, excitation.damping_gain, excitation.frequency)
     excitation.level(0.1)
+    controller.virtual_control(controller.error_state(20.0 * los, velocity))
+    desired_range, gain, limit = controller.kernel_terms
+    for excite, with_setpoint in ((False, True), (True, False)):  # the control tick's two kernels (FollowingPipeline)
+        los_out, lateral_out, longitudinal, command, rotation, flown = (np.empty(3), np.empty(3), np.empty(3),
+                                                                        np.empty(3), np.empty((3, 3)), np.empty(3))
+        terms = _tracking_terms_kernel(20.0 * los, velocity, np.zeros(3), 0.5 * velocity, 1.0, *guidance.kernel_terms,
+                                       excite, np.eye(6), excite, *(excitation.kernel_terms if excite else _NO_EXCITATION),
+                                       desired_range, los_out, lateral_out)
+        _tracking_command_kernel(*terms[2:], saturation(terms[-1], limit), gain, limit, los_out, lateral_out,
+                                 longitudinal, command, with_setpoint, previous.rotation, *limits.setpoint_terms,
+                                 rotation, flown)
 
 
 def _warm_up_cooperative() -> None:

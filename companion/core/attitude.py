@@ -182,11 +182,25 @@ def _setpoint_after(acceleration, los, previous_rotation, gravity, max_specific_
                             tan_max_tilt, mass, hover_thrust_normalized)
 
 
+def _setpoint_after_into(acceleration, los, previous_rotation, gravity, max_specific_force, max_specific_force_squared,
+                         horizontal_margin, min_vertical, tan_max_tilt, mass, hover_thrust_normalized, rotation_out,
+                         flown_out):
+    """_setpoint_after (eq. (21)-(22)) writing R_d into rotation_out (3, 3) and the flown a_d into flown_out (3,);
+    returns (T N, normalised thrust) (a kernel's new arrays cost the caller more than filling its own)."""
+    flown, rotation, thrust, thrust_normalized = _setpoint_after_kernel(
+        acceleration, los, previous_rotation, gravity, max_specific_force, max_specific_force_squared,
+        horizontal_margin, min_vertical, tan_max_tilt, mass, hover_thrust_normalized)
+    rotation_out[:, :] = rotation
+    flown_out[:] = flown
+    return thrust, thrust_normalized
+
+
 _limited_acceleration_kernel = jit(_limited_acceleration)
 _rotation_kernel = jit(_rotation)
 _thrust_kernel = jit(_thrust)
 _setpoint_kernel = jit(_setpoint)
 _setpoint_after_kernel = jit(_setpoint_after)
+_setpoint_after_into_kernel = jit(_setpoint_after_into)
 _IDENTITY = np.eye(3)
 
 
@@ -217,7 +231,10 @@ def attitude_setpoint_after(time: float, acceleration: np.ndarray, los: np.ndarr
     heading fallback (north) when previous is None: the control tick's call, with the previous setpoint's r1 taken
     in the kernel (_setpoint_after) and the setpoint built without the frozen dataclass's per-field setattr.
     acceleration: a_d, m/s^2, float64 (3,); los: lambda, float64 (3,)."""
-    flown, rotation, thrust, thrust_normalized = _setpoint_after_kernel(
-        acceleration, los, _IDENTITY if previous is None else previous.rotation, *limits.setpoint_terms)
+    rotation = np.empty((3, 3))
+    flown = np.empty(3)
+    thrust, thrust_normalized = _setpoint_after_into_kernel(
+        acceleration, los, _IDENTITY if previous is None else previous.rotation, *limits.setpoint_terms, rotation,
+        flown)
     return fast_frozen(AttitudeSetpoint, time=time, rotation=rotation, thrust_normalized=float(thrust_normalized),
                        thrust=float(thrust), acceleration=flown)

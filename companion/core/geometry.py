@@ -150,3 +150,16 @@ def relative_range_std_kernel(relative_position: np.ndarray, position_covariance
     los = relative_position / distance
     variance = los @ position_covariance @ los
     return math.sqrt(0.0 if 0.0 > variance else variance) / distance
+
+
+@jit
+def relative_terms_kernel(target_position: np.ndarray, target_velocity: np.ndarray, position: np.ndarray,
+                          velocity: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+    """The control tick's relative state in one call: dp = p^_T - p (m), dv = v^_T - v (m/s), r^ = |dp| as
+    norm computes it (sqrt(dp . dp)) and the estimated line of sight dp / max(r^, 1e-9) (Python's max:
+    a NaN r^ stays NaN). All float64 (3,)."""
+    relative_position = target_position - position
+    relative_velocity = target_velocity - velocity
+    distance = math.sqrt(relative_position @ relative_position)
+    floor = 1e-9 if 1e-9 > distance else distance
+    return relative_position, relative_velocity, distance, relative_position / floor

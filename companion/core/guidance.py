@@ -12,10 +12,12 @@ from typing import Protocol
 
 import numpy as np
 
-from companion.core._jit import jit
+from companion.core._jit import jit, power
+from companion.core.attitude import _setpoint_after_into_kernel
 from companion.core.geometry import (E_X, clip_kernel, cross, cross_kernel, relative_range_std_kernel,
-                                     rotation_about_y_kernel, rotation_about_z_kernel, rotation_from_unit_x_axis_to,
-                                     rotation_from_x_axis_to, unit, unit_kernel)
+                                     relative_terms_kernel, rotation_about_y_kernel, rotation_about_z_kernel,
+                                     rotation_from_unit_x_axis_to, rotation_from_x_axis_to, unit, unit_kernel)
+from companion.core.messages import once_property
 
 
 class LateralGuidance(Protocol):
@@ -72,18 +74,23 @@ class HelicalNavigationGuidance:
 
     def virtual_los(self, engaged_time: float, los: np.ndarray, range_estimate: float) -> np.ndarray:
         """R_eta R_Z R_Y e_X of eq. (14); unit vector, shape (3,). The arithmetic is _virtual_los's."""
-        return _virtual_los_kernel(float(engaged_time), np.asarray(los, dtype=float), float(range_estimate),
-                                   float(self.c_z), float(self.c_y), float(self.weave_frequency),
-                                   bool(self.scale_with_range))
+        _, c_z, c_y, weave_frequency, scale_with_range = self.kernel_terms
+        return _virtual_los_kernel(float(engaged_time), np.asarray(los, dtype=float), float(range_estimate), c_z, c_y,
+                                   weave_frequency, scale_with_range)
 
     def acceleration(self, engaged_time: float, velocity: np.ndarray, los: np.ndarray, range_estimate: float,
                      relative_velocity: np.ndarray | None = None) -> np.ndarray:
         """Lateral command a_HN, eq. (14). velocity m/s (3,), los unit (3,), range m. Returns m/s^2 (3,).
         The arithmetic is _helical_acceleration's, compiled with numba when installed."""
         return _helical_acceleration_kernel(float(engaged_time), np.asarray(velocity, dtype=float),
-                                            np.asarray(los, dtype=float), float(range_estimate), self.navigation_gain,
-                                            float(self.c_z), float(self.c_y), float(self.weave_frequency),
-                                   bool(self.scale_with_range))
+                                            np.asarray(los, dtype=float), float(range_estimate), *self.kernel_terms)
+
+    @once_property
+    def kernel_terms(self) -> tuple[float, float, float, float, bool]:
+        """(N, c_Z, c_Y, w) as floats and scale_with_range as a bool, as the kernels take them (computed on the
+        first read and kept: the law is frozen)."""
+        return (float(self.navigation_gain), float(self.c_z), float(self.c_y), float(self.weave_frequency),
+                bool(self.scale_with_range))
 
 
 def _virtual_los(engaged_time, los, range_estimate, c_z, c_y, weave_frequency, scale_with_range):
@@ -114,8 +121,11 @@ def saturation(x: float, limit: float = 3.0) -> float:
 
 
 def saturation_slope(x: float, limit: float = 3.0) -> float:
-    """sigma'(x) = 1 / (1 + (x/3)^2)."""
-    return 1.0 / (1.0 + (x / limit) ** 2)
+    """sigma'(x) = 1 / (1 + (x/3)^2) (Python's ** as _jit.power, so that the compiled kernel computes the same)."""
+    return 1.0 / (1.0 + power(x / limit, 2.0))
+
+
+_saturation_slope_kernel = jit(saturation_slope)
 
 
 @jit
@@ -179,10 +189,17 @@ class RangeController:
         return self._virtual_control(error.range_error, error.range_rate)
 
     def _virtual_control(self, range_error: float, range_rate: float) -> float:
-        """v* of eq. (17) from xi1 = range_error (m) and xi2 = range_rate (m/s) (virtual_control's arithmetic)."""
-        sigma = saturation(range_error, self.saturation_limit)
-        slope = saturation_slope(range_error, self.saturation_limit)
-        return -self.gain * (sigma + range_rate) - sigma - slope * range_rate
+        """v* of eq. (17) from xi1 = range_error (m) and xi2 = range_rate (m/s) (virtual_control's arithmetic):
+        sigma(xi1) here (saturation: numpy's arctan), the rest _virtual_control_terms's."""
+        _, gain, limit = self.kernel_terms
+        return float(_virtual_control_terms_kernel(saturation(range_error, limit), range_error, range_rate, gain,
+                                                   limit))
+
+    @once_property
+    def kernel_terms(self) -> tuple[float, float, float]:
+        """(r_d, k, the 3 of sigma) as floats, as the kernels take them (computed on the first read and kept: the
+        controller is frozen)."""
+        return float(self.desired_range), float(self.gain), float(self.saturation_limit)
 
     def acceleration(
         self,
@@ -195,23 +212,56 @@ class RangeController:
 
         relative_position: dp = p^_T - p, m, (3,). relative_velocity: dv = v^_T - v, m/s, (3,).
         los: unit line of sight lambda, (3,). lateral_acceleration: a_HN, m/s^2, (3,).
-        Returns m/s^2, shape (3,).
+        Returns m/s^2, shape (3,). The arithmetic is _range_ratio_terms's, sigma(xi1) (saturation: numpy's arctan),
+        then _range_command's.
         """
+        desired_range, gain, limit = self.kernel_terms
         los = np.asarray(los, dtype=float)
-        distance, range_rate, speed_squared, lateral_work, projection = _range_terms(
+        distance, range_rate, speed_squared, lateral_work, projection, range_error = _range_ratio_terms(
             np.asarray(relative_position, dtype=float), np.asarray(relative_velocity, dtype=float), los,
-            np.asarray(lateral_acceleration, dtype=float))
-        u_star = (
-            -distance * self._virtual_control(distance - self.desired_range, range_rate)  # eq. (15)-(17)
-            + speed_squared
-            - range_rate**2
-            - lateral_work
-        )
-        if projection <= 1e-6 * max(distance, 1.0):
-            # Remark 3: lambda^T dp = 0 means the estimate disagrees with the line of
-            # sight by 90 degrees or more; no longitudinal command is meaningful.
-            return np.zeros(3)
-        return u_star / projection * los
+            np.asarray(lateral_acceleration, dtype=float), desired_range)
+        return _range_command_kernel(distance, range_rate, speed_squared, lateral_work, projection, range_error,
+                                     saturation(range_error, limit), gain, limit, los)
+
+
+@jit
+def _range_ratio_terms(relative_position: np.ndarray, relative_velocity: np.ndarray, los: np.ndarray,
+                       lateral_acceleration: np.ndarray,
+                       desired_range: float) -> tuple[float, float, float, float, float, float]:
+    """_range_terms (|dp|, xi_2, dv^T dv, dp^T a_HN, lambda^T dp), then xi_1 = |dp| - r_d, eq. (15), whose
+    sigma(xi1) (saturation: numpy's arctan) is taken between this kernel and _range_command."""
+    distance, range_rate, speed_squared, lateral_work, projection = _range_terms(
+        relative_position, relative_velocity, los, lateral_acceleration)
+    return distance, range_rate, speed_squared, lateral_work, projection, distance - desired_range
+
+
+def _virtual_control_terms(sigma, range_error, range_rate, gain, saturation_limit):
+    """v* = -k[sigma(xi1) + xi2] - sigma(xi1) - sigma'(xi1) xi2, eq. (17), on floats: sigma = sigma(xi1) given
+    (saturation, section VI-B: numpy's arctan, which a kernel cannot call), xi1 = range_error, xi2 = range_rate,
+    sigma' = saturation_slope."""
+    slope = _saturation_slope_kernel(range_error, saturation_limit)
+    return -gain * (sigma + range_rate) - sigma - slope * range_rate
+
+
+def _range_command(distance, range_rate, speed_squared, lateral_work, projection, range_error, sigma, gain,
+                   saturation_limit, los):
+    """a_RC = u* / (lambda^T dp) lambda, eq. (18), u* = -|dp| v* + dv^T dv - xi_2^2 - dp^T a_HN, eq. (19), v* of
+    eq. (17) (_virtual_control_terms), from _range_ratio_terms's terms and sigma(xi1) (saturation); zero when
+    lambda^T dp <= 1e-6 max(|dp|, 1) (remark 3: the estimate disagrees with the line of sight by 90 degrees or
+    more; no longitudinal command is meaningful). Python's max (a NaN |dp| stays NaN). los: float64 (3,)."""
+    u_star = (
+        -distance * _virtual_control_terms_kernel(sigma, range_error, range_rate, gain, saturation_limit)
+        + speed_squared
+        - power(range_rate, 2.0)
+        - lateral_work
+    )
+    if projection <= 1e-6 * (1.0 if 1.0 > distance else distance):
+        return np.zeros(3)
+    return u_star / projection * los
+
+
+_virtual_control_terms_kernel = jit(_virtual_control_terms)
+_range_command_kernel = jit(_range_command)
 
 
 @dataclass(frozen=True)
@@ -275,7 +325,8 @@ class RangeExcitation:
     def level(self, relative_range_std: float, suspect: bool = False) -> float:
         """s in [0, 1] from rho = sigma_r / r^ (dimensionless) and the health verdict (see class); the arithmetic
         is _excitation_level's."""
-        return _excitation_level_kernel(float(relative_range_std), bool(suspect), float(self.low), float(self.high))
+        low, high, _, _, _ = self.kernel_terms
+        return _excitation_level_kernel(float(relative_range_std), bool(suspect), low, high)
 
     def peak_acceleration(self, level: float = 1.0) -> float:
         """|a_X| = s V_X sqrt(N^2 + w^2), m/s^2 (constant in time)."""
@@ -287,8 +338,15 @@ class RangeExcitation:
         engaged_time: s since the first bearing. level: s in [0, 1].
         The arithmetic is _excitation_acceleration's, compiled with numba when installed.
         """
-        return _excitation_acceleration_kernel(float(engaged_time), np.asarray(los, dtype=float), float(level),
-                                               float(self.speed), float(self.damping_gain), float(self.frequency))
+        _, _, speed, damping_gain, frequency = self.kernel_terms
+        return _excitation_acceleration_kernel(float(engaged_time), np.asarray(los, dtype=float), float(level), speed,
+                                               damping_gain, frequency)
+
+    @once_property
+    def kernel_terms(self) -> tuple[float, float, float, float, float]:
+        """(rho_0, rho_1, V_X, N, w) as floats, as _excitation_terms takes them (computed on the first read and
+        kept: the excitation is frozen)."""
+        return float(self.low), float(self.high), float(self.speed), float(self.damping_gain), float(self.frequency)
 
 
 def _excitation_acceleration(engaged_time, los, level, speed, damping_gain, frequency):
@@ -326,3 +384,56 @@ def _excitation_terms(engaged_time, lateral, relative_position, covariance, los,
 _excitation_acceleration_kernel = jit(_excitation_acceleration)
 _excitation_level_kernel = jit(_excitation_level)
 _excitation_terms_kernel = jit(_excitation_terms)
+
+
+_NO_EXCITATION = (0.0, 1.0, 1.0, 0.0, 1.0)  # RangeExcitation.kernel_terms' place when no excitation is flown
+
+
+def _tracking_terms(target_position, target_velocity, position, velocity, engaged_time, navigation_gain, c_z, c_y,
+                    weave_frequency, scale_with_range, excite, covariance, suspect, low, high, speed, damping_gain,
+                    frequency, desired_range, los_out, lateral_out):
+    """The control tick's guidance up to the range controller's arctan, in one call (FollowingPipeline's usual
+    tick: HNG, the excitation when `excite`, the range controller), calling the kernels the objects call:
+    geometry.relative_terms (dp, dv, r^, lambda), HNG's a_HN, eq. (14) (_helical_acceleration, on the pursuer's
+    velocity), when `excite` the excitation's level and a_lat + a_X (_excitation_terms on the estimate's covariance
+    (6, 6) and the health verdict `suspect`), and the range controller's terms (_range_ratio_terms).
+    Writes lambda into los_out and a_lat into lateral_out (float64 (3,)); returns (r^, the excitation level s (0
+    when not excited), |dp|, xi_2, dv^T dv, dp^T a_lat, lambda^T dp, xi_1): _range_command's terms follow r^ and s,
+    the last one the argument of sigma (saturation: numpy's arctan), taken between this kernel and the next."""
+    relative_position, relative_velocity, range_estimate, los = relative_terms_kernel(
+        target_position, target_velocity, position, velocity)
+    lateral = _helical_acceleration_kernel(engaged_time, velocity, los, range_estimate, navigation_gain, c_z, c_y,
+                                           weave_frequency, scale_with_range)
+    level = 0.0
+    if excite:
+        level, lateral = _excitation_terms_kernel(engaged_time, lateral, relative_position, covariance, los, suspect,
+                                                  low, high, speed, damping_gain, frequency)
+    distance, range_rate, speed_squared, lateral_work, projection, range_error = _range_ratio_terms(
+        relative_position, relative_velocity, los, lateral, desired_range)
+    los_out[:] = los
+    lateral_out[:] = lateral
+    return range_estimate, level, distance, range_rate, speed_squared, lateral_work, projection, range_error
+
+
+def _tracking_command(distance, range_rate, speed_squared, lateral_work, projection, range_error, sigma, gain,
+                      saturation_limit, los, lateral, longitudinal_out, command_out, with_setpoint, previous_rotation,
+                      gravity, max_specific_force, max_specific_force_squared, horizontal_margin, min_vertical,
+                      tan_max_tilt, mass, hover_thrust_normalized, rotation_out, flown_out):
+    """The rest of _tracking_terms's tick after sigma(xi1) (saturation, numpy's arctan): a_RC of eq. (18)-(19)
+    (_range_command) into longitudinal_out and the command a_d = a_lat + a_RC, eq. (13), into command_out; with
+    `with_setpoint` also the setpoint of eq. (21)-(22) for that command (attitude._setpoint_after_into, the previous R_d (3, 3) giving the
+    heading fallback): R_d into rotation_out (3, 3), the flown a_d into flown_out, and returns (T N, normalised
+    thrust); without, (nan, nan)."""
+    longitudinal = _range_command_kernel(distance, range_rate, speed_squared, lateral_work, projection, range_error,
+                                         sigma, gain, saturation_limit, los)
+    longitudinal_out[:] = longitudinal
+    command_out[:] = lateral + longitudinal
+    if not with_setpoint:
+        return math.nan, math.nan
+    return _setpoint_after_into_kernel(command_out, los, previous_rotation, gravity, max_specific_force,
+                                       max_specific_force_squared, horizontal_margin, min_vertical, tan_max_tilt,
+                                       mass, hover_thrust_normalized, rotation_out, flown_out)
+
+
+_tracking_terms_kernel = jit(_tracking_terms)
+_tracking_command_kernel = jit(_tracking_command)

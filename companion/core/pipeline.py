@@ -14,12 +14,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.core.attitude import VehicleLimits, attitude_setpoint_after
+from companion.core.attitude import _IDENTITY, VehicleLimits, attitude_setpoint_after
 from companion.core.cooperative_guidance import CooperativeContext, SeparationFilter, neighbours_make_range_observable
 from companion.core.estimators import CorrectionReport, InitialGuess, TargetEstimator
 from companion.core._jit import jit, power
-from companion.core.geometry import all_finite, clip_kernel, norm
-from companion.core.guidance import LateralGuidance, RangeController, RangeExcitation, _excitation_terms_kernel
+from companion.core.geometry import all_finite, clip_kernel, norm, relative_terms_kernel as _relative_terms
+from companion.core.guidance import (_NO_EXCITATION, HelicalNavigationGuidance, LateralGuidance, RangeController,
+                                     RangeExcitation, _excitation_terms_kernel, _tracking_command_kernel,
+                                     _tracking_terms_kernel, saturation)
 from companion.core.health import (
     HealthAction,
     HealthActionConfig,
@@ -511,9 +513,7 @@ class FollowingPipeline:
         assert excitation is not None and self._engaged_at is not None
         suspect = self._health_report is not None and self._health_report.state == HealthState.SUSPECT
         self.excitation_level, lateral = _excitation_terms_kernel(
-            time - self._engaged_at, lateral, relative_position, covariance, los, suspect, float(excitation.low),
-            float(excitation.high), float(excitation.speed), float(excitation.damping_gain),
-            float(excitation.frequency))
+            time - self._engaged_at, lateral, relative_position, covariance, los, suspect, *excitation.kernel_terms)
         return lateral
 
     def _estimate_at(self, time: float) -> TargetEstimate:
@@ -572,41 +572,90 @@ class FollowingPipeline:
     def _compute_setpoint(self, time: float, pursuer: PursuerState) -> None:
         assert self._engaged_at is not None
         estimate = self._estimate_at(time)
-        relative_position, relative_velocity, range_estimate, los = _relative_terms(
-            estimate.position, estimate.velocity, np.asarray(pursuer.position, dtype=float),
-            np.asarray(pursuer.velocity, dtype=float))
-        if self.los_source == "measurement" and self._last_bearing is not None:
-            los = self._last_bearing
         neighbours = self._neighbours_at(time)
         law = self._choose_law(time, pursuer, estimate.position, neighbours)
-        if self.mode == TrackMode.DEGRADED:
-            # Safe behaviour: no weave; hold safe_range on the predicted line of sight.
-            lateral = np.zeros(3)
-            longitudinal = self._safe_controller.acceleration(relative_position, relative_velocity, los, lateral)
-        elif law in ("cooperative", "lone"):
-            # A complete law on the estimate (seed 002 / seed 004): no range-controller term.
-            complete = self.cooperation.law if law == "cooperative" else self.cooperation.lone_law
-            lateral = complete.acceleration(CooperativeContext(
-                time, pursuer.position, pursuer.velocity, estimate.position, estimate.velocity, neighbours,
-                self._target_acceleration()))
-            longitudinal = np.zeros(3)
-        else:
-            lateral_law = self.cooperation.steady_guidance if law == "steady" else self.lateral_guidance
-            lateral = lateral_law.acceleration(time - self._engaged_at, pursuer.velocity, los, range_estimate,
-                                               relative_velocity)
-            if getattr(lateral_law, "includes_range_control", False):
-                longitudinal = np.zeros(3)  # a complete law (PD controller): no range-controller term
+        cooperation = self.cooperation
+        lateral_law = cooperation.steady_guidance if law == "steady" else self.lateral_guidance
+        controller = self.range_controller
+        command = None
+        if (law in ("single", "steady") and self.mode != TrackMode.DEGRADED
+                and type(lateral_law) is HelicalNavigationGuidance and type(controller) is RangeController
+                and (self.los_source == "estimate" or self._last_bearing is None)):
+            # The usual tick (HNG, its excitation, the range controller), the branch below's arithmetic in two
+            # kernels (guidance._tracking_terms and _tracking_command) around the range controller's sigma (numpy's arctan),
+            # with the setpoint when the command needs none of the adjustments that follow (the tracking mode,
+            # not recovering, no blend, no separation filter).
+            excitation = self.excitation
+            if excitation is None and (self.action_excitation is not None and self.health_action is not HealthAction.OFF
+                                       and self.actions.config.excite):
+                excitation = self.action_excitation
+            report = self._health_report
+            suspect = report is not None and report.state == HealthState.SUSPECT
+            desired_range, gain, limit = controller.kernel_terms
+            los = np.empty(3)
+            lateral = np.empty(3)
+            range_estimate, level, distance, range_rate, speed_squared, lateral_work, projection, range_error = (
+                _tracking_terms_kernel(
+                    estimate.position, estimate.velocity, np.asarray(pursuer.position, dtype=float),
+                    np.asarray(pursuer.velocity, dtype=float), time - self._engaged_at, *lateral_law.kernel_terms,
+                    excitation is not None, estimate.covariance, suspect,
+                    *(_NO_EXCITATION if excitation is None else excitation.kernel_terms), desired_range, los,
+                    lateral))
+            if excitation is not None:
+                self.excitation_level = level
+            plain = (self.mode == TrackMode.TRACKING and self.health_action is not HealthAction.RECOVERING
+                     and (self._last_command is None or not time < self._blend_until)
+                     and not (cooperation is not None and cooperation.separation is not None and neighbours))
+            longitudinal = np.empty(3)
+            command = np.empty(3)
+            rotation = np.empty((3, 3))
+            flown = np.empty(3)
+            previous = self._setpoint
+            thrust, thrust_normalized = _tracking_command_kernel(
+                distance, range_rate, speed_squared, lateral_work, projection, range_error,
+                saturation(range_error, limit), gain, limit, los, lateral, longitudinal, command, plain,
+                _IDENTITY if previous is None else previous.rotation, *self.limits.setpoint_terms, rotation, flown)
+            if plain:
+                self._last_command = command
+                self._setpoint = fast_frozen(AttitudeSetpoint, time=time, rotation=rotation,
+                                             thrust_normalized=float(thrust_normalized), thrust=float(thrust),
+                                             acceleration=flown)
+                self._guidance = fast_frozen(GuidanceTerms, lateral=lateral, longitudinal=longitudinal, los=los,
+                                             range_estimate=range_estimate)
+                return
+        if command is None:  # any other law or mode, or a measured line of sight
+            relative_position, relative_velocity, range_estimate, los = _relative_terms(
+                estimate.position, estimate.velocity, np.asarray(pursuer.position, dtype=float),
+                np.asarray(pursuer.velocity, dtype=float))
+            if self.los_source == "measurement" and self._last_bearing is not None:
+                los = self._last_bearing
+            if self.mode == TrackMode.DEGRADED:
+                # Safe behaviour: no weave; hold safe_range on the predicted line of sight.
+                lateral = np.zeros(3)
+                longitudinal = self._safe_controller.acceleration(relative_position, relative_velocity, los, lateral)
+            elif law in ("cooperative", "lone"):
+                # A complete law on the estimate (seed 002 / seed 004): no range-controller term.
+                complete = cooperation.law if law == "cooperative" else cooperation.lone_law
+                lateral = complete.acceleration(CooperativeContext(
+                    time, pursuer.position, pursuer.velocity, estimate.position, estimate.velocity, neighbours,
+                    self._target_acceleration()))
+                longitudinal = np.zeros(3)
             else:
-                if self.excitation is not None:
-                    lateral = self._excitation_term(time, lateral, relative_position, los, estimate.covariance)
-                elif (self.action_excitation is not None and self.health_action is not HealthAction.OFF
-                      and self.actions.config.excite):
-                    # Acting without a configured excitation: full while suspect, and never a stop while
-                    # sigma_r / r^ is high (the action excitation's own low/high thresholds).
-                    lateral = self._excitation_term(time, lateral, relative_position, los, estimate.covariance,
-                                                    self.action_excitation)
-                longitudinal = self.range_controller.acceleration(relative_position, relative_velocity, los, lateral)
-        command = lateral + longitudinal
+                lateral = lateral_law.acceleration(time - self._engaged_at, pursuer.velocity, los, range_estimate,
+                                                   relative_velocity)
+                if getattr(lateral_law, "includes_range_control", False):
+                    longitudinal = np.zeros(3)  # a complete law (PD controller): no range-controller term
+                else:
+                    if self.excitation is not None:
+                        lateral = self._excitation_term(time, lateral, relative_position, los, estimate.covariance)
+                    elif (self.action_excitation is not None and self.health_action is not HealthAction.OFF
+                          and self.actions.config.excite):
+                        # Acting without a configured excitation: full while suspect, and never a stop while
+                        # sigma_r / r^ is high (the action excitation's own low/high thresholds).
+                        lateral = self._excitation_term(time, lateral, relative_position, los, estimate.covariance,
+                                                        self.action_excitation)
+                    longitudinal = controller.acceleration(relative_position, relative_velocity, los, lateral)
+            command = lateral + longitudinal
         if self.mode != TrackMode.TRACKING or self.health_action is HealthAction.RECOVERING or law in ("cooperative", "lone"):
             # Also while recovering: the estimate is judged wrong, so its range cannot be trusted to close on;
             # and under a cooperative law, which does not weave: its range may never have been observable.
@@ -628,19 +677,6 @@ class FollowingPipeline:
         self._setpoint = attitude_setpoint_after(time, command, los, self.limits, self._setpoint)
         self._guidance = fast_frozen(GuidanceTerms, lateral=lateral, longitudinal=longitudinal, los=los,
                                      range_estimate=range_estimate)
-
-
-@jit
-def _relative_terms(target_position: np.ndarray, target_velocity: np.ndarray, position: np.ndarray,
-                    velocity: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
-    """The control tick's relative state in one call: dp = p^_T - p (m), dv = v^_T - v (m/s), r^ = |dp| as
-    geometry.norm computes it (sqrt(dp . dp)) and the estimated line of sight dp / max(r^, 1e-9) (Python's max:
-    a NaN r^ stays NaN). All float64 (3,)."""
-    relative_position = target_position - position
-    relative_velocity = target_velocity - velocity
-    distance = math.sqrt(relative_position @ relative_position)
-    floor = 1e-9 if 1e-9 > distance else distance
-    return relative_position, relative_velocity, distance, relative_position / floor
 
 
 @jit
