@@ -56,6 +56,16 @@ def jit(function):
     return numba.njit(cache=True)(function)
 
 
+def jit_inline(function):
+    """`jit` for a small kernel that other kernels call on every update: compiled with inline="always", so numba
+    puts its body (its typed IR: the same operations) into each compiled caller instead of a call, which would
+    pass every array argument by value with its reference counting; called from Python, an ordinary kernel. Not for
+    a function with an objmode block (numba cannot inline those)."""
+    if numba is None:
+        return function
+    return numba.njit(cache=True, inline="always")(function)
+
+
 def python_function(kernel):
     """The plain-Python original of a kernel (its py_func when compiled; the kernel itself when not)."""
     return getattr(kernel, "py_func", kernel)

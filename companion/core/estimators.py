@@ -22,7 +22,7 @@ from typing import Protocol
 import numpy as np
 from scipy.linalg import null_space
 
-from companion.core._jit import jit, lapack_dgesv_into, lapack_dpotrf_into, objmode, power
+from companion.core._jit import jit, jit_inline, lapack_dgesv_into, lapack_dpotrf_into, objmode, power
 from companion.core.geometry import orthogonal_projection, unit
 from companion.core.messages import BearingMeasurement, TargetEstimate, fast_frozen
 
@@ -222,7 +222,7 @@ def _projector(unit_vector: np.ndarray) -> np.ndarray:
     return _EYE3 - unit_vector[:, None] * unit_vector
 
 
-@jit
+@jit_inline
 def _projector_into(unit_vector: np.ndarray, out: np.ndarray) -> None:
     """`_projector` written into out (3, 3): the same products g_i g_j, then the same differences from I."""
     np.multiply(unit_vector[:, None], unit_vector, out)
@@ -249,7 +249,7 @@ def _solve_identity(matrix: np.ndarray) -> tuple[np.ndarray, float, bool]:
     return inverse, determinant, regular
 
 
-@jit
+@jit_inline
 def _solve_identity_into(matrix: np.ndarray, factors: np.ndarray, pivots: np.ndarray,
                          inverse: np.ndarray) -> tuple[float, bool]:
     """`_solve_identity` with M^-1 written into inverse (3, 3) and the LU factors and pivots into factors (3, 3) and
@@ -285,7 +285,7 @@ def _is_positive_semidefinite(covariance: np.ndarray) -> bool:
     return _is_positive_semidefinite_with(covariance, np.empty((size, size)).T)
 
 
-@jit
+@jit_inline
 def _is_positive_semidefinite_with(covariance: np.ndarray, factor: np.ndarray) -> bool:
     """`_is_positive_semidefinite` with the Cholesky factorisation done in the caller's factor (n, n), Fortran-ordered
     (e.g. the .T of a C-ordered buffer; its contents are overwritten)."""
@@ -296,7 +296,13 @@ def _is_positive_semidefinite_with(covariance: np.ndarray, factor: np.ndarray) -
             trace += factor[i, i]
         if math.isfinite(trace):
             return True
-    with objmode(result="boolean"):  # rare (a singular or non-finite covariance): numpy's eigvalsh itself
+    return _eigenvalues_not_negative_compiled(covariance)  # rare (a singular or non-finite covariance)
+
+
+@jit
+def _eigenvalues_not_negative_compiled(covariance: np.ndarray) -> bool:
+    """`_eigenvalues_not_negative` (numpy's eigvalsh itself, in object mode) from a kernel."""
+    with objmode(result="boolean"):
         result = _eigenvalues_not_negative(covariance)
     return result
 
@@ -344,7 +350,7 @@ def _projector_pseudo_inverse(matrix: np.ndarray, null_direction: np.ndarray) ->
     return result
 
 
-@jit
+@jit_inline
 def _projector_pseudo_inverse_into(matrix: np.ndarray, null_direction: np.ndarray, out: np.ndarray, outer: np.ndarray,
                                    shifted: np.ndarray, factors: np.ndarray, inverse: np.ndarray,
                                    pivots: np.ndarray) -> None:
@@ -360,7 +366,13 @@ def _projector_pseudo_inverse_into(matrix: np.ndarray, null_direction: np.ndarra
         if regular and determinant >= low * trace:  # smallest eigenvalue >= det / trace >= low
             np.subtract(inverse, outer, out)
             return
-    with objmode(result="float64[:, ::1]"):  # rare (a diverging filter): scipy's null_space and numpy's pinv
+    _general_pseudo_inverse_into(matrix, null_direction, out)  # rare (a diverging filter)
+
+
+@jit
+def _general_pseudo_inverse_into(matrix: np.ndarray, null_direction: np.ndarray, out: np.ndarray) -> None:
+    """`_general_pseudo_inverse` (scipy's null_space and numpy's pinv, in object mode) written into out (3, 3)."""
+    with objmode(result="float64[:, ::1]"):
         result = _general_pseudo_inverse(matrix, null_direction)
     out[:, :] = result
 
@@ -437,7 +449,7 @@ def _predict_kernel(transition: np.ndarray, discrete_process_noise: np.ndarray, 
     _predict_with(transition, discrete_process_noise, scale, boost, state, covariance, np.empty(6), np.empty((3, 6, 6)))
 
 
-@jit
+@jit_inline
 def _predict_with(transition: np.ndarray, discrete_process_noise: np.ndarray, scale: float, boost: float,
                   state: np.ndarray, covariance: np.ndarray, moved: np.ndarray, work: np.ndarray) -> None:
     """`_predict_kernel` with its intermediate arrays in the caller's scratch, moved (6,) and work (3, 6, 6): the
@@ -492,7 +504,7 @@ def _correct_kernel(state: np.ndarray, covariance: np.ndarray, relative: np.ndar
     return innovation, innovation_covariance, innovation_inverse
 
 
-@jit
+@jit_inline
 def _measured_projection_into(direction: np.ndarray, out: np.ndarray, unit: np.ndarray) -> None:
     """P_lambda~ = I - u u^T, u = direction / |direction| (`_projector(_unit_vector(direction))`'s arithmetic: the
     same BLAS dot, division and products), written into out (3, 3); unit (3,): u."""
@@ -518,7 +530,7 @@ def _correction_work() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, 
             np.empty((3, 6, 6)), np.empty(3, dtype=np.int32))
 
 
-@jit
+@jit_inline
 def _correct_with(state: np.ndarray, covariance: np.ndarray, relative: np.ndarray, predicted_range: float,
                   direction: np.ndarray, measured_projection: np.ndarray, reference: np.ndarray, use_reference: bool,
                   use_predicted: bool, lead: float, late: bool, measurement_noise: np.ndarray, add_position_noise: bool,
@@ -614,7 +626,7 @@ def _correct_with(state: np.ndarray, covariance: np.ndarray, relative: np.ndarra
     return innovation_inverse
 
 
-@jit
+@jit_inline
 def _limit_range_in_place(target_position: np.ndarray, pursuer_position: np.ndarray, relative: np.ndarray) -> None:
     """`limit_range` in place on target_position (3,) (the same dot, division, product and sum), relative (3,) its
     scratch."""

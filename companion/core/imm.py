@@ -59,7 +59,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.core._jit import jit
+from companion.core._jit import jit, jit_inline
 from companion.core.estimators import (_LEAD_EPSILON, AdaptiveNoiseSettings, AdaptiveProcessNoise, CorrectionReport,
                                        GainProjection, InitialGuess, NoiseChanges, UPLKF, _behind_sensor, _clipped_cosine,
                                        _MEASURED_PROJECTION, _UNIT, _correct_with, _correction_work,
@@ -251,7 +251,7 @@ def _rank2_log_likelihoods_kernel(innovations: np.ndarray, covariances: np.ndarr
     return result
 
 
-@jit
+@jit_inline
 def _rank2_log_likelihoods_into(innovations: np.ndarray, covariances: np.ndarray, scales: np.ndarray,
                                 null_directions: np.ndarray, result: np.ndarray) -> None:
     """`_rank2_log_likelihoods_kernel` written into result (n,): the same sums, products and BLAS product, without
@@ -292,7 +292,7 @@ def _combined_innovation(weights: np.ndarray, innovations: np.ndarray, covarianc
     return innovation, covariance
 
 
-@jit
+@jit_inline
 def _combined_innovation_into(weights: np.ndarray, innovations: np.ndarray, covariances: np.ndarray,
                               relative: np.ndarray, predicted_range: float, innovation: np.ndarray,
                               covariance: np.ndarray) -> None:
@@ -341,7 +341,7 @@ def _posterior_probabilities(log_likelihoods: np.ndarray, predicted: np.ndarray)
     return posterior
 
 
-@jit
+@jit_inline
 def _posterior_probabilities_into(log_likelihoods: np.ndarray, predicted: np.ndarray, posterior: np.ndarray) -> None:
     """`_posterior_probabilities` written into posterior (n,) (not predicted's memory)."""
     count = predicted.shape[0]
@@ -372,7 +372,7 @@ def _mix_into(probabilities: np.ndarray, transition: np.ndarray, states: np.ndar
     return predicted
 
 
-@jit
+@jit_inline
 def _mix_in_place(probabilities: np.ndarray, transition: np.ndarray, states: np.ndarray, covariances: np.ndarray,
                   predicted: np.ndarray) -> None:
     """`_mix_into` with c written into predicted (n,) (not the memory of any other argument): `_mix_kernel`'s BLAS
