@@ -39,7 +39,7 @@ try:
     if os.environ.get("BOF_NO_JIT", "").strip() not in ("", "0"):
         raise ImportError("BOF_NO_JIT is set: the plain-Python kernels")
     import numba
-    from numba import types as _numba_types
+    from numba import errors as _numba_errors, types as _numba_types
     from numba.extending import overload as _numba_overload
     from numba.np.linalg import _LAPACK as _NUMBA_LAPACK
 except ImportError:
@@ -54,6 +54,16 @@ def jit(function):
     if numba is None:
         return function
     return numba.njit(cache=True)(function)
+
+
+def jit_inline(function):
+    """`jit` for a small kernel that other kernels call on every update: compiled with inline="always", so numba
+    puts its body (its typed IR: the same operations) into each compiled caller instead of a call, which would
+    pass every array argument by value with its reference counting; called from Python, an ordinary kernel. Not for
+    a function with an objmode block (numba cannot inline those)."""
+    if numba is None:
+        return function
+    return numba.njit(cache=True, inline="always")(function)
 
 
 def python_function(kernel):
@@ -401,6 +411,28 @@ def lapack_dpotrf(matrix: np.ndarray) -> tuple[np.ndarray, int]:
     return _scipy_dpotrf(matrix, lower=1, clean=0)
 
 
+def lapack_dgesv_into(matrix: np.ndarray, rhs: np.ndarray, factors: np.ndarray, pivots: np.ndarray,
+                      solution: np.ndarray) -> int:
+    """`lapack_dgesv` with its results written into the caller's arrays (no new ones: numba would allocate each):
+    the LU factors into factors (n, n), the 0-based pivots into pivots (n,) int32, X = A^-1 B into solution (n, m);
+    returns info. Compiled, factors and solution must be Fortran-ordered (e.g. the .T of a C-ordered buffer): LAPACK
+    works in them in place, on the same column-major copies of A and B that `lapack_dgesv` makes."""
+    lu, piv, x, info = _scipy_dgesv(matrix, rhs)
+    factors[:, :] = lu
+    pivots[:] = piv
+    solution[:, :] = x
+    return int(info)
+
+
+def lapack_dpotrf_into(matrix: np.ndarray, factor: np.ndarray) -> int:
+    """`lapack_dpotrf` with the factor written into the caller's factor (n, n) (Fortran-ordered when compiled, e.g.
+    the .T of a C-ordered buffer: LAPACK works in it in place, on the same column-major copy `lapack_dpotrf` makes);
+    returns info."""
+    result, info = _scipy_dpotrf(matrix, lower=1, clean=0)
+    factor[:, :] = result
+    return int(info)
+
+
 if numba is not None:
 
     def _libm_has(symbol: str) -> bool:
@@ -466,5 +498,40 @@ if numba is not None:
             factor = np.ascontiguousarray(matrix.T)
             info = potrf(kind, lower, n, factor.ctypes, n)
             return factor.T, int(info)
+
+        return implementation
+
+    @_numba_overload(lapack_dgesv_into, jit_options={"cache": True})
+    def _lapack_dgesv_into_compiled(matrix, rhs, factors, pivots, solution):
+        gesv = _NUMBA_LAPACK().numba_xgesv(_numba_types.float64)
+        kind = ord("d")
+        if factors.layout != "F" or solution.layout != "F" or pivots.dtype != _numba_types.int32:
+            raise _numba_errors.TypingError("lapack_dgesv_into: Fortran-ordered factors and solution, int32 pivots")
+
+        def implementation(matrix, rhs, factors, pivots, solution):
+            n = matrix.shape[0]
+            count = rhs.shape[1]
+            factors[:, :] = matrix  # column-major: the memory `lapack_dgesv` hands LAPACK
+            solution[:, :] = rhs
+            info = gesv(kind, n, count, factors.ctypes, n, pivots.ctypes, solution.ctypes, n)
+            for i in range(n):
+                pivots[i] -= 1
+            return int(info)
+
+        return implementation
+
+    @_numba_overload(lapack_dpotrf_into, jit_options={"cache": True})
+    def _lapack_dpotrf_into_compiled(matrix, factor):
+        potrf = _NUMBA_LAPACK().numba_xxpotrf(_numba_types.float64)
+        kind = ord("d")
+        lower = ord("L")
+        if factor.layout != "F":
+            raise _numba_errors.TypingError("lapack_dpotrf_into: a Fortran-ordered factor")
+
+        def implementation(matrix, factor):
+            n = matrix.shape[0]
+            factor[:, :] = matrix  # column-major: the memory `lapack_dpotrf` hands LAPACK
+            info = potrf(kind, lower, n, factor.ctypes, n)
+            return int(info)
 
         return implementation

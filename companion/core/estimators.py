@@ -22,7 +22,7 @@ from typing import Protocol
 import numpy as np
 from scipy.linalg import null_space
 
-from companion.core._jit import jit, lapack_dgesv, lapack_dpotrf, objmode, power
+from companion.core._jit import jit, jit_inline, lapack_dgesv_into, lapack_dpotrf_into, objmode, power
 from companion.core.geometry import orthogonal_projection, unit
 from companion.core.messages import BearingMeasurement, TargetEstimate, fast_frozen
 
@@ -222,6 +222,13 @@ def _projector(unit_vector: np.ndarray) -> np.ndarray:
     return _EYE3 - unit_vector[:, None] * unit_vector
 
 
+@jit_inline
+def _projector_into(unit_vector: np.ndarray, out: np.ndarray) -> None:
+    """`_projector` written into out (3, 3): the same products g_i g_j, then the same differences from I."""
+    np.multiply(unit_vector[:, None], unit_vector, out)
+    np.subtract(_EYE3, out, out)
+
+
 @jit
 def _unit_vector(vector: np.ndarray) -> np.ndarray:
     """vector / |vector|, shape (3,): geometry.unit's arithmetic for a vector already known finite and non-zero."""
@@ -237,13 +244,24 @@ def _solve_identity(matrix: np.ndarray) -> tuple[np.ndarray, float, bool]:
     the LU pivots with the permutation's sign (np.linalg.det forms it through logarithms, so the
     two agree to rounding). M^-1 comes Fortran-ordered. ok is False when M is exactly singular
     (det 0, no inverse)."""
-    lu, pivots, inverse, info = lapack_dgesv(matrix, _EYE3)
+    inverse = np.empty((3, 3)).T
+    determinant, regular = _solve_identity_into(matrix, np.empty((3, 3)).T, np.empty(3, dtype=np.int32), inverse)
+    return inverse, determinant, regular
+
+
+@jit_inline
+def _solve_identity_into(matrix: np.ndarray, factors: np.ndarray, pivots: np.ndarray,
+                         inverse: np.ndarray) -> tuple[float, bool]:
+    """`_solve_identity` with M^-1 written into inverse (3, 3) and the LU factors and pivots into factors (3, 3) and
+    pivots (3,) int32 (inverse and factors Fortran-ordered, as LAPACK leaves them: e.g. the .T of C-ordered
+    buffers); returns (det M, ok)."""
+    info = lapack_dgesv_into(matrix, _EYE3, factors, pivots, inverse)
     if info != 0:
-        return inverse, 0.0, False
-    determinant = float(lu[0, 0] * lu[1, 1] * lu[2, 2])
+        return 0.0, False
+    determinant = float(factors[0, 0] * factors[1, 1] * factors[2, 2])
     # row interchanges (the pivots are 0-based; the last row is always itself)
     swaps = (1 if pivots[0] != 0 else 0) + (1 if pivots[1] != 1 else 0)
-    return inverse, -determinant if swaps % 2 else determinant, True
+    return -determinant if swaps % 2 else determinant, True
 
 
 def _eigenvalues_not_negative(covariance: np.ndarray) -> bool:
@@ -263,14 +281,28 @@ def _is_positive_semidefinite(covariance: np.ndarray) -> bool:
     The two can disagree only when Cholesky succeeds while eigvalsh's smallest eigenvalue is
     negative at rounding level (|lambda_min| ~ 1e-16 ||P||, where its sign is rounding noise):
     then the short form is kept, a matrix Cholesky-factorisable to working precision."""
-    factor, info = lapack_dpotrf(covariance)
+    size = covariance.shape[0]
+    return _is_positive_semidefinite_with(covariance, np.empty((size, size)).T)
+
+
+@jit_inline
+def _is_positive_semidefinite_with(covariance: np.ndarray, factor: np.ndarray) -> bool:
+    """`_is_positive_semidefinite` with the Cholesky factorisation done in the caller's factor (n, n), Fortran-ordered
+    (e.g. the .T of a C-ordered buffer; its contents are overwritten)."""
+    info = lapack_dpotrf_into(covariance, factor)
     if info == 0:
         trace = 0.0  # finite or not: the order of the sum does not matter (each term is at most ~1e154)
         for i in range(factor.shape[0]):
             trace += factor[i, i]
         if math.isfinite(trace):
             return True
-    with objmode(result="boolean"):  # rare (a singular or non-finite covariance): numpy's eigvalsh itself
+    return _eigenvalues_not_negative_compiled(covariance)  # rare (a singular or non-finite covariance)
+
+
+@jit
+def _eigenvalues_not_negative_compiled(covariance: np.ndarray) -> bool:
+    """`_eigenvalues_not_negative` (numpy's eigvalsh itself, in object mode) from a kernel."""
+    with objmode(result="boolean"):
         result = _eigenvalues_not_negative(covariance)
     return result
 
@@ -311,16 +343,38 @@ def _projector_pseudo_inverse(matrix: np.ndarray, null_direction: np.ndarray) ->
     the 2x2 pseudo-inverse from numpy's SVD, which is defined for any finite S and any
     unit g (a rank-deficient block gives the pseudo-inverse, never an error).
     """
-    outer = null_direction[:, None] * null_direction  # np.outer's arithmetic without its argument handling
+    result = np.empty((3, 3))
+    work = np.empty((3, 3, 3))
+    _projector_pseudo_inverse_into(matrix, null_direction, result, work[0], work[1], work[2].T, work[1].T,
+                                   np.empty(3, dtype=np.int32))
+    return result
+
+
+@jit_inline
+def _projector_pseudo_inverse_into(matrix: np.ndarray, null_direction: np.ndarray, out: np.ndarray, outer: np.ndarray,
+                                   shifted: np.ndarray, factors: np.ndarray, inverse: np.ndarray,
+                                   pivots: np.ndarray) -> None:
+    """`_projector_pseudo_inverse` written into out (3, 3), C-ordered; outer, shifted (3, 3) C-ordered, factors and
+    inverse (3, 3) Fortran-ordered and pivots (3,) int32 its scratch (inverse may share shifted's memory: shifted
+    is read only before it is written)."""
+    np.multiply(null_direction[:, None], null_direction, outer)  # np.outer's arithmetic without its argument handling
     low, high = SHORTCUT_EIGENVALUE_BAND
     trace = float(matrix[0, 0] + matrix[1, 1] + matrix[2, 2])
     if low <= trace <= high:
-        inverse, determinant, regular = _solve_identity(matrix + outer)  # np.linalg.inv's solve, cheaper
+        np.add(matrix, outer, shifted)
+        determinant, regular = _solve_identity_into(shifted, factors, pivots, inverse)  # np.linalg.inv's solve, cheaper
         if regular and determinant >= low * trace:  # smallest eigenvalue >= det / trace >= low
-            return inverse - outer
-    with objmode(result="float64[:, ::1]"):  # rare (a diverging filter): scipy's null_space and numpy's pinv
+            np.subtract(inverse, outer, out)
+            return
+    _general_pseudo_inverse_into(matrix, null_direction, out)  # rare (a diverging filter)
+
+
+@jit
+def _general_pseudo_inverse_into(matrix: np.ndarray, null_direction: np.ndarray, out: np.ndarray) -> None:
+    """`_general_pseudo_inverse` (scipy's null_space and numpy's pinv, in object mode) written into out (3, 3)."""
+    with objmode(result="float64[:, ::1]"):
         result = _general_pseudo_inverse(matrix, null_direction)
-    return result
+    out[:, :] = result
 
 
 @jit
@@ -392,13 +446,31 @@ def _predict_kernel(transition: np.ndarray, discrete_process_noise: np.ndarray, 
     transition: A (6, 6). discrete_process_noise: B Q B^T (6, 6), scaled by the adaptive factor
     s_k (`scale`) and then by the health monitor's `boost` (each skipped at 1: 1 Q is Q exactly).
     state: x (6,) and covariance: P (6, 6), overwritten with x^- and P^-."""
+    _predict_with(transition, discrete_process_noise, scale, boost, state, covariance, np.empty(6), np.empty((3, 6, 6)))
+
+
+@jit_inline
+def _predict_with(transition: np.ndarray, discrete_process_noise: np.ndarray, scale: float, boost: float,
+                  state: np.ndarray, covariance: np.ndarray, moved: np.ndarray, work: np.ndarray) -> None:
+    """`_predict_kernel` with its intermediate arrays in the caller's scratch, moved (6,) and work (3, 6, 6): the
+    same products (BLAS, the same operands in the same order) and the same elementwise sums, without an array per
+    step."""
+    half = work[0]
+    full = work[1]
     noise = discrete_process_noise
-    if scale != 1.0:
-        noise = scale * noise
-    if boost != 1.0:
-        noise = boost * noise
-    state[:] = transition @ state
-    covariance[:] = transition @ covariance @ transition.T + noise
+    if scale != 1.0 or boost != 1.0:
+        scaled = work[2]
+        if scale != 1.0:
+            np.multiply(scale, noise, scaled)
+            noise = scaled
+        if boost != 1.0:
+            np.multiply(boost, noise, scaled)
+            noise = scaled
+    np.dot(transition, state, moved)  # A x
+    state[:] = moved
+    np.dot(transition, covariance, half)  # (A P) A^T + noise
+    np.dot(half, transition.T, full)
+    np.add(full, noise, covariance)
 
 
 @jit
@@ -421,46 +493,149 @@ def _correct_kernel(state: np.ndarray, covariance: np.ndarray, relative: np.ndar
     measurement_noise: Sigma (3, 3). add_position_noise, position_variance: sigma_p^2 P, m^2. lead_noise: the
     late bearing's target-motion covariance (3, 3), m^2. pursuer_position: p (3,), m, the bearing's position.
     Returns the pseudo-measurement innovation y = P_lambda~ (p^-_T - p) (3,), its covariance S (3, 3) and S^+."""
+    work = _correction_work()
+    measured_projection = work[2][_MEASURED_PROJECTION]
+    _measured_projection_into(direction, measured_projection, work[0][_UNIT])
+    innovation, innovation_covariance = np.empty(3), np.empty((3, 3))
+    innovation_inverse = _correct_with(
+        state, covariance, relative, predicted_range, direction, measured_projection, reference, use_reference,
+        use_predicted, lead, late, measurement_noise, add_position_noise, position_variance, lead_noise,
+        pursuer_position, innovation, innovation_covariance, work)
+    return innovation, innovation_covariance, innovation_inverse
+
+
+@jit_inline
+def _measured_projection_into(direction: np.ndarray, out: np.ndarray, unit: np.ndarray) -> None:
+    """P_lambda~ = I - u u^T, u = direction / |direction| (`_projector(_unit_vector(direction))`'s arithmetic: the
+    same BLAS dot, division and products), written into out (3, 3); unit (3,): u."""
+    np.divide(direction, math.sqrt(float(np.dot(direction, direction))), unit)
+    _projector_into(unit, out)
+
+
+# `_correct_with`'s scratch (`_correction_work`): the index of each intermediate in its stack of that shape
+_GAIN_RELATIVE, _GAIN_DIRECTION, _LIMIT, _UNIT = 0, 1, 2, 3  # (3,)
+_CORRECTION, _UPDATED = 0, 1  # (6,)
+_MEASURED_PROJECTION, _GAIN_PROJECTION, _NOISE_TRANSITION, _PRODUCT, _MEASUREMENT_COVARIANCE, _TERM = 0, 1, 2, 3, 4, 5
+_PRIOR_ROWS, _INVERSE, _OUTER, _SHIFTED, _FACTORS, _SOLUTION = 6, 7, 8, 9, 10, 11  # (3, 3)
+_POSITION_ROWS, _CROSS_COVARIANCE, _GAIN = 0, 1, 2  # (6, 3)
+_PROJECTED_ROWS, _MEASURED_ROWS = 0, 1  # (3, 6)
+_REDUCTION, _POSTERIOR, _CHOLESKY = 0, 1, 2  # (6, 6)
+
+
+@jit
+def _correction_work() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`_correct_with`'s scratch: stacks of (3,), (6,), (3, 3), (6, 3), (3, 6) and (6, 6) float64 arrays (indexed by
+    the constants above; a stack's element is a C-ordered array without a reshape) and LAPACK's (3,) int32 pivots."""
+    return (np.empty((4, 3)), np.empty((2, 6)), np.empty((12, 3, 3)), np.empty((3, 6, 3)), np.empty((2, 3, 6)),
+            np.empty((3, 6, 6)), np.empty(3, dtype=np.int32))
+
+
+@jit_inline
+def _correct_with(state: np.ndarray, covariance: np.ndarray, relative: np.ndarray, predicted_range: float,
+                  direction: np.ndarray, measured_projection: np.ndarray, reference: np.ndarray, use_reference: bool,
+                  use_predicted: bool, lead: float, late: bool, measurement_noise: np.ndarray, add_position_noise: bool,
+                  position_variance: float, lead_noise: np.ndarray, pursuer_position: np.ndarray, innovation: np.ndarray,
+                  innovation_covariance: np.ndarray, work: tuple) -> np.ndarray:
+    """`_correct_kernel`'s update (the same BLAS and LAPACK calls on the same operands in the same order, the same
+    elementwise operations) without an array per step: measured_projection P_lambda~ (3, 3) given (the same for
+    every model of an IMM: `_measured_projection_into`), the innovation y (3,) and its covariance S (3, 3) written
+    into the caller's `innovation` and `innovation_covariance`, every intermediate in `work` (`_correction_work`).
+    Returns S^+ (3, 3), a view into `work` (valid until its next use)."""
+    vectors, rows, small, tall, wide, square, pivots = work
     gain_relative, gain_range = relative, predicted_range
     if use_reference:
         # Errors in variables: the gain's line of sight from an own position that does not
         # carry this sample's error (OwnPositionTracker), the residual from the sample itself.
-        gain_relative = relative + (pursuer_position - reference)
-        gain_range = math.sqrt(float(np.dot(gain_relative, gain_relative)))
-        if gain_range < 1e-6:
-            gain_relative, gain_range = relative, predicted_range
-    measured_projection = _projector(_unit_vector(direction))
-    gain_direction = gain_relative / gain_range if use_predicted else direction
-    gain_projection = _projector(gain_direction)
+        from_reference = vectors[_GAIN_RELATIVE]
+        np.subtract(pursuer_position, reference, from_reference)
+        np.add(relative, from_reference, from_reference)
+        reference_range = math.sqrt(float(np.dot(from_reference, from_reference)))
+        if not reference_range < 1e-6:
+            gain_relative, gain_range = from_reference, reference_range
+    gain_direction = direction
+    if use_predicted:
+        gain_direction = vectors[_GAIN_DIRECTION]
+        np.divide(gain_relative, gain_range, gain_direction)
+    gain_projection = small[_GAIN_PROJECTION]
+    _projector_into(gain_direction, gain_projection)
     # H = [P, 0], so H P^- H^T = P P^-_pp P and P^- H^T = P^-[:, :3] P.
     # A bearing taken tau = lead s away from the filter's time (a late fix, a neighbour's shared
     # bearing) measures p_T(t + tau) = p_T + tau v_T + w_tau: H = P [I, tau I], and w_tau, the
     # target's own acceleration over |tau|, adds its position variance to the measurement noise.
     # P^- M^T, M = [I, tau I] (a contiguous copy of the columns: the same BLAS product, with no strided operand)
-    position_rows = covariance[:, :3] + lead * covariance[:, 3:] if late else np.ascontiguousarray(covariance[:, :3])
-    cross_covariance = position_rows @ gain_projection
-    noise_transition = gain_range * gain_projection  # V_k = r^- P_lambda
-    measurement_covariance = noise_transition @ measurement_noise @ noise_transition.T
-    if add_position_noise:
-        measurement_covariance = measurement_covariance + position_variance * gain_projection
+    position_rows = tall[_POSITION_ROWS]
     if late:
-        measurement_covariance = measurement_covariance + gain_projection @ lead_noise @ gain_projection
-    prior_rows = cross_covariance[:3] + lead * cross_covariance[3:] if late else cross_covariance[:3]  # M P^- M^T P
-    innovation_covariance = gain_projection @ prior_rows + measurement_covariance
-    innovation_inverse = _projector_pseudo_inverse(innovation_covariance, gain_direction)
-    gain = cross_covariance @ innovation_inverse
+        np.multiply(lead, covariance[:, 3:], position_rows)
+        np.add(covariance[:, :3], position_rows, position_rows)
+    else:
+        position_rows[:, :] = covariance[:, :3]
+    cross_covariance = tall[_CROSS_COVARIANCE]
+    np.dot(position_rows, gain_projection, cross_covariance)
+    noise_transition = small[_NOISE_TRANSITION]
+    np.multiply(gain_range, gain_projection, noise_transition)  # V_k = r^- P_lambda
+    product = small[_PRODUCT]
+    measurement_covariance = small[_MEASUREMENT_COVARIANCE]
+    np.dot(noise_transition, measurement_noise, product)  # (V Sigma) V^T
+    np.dot(product, noise_transition.T, measurement_covariance)
+    term = small[_TERM]
+    if add_position_noise:
+        np.multiply(position_variance, gain_projection, term)
+        np.add(measurement_covariance, term, measurement_covariance)
+    if late:
+        np.dot(gain_projection, lead_noise, product)
+        np.dot(product, gain_projection, term)
+        np.add(measurement_covariance, term, measurement_covariance)
+    prior_rows = cross_covariance[:3]  # M P^- M^T P
+    if late:
+        prior_rows = small[_PRIOR_ROWS]
+        np.multiply(lead, cross_covariance[3:], prior_rows)
+        np.add(cross_covariance[:3], prior_rows, prior_rows)
+    np.dot(gain_projection, prior_rows, innovation_covariance)
+    np.add(innovation_covariance, measurement_covariance, innovation_covariance)
+    innovation_inverse = small[_INVERSE]
+    _projector_pseudo_inverse_into(innovation_covariance, gain_direction, innovation_inverse, small[_OUTER],
+                                   small[_SHIFTED], small[_FACTORS].T, small[_SOLUTION].T, pivots)
+    gain = tall[_GAIN]
+    np.dot(cross_covariance, innovation_inverse, gain)
     # x_k = x^-_k - K_k H_k x^-_k, with H_k x^-_k = P_lambda~ (p^-_T - p)
-    innovation = measured_projection @ relative  # H_k x^-_k, also the report's innovation
-    updated = state - gain @ innovation
-    updated[:3] = limit_range(updated[:3], pursuer_position)
-    measured_rows = covariance[:3] + lead * covariance[3:] if late else covariance[:3]  # M P^-
-    posterior = covariance - gain @ (gain_projection @ measured_rows)  # (I - K H) P^-
-    posterior = 0.5 * (posterior + posterior.T)
-    if not _is_positive_semidefinite(posterior):
-        posterior = _joseph_update(covariance, gain, gain_projection, measurement_covariance, lead if late else 0.0)
+    np.dot(measured_projection, relative, innovation)  # H_k x^-_k, also the report's innovation
+    correction = rows[_CORRECTION]
+    updated = rows[_UPDATED]
+    np.dot(gain, innovation, correction)
+    np.subtract(state, correction, updated)
+    _limit_range_in_place(updated[:3], pursuer_position, vectors[_LIMIT])
+    measured_rows = covariance[:3]  # M P^-
+    if late:
+        measured_rows = wide[_MEASURED_ROWS]
+        np.multiply(lead, covariance[3:], measured_rows)
+        np.add(covariance[:3], measured_rows, measured_rows)
+    projected_rows = wide[_PROJECTED_ROWS]
+    reduction = square[_REDUCTION]
+    posterior = square[_POSTERIOR]
+    np.dot(gain_projection, measured_rows, projected_rows)
+    np.dot(gain, projected_rows, reduction)
+    np.subtract(covariance, reduction, posterior)  # (I - K H) P^-
+    np.add(posterior, posterior.T, reduction)  # 0.5 (P + P^T)
+    np.multiply(0.5, reduction, reduction)
+    if _is_positive_semidefinite_with(reduction, square[_CHOLESKY].T):
+        covariance[:, :] = reduction
+    else:
+        covariance[:, :] = _joseph_update(covariance, gain, gain_projection, measurement_covariance,
+                                          lead if late else 0.0)
     state[:] = updated
-    covariance[:] = posterior
-    return innovation, innovation_covariance, innovation_inverse
+    return innovation_inverse
+
+
+@jit_inline
+def _limit_range_in_place(target_position: np.ndarray, pursuer_position: np.ndarray, relative: np.ndarray) -> None:
+    """`limit_range` in place on target_position (3,) (the same dot, division, product and sum), relative (3,) its
+    scratch."""
+    np.subtract(target_position, pursuer_position, relative)
+    distance = math.sqrt(float(np.dot(relative, relative)))  # np.linalg.norm's own formula, without its wrapper
+    if distance <= MAX_RANGE:
+        return
+    np.multiply(MAX_RANGE / distance, relative, relative)
+    np.add(pursuer_position, relative, target_position)
 
 
 @jit
@@ -473,13 +648,15 @@ def _correct_into(state: np.ndarray, covariance: np.ndarray, relative: np.ndarra
     covariance S (3, 3) written into `innovation` and `innovation_covariance` (arguments rather than results: numba
     boxes every array it returns), and the NIS y^T S^+ y (`_normalized_innovation_squared`) returned when with_nis
     (NaN otherwise): UPLKF.correct's one kernel call."""
-    result, result_covariance, result_inverse = _correct_kernel(
-        state, covariance, relative, predicted_range, direction, reference, use_reference, use_predicted, lead, late,
-        measurement_noise, add_position_noise, position_variance, lead_noise, pursuer_position)
-    innovation[:] = result
-    innovation_covariance[:] = result_covariance
+    work = _correction_work()
+    measured_projection = work[2][_MEASURED_PROJECTION]
+    _measured_projection_into(direction, measured_projection, work[0][_UNIT])
+    innovation_inverse = _correct_with(
+        state, covariance, relative, predicted_range, direction, measured_projection, reference, use_reference,
+        use_predicted, lead, late, measurement_noise, add_position_noise, position_variance, lead_noise,
+        pursuer_position, innovation, innovation_covariance, work)
     if with_nis:
-        return _normalized_innovation_squared(result, result_inverse)
+        return _normalized_innovation_squared(innovation, innovation_inverse)
     return math.nan
 
 

@@ -59,11 +59,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.core._jit import jit
+from companion.core._jit import jit, jit_inline
 from companion.core.estimators import (_LEAD_EPSILON, AdaptiveNoiseSettings, AdaptiveProcessNoise, CorrectionReport,
                                        GainProjection, InitialGuess, NoiseChanges, UPLKF, _behind_sensor, _clipped_cosine,
-                                       _correct_kernel, _correction_report, _normalized_innovation_squared,
-                                       _own_position_step, _predict_kernel, coordinated_turn_matrices, restart_guess)
+                                       _MEASURED_PROJECTION, _UNIT, _correct_with, _correction_work,
+                                       _correction_report, _measured_projection_into, _normalized_innovation_squared,
+                                       _own_position_step, _predict_with, coordinated_turn_matrices, restart_guess)
 from companion.core.geometry import unit
 from companion.core.messages import BearingMeasurement, TargetEstimate, fast_frozen, position_std_of
 
@@ -245,18 +246,31 @@ def _rank2_log_likelihoods_kernel(innovations: np.ndarray, covariances: np.ndarr
     C-ordered float64 arrays (a kernel: companion.core._jit). The sums are written out in the order numpy's
     reductions of the vectorised form took them (a row of 3: left to right; the 9 squares of S: numpy's
     pairwise sum), so its results are those bit for bit."""
+    result = np.empty(innovations.shape[0])
+    _rank2_log_likelihoods_into(innovations, covariances, scales, null_directions, result)
+    return result
+
+
+@jit_inline
+def _rank2_log_likelihoods_into(innovations: np.ndarray, covariances: np.ndarray, scales: np.ndarray,
+                                null_directions: np.ndarray, result: np.ndarray) -> None:
+    """`_rank2_log_likelihoods_kernel` written into result (n,): the same sums, products and BLAS product, without
+    an array per model (the squares of S's entries one by one: an elementwise product is that product)."""
     count = innovations.shape[0]
-    result = np.empty(count)
+    s_y = np.empty(3)
     for k in range(count):
         covariance = covariances[k]
         innovation = innovations[k]
         e1 = covariance[0, 0] + covariance[1, 1] + covariance[2, 2]
-        s = covariance * covariance
-        square_sum = ((s[0, 0] + s[0, 1]) + (s[0, 2] + s[1, 0])) + ((s[1, 1] + s[1, 2]) + (s[2, 0] + s[2, 1])) + s[2, 2]
+        c00, c01, c02 = covariance[0, 0], covariance[0, 1], covariance[0, 2]
+        c10, c11, c12 = covariance[1, 0], covariance[1, 1], covariance[1, 2]
+        c20, c21, c22 = covariance[2, 0], covariance[2, 1], covariance[2, 2]
+        square_sum = ((c00 * c00 + c01 * c01) + (c02 * c02 + c10 * c10)) + ((c11 * c11 + c12 * c12)
+                                                                            + (c20 * c20 + c21 * c21)) + c22 * c22
         e2 = 0.5 * (e1 * e1 - square_sum)
         g = null_directions[k]
         along = g[0] * innovation[0] + g[1] * innovation[1] + g[2] * innovation[2]
-        s_y = covariance @ innovation
+        np.dot(covariance, innovation, s_y)
         quadratic = s_y[0] * innovation[0] + s_y[1] * innovation[1] + s_y[2] * innovation[2]
         if not e2 > 0.0:
             result[k] = -math.inf
@@ -265,7 +279,6 @@ def _rank2_log_likelihoods_kernel(innovations: np.ndarray, covariances: np.ndarr
         scale = scales[k]
         value = -0.5 * (nis + 2.0 * _LOG_TWO_PI + math.log(e2)) + 2.0 * math.log(scale) if scale > 0.0 else -math.inf
         result[k] = value if math.isfinite(value) else -math.inf
-    return result
 
 
 @jit
@@ -274,19 +287,48 @@ def _combined_innovation(weights: np.ndarray, innovations: np.ndarray, covarianc
     """y = sum_j c_j y_j and its covariance sum_j c_j [S_j + (y_j - y)(y_j - y)^T] projected across the combined
     predicted line of sight g = `relative` / `predicted_range` (IMMEstimator._combined_report, a kernel:
     companion.core._jit). weights (n,), innovations (n, 3), covariances (n, 3, 3) -> (3,), (3, 3)."""
-    innovation = weights @ innovations
-    spread = innovations - innovation
-    covariance = (weights @ covariances.reshape(weights.shape[0], 9)).reshape(3, 3) + (weights[:, None] * spread).T @ spread
+    innovation, covariance = np.empty(3), np.empty((3, 3))
+    _combined_innovation_into(weights, innovations, covariances, relative, predicted_range, innovation, covariance)
+    return innovation, covariance
+
+
+@jit_inline
+def _combined_innovation_into(weights: np.ndarray, innovations: np.ndarray, covariances: np.ndarray,
+                              relative: np.ndarray, predicted_range: float, innovation: np.ndarray,
+                              covariance: np.ndarray) -> None:
+    """`_combined_innovation` written into innovation (3,) and covariance (3, 3) (the same BLAS products and
+    elementwise steps, the intermediates in one scratch array)."""
+    count = weights.shape[0]
+    work = np.empty(2 * 3 * count + 9 * 5 + 3 * 2)
+    spread = work[0:3 * count].reshape(count, 3)
+    weighted = work[3 * count:6 * count].reshape(count, 3)
+    offset = 6 * count
+    mean = work[offset:offset + 9].reshape(3, 3)
+    scatter = work[offset + 9:offset + 18].reshape(3, 3)
+    summed = work[offset + 18:offset + 27].reshape(3, 3)
+    g_cg = work[offset + 27:offset + 36].reshape(3, 3)
+    g_g = work[offset + 36:offset + 45].reshape(3, 3)
+    g = work[offset + 45:offset + 48]
+    cg = work[offset + 48:offset + 51]
+    np.dot(weights, innovations, innovation)
+    np.subtract(innovations, innovation, spread)
+    np.dot(weights, covariances.reshape(count, 9), mean.reshape(9))
+    np.multiply(weights[:, None], spread, weighted)
+    np.dot(weighted.T, spread, scatter)
+    np.add(mean, scatter, summed)
     # (I - g g^T) C (I - g g^T), g the combined predicted line of sight, expanded
-    g = relative / predicted_range
-    cg = covariance @ g
+    np.divide(relative, predicted_range, g)
+    np.dot(summed, g, cg)
     # broadcast products: np.outer's arithmetic without its per-call argument handling; cg g^T is
     # (g cg^T)^T exactly (each entry the same product), and the in-place steps keep the order of the sum
-    g_cg = g[:, None] * cg
-    covariance = covariance - g_cg
-    covariance -= g_cg.T
-    covariance += float(g @ cg) * (g[:, None] * g)
-    return innovation, 0.5 * (covariance + covariance.T)
+    np.multiply(g[:, None], cg, g_cg)
+    np.subtract(summed, g_cg, summed)
+    np.subtract(summed, g_cg.T, summed)
+    np.multiply(g[:, None], g, g_g)
+    np.multiply(float(np.dot(g, cg)), g_g, g_g)
+    np.add(summed, g_g, summed)
+    np.add(summed, summed.T, covariance)
+    np.multiply(0.5, covariance, covariance)
 
 
 @jit
@@ -294,6 +336,14 @@ def _posterior_probabilities(log_likelihoods: np.ndarray, predicted: np.ndarray)
     """mu^j = Lambda^j c_j / sum_t Lambda^t c_t, seed 004 eq. (21), in logarithms (a kernel: companion.core._jit).
     log_likelihoods: ln Lambda^j (n,); predicted: c (n,). With no finite likelihood (every model restarted)
     the predicted probabilities c stand (a copy)."""
+    posterior = np.empty(predicted.shape[0])
+    _posterior_probabilities_into(log_likelihoods, predicted, posterior)
+    return posterior
+
+
+@jit_inline
+def _posterior_probabilities_into(log_likelihoods: np.ndarray, predicted: np.ndarray, posterior: np.ndarray) -> None:
+    """`_posterior_probabilities` written into posterior (n,) (not predicted's memory)."""
     count = predicted.shape[0]
     log_posterior = np.empty(count)
     for j in range(count):
@@ -304,24 +354,70 @@ def _posterior_probabilities(log_likelihoods: np.ndarray, predicted: np.ndarray)
         if log_posterior[j] > peak:
             peak = log_posterior[j]
     if peak == -math.inf:
-        return predicted.copy()
-    posterior = np.empty(count)
+        posterior[:] = predicted
+        return
     total = 0.0
     for j in range(count):
         posterior[j] = math.exp(log_posterior[j] - peak)
         total += posterior[j]
-    return posterior / total
+    np.divide(posterior, total, posterior)
 
 
 @jit
 def _mix_into(probabilities: np.ndarray, transition: np.ndarray, states: np.ndarray, covariances: np.ndarray) -> np.ndarray:
     """Seed 004 eqs. (17)-(19) in place: each model's state (n, d) and covariance (n, d, d) replaced by its mixed
     start (the covariance symmetrised); returns the predicted model probabilities c (n,)."""
-    predicted, mixed, mixed_covariances = _mix_kernel(probabilities, transition, states, covariances)
-    for j in range(states.shape[0]):
-        states[j] = mixed[j]
-        covariances[j] = 0.5 * (mixed_covariances[j] + mixed_covariances[j].T)
+    predicted = np.empty(states.shape[0])
+    _mix_in_place(probabilities, transition, states, covariances, predicted)
     return predicted
+
+
+@jit_inline
+def _mix_in_place(probabilities: np.ndarray, transition: np.ndarray, states: np.ndarray, covariances: np.ndarray,
+                  predicted: np.ndarray) -> None:
+    """`_mix_into` with c written into predicted (n,) (not the memory of any other argument): `_mix_kernel`'s BLAS
+    products and elementwise steps in the same order, its intermediates in one scratch array."""
+    count, size = states.shape
+    work = np.empty(count * count + count * size * (3 + count + size) + size * size)
+    weights = work[0:count * count].reshape(count, count)
+    offset = count * count
+    mixed = work[offset:offset + count * size].reshape(count, size)
+    offset += count * size
+    mixed_covariances = work[offset:offset + count * size * size].reshape(count, size * size)
+    offset += count * size * size
+    spread = work[offset:offset + count * count * size].reshape(count, count, size)
+    offset += count * count * size
+    weighted = work[offset:offset + count * size].reshape(count, size)
+    offset += count * size
+    scatter = work[offset:offset + size * size].reshape(size, size)
+    np.dot(probabilities, transition, predicted)
+    everyone = True  # (predicted > 0).all(): no c_j is 0 (the usual case)
+    for value in predicted:
+        if not value > 0.0:
+            everyone = False
+    np.multiply(transition, probabilities[:, None], weights)  # mu^{i|j}
+    if everyone:  # dividing by c itself when no c_j is 0 is np.where's arithmetic without the where
+        np.divide(weights, predicted[None, :], weights)
+    else:
+        np.divide(weights, np.where(predicted > 0.0, predicted, 1.0)[None, :], weights)
+        # A model with c_j = 0 (p_ij = 0 from every likely model) takes no part in anything until
+        # its probability returns; it keeps its own estimate instead of an empty mixture.
+        for j in range(count):
+            if predicted[j] <= 0.0:
+                weights[:, j] = 0.0
+                weights[j, j] = 1.0
+    np.dot(weights.T, states, mixed)
+    np.dot(weights.T, covariances.reshape(count, size * size), mixed_covariances)
+    np.subtract(states[None, :, :], mixed[:, None, :], spread)  # [j, i] = x^i - x0^j
+    for j in range(count):  # sum_i mu^{i|j} (x^i - x0^j)(x^i - x0^j)^T, one BLAS product per model
+        np.multiply(spread[j], weights.T[j][:, None], weighted)
+        np.dot(weighted.T, spread[j], scatter)
+        np.add(mixed_covariances[j], scatter.reshape(size * size), mixed_covariances[j])
+    for j in range(count):
+        states[j] = mixed[j]
+        mixed_covariance = mixed_covariances[j].reshape(size, size)
+        np.add(mixed_covariance, mixed_covariance.T, covariances[j])
+        np.multiply(0.5, covariances[j], covariances[j])
 
 
 @jit
@@ -330,8 +426,10 @@ def _predict_models(transitions: np.ndarray, discrete_process_noises: np.ndarray
     """Every model filter's time update (section IV-C, UPLKF's `_predict_kernel`), in place on the stacked
     states (n, 6) and covariances (n, 6, 6); transitions and discrete process noises (n, 6, 6), each model's
     adaptive scale and boost (n,)."""
+    moved, work = np.empty(6), np.empty((3, 6, 6))  # one scratch for every model (`_predict_with`)
     for j in range(states.shape[0]):
-        _predict_kernel(transitions[j], discrete_process_noises[j], scales[j], boosts[j], states[j], covariances[j])
+        _predict_with(transitions[j], discrete_process_noises[j], scales[j], boosts[j], states[j], covariances[j], moved,
+                      work)
 
 
 @jit
@@ -385,25 +483,49 @@ def _imm_correct_kernel(states: np.ndarray, covariances: np.ndarray, model_relat
     correction (`_markov_matrix_over`). Writes each model's NIS y_j^T S_j^+ y_j into nis (n,) (when with_nis; left
     alone otherwise), mu into probabilities (n,) and the next c into weights (n,) (after every use of the old c),
     the caller's arrays; returns the combined innovation (3,) and covariance (3, 3)."""
-    count = states.shape[0]
-    innovations = np.empty((count, 3))
-    innovation_covariances = np.empty((count, 3, 3))
-    for j in range(count):
-        innovation, innovation_covariance, innovation_inverse = _correct_kernel(
-            states[j], covariances[j], model_relative[j], model_ranges[j], direction, references[j if references.shape[0] > 1 else 0], use_reference, True,
-            lead, late, measurement_noises[j], add_position_noise, position_variance, lead_noises[j], pursuer_position)
-        innovations[j] = innovation
-        innovation_covariances[j] = innovation_covariance
-        if with_nis:
-            nis[j] = _normalized_innovation_squared(innovation, innovation_inverse)
-    log_likelihoods = _rank2_log_likelihoods_kernel(innovations, innovation_covariances, ranges,
-                                                    model_relative / ranges[:, None])
-    innovation, innovation_covariance = _combined_innovation(weights, innovations, innovation_covariances, relative,
-                                                             predicted_range)
-    probabilities[:] = _posterior_probabilities(log_likelihoods, weights)
-    weights[:] = _mix_into(probabilities, _markov_matrix_over(count, stay_probability, stay_time, interval), states,
-                           covariances)
+    innovation, innovation_covariance = np.empty(3), np.empty((3, 3))
+    _imm_correct_into(states, covariances, model_relative, ranges, model_ranges, direction, references, use_reference,
+                      lead, late, measurement_noises, add_position_noise, position_variance, lead_noises,
+                      pursuer_position, weights, relative, predicted_range, stay_probability, stay_time, interval,
+                      with_nis, nis, probabilities, innovation, innovation_covariance)
     return innovation, innovation_covariance
+
+
+@jit
+def _imm_correct_into(states: np.ndarray, covariances: np.ndarray, model_relative: np.ndarray, ranges: np.ndarray,
+                      model_ranges: np.ndarray, direction: np.ndarray, references: np.ndarray, use_reference: bool,
+                      lead: float, late: bool, measurement_noises: np.ndarray, add_position_noise: bool,
+                      position_variance: float, lead_noises: np.ndarray, pursuer_position: np.ndarray,
+                      weights: np.ndarray, relative: np.ndarray, predicted_range: float, stay_probability: float,
+                      stay_time: float, interval: float, with_nis: bool, nis: np.ndarray, probabilities: np.ndarray,
+                      innovation: np.ndarray, innovation_covariance: np.ndarray) -> None:
+    """`_imm_correct_kernel` with the combined innovation (3,) and covariance (3, 3) written into the caller's
+    `innovation` and `innovation_covariance`: the same steps, one scratch for every model's correction
+    (`_correct_with`) and the bearing's measured projection formed once (the same for every model)."""
+    count = states.shape[0]
+    per_model = np.empty(count * (3 + 9 + 3 + 1))
+    innovations = per_model[0:3 * count].reshape(count, 3)
+    innovation_covariances = per_model[3 * count:12 * count].reshape(count, 3, 3)
+    null_directions = per_model[12 * count:15 * count].reshape(count, 3)
+    log_likelihoods = per_model[15 * count:16 * count]
+    work = _correction_work()
+    measured_projection = work[2][_MEASURED_PROJECTION]
+    _measured_projection_into(direction, measured_projection, work[0][_UNIT])
+    for j in range(count):
+        innovation_inverse = _correct_with(
+            states[j], covariances[j], model_relative[j], model_ranges[j], direction, measured_projection,
+            references[j if references.shape[0] > 1 else 0], use_reference, True, lead, late, measurement_noises[j],
+            add_position_noise, position_variance, lead_noises[j], pursuer_position, innovations[j],
+            innovation_covariances[j], work)
+        if with_nis:
+            nis[j] = _normalized_innovation_squared(innovations[j], innovation_inverse)
+    np.divide(model_relative, ranges[:, None], null_directions)
+    _rank2_log_likelihoods_into(innovations, innovation_covariances, ranges, null_directions, log_likelihoods)
+    _combined_innovation_into(weights, innovations, innovation_covariances, relative, predicted_range, innovation,
+                              innovation_covariance)
+    _posterior_probabilities_into(log_likelihoods, weights, probabilities)
+    _mix_in_place(probabilities, _markov_matrix_over(count, stay_probability, stay_time, interval), states,
+                  covariances, weights)
 
 
 _CORRECTED, _RESTART, _MODEL_BY_MODEL, _NEEDS_REFERENCES = 0, 1, 2, 3
@@ -448,12 +570,10 @@ def _imm_correction(states: np.ndarray, covariances: np.ndarray, weights: np.nda
     if track_step:  # OwnPositionTracker.reference's usual step, its prediction every model's reference
         _own_position_step(track, track_dt, acceleration_psd, track_std, pursuer_position, prediction)
         references = prediction.reshape(1, 3)
-    combined, combined_covariance = _imm_correct_kernel(
-        states, covariances, model_relative, ranges, model_ranges, direction, references, use_reference, lead, late,
-        measurement_noises, add_position_noise, position_variance, lead_noises, pursuer_position, weights, relative,
-        predicted_range, stay_probability, stay_time, interval, with_nis, nis, probabilities)
-    innovation[:] = combined
-    innovation_covariance[:] = combined_covariance
+    _imm_correct_into(states, covariances, model_relative, ranges, model_ranges, direction, references, use_reference,
+                      lead, late, measurement_noises, add_position_noise, position_variance, lead_noises,
+                      pursuer_position, weights, relative, predicted_range, stay_probability, stay_time, interval,
+                      with_nis, nis, probabilities, innovation, innovation_covariance)
     return predicted_range, cos_angle, _CORRECTED
 
 
