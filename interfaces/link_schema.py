@@ -286,9 +286,17 @@ class TargetFix:
     epoch: int | None = None
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "position", tuple(float(v) for v in self.position))
+        object.__setattr__(self, "position", _floats(self.position))
         if self.velocity is not None:
-            object.__setattr__(self, "velocity", tuple(float(v) for v in self.velocity))
+            object.__setattr__(self, "velocity", _floats(self.velocity))
+
+
+def _floats(values: Any) -> tuple[float, ...]:
+    """tuple(float(v) for v in values); a 1-D float numpy array through tolist() (its elements as Python floats of
+    the same values, without a numpy scalar each)."""
+    if type(values) is np.ndarray and values.ndim == 1 and values.dtype.kind == "f":
+        values = values.tolist()
+    return tuple(map(float, values))
 
 
 @dataclass(frozen=True)

@@ -13,6 +13,7 @@ import enum
 import math
 import struct
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -263,11 +264,30 @@ def _measure(sensor: BearingSensor, time: float, line_of_sight: np.ndarray, rota
     direction = sensor.measure(true_direction, sensor_rng, rotation, true_range=distance)
     if direction is None:
         return None
-    return BearingMeasurement(time, direction, measured_position, sensor.measure_range(distance, range_rng), true_direction)
+    return _bearing(time, direction, measured_position, sensor.measure_range(distance, range_rng), true_direction)
 
 
-@dataclass(frozen=True)
-class _Sample:
+def _bearing(time: float, direction: np.ndarray, pursuer_position, range_: float | None,
+             true_direction: np.ndarray) -> BearingMeasurement:
+    """BearingMeasurement(time, direction, pursuer_position, range_, true_direction) (source 0: the own sensor),
+    built as messages.pursuer_state builds its message: the same object, field for field and in the
+    constructor's order, without the frozen dataclass's setattr per field. tests/test_link_sensor_costs.py
+    checks it against the constructor."""
+    instance = object.__new__(BearingMeasurement)
+    fields = instance.__dict__
+    fields["time"] = time
+    fields["direction"] = direction
+    fields["pursuer_position"] = pursuer_position
+    fields["range"] = range_
+    fields["true_direction"] = true_direction
+    fields["source"] = 0
+    return instance
+
+
+class _Sample(NamedTuple):
+    """The pursuer at an offered fix's time: true position m (NED), attitude R ((3, 3) body -> NED), measured
+    position (a named tuple: immutable, and cheaper to build at every offered fix than a frozen dataclass)."""
+
     true_position: np.ndarray
     rotation: np.ndarray
     measured_position: np.ndarray
@@ -317,13 +337,17 @@ class InProcessLink:
     def deliver(self, time: float, pipeline=None):
         """(stamp, NED position, pursuer sample at the stamp) of each valid fix due now (s); pipeline: the
         FollowingPipeline whose predicted line of sight the validator's re-anchor rule consults."""
+        payloads = self.faults.due(time)
+        if not payloads:  # most ticks
+            return
+
         def agrees(position: np.ndarray, stamp: float) -> bool | None:
             sample = self._samples.get(round(stamp * self._rate))
             if pipeline is None or sample is None:
                 return None
             return pipeline.line_of_sight_agrees(stamp, sample.measured_position, position)
 
-        for payload in self.faults.due(time):
+        for payload in payloads:
             self.delivered += 1
             # intake.check(payload) in its two steps, so that the payload is decoded once: by intake.decode
             # (a payload it refuses is counted there), for both _origin's bookkeeping and the validator.
@@ -350,7 +374,7 @@ class InProcessLink:
         offered = self._offered.get(key)
         if offered is None or abs(fix.stamp - key / self._rate) > 1e-6 or fix.frame != "ned":
             return False, math.inf
-        distance = float(np.linalg.norm(np.array(fix.position) - offered))
+        distance = norm(np.array(fix.position) - offered)  # np.linalg.norm's bits (geometry.norm)
         genuine = distance == 0.0 and fix.sender == self.sender and key not in self.genuine.seen
         if genuine:
             self.genuine.seen.add(key)

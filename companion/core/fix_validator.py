@@ -19,6 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from companion.core.geometry import norm
+
 #: Every reason a FixValidator counts besides the decoder's (interfaces.link_schema.REASONS).
 REASONS = ("wrong_sender", "no_clock", "future_stamp", "too_old", "stale_seq", "stale_stamp", "seq_jump",
            "other_epoch", "contested", "implausible_jump")
@@ -197,7 +199,7 @@ class FixValidator:
         return len(self._order.states)
 
     def _plausible(self, position: np.ndarray, stamp: float, reference: np.ndarray, reference_stamp: float) -> bool:
-        jump = float(np.linalg.norm(position - reference))
+        jump = norm(position - reference)  # np.linalg.norm's bits (geometry.norm), without its wrapper
         return math.isfinite(jump) and jump <= self.max_target_speed * abs(stamp - reference_stamp) + self.jump_margin
 
     def reject(self, reason: str) -> None:
@@ -242,7 +244,7 @@ class FixValidator:
         if not plausible:
             rule = self._candidate(epoch, seq, stamp, position, now, agrees)
             if rule is None:
-                jump = float(np.linalg.norm(position - self.last_position))
+                jump = norm(position - self.last_position)
                 raise FixRejected("implausible_jump", f"{jump:.1f} m in {stamp - self.last_stamp:.2f} s")
             self.reanchored += 1
             self.reanchors.append((stamp, rule))
@@ -268,7 +270,7 @@ class FixValidator:
         velocity = np.zeros(3)
         if self._previous_position is not None and self.last_stamp - self._previous[1] > 1e-6:
             velocity = (self.last_position - self._previous_position) / (self.last_stamp - self._previous[1])
-        miss = float(np.linalg.norm(position - self.last_position - velocity * dt))
+        miss = norm(position - self.last_position - velocity * dt)
         return math.isfinite(miss) and miss <= self.jump_margin + self.contested_speed * abs(dt)
 
     def _conflicts(self, epoch: int | None, seq: int, stamp: float, position: np.ndarray) -> bool:

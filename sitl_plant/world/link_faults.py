@@ -316,6 +316,11 @@ class LinkFaults:
         self._windows = tuple(sorted((w for w in config.blackouts if w.duration > 0), key=lambda w: w.start))
         self._stalls = tuple(sorted((w for w in config.stalls if w.duration > 0), key=lambda w: w.start))
         self._stalls_logged: set[int] = set()
+        # What `due` need call at every tick (the config is frozen): _run_impostor and _run_spoof return at once
+        # without a rate, _advance_blackouts without windows.
+        self._impostor_on = config.impostor_rate_hz > 0
+        self._spoof_on = config.spoof_rate_hz > 0
+        self._attacks_on = attacks_anything(config)
         self._enabled = injects_anything(config)
         self.events: list[FaultEvent] = []
         self.counters: Counter[str] = Counter()
@@ -331,6 +336,8 @@ class LinkFaults:
         self._spoof_epoch: int | None = None
         self._spoof_seq = -1
         self._spoof_next: int | None = None
+        # spoof_offset as np.array gives it (float64; an integer component converted as numpy converts it), as floats
+        self._spoof_offset = tuple(np.array(config.spoof_offset).astype(float).tolist())
 
     @property
     def enabled(self) -> bool:
@@ -426,10 +433,12 @@ class LinkFaults:
 
     def due(self, now: float) -> list[bytes]:
         """Messages whose delivery time (s) is at or before simulated time `now`, in delivery order."""
-        if self._enabled:
-            self._run_impostor(now)
-            self._run_spoof(now)
-            if self._scenario_offset is not None:
+        if self._enabled:  # (each call only where it can do something: a frozen config's impostor, spoofer, windows)
+            if self._impostor_on:
+                self._run_impostor(now)
+            if self._spoof_on:
+                self._run_spoof(now)
+            if self._windows and self._scenario_offset is not None:
                 self._advance_blackouts(now, now - self._scenario_offset)
         delivered = []
         while self._pending and self._pending[0][0] <= now + TIME_TOLERANCE:
@@ -443,7 +452,11 @@ class LinkFaults:
         self._order += 1
 
     def _log(self, now: float, kind: str, detail: str, **fields) -> None:
-        self.events.append(FaultEvent(now, kind, detail, fields))
+        # FaultEvent(now, kind, detail, fields), its four fields written in order into the new instance (the same
+        # object, without the frozen dataclass's setattr per field; tests/test_link_sensor_costs.py)
+        event = object.__new__(FaultEvent)
+        event.__dict__.update(time=now, kind=kind, detail=detail, fields=fields)
+        self.events.append(event)
         self.counters[kind] += 1
 
     def _draw_all(self, dt: float | None) -> dict:
@@ -608,7 +621,7 @@ class LinkFaults:
         """Note the genuine payload for the attacks and fire the one-shot attacks that are due; known: offer's fix
         of this payload (else the payload is decoded)."""
         config = self.config
-        if not attacks_anything(config):
+        if not self._attacks_on:
             return
         if config.replay_at is not None and "replay" not in self._attacks_done:
             if self._due_once("replay", config.replay_at, scenario_time):
@@ -637,11 +650,13 @@ class LinkFaults:
     def _spoofed(self, stamp: float) -> TargetFix:
         """The spoofer's fix stamped `stamp` (s): the latest genuine fix moved by spoof_offset, as the target."""
         config, template = self.config, self._attack_template
-        offset = np.array(config.spoof_offset)
         if template.frame == "geodetic":
-            position = ned_to_geodetic(offset, template.position)
+            position = ned_to_geodetic(np.array(config.spoof_offset), template.position)
         else:
-            position = tuple(np.array(template.position) + offset)
+            # np.array(template.position) + np.array(spoof_offset), element by element: the same float64 sums
+            north, east, down = self._spoof_offset
+            first, second, third = template.position
+            position = (first + north, second + east, third + down)
         if config.spoof_epoch == "target":
             epoch = template.epoch
         else:
