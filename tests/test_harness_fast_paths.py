@@ -19,6 +19,7 @@ from companion.core.messages import PursuerState, pursuer_state
 from sitl_plant.world.target import Maneuver, TargetModel
 from studies.closed_loop import FlightLog, _log_row
 from tests.bitwise import assert_same
+from tests.test_setpoint_kernels import old_rotation_to_quaternion
 
 floats = st.floats(allow_nan=True, allow_infinity=True, width=64)
 finite = st.floats(-1e6, 1e6, allow_nan=False)
@@ -234,7 +235,8 @@ def test_decode_then_check_decoded_is_check(data):
 
 def _old_setpoint_in(rotation_desired):
     """sitl_plant.vehicle.quadrotor's checked_rotation_rows + quaternion_from_rows as of 1c852b6 (what
-    AttitudeThrustVehicle.set_attitude_target ran), verbatim: the quaternion, or ValueError."""
+    AttitudeThrustVehicle.set_attitude_target ran), verbatim: the quaternion, or ValueError. The quaternion half is
+    test_setpoint_kernels' copy of the same old code (old_rotation_to_quaternion)."""
     name = "rotation_desired"
     r = np.asarray(rotation_desired, dtype=float)
     if r.shape != (3, 3):
@@ -252,22 +254,7 @@ def _old_setpoint_in(rotation_desired):
             and abs(a2 * b0 - a0 * b2 - c1) <= tolerance
             and abs(a0 * b1 - a1 * b0 - c2) <= tolerance):
         raise ValueError(f"{name} is not a proper rotation matrix: {r!r}")
-    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = rows
-    trace = m00 + m11 + m22
-    if trace >= m00 and trace >= m11 and trace >= m22:
-        s = 2.0 * math.sqrt(1.0 + trace)
-        q = (0.25 * s, (m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s)
-    elif m00 >= m11 and m00 >= m22:
-        s = 2.0 * math.sqrt(1.0 + m00 - m11 - m22)
-        q = ((m21 - m12) / s, 0.25 * s, (m01 + m10) / s, (m02 + m20) / s)
-    elif m11 >= m22:
-        s = 2.0 * math.sqrt(1.0 + m11 - m00 - m22)
-        q = ((m02 - m20) / s, (m01 + m10) / s, 0.25 * s, (m12 + m21) / s)
-    else:
-        s = 2.0 * math.sqrt(1.0 + m22 - m00 - m11)
-        q = ((m10 - m01) / s, (m02 + m20) / s, (m12 + m21) / s, 0.25 * s)
-    scale = (1.0 if q[0] >= 0.0 else -1.0) / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    return (q[0] * scale, q[1] * scale, q[2] * scale, q[3] * scale)
+    return old_rotation_to_quaternion(rows)  # quaternion_from_rows as of 1c852b6: the same verbatim code
 
 
 def _setpoint_matrices():
