@@ -606,34 +606,93 @@ def test_tracking_kernels_are_the_old_tick(target, target_velocity, position, ve
                 assert math.isnan(thrust) and math.isnan(thrust_normalized)
 
 
-def test_the_usual_tick_is_the_general_one(monkeypatch):
-    """FollowingPipeline._compute_setpoint's usual-tick branch (the two tracking kernels) against its general branch
-    (the law objects' methods, then the adjustments): whole flights with dropouts (coasting, degraded, blends) and
-    the health actions, every series bit for bit, with the general branch forced by hiding HNG's type from the
-    pipeline. The usual branch runs, with the setpoint in its kernel and without (a blend)."""
+def _flights(names=("constant_velocity_dropout", "stop_and_go"), seed=3):
     from interfaces.scenario import SCENARIOS_DIR, load_scenario
-    from companion.core import pipeline
     from studies.closed_loop import simulate
 
+    return [simulate(*load_scenario(SCENARIOS_DIR / f"{name}.toml"), seed).series for name in names]
+
+
+def _count_compiled_ticks(monkeypatch) -> dict[bool, int]:
+    """Count guidance._tracking_command_kernel's calls (HNG's compiled tick), by whether it made the setpoint."""
     calls = {True: 0, False: 0}
-    command_kernel = pipeline._tracking_command_kernel
+    command_kernel = guidance._tracking_command_kernel
 
     def counted(*args):
         calls[args[13]] += 1
         return command_kernel(*args)
 
-    flights = [load_scenario(SCENARIOS_DIR / f"{name}.toml") for name in ("constant_velocity_dropout", "stop_and_go")]
-    monkeypatch.setattr(pipeline, "_tracking_command_kernel", counted)
-    usual = [simulate(scenario, vehicle, 3).series for scenario, vehicle in flights]
+    monkeypatch.setattr(guidance, "_tracking_command_kernel", counted)
+    return calls
+
+
+def test_the_compiled_tick_is_the_methods_tick(monkeypatch):
+    """FollowingPipeline._compute_setpoint with HNG's compiled tick (HelicalNavigationGuidance.compiled_tick: the
+    two tracking kernels) against the same pipeline without it (the law objects' methods, then the adjustments):
+    whole flights with dropouts (coasting, degraded, blends) and the health actions, every series bit for bit,
+    with the compiled tick taken away from the class. The compiled tick runs, with the setpoint in its kernel
+    and without (a blend: the adjustments then follow it)."""
+    calls = _count_compiled_ticks(monkeypatch)
+    compiled = _flights()
     assert calls[True] > 100 and calls[False] > 0
     counted_so_far = dict(calls)
-    monkeypatch.setattr(pipeline, "HelicalNavigationGuidance", type("NotTheLaw", (), {}))
-    general = [simulate(scenario, vehicle, 3).series for scenario, vehicle in flights]
-    assert calls == counted_so_far  # the general branch only
-    for fast, slow in zip(usual, general):
+    monkeypatch.delattr(HelicalNavigationGuidance, "compiled_tick")
+    methods = _flights()
+    assert calls == counted_so_far  # the methods only
+    for fast, slow in zip(compiled, methods):
         assert fast.keys() == slow.keys()
         for key in fast:
             assert_same(fast[key], slow[key], key)
+
+
+def test_a_subclass_flies_its_own_law(monkeypatch):
+    """A law's compiled form belongs to the class that declares it: a subclass of HNG (which may change the law)
+    flies through its own methods, never its parent's compiled tick. An unchanged subclass flies the same flight
+    bit for bit; one whose acceleration is a pure pursuit (c_Z = c_Y = 0: HNG's own reduction, eq. (14)) has its
+    method called on every control tick and flies a different flight."""
+    from companion import assembly
+
+    reference = _flights(("constant_velocity",))[0]
+    calls = _count_compiled_ticks(monkeypatch)
+
+    class Unchanged(HelicalNavigationGuidance):
+        pass
+
+    law_calls = []
+
+    class Pursuit(HelicalNavigationGuidance):
+        def acceleration(self, engaged_time, velocity, los, range_estimate, relative_velocity=None):
+            law_calls.append(engaged_time)
+            return HelicalNavigationGuidance(self.navigation_gain, 0.0, 0.0).acceleration(
+                engaged_time, velocity, los, range_estimate, relative_velocity)
+
+    for law in (Unchanged, Pursuit):
+        monkeypatch.setitem(assembly.LATERAL_GUIDANCE, "hng", lambda g, law=law: law(
+            g.navigation_gain, g.c_z, g.c_y, g.weave_frequency, g.scale_with_range))
+        series = _flights(("constant_velocity",))[0]
+        assert calls == {True: 0, False: 0}
+        if law is Unchanged:
+            for key in reference:
+                assert_same(series[key], reference[key], key)
+        else:
+            # every control tick of the 60 s flight at 20 Hz from the first bearing (no dropout: no degraded tick)
+            assert len(law_calls) == 1201 and np.allclose(np.diff(law_calls), 0.05)
+            assert not np.array_equal(series["pursuer_position"], reference["pursuer_position"])
+
+
+def test_the_compiled_tick_needs_exactly_the_range_controller():
+    """HNG's compiled tick computes RangeController's arithmetic; for any other controller (a subclass may change
+    it) it declines, and the pipeline then calls the controller's own method."""
+
+    class Other(RangeController):
+        pass
+
+    law = HelicalNavigationGuidance(3.0, 1.0, 1.0)
+    arguments = (1.0, np.array([10.0, 0.0, -5.0]), np.zeros(3), np.eye(6), np.zeros(3), np.array([1.0, 0.0, 0.0]),
+                 None, False, VehicleLimits(0.5, max_tilt=0.5, gravity=9.81, mass=1.0).setpoint_terms, True, None)
+    assert law.compiled_tick(Other(8.0), *arguments) is None
+    tick = law.compiled_tick(RangeController(8.0), *arguments)
+    assert tick is not None and tick.setpoint is not None and tick.level is None
 
 
 def test_warm_up_compiles_the_setpoint_kernels():
@@ -645,7 +704,9 @@ def test_warm_up_compiles_the_setpoint_kernels():
                guidance._range_command_kernel, guidance._virtual_control_terms_kernel, guidance._range_error_terms,
                attitude._setpoint_after_into_kernel, guidance._excitation_terms_kernel,
                guidance._excitation_level_kernel, _relative_terms, guidance._tracking_terms_kernel,
-               guidance._tracking_command_kernel, guidance._saturation_slope_kernel)
+               guidance._tracking_command_kernel)
+    # guidance._saturation_slope_kernel is not listed: only other kernels call it, and a kernel called only from
+    # kernels has no signature of its own when its callers load from numba's cache (as in the other warm-up tests)
     for kernel in kernels:
         if _jit.ENABLED:
             assert kernel.signatures, kernel

@@ -14,14 +14,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.core.attitude import _IDENTITY, VehicleLimits, attitude_setpoint_after
+from companion.core.attitude import VehicleLimits, attitude_setpoint_after
 from companion.core.cooperative_guidance import CooperativeContext, SeparationFilter, neighbours_make_range_observable
 from companion.core.estimators import CorrectionReport, InitialGuess, TargetEstimator
 from companion.core._jit import jit, power
 from companion.core.geometry import all_finite, clip_kernel, norm, relative_terms_kernel as _relative_terms
-from companion.core.guidance import (_NO_EXCITATION, HelicalNavigationGuidance, LateralGuidance, RangeController,
-                                     RangeExcitation, _excitation_terms_kernel, _tracking_command_kernel,
-                                     _tracking_terms_kernel, saturation)
+from companion.core.guidance import LateralGuidance, RangeController, RangeExcitation, _excitation_terms_kernel
 from companion.core.health import (
     HealthAction,
     HealthActionConfig,
@@ -505,16 +503,19 @@ class FollowingPipeline:
             self._blend_until = time + self.dropout.blend_time
 
     def _excitation_term(self, time: float, lateral: np.ndarray, relative_position: np.ndarray, los: np.ndarray,
-                         covariance: np.ndarray, excitation: RangeExcitation | None = None) -> np.ndarray:
-        """The lateral command a_lat (m/s^2, (3,)) plus a_X of RangeExcitation at the level set by rho =
-        sigma_r / r^ (geometry.relative_range_std of dp and the covariance's P_pp) and the health verdict
-        (`excitation`, default the configured one): guidance._excitation_terms, one kernel."""
-        excitation = self.excitation if excitation is None else excitation
-        assert excitation is not None and self._engaged_at is not None
-        suspect = self._health_report is not None and self._health_report.state == HealthState.SUSPECT
+                         covariance: np.ndarray, excitation: RangeExcitation) -> np.ndarray:
+        """The lateral command a_lat (m/s^2, (3,)) plus a_X of `excitation` at the level set by rho = sigma_r / r^
+        (geometry.relative_range_std of dp and the covariance's P_pp) and the health verdict:
+        guidance._excitation_terms, one kernel."""
+        assert self._engaged_at is not None
         self.excitation_level, lateral = _excitation_terms_kernel(
-            time - self._engaged_at, lateral, relative_position, covariance, los, suspect, *excitation.kernel_terms)
+            time - self._engaged_at, lateral, relative_position, covariance, los, self._suspect(),
+            *excitation.kernel_terms)
         return lateral
+
+    def _suspect(self) -> bool:
+        """Whether the last health verdict judged the estimate suspect (the excitation's full level)."""
+        return self._health_report is not None and self._health_report.state == HealthState.SUSPECT
 
     def _estimate_at(self, time: float) -> TargetEstimate:
         """The estimator's estimate carried to `time` (s) at constant velocity (TargetEstimate.extrapolated); the
@@ -569,65 +570,56 @@ class FollowingPipeline:
         self.weaving = weaving
         return law
 
+    def _excitation_in_force(self) -> RangeExcitation | None:
+        """The excitation the lateral law gets this tick: the configured one, else the health actions' own while
+        they act and may excite (full while suspect, and never a stop while sigma_r / r^ is high: the action
+        excitation's own low/high thresholds), else None."""
+        if self.excitation is not None:
+            return self.excitation
+        if self.action_excitation is not None and self.health_action is not HealthAction.OFF and self.actions.config.excite:
+            return self.action_excitation
+        return None
+
     def _compute_setpoint(self, time: float, pursuer: PursuerState) -> None:
         assert self._engaged_at is not None
         estimate = self._estimate_at(time)
         neighbours = self._neighbours_at(time)
         law = self._choose_law(time, pursuer, estimate.position, neighbours)
         cooperation = self.cooperation
+        # The command's adjustments this tick, decided before the command (none depends on it). Keep off
+        # min_range: in any mode but tracking, while recovering (the estimate is judged wrong, so its range cannot
+        # be trusted to close on) and under a cooperative law, which does not weave (its range may never have been
+        # observable). Blend: within blend_time of a change of mode or law. Separate: with neighbours heard.
+        keep_off = (self.mode != TrackMode.TRACKING or self.health_action is HealthAction.RECOVERING
+                    or law in ("cooperative", "lone"))
+        blend = self._last_command is not None and time < self._blend_until
+        separate = cooperation is not None and cooperation.separation is not None and bool(neighbours)
         lateral_law = cooperation.steady_guidance if law == "steady" else self.lateral_guidance
-        controller = self.range_controller
-        command = None
-        if (law in ("single", "steady") and self.mode != TrackMode.DEGRADED
-                and type(lateral_law) is HelicalNavigationGuidance and type(controller) is RangeController
-                and (self.los_source == "estimate" or self._last_bearing is None)):
-            # The usual tick (HNG, its excitation, the range controller), the branch below's arithmetic in two
-            # kernels (guidance._tracking_terms and _tracking_command) around the range controller's sigma (numpy's arctan),
-            # with the setpoint when the command needs none of the adjustments that follow (the tracking mode,
-            # not recovering, no blend, no separation filter).
-            excitation = self.excitation
-            if excitation is None and (self.action_excitation is not None and self.health_action is not HealthAction.OFF
-                                       and self.actions.config.excite):
-                excitation = self.action_excitation
-            report = self._health_report
-            suspect = report is not None and report.state == HealthState.SUSPECT
-            desired_range, gain, limit = controller.kernel_terms
-            los = np.empty(3)
-            lateral = np.empty(3)
-            range_estimate, level, distance, range_rate, speed_squared, lateral_work, projection, range_error = (
-                _tracking_terms_kernel(
-                    estimate.position, estimate.velocity, np.asarray(pursuer.position, dtype=float),
-                    np.asarray(pursuer.velocity, dtype=float), time - self._engaged_at, *lateral_law.kernel_terms,
-                    excitation is not None, estimate.covariance, suspect,
-                    *(_NO_EXCITATION if excitation is None else excitation.kernel_terms), desired_range, los,
-                    lateral))
-            if excitation is not None:
-                self.excitation_level = level
-            plain = (self.mode == TrackMode.TRACKING and self.health_action is not HealthAction.RECOVERING
-                     and (self._last_command is None or not time < self._blend_until)
-                     and not (cooperation is not None and cooperation.separation is not None and neighbours))
-            longitudinal = np.empty(3)
-            command = np.empty(3)
-            rotation = np.empty((3, 3))
-            flown = np.empty(3)
-            previous = self._setpoint
-            thrust, thrust_normalized = _tracking_command_kernel(
-                distance, range_rate, speed_squared, lateral_work, projection, range_error,
-                saturation(range_error, limit), gain, limit, los, lateral, longitudinal, command, plain,
-                _IDENTITY if previous is None else previous.rotation, *self.limits.setpoint_terms, rotation, flown)
-            if plain:
-                self._last_command = command
-                self._setpoint = fast_frozen(AttitudeSetpoint, time=time, rotation=rotation,
-                                             thrust_normalized=float(thrust_normalized), thrust=float(thrust),
-                                             acceleration=flown)
-                self._guidance = fast_frozen(GuidanceTerms, lateral=lateral, longitudinal=longitudinal, los=los,
-                                             range_estimate=range_estimate)
-                return
-        if command is None:  # any other law or mode, or a measured line of sight
+        measured_los = self.los_source == "measurement" and self._last_bearing is not None
+        tick = None
+        if law in ("single", "steady") and self.mode != TrackMode.DEGRADED and not measured_los:
+            # The law's compiled form, when its class declares one (a subclass that changes the law does not
+            # inherit its parent's): the same arithmetic as the methods below, and the setpoint with it when
+            # the command needs no adjustment.
+            compiled_tick = type(lateral_law).__dict__.get("compiled_tick")
+            if compiled_tick is not None:
+                previous = self._setpoint
+                tick = compiled_tick(
+                    lateral_law, self.range_controller, time - self._engaged_at, estimate.position,
+                    estimate.velocity, estimate.covariance, np.asarray(pursuer.position, dtype=float),
+                    np.asarray(pursuer.velocity, dtype=float), self._excitation_in_force(),
+                    self._suspect(), self.limits.setpoint_terms,
+                    not (keep_off or blend or separate), None if previous is None else previous.rotation)
+        if tick is not None:
+            range_estimate, los, lateral, longitudinal, command = (tick.range_estimate, tick.los, tick.lateral,
+                                                                   tick.longitudinal, tick.command)
+            if tick.level is not None:
+                self.excitation_level = tick.level
+        else:  # a law without a compiled form, the degraded mode, a cooperative law or a measured line of sight
             relative_position, relative_velocity, range_estimate, los = _relative_terms(
                 estimate.position, estimate.velocity, np.asarray(pursuer.position, dtype=float),
                 np.asarray(pursuer.velocity, dtype=float))
-            if self.los_source == "measurement" and self._last_bearing is not None:
+            if measured_los:
                 los = self._last_bearing
             if self.mode == TrackMode.DEGRADED:
                 # Safe behaviour: no weave; hold safe_range on the predicted line of sight.
@@ -646,35 +638,34 @@ class FollowingPipeline:
                 if getattr(lateral_law, "includes_range_control", False):
                     longitudinal = np.zeros(3)  # a complete law (PD controller): no range-controller term
                 else:
-                    if self.excitation is not None:
-                        lateral = self._excitation_term(time, lateral, relative_position, los, estimate.covariance)
-                    elif (self.action_excitation is not None and self.health_action is not HealthAction.OFF
-                          and self.actions.config.excite):
-                        # Acting without a configured excitation: full while suspect, and never a stop while
-                        # sigma_r / r^ is high (the action excitation's own low/high thresholds).
+                    excitation = self._excitation_in_force()
+                    if excitation is not None:
                         lateral = self._excitation_term(time, lateral, relative_position, los, estimate.covariance,
-                                                        self.action_excitation)
-                    longitudinal = controller.acceleration(relative_position, relative_velocity, los, lateral)
+                                                        excitation)
+                    longitudinal = self.range_controller.acceleration(relative_position, relative_velocity, los,
+                                                                      lateral)
             command = lateral + longitudinal
-        if self.mode != TrackMode.TRACKING or self.health_action is HealthAction.RECOVERING or law in ("cooperative", "lone"):
-            # Also while recovering: the estimate is judged wrong, so its range cannot be trusted to close on;
-            # and under a cooperative law, which does not weave: its range may never have been observable.
+        if keep_off:
             range_std = float(np.sqrt(max(los @ estimate.covariance[:3, :3] @ los, 0.0)))
             closing = float(command @ los)
             if range_estimate - 2.0 * range_std < self.dropout.min_range and closing > 0.0:
                 command = command - closing * los  # never close on an uncertain target below min_range
-        if self._last_command is not None and time < self._blend_until:
+        if blend:
             step_limit = self.dropout.max_jerk * self.control_period
             change = command - self._last_command
             size = norm(change)
             if size > step_limit:
                 command = self._last_command + change * (step_limit / size)
-        if self.cooperation is not None and self.cooperation.separation is not None and neighbours:
+        if separate:
             # Last, so that no mode, law or blend can undo it.
-            command = self.cooperation.separation.filter(pursuer.position, pursuer.velocity, command, neighbours)
+            command = cooperation.separation.filter(pursuer.position, pursuer.velocity, command, neighbours)
         self._last_command = command
-        # heading fallback: the previous setpoint's r1
-        self._setpoint = attitude_setpoint_after(time, command, los, self.limits, self._setpoint)
+        if tick is not None and tick.setpoint is not None:  # the compiled tick's setpoint of this same command
+            rotation, flown, thrust, thrust_normalized = tick.setpoint
+            self._setpoint = fast_frozen(AttitudeSetpoint, time=time, rotation=rotation,
+                                         thrust_normalized=thrust_normalized, thrust=thrust, acceleration=flown)
+        else:  # heading fallback: the previous setpoint's r1
+            self._setpoint = attitude_setpoint_after(time, command, los, self.limits, self._setpoint)
         self._guidance = fast_frozen(GuidanceTerms, lateral=lateral, longitudinal=longitudinal, los=los,
                                      range_estimate=range_estimate)
 
