@@ -406,3 +406,45 @@ def test_in_process_log_and_recorder_columns_hold_the_probabilities(tmp_path):
     header, row = (tmp_path / "series.csv").read_text().splitlines()
     values = dict(zip(header.split(","), row.split(",")))
     assert float(values["model_straight"]) == pytest.approx(0.98) and float(values["model_left"]) == pytest.approx(0.01)
+
+
+@settings(max_examples=200, deadline=None)
+@given(rates=st.lists(st.floats(0.01, 1.0), min_size=1, max_size=2),
+       weights=st.lists(st.floats(0.0, 1.0), min_size=5, max_size=5),
+       velocities=st.lists(st.tuples(*[st.floats(-15.0, 15.0)] * 3), min_size=5, max_size=5))
+def test_acceleration_is_the_probability_weighted_turn_acceleration(rates, weights, velocities):
+    """IMMEstimator.acceleration (the cooperative laws' feed-forward) against the kinematics of a coordinated turn
+    about the NED down axis written independently: each turning model's target accelerates by omega_j e_D x v_j
+    (np.cross), weighted by its probability mu_j; the constant-velocity model adds nothing, and there is no
+    vertical part. Compiled and plain kernel bit for bit."""
+    from bitwise import assert_same
+    from companion.core import _jit, imm as imm_module
+
+    imm = IMMEstimator(PERIOD, standard_models(rates, 0.04, 0.04), SIGMA)
+    imm.initialize_on_bearing(BearingMeasurement(0.0, np.array([1.0, 0.0, 0.0]), np.zeros(3)),
+                              InitialGuess(20.0, 5.0, np.zeros(3), 2.0))
+    count = len(imm.models)
+    probabilities = np.array(weights[:count]) + 1e-3
+    probabilities /= probabilities.sum()
+    imm._set_probabilities(probabilities)
+    for model_filter, velocity in zip(imm.filters, velocities):
+        state = model_filter.state_and_covariance[0].copy()
+        state[3:] = velocity
+        model_filter.set_state(state, model_filter.state_and_covariance[1])
+    expected = np.zeros(3)
+    for mu, model, velocity in zip(probabilities, imm.models, velocities):
+        expected += mu * model.turn_rate * np.cross([0.0, 0.0, 1.0], velocity)
+    acceleration = imm.acceleration
+    assert acceleration.shape == (3,) and acceleration[2] == 0.0
+    np.testing.assert_allclose(acceleration, expected, rtol=1e-12, atol=1e-12)
+    plain = np.zeros(3)
+    _jit.python_function(imm_module._turn_acceleration_into)(imm._probabilities, imm._turn_rates, imm._states, plain)
+    assert_same(acceleration, plain)
+
+
+def test_acceleration_before_the_first_bearing():
+    """A constant-velocity-only IMM has no turn to feed forward (zero, as before a bearing); with turning models the
+    model filters' own RuntimeError says the estimator has not started."""
+    assert np.array_equal(IMMEstimator(PERIOD, [MotionModel("cv", 0.0, 0.04)] * 2, SIGMA).acceleration, np.zeros(3))
+    with pytest.raises(RuntimeError, match="not initialised"):
+        IMMEstimator(PERIOD, standard_models([0.2], 0.04, 0.04), SIGMA).acceleration

@@ -259,4 +259,5 @@ def test_the_parent_compiles_the_kernels_before_starting_workers():
         # the kernels Python calls (a kernel only other kernels call, such as _correct_kernel, gets no signature of
         # its own when its callers come from numba's cache, so it says nothing about what was compiled)
         assert (estimators._correct_into.signatures and estimators._predict_kernel.signatures
-                and imm._imm_correction.signatures and imm._predict_models.signatures)
+                and imm._imm_correction.signatures and imm._predict_models.signatures
+                and imm._turn_acceleration_into.signatures)

@@ -107,6 +107,7 @@ def warm_up() -> None:
                 estimator.correct(BearingMeasurement(estimator.time + lead, np.array([1.0, 0.01 * k, 0.0]),
                                                      np.array([0.0, 0.01 * k, 0.0])))
             estimator.estimate
+        getattr(estimator, "acceleration", None)  # the IMM's turn feed-forward (the cooperative laws')
     limit_range(np.array([2.0e6, 0.0, 0.0]), np.zeros(3))
     _warm_up_baselines()
     _warm_up_setpoint()

@@ -188,6 +188,22 @@ def _combined_estimate(probabilities: np.ndarray, states: np.ndarray, covariance
     return _position_std(covariance)
 
 
+@jit
+def _turn_acceleration_into(probabilities: np.ndarray, turn_rates: np.ndarray, states: np.ndarray,
+                            total: np.ndarray) -> None:
+    """IMMEstimator.acceleration's sum into total (3,) (zeros in): for each model j with omega_j != 0, in model
+    order, total[:2] += (mu_j omega_j) (-v_E,j, v_N,j), J v_h,j of coordinated_turn_matrices; probabilities (n,),
+    turn_rates omega (n,) rad/s, states (n, 6). Each product and sum as numpy's `weight * rate * array` and `+=`
+    took them."""
+    for j in range(turn_rates.shape[0]):
+        rate = turn_rates[j]
+        if rate != 0.0:
+            factor = probabilities[j] * rate
+            east, north = states[j, 4], states[j, 3]
+            total[0] += factor * -east
+            total[1] += factor * north
+
+
 def _target_estimate(time: float, position: np.ndarray, velocity: np.ndarray, covariance: np.ndarray,
                      position_std: float) -> TargetEstimate:
     """TargetEstimate(time, position, velocity, covariance) with its position_std already known (the value its
@@ -665,6 +681,7 @@ class IMMEstimator:
                 raise ValueError("initial_probabilities must be a probability distribution over the models")
         self.initial_probabilities = initial
         rates = np.array([model.turn_rate for model in self.models])
+        self._turn_rates = rates  # omega_j, rad/s (`acceleration`)
         self._motion_masks = (rates == 0.0, rates > 0.0, rates < 0.0)
         self._set_probabilities(initial.copy())  # mu_k after the last correction
         self._weights = initial.copy()  # c_j: weights of the model filters' current states
@@ -724,11 +741,10 @@ class IMMEstimator:
         coordinated-turn acceleration (coordinated_turn_matrices: d/dt v_h = omega J v_h, J = [[0, -1], [1, 0]];
         no vertical part) weighted by its probability. Zero for the constant-velocity model; a feed-forward
         for guidance laws that take one (companion.core.cooperative_guidance)."""
+        if not self._started and self._turn_rates.any():
+            self._require_states()  # a turning model's UPLKF RuntimeError before the first bearing
         total = np.zeros(3)
-        for weight, model, model_filter in zip(self._probabilities, self.models, self.filters):
-            if model.turn_rate != 0.0:
-                velocity = model_filter.state_and_covariance[0][3:5]
-                total[:2] += weight * model.turn_rate * np.array([-velocity[1], velocity[0]])
+        _turn_acceleration_into(self._probabilities, self._turn_rates, self._states, total)
         return total
 
     def _require_states(self) -> None:
