@@ -41,7 +41,7 @@ def test_the_closest_separation_is_the_per_tick_fold(positions):
         positions[1, 1] = positions[1, 0]  # two pursuers at one point
     with np.errstate(over="ignore"):  # huge coordinates: a distance may overflow to inf, in both
         expected = _reference(positions)
-    actual = _closest_separation(positions, np.triu_indices(positions.shape[1], 1))
+        actual = _closest_separation(positions, np.triu_indices(positions.shape[1], 1))
     assert type(actual) is float
     assert math.isnan(actual) if math.isnan(expected) else actual.hex() == expected.hex()
 
