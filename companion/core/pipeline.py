@@ -503,19 +503,14 @@ class FollowingPipeline:
             self._blend_until = time + self.dropout.blend_time
 
     def _excitation_term(self, time: float, lateral: np.ndarray, relative_position: np.ndarray, los: np.ndarray,
-                         covariance: np.ndarray, excitation: RangeExcitation) -> np.ndarray:
+                         covariance: np.ndarray, excitation: RangeExcitation, suspect: bool) -> np.ndarray:
         """The lateral command a_lat (m/s^2, (3,)) plus a_X of `excitation` at the level set by rho = sigma_r / r^
-        (geometry.relative_range_std of dp and the covariance's P_pp) and the health verdict:
-        guidance._excitation_terms, one kernel."""
+        (geometry.relative_range_std of dp and the covariance's P_pp) and the health verdict (`suspect`: the
+        last verdict judged the estimate suspect): guidance._excitation_terms, one kernel."""
         assert self._engaged_at is not None
         self.excitation_level, lateral = _excitation_terms_kernel(
-            time - self._engaged_at, lateral, relative_position, covariance, los, self._suspect(),
-            *excitation.kernel_terms)
+            time - self._engaged_at, lateral, relative_position, covariance, los, suspect, *excitation.kernel_terms)
         return lateral
-
-    def _suspect(self) -> bool:
-        """Whether the last health verdict judged the estimate suspect (the excitation's full level)."""
-        return self._health_report is not None and self._health_report.state == HealthState.SUSPECT
 
     def _estimate_at(self, time: float) -> TargetEstimate:
         """The estimator's estimate carried to `time` (s) at constant velocity (TargetEstimate.extrapolated); the
@@ -597,6 +592,9 @@ class FollowingPipeline:
         lateral_law = cooperation.steady_guidance if law == "steady" else self.lateral_guidance
         measured_los = self.los_source == "measurement" and self._last_bearing is not None
         tick = None
+        report = self._health_report
+        suspect = report is not None and report.state == HealthState.SUSPECT
+        excitation = self._excitation_in_force()
         if law in ("single", "steady") and self.mode != TrackMode.DEGRADED and not measured_los:
             # The law's compiled form, when its class declares one (a subclass that changes the law does not
             # inherit its parent's): the same arithmetic as the methods below, and the setpoint with it when
@@ -607,14 +605,12 @@ class FollowingPipeline:
                 tick = compiled_tick(
                     lateral_law, self.range_controller, time - self._engaged_at, estimate.position,
                     estimate.velocity, estimate.covariance, np.asarray(pursuer.position, dtype=float),
-                    np.asarray(pursuer.velocity, dtype=float), self._excitation_in_force(),
-                    self._suspect(), self.limits.setpoint_terms,
+                    np.asarray(pursuer.velocity, dtype=float), excitation, suspect, self.limits.setpoint_terms,
                     not (keep_off or blend or separate), None if previous is None else previous.rotation)
         if tick is not None:
-            range_estimate, los, lateral, longitudinal, command = (tick.range_estimate, tick.los, tick.lateral,
-                                                                   tick.longitudinal, tick.command)
-            if tick.level is not None:
-                self.excitation_level = tick.level
+            range_estimate, level, los, lateral, longitudinal, command, compiled_setpoint = tick
+            if level is not None:
+                self.excitation_level = level
         else:  # a law without a compiled form, the degraded mode, a cooperative law or a measured line of sight
             relative_position, relative_velocity, range_estimate, los = _relative_terms(
                 estimate.position, estimate.velocity, np.asarray(pursuer.position, dtype=float),
@@ -638,10 +634,9 @@ class FollowingPipeline:
                 if getattr(lateral_law, "includes_range_control", False):
                     longitudinal = np.zeros(3)  # a complete law (PD controller): no range-controller term
                 else:
-                    excitation = self._excitation_in_force()
                     if excitation is not None:
                         lateral = self._excitation_term(time, lateral, relative_position, los, estimate.covariance,
-                                                        excitation)
+                                                        excitation, suspect)
                     longitudinal = self.range_controller.acceleration(relative_position, relative_velocity, los,
                                                                       lateral)
             command = lateral + longitudinal
@@ -660,8 +655,8 @@ class FollowingPipeline:
             # Last, so that no mode, law or blend can undo it.
             command = cooperation.separation.filter(pursuer.position, pursuer.velocity, command, neighbours)
         self._last_command = command
-        if tick is not None and tick.setpoint is not None:  # the compiled tick's setpoint of this same command
-            rotation, flown, thrust, thrust_normalized = tick.setpoint
+        if tick is not None and compiled_setpoint is not None:  # the compiled tick's setpoint of this same command
+            rotation, flown, thrust, thrust_normalized = compiled_setpoint
             self._setpoint = fast_frozen(AttitudeSetpoint, time=time, rotation=rotation,
                                          thrust_normalized=thrust_normalized, thrust=thrust, acceleration=flown)
         else:  # heading fallback: the previous setpoint's r1
