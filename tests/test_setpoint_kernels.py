@@ -692,7 +692,7 @@ def test_the_compiled_tick_needs_exactly_the_range_controller():
                  None, False, VehicleLimits(0.5, max_tilt=0.5, gravity=9.81, mass=1.0).setpoint_terms, True, None)
     assert law.compiled_tick(Other(8.0), *arguments) is None
     tick = law.compiled_tick(RangeController(8.0), *arguments)
-    assert tick is not None and tick.setpoint is not None and tick.level is None
+    assert tick is not None and len(tick) == 7 and tick[6] is not None and tick[1] is None  # a setpoint, no level
 
 
 def test_warm_up_compiles_the_setpoint_kernels():

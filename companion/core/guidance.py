@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import NamedTuple, Protocol
+from typing import Protocol
 
 import numpy as np
 
@@ -18,21 +18,6 @@ from companion.core.geometry import (E_X, clip_kernel, cross, cross_kernel, rela
                                      relative_terms_kernel, rotation_about_y_kernel, rotation_about_z_kernel,
                                      rotation_from_unit_x_axis_to, rotation_from_x_axis_to, unit, unit_kernel)
 from companion.core.messages import once_property
-
-
-class TrackingTick(NamedTuple):
-    """What a law's compiled tick (HelicalNavigationGuidance.compiled_tick) computed: r^ (m); the excitation level
-    s (None when no excitation was flown); lambda, a_lat (a_HN + a_X), a_RC and a_d = a_lat + a_RC (float64
-    (3,), m/s^2); and when asked for, the setpoint's parts of eq. (21)-(22): (R_d (3, 3), the flown a_d (3,),
-    thrust T N, normalised thrust), else None."""
-
-    range_estimate: float
-    level: float | None
-    los: np.ndarray
-    lateral: np.ndarray
-    longitudinal: np.ndarray
-    command: np.ndarray
-    setpoint: tuple[np.ndarray, np.ndarray, float, float] | None
 
 
 class LateralGuidance(Protocol):
@@ -116,7 +101,7 @@ class HelicalNavigationGuidance:
                       target_velocity: np.ndarray, covariance: np.ndarray, position: np.ndarray,
                       velocity: np.ndarray, excitation: RangeExcitation | None, suspect: bool,
                       setpoint_terms: tuple[float, ...], with_setpoint: bool,
-                      previous_rotation: np.ndarray | None) -> TrackingTick | None:
+                      previous_rotation: np.ndarray | None) -> tuple | None:
         """This law's compiled form for the pipeline's control tick: a_d = a_HN (+ a_X) + a_RC, eq. (13), with
         a_HN of eq. (14) (acceleration), the excitation's a_X at its level when `excitation` is given
         (RangeExcitation, on the estimate's covariance (6, 6) and the health verdict `suspect`) and the range
@@ -126,6 +111,11 @@ class HelicalNavigationGuidance:
         limits' setpoint_terms (VehicleLimits.setpoint_terms); previous_rotation: the last R_d (3, 3) for the
         heading fallback, None for none). The same kernels the objects' methods call, in two calls around sigma(xi1) (saturation: numpy's
         arctan): _tracking_terms and _tracking_command.
+
+        Returns (r^ (m), the excitation level s (None when no excitation is flown), lambda, a_lat (a_HN + a_X),
+        a_RC, a_d = a_lat + a_RC (float64 (3,), m/s^2), and when with_setpoint the setpoint's parts of eq. (21)-(22):
+        (R_d (3, 3), the flown a_d (3,), thrust T N, normalised thrust), else None): a plain tuple, which costs
+        less to build than a named one at every control tick.
 
         None when `controller` is not exactly a RangeController: this form computes that controller's
         arithmetic, which a subclass may change. The pipeline takes a law's compiled form only from the class
@@ -149,9 +139,8 @@ class HelicalNavigationGuidance:
             saturation(range_error, limit), gain, limit, los, lateral, longitudinal, command, with_setpoint,
             _IDENTITY if previous_rotation is None else previous_rotation,
             *setpoint_terms, rotation, flown)
-        return TrackingTick(range_estimate, None if excitation is None else level, los, lateral, longitudinal,
-                            command, (rotation, flown, float(thrust), float(thrust_normalized)) if with_setpoint
-                            else None)
+        return (range_estimate, None if excitation is None else level, los, lateral, longitudinal, command,
+                (rotation, flown, float(thrust), float(thrust_normalized)) if with_setpoint else None)
 
 
 def _virtual_los(engaged_time, los, range_estimate, c_z, c_y, weave_frequency, scale_with_range):
