@@ -354,6 +354,22 @@ def test_prior_lines_of_sight(seed, count, lead, behind):
         assert_same(cos_angle, min(max(float(direction @ relative / max(predicted_range, 1e-12)), -1.0), 1.0))
 
 
+def imm_bearing(seed: int, states: np.ndarray, probabilities: np.ndarray, lead: float, late: bool, noise_scale: float):
+    """A bearing for an IMM correction test: (its generator, the pursuer position (3,), a unit direction that is
+    the first model's line of sight plus noise of noise_scale, the lead (0 unless late), the prior lines of sight
+    (model_relative (n, 3), ranges (n,), model_ranges (n,), relative (3,)) as imm._prior_lines_of_sight writes
+    them, the combined prior's range)."""
+    count = states.shape[0]
+    rng = np.random.default_rng(seed)
+    pursuer = rng.normal(size=3)
+    direction = rng.normal(size=3) * noise_scale + states[0, :3] - pursuer
+    direction /= math.sqrt(float(direction @ direction))
+    lead = lead if late else 0.0
+    lines_of_sight = np.empty((count, 3)), np.empty(count), np.empty(count), np.empty(3)
+    predicted_range = imm._prior_lines_of_sight(states, probabilities, lead, pursuer, direction, True, *lines_of_sight)[0]
+    return rng, pursuer, direction, lead, lines_of_sight, predicted_range
+
+
 @settings(max_examples=100, deadline=None)
 @given(seeds, st.sampled_from([3, 5]), st.integers(-2, 4), floats(-0.3, 0.3), st.booleans(), st.sampled_from([0.0, 0.01, 1.0]))
 def test_predict_models_and_whole_imm_correction(seed, count, exponent, lead, late, noise_scale):
@@ -364,14 +380,9 @@ def test_predict_models_and_whole_imm_correction(seed, count, exponent, lead, la
     _, _, compiled_args, python_args = both(imm._predict_models, transitions, noises, factors, factors[::-1].copy(),
                                             states, covariances)
     assert_same(tuple(compiled_args[4:]), tuple(python_args[4:]))
-    rng = np.random.default_rng(seed)
-    pursuer = rng.normal(size=3)
-    direction = rng.normal(size=3) * noise_scale + states[0, :3] - pursuer
-    direction /= math.sqrt(float(direction @ direction))
-    lead = lead if late else 0.0
-    model_relative, ranges, model_ranges, relative = np.empty((count, 3)), np.empty(count), np.empty(count), np.empty(3)
-    predicted_range = imm._prior_lines_of_sight(states, probabilities, lead, pursuer, direction, True, model_relative,
-                                                ranges, model_ranges, relative)[0]
+    rng, pursuer, direction, lead, lines_of_sight, predicted_range = imm_bearing(seed, states, probabilities, lead,
+                                                                               late, noise_scale)
+    model_relative, ranges, model_ranges, relative = lines_of_sight
     references = pursuer + rng.normal(size=(count, 3)) * 0.1
     arguments = (states, covariances, model_relative, ranges, model_ranges, direction, references, True, lead, late,
                  np.array([1e-4 * np.eye(3)] * count), True, 0.01,

@@ -19,7 +19,7 @@ from bitwise import assert_same, seeds
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from paper_reference import floats, unit_vectors
-from test_estimator_kernels import correction_arguments, covariance, imm_inputs
+from test_estimator_kernels import correction_arguments, covariance, imm_bearing, imm_inputs
 
 from companion.core import _jit
 from companion.core import estimators as uplkf
@@ -150,14 +150,9 @@ def test_predict_models_and_imm_correction(seed, count, exponent, lead, late, no
     _, predicted = against_old(imm._predict_models, old._predict_models, transitions, noises, factors,
                                factors[::-1].copy(), states, covariances)
     states, covariances = predicted[4:]
-    rng = np.random.default_rng(seed)
-    pursuer = rng.normal(size=3)
-    direction = rng.normal(size=3) * noise_scale + states[0, :3] - pursuer
-    direction /= math.sqrt(float(direction @ direction))
-    lead = lead if late else 0.0
-    model_relative, ranges, model_ranges, relative = np.empty((count, 3)), np.empty(count), np.empty(count), np.empty(3)
-    predicted_range = imm._prior_lines_of_sight(states, probabilities, lead, pursuer, direction, True, model_relative,
-                                                ranges, model_ranges, relative)[0]
+    rng, pursuer, direction, lead, lines_of_sight, predicted_range = imm_bearing(seed, states, probabilities, lead,
+                                                                               late, noise_scale)
+    model_relative, ranges, model_ranges, relative = lines_of_sight
     references = pursuer + rng.normal(size=(1 if one_reference else count, 3)) * 0.1
     arguments = (states, covariances, model_relative, ranges, model_ranges, direction, references, True, lead, late,
                  np.array([1e-4 * (j + 1) * np.eye(3) for j in range(count)]), True, 0.01,
