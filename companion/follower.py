@@ -97,6 +97,23 @@ class Follower:
             bearings = sorted(bearings + shared, key=lambda b: b.time)
         return self.pipeline.step_all(sample.state.time, sample.state, bearings), bearings
 
+    @property
+    def stops_before_landing(self) -> bool:
+        """In a swarm the mission brakes to a hover with the separation filter (`stop`) before it lands: the
+        autopilot's landing knows nothing of the other pursuers, and one that ends its following a moment before
+        another would otherwise be flown into."""
+        return self.swarm is not None
+
+    async def stop(self, sample: VehicleSample) -> float:
+        """One braking setpoint (FollowingPipeline.stop_setpoint, with the neighbours heard now) to the vehicle;
+        returns the vehicle's speed, m/s."""
+        self.record_state(sample)
+        if self.swarm is not None:
+            neighbours, _ = self.swarm.step_inputs(sample.state.time)
+            self.pipeline.set_neighbours(neighbours)
+        await self.vehicle.send_setpoint(self.pipeline.stop_setpoint(sample.state.time, sample.state))
+        return float(np.linalg.norm(sample.state.velocity))
+
     async def engage(self, output: PipelineOutput) -> None:
         """Start offboard with the first setpoint (PX4 needs the stream before the mode switch)."""
         await self.vehicle.start_offboard(output.setpoint)

@@ -10,7 +10,9 @@
 waiting: for odometry and a first valid target fix. arming, taking_off (to the engage
 altitude), then a settle hover. ready: the pipeline runs on every odometry sample until it
 has a first setpoint; the companion then starts offboard (following) and follows for
-follow_duration of vehicle time. An abort command makes it leave offboard (the autopilot
+follow_duration of vehicle time; in a swarm it then brakes to a hover in offboard with the separation
+filter (still in the following phase, logged as "stopping"/"stopped" events) before the autopilot lands it,
+so that a pursuer that ends its following a moment before another is not flown into. An abort command makes it leave offboard (the autopilot
 holds), hover hold_after_abort and land; an abort before arming ends the mission on the
 ground. Vehicle link loss (no odometry for vehicle_link_timeout) stops all commanding and
 leaves the autopilot's offboard-loss failsafe in charge; when telemetry returns the
@@ -27,6 +29,7 @@ from __future__ import annotations
 
 import asyncio
 import enum
+import math
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
@@ -41,6 +44,10 @@ if TYPE_CHECKING:
 #: The autopilot must show a mode other than offboard this long (vehicle s) before the companion
 #: concludes it took over (heartbeats come at 1 Hz).
 LEFT_OFFBOARD_GRACE = 2.0
+#: A swarm pursuer's braking before it lands (MissionSequencer._stop_in_place) ends below this speed, m/s, or after
+#: this long, s of vehicle time (a 1 s time constant takes 6 m/s to 0.3 m/s in 3 s).
+STOP_SPEED = 0.3
+STOP_TIMEOUT = 6.0
 
 
 class Phase(str, enum.Enum):
@@ -191,6 +198,8 @@ class MissionSequencer:
             start = vehicle.latest.state.time
             await vehicle.wait_for(lambda s: s.state.time > start + self.settings.hold_after_abort, 60.0, "abort hold")
         elif self.phase in (Phase.FOLLOWING, Phase.VEHICLE_LOST):
+            if self.phase is Phase.FOLLOWING and not self.stop_requested and getattr(follower, "stops_before_landing", False):
+                await self._stop_in_place(follower)
             try:
                 await vehicle.stop_offboard()
             except VehicleError as error:
@@ -201,6 +210,24 @@ class MissionSequencer:
         await vehicle.land()
         await self._wait_until(lambda: vehicle.armed is False, 120.0, "disarm after landing")
         self.set_phase(Phase.DONE)
+
+    async def _stop_in_place(self, follower: "Follower") -> None:
+        """After the duration is flown, in a swarm: brake to a hover in offboard, with the separation filter (the
+        follower's `stop`), until slower than STOP_SPEED m/s or STOP_TIMEOUT s of vehicle time, then the autopilot
+        lands it. A lost vehicle link ends the braking (the landing that follows is the autopilot's)."""
+        vehicle = self.vehicle
+        start = vehicle.latest.state.time
+        self.log.event(start, "stopping", "braking to a hover with the separation filter before landing")
+        speed, now = math.inf, start
+        while speed >= STOP_SPEED and now - start <= STOP_TIMEOUT:
+            try:
+                sample = await vehicle.next_sample(self.settings.vehicle_link_timeout)
+            except VehicleError as error:
+                self.log.event(now, "vehicle_link", f"braking: {error}")
+                return
+            now = sample.state.time
+            speed = await follower.stop(sample)
+        self.log.event(now, "stopped", f"{speed:.2f} m/s after {now - start:.2f} s", speed=round(speed, 3))
 
     async def _retry(self, what: str, action: Callable[[], Awaitable[None]], attempts: int, pause: float) -> None:
         for attempt in range(attempts):

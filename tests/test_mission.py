@@ -5,6 +5,7 @@ vehicle produces odometry on demand at 50 Hz of vehicle time and records every c
 from __future__ import annotations
 
 import asyncio
+import math
 from dataclasses import dataclass, field
 from types import SimpleNamespace
 
@@ -283,3 +284,59 @@ def test_a_stop_while_following_is_an_abort_and_an_earlier_abort_survives_a_stop
     sequencer.request_abort()
     sequencer.request_stop()
     assert sequencer.abort_requested and sequencer.stop_requested
+
+
+class SwarmFollower(FakeFollower):
+    """A swarm pursuer's follower: brakes before landing; its speed halves at every braking setpoint from 6 m/s."""
+
+    stops_before_landing = True
+
+    def __init__(self, vehicle: FakeVehicle) -> None:
+        super().__init__(vehicle)
+        self.speed = 6.0
+        self.stops = []
+
+    async def stop(self, sample) -> float:
+        await self.vehicle.send_setpoint(None)
+        self.stops.append(sample.state.time)
+        self.speed /= 2.0
+        return self.speed
+
+
+def test_a_swarm_pursuer_brakes_to_a_hover_before_the_autopilot_lands_it():
+    """After the duration, a swarm pursuer stays in offboard and sends braking setpoints (the follower's stop: the
+    separation filter with its neighbours) until slower than STOP_SPEED, then leaves offboard and lands; the
+    phases are those of any mission, the braking is in the log."""
+    from companion.mission import STOP_SPEED
+
+    vehicle = FakeVehicle()
+    config = CompanionConfig(settle_time=0.5, hold_after_abort=3.0)
+    sequencer = MissionSequencer(config, follow_duration=10.0, link_up=lambda: True, link_name="bof/target/t",
+                                 log=Events(), echo=lambda line: None)
+    follower = SwarmFollower(vehicle)
+    asyncio.run(sequencer.run(vehicle, follower))
+    _assert_consistent(sequencer)
+    assert _phases(sequencer) == [Phase.ARMING, Phase.TAKING_OFF, Phase.READY, Phase.FOLLOWING, Phase.LANDING, Phase.DONE]
+    assert len(follower.stops) == math.ceil(math.log2(6.0 / STOP_SPEED))  # halving from 6 m/s to below 0.3 m/s
+    kinds = [what for _, what in vehicle.commands]
+    assert kinds[-2:] == ["stop_offboard", "land"] and kinds[-2 - len(follower.stops):-2] == ["setpoint"] * len(follower.stops)
+    assert min(follower.stops) >= sequencer.engaged_at + 10.0  # braking after the duration was flown
+    assert [kind for _, kind, _ in sequencer.log.records if kind in ("stopping", "stopped")] == ["stopping", "stopped"]
+
+
+def test_a_swarm_pursuer_gives_up_braking_after_the_timeout():
+    """A follower that never gets slow enough brakes for STOP_TIMEOUT s of vehicle time, then lands anyway."""
+    from companion.mission import STOP_TIMEOUT
+
+    class NeverSlow(SwarmFollower):
+        async def stop(self, sample) -> float:
+            await super().stop(sample)
+            return 6.0
+
+    vehicle = FakeVehicle()
+    sequencer = MissionSequencer(CompanionConfig(settle_time=0.5), follow_duration=10.0, link_up=lambda: True,
+                                 link_name="bof/target/t", log=Events(), echo=lambda line: None)
+    follower = NeverSlow(vehicle)
+    asyncio.run(sequencer.run(vehicle, follower))
+    assert _phases(sequencer)[-2:] == [Phase.LANDING, Phase.DONE]
+    assert follower.stops[-1] - follower.stops[0] == pytest.approx(STOP_TIMEOUT, abs=2 * DT)

@@ -151,3 +151,50 @@ def test_a_pursuer_that_hears_nobody_flies_the_cooperative_law_on_its_own_layer(
     pipeline.set_neighbours([_neighbour_at(120.0)])
     pipeline.step(0.10, PursuerState(0.10, OWN.position, OWN.velocity))
     assert pipeline.law_changes[-1] == (0.10, "cooperative") and pipeline.cooperating
+
+
+def _brake(pipeline: FollowingPipeline, neighbour: NeighbourState | None, duration: float = 6.0, dt: float = 0.02):
+    """Fly stop_setpoint's flown acceleration on a point mass (semi-implicit Euler at dt s) from 6 m/s north at
+    10 m height: the own positions and speeds over `duration` s (the neighbour, if any, hovers where it is)."""
+    position, velocity = np.array([0.0, 0.0, -10.0]), np.array([6.0, 0.0, 0.0])
+    positions, speeds = [position.copy()], [6.0]
+    for k in range(int(round(duration / dt))):
+        time = k * dt
+        pipeline.set_neighbours(() if neighbour is None else (NeighbourState(neighbour.ident, time, neighbour.position,
+                                                                             neighbour.velocity),))
+        setpoint = pipeline.stop_setpoint(time, PursuerState(time, position.copy(), velocity.copy()))
+        assert np.all(np.isfinite(setpoint.rotation)) and 0.0 < setpoint.thrust_normalized <= 1.0
+        velocity = velocity + dt * setpoint.acceleration
+        position = position + dt * velocity
+        positions.append(position.copy())
+        speeds.append(float(np.linalg.norm(velocity)))
+    return np.array(positions), np.array(speeds)
+
+
+def test_stop_setpoint_brakes_with_a_one_second_time_constant():
+    """Without neighbours the stop is a_d = -k v (k = 1/s): on the Euler-stepped point mass the speed is the closed
+    form v0 (1 - k dt)^n, and the pursuer comes to rest after v0 (1 - k dt) (1 - (1 - k dt)^n) / k (about v0 / k =
+    6 m) straight on, at its height."""
+    from companion.core.pipeline import STOP_GAIN
+
+    positions, speeds = _brake(_pipeline(None), None)
+    decay = 1.0 - STOP_GAIN * 0.02
+    steps = np.arange(len(speeds))
+    np.testing.assert_allclose(speeds, 6.0 * decay**steps, rtol=1e-9)
+    assert positions[-1][0] == pytest.approx(6.0 * decay * (1.0 - decay ** steps[-1]) / STOP_GAIN, rel=1e-9)
+    assert positions[-1][0] == pytest.approx(6.0 / STOP_GAIN, abs=0.15)
+    assert np.max(np.abs(positions[:, 1:] - positions[0, 1:])) < 1e-9
+
+
+def test_stop_setpoint_does_not_brake_into_a_neighbour():
+    """A swarm's end of following: a pursuer braking from 6 m/s toward a pursuer hovering 7.5 m ahead (0.3 m off
+    its line) would stop 1.7 m from it on the plain stop (it needs about 6 m); with the separation filter
+    (min_separation 2 m; the other not avoiding, so not reciprocal) it never comes within min_separation and still
+    comes to rest."""
+    neighbour = NeighbourState(2, 0.0, np.array([7.5, 0.3, -10.0]), np.zeros(3))
+    separation = SeparationFilter(min_separation=2.0, braking_acceleration=4.0, reciprocal=False)
+    plain, _ = _brake(_pipeline(Cooperation()), neighbour)
+    assert np.min(np.linalg.norm(plain - neighbour.position, axis=1)) < separation.min_separation
+    positions, speeds = _brake(_pipeline(Cooperation(separation=separation)), neighbour)
+    assert np.min(np.linalg.norm(positions - neighbour.position, axis=1)) > separation.min_separation
+    assert speeds[-1] < 0.3

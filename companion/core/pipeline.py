@@ -18,7 +18,7 @@ from companion.core.attitude import VehicleLimits, attitude_setpoint_after
 from companion.core.cooperative_guidance import CooperativeContext, SeparationFilter, neighbours_make_range_observable
 from companion.core.estimators import CorrectionReport, InitialGuess, TargetEstimator
 from companion.core._jit import jit, power
-from companion.core.geometry import all_finite, clip_kernel, norm, relative_terms_kernel as _relative_terms
+from companion.core.geometry import E_X, all_finite, clip_kernel, norm, relative_terms_kernel as _relative_terms
 from companion.core.guidance import LateralGuidance, RangeController, RangeExcitation, _excitation_terms_kernel
 from companion.core.health import (
     HealthAction,
@@ -40,6 +40,9 @@ from companion.core.messages import (
 from companion.core.observability import WindowedObservability
 
 _TIME_EPS = 1e-9
+
+#: k of FollowingPipeline.stop_setpoint's a_d = -k v, 1/s: the pursuer's velocity decays with a 1 s time constant.
+STOP_GAIN = 1.0
 
 
 class TrackMode(str, enum.Enum):
@@ -292,6 +295,24 @@ class FollowingPipeline:
         setpoints are computed with; () when none is fresh (single-pursuer following). Each is carried to the
         control time at its own velocity before the laws and the separation filter see it."""
         self._neighbours = tuple(neighbours)
+
+    def stop_setpoint(self, time: float, pursuer: PursuerState) -> AttitudeSetpoint:
+        """The setpoint that stops the pursuer where it is, once it has followed (a swarm's end of following, before
+        the autopilot lands it: companion.mission): a_d = -k v (k = STOP_GAIN, 1/s; no estimate, no guidance law),
+        through the separation filter with the neighbours heard (so that no pursuer brakes into another that has
+        stopped or still follows), then eq. (21)-(22) with the last setpoint's heading. time: s; pursuer: its
+        state (m, m/s, NED). The setpoint becomes the pipeline's last one."""
+        velocity = np.asarray(pursuer.velocity, dtype=float)
+        command = -STOP_GAIN * velocity
+        separation = None if self.cooperation is None else self.cooperation.separation
+        neighbours = self._neighbours_at(time)
+        if separation is not None and neighbours:
+            command = separation.filter(pursuer.position, velocity, command, neighbours)
+        previous = self._setpoint
+        heading = E_X if previous is None else np.ascontiguousarray(previous.rotation[:, 0])
+        self._last_command = command
+        self._setpoint = attitude_setpoint_after(time, command, heading, self.limits, previous)
+        return self._setpoint
 
     def _neighbours_at(self, time: float) -> tuple:
         """The neighbours extrapolated to `time` (s) at constant velocity (their shares are late by the link's
