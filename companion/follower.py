@@ -109,8 +109,7 @@ class Follower:
         returns the vehicle's speed, m/s."""
         self.record_state(sample)
         if self.swarm is not None:
-            neighbours, _ = self.swarm.step_inputs(sample.state.time)
-            self.pipeline.set_neighbours(neighbours)
+            self.pipeline.set_neighbours(self.swarm.neighbours_at(sample.state.time))
         await self.vehicle.send_setpoint(self.pipeline.stop_setpoint(sample.state.time, sample.state))
         return float(np.linalg.norm(sample.state.velocity))
 

@@ -299,6 +299,15 @@ class SwarmLink:
             self._log.tick(time.monotonic())
         return fresh, bearings
 
+    def neighbours_at(self, now: float) -> tuple[NeighbourState, ...]:
+        """At vehicle time `now` (s), once the pursuer no longer estimates (its braking before landing): apply the
+        shares whose delivery time has come and return the fresh neighbours, as step_inputs does, but take no
+        bearing from them: none is counted as used, and none is kept from now on."""
+        self._collecting = False
+        self._inbox.clear()
+        self._release(now)
+        return tuple(n for n in self.neighbours.values() if now - n.time <= self.timeout)
+
     def summary(self) -> dict:
         """The share link's figures for the companion's summary.json."""
         return {"pursuer": self.ident, "pursuers": self.count, "epoch": self.epoch, "shares_sent": self.sent,

@@ -107,6 +107,22 @@ def test_a_neighbours_share_gives_a_neighbour_and_its_bearing_at_its_own_stamp()
     assert swarm.step_inputs(10.0 + timeout + 0.01)[0] == ()
 
 
+def test_after_following_the_neighbours_come_without_their_bearings():
+    """neighbours_at (the braking before landing): the fresh neighbours as step_inputs gives them, but no bearing is
+    taken, counted as used or kept, also from shares that arrive later."""
+    swarm, clock, _ = _link(ident=1)
+    swarm.step_inputs(9.8)  # the follower runs
+    bearing = link.SharedBearing(9.9, (0.0, 1.0, 0.0), (19.0, 0.0, -20.0))
+    swarm.on_share(_share(sender=2, stamp=10.0, bearing=bearing))
+    neighbours = swarm.neighbours_at(10.0)
+    assert [(n.ident, n.time) for n in neighbours] == [(2, 10.0)]
+    np.testing.assert_array_equal(neighbours[0].position, [20.0, 0.0, -20.0])
+    swarm.on_share(_share(sender=2, seq=1, stamp=10.2, bearing=link.SharedBearing(10.1, (0.0, 1.0, 0.0), (19.0, 0.0, -20.0))))
+    assert [(n.ident, n.time) for n in swarm.neighbours_at(10.2)] == [(2, 10.2)]
+    assert swarm.neighbour_bearings_used == 0 and len(swarm._inbox) == 0
+    assert swarm.neighbours_at(10.2 + SCENARIO.swarm.neighbour_timeout_s + 0.01) == ()
+
+
 def test_a_fresh_share_carrying_a_bearing_older_than_the_age_limit_gives_the_state_but_not_the_bearing():
     swarm, _, _ = _link(ident=1, clock=Clock(20.0))
     swarm.step_inputs(19.8)
