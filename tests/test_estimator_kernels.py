@@ -157,13 +157,20 @@ def test_joseph_update(seed, exponent, direction, lead, at_tick):
 # --- the u-PLKF's update ---------------------------------------------------------------------------
 
 
-@settings(max_examples=150, deadline=None)
-@given(seeds, st.integers(-3, 6), floats(-0.5, 0.5), st.sampled_from([1.0, 1.7]), st.sampled_from([1.0, 4.0]))
-def test_predict(seed, exponent, turn_rate, scale, boost):
+def predict_inputs(seed: int, exponent: int, turn_rate: float):
+    """A u-PLKF time update's inputs: the coordinated-turn A (6, 6) over 0.02 s, B Q B^T for Q = 0.04 I, a state (6,)
+    of tens of metres and a covariance of scale 10^exponent (6, 6)."""
     a, b = uplkf.coordinated_turn_matrices(0.02, turn_rate)
     noise = b @ (0.04 * np.eye(3)) @ b.T
     state = np.random.default_rng(seed).normal(size=6) * 30.0
-    _, _, compiled_args, python_args = both(uplkf._predict_kernel, a, noise, scale, boost, state, covariance(seed, 6, exponent))
+    return a, noise, state, covariance(seed, 6, exponent)
+
+
+@settings(max_examples=150, deadline=None)
+@given(seeds, st.integers(-3, 6), floats(-0.5, 0.5), st.sampled_from([1.0, 1.7]), st.sampled_from([1.0, 4.0]))
+def test_predict(seed, exponent, turn_rate, scale, boost):
+    a, noise, state, p = predict_inputs(seed, exponent, turn_rate)
+    _, _, compiled_args, python_args = both(uplkf._predict_kernel, a, noise, scale, boost, state, p)
     assert_same(tuple(compiled_args[4:]), tuple(python_args[4:]))
 
 

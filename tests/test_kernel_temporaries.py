@@ -19,7 +19,7 @@ from bitwise import assert_same, seeds
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from paper_reference import floats, unit_vectors
-from test_estimator_kernels import correction_arguments, covariance, imm_bearing, imm_inputs
+from test_estimator_kernels import correction_arguments, covariance, imm_bearing, imm_inputs, predict_inputs
 
 from companion.core import _jit
 from companion.core import estimators as uplkf
@@ -117,10 +117,8 @@ def test_pseudo_inverse_and_psd_test(seed, exponent, direction, spread):
 @settings(max_examples=150, deadline=None)
 @given(seeds, st.integers(-3, 6), floats(-0.5, 0.5), st.sampled_from([1.0, 1.7]), st.sampled_from([1.0, 4.0]))
 def test_predict(seed, exponent, turn_rate, scale, boost):
-    a, b = uplkf.coordinated_turn_matrices(0.02, turn_rate)
-    noise = b @ (0.04 * np.eye(3)) @ b.T
-    state = np.random.default_rng(seed).normal(size=6) * 30.0
-    against_old(uplkf._predict_kernel, old._predict_kernel, a, noise, scale, boost, state, covariance(seed, 6, exponent))
+    a, noise, state, p = predict_inputs(seed, exponent, turn_rate)
+    against_old(uplkf._predict_kernel, old._predict_kernel, a, noise, scale, boost, state, p)
 
 
 @settings(max_examples=300, deadline=None)
