@@ -214,12 +214,12 @@ class MissionSequencer:
     async def _stop_in_place(self, follower: "Follower") -> None:
         """After the duration is flown, in a swarm: brake to a hover in offboard, with the separation filter (the
         follower's `stop`), until slower than STOP_SPEED m/s or STOP_TIMEOUT s of vehicle time, then the autopilot
-        lands it. A lost vehicle link ends the braking (the landing that follows is the autopilot's)."""
+        lands it. A lost vehicle link, an abort or a stop ends the braking (what follows is the autopilot's)."""
         vehicle = self.vehicle
         start = vehicle.latest.state.time
         self.log.event(start, "stopping", "braking to a hover with the separation filter before landing")
         speed, now = math.inf, start
-        while speed >= STOP_SPEED and now - start <= STOP_TIMEOUT:
+        while speed >= STOP_SPEED and now - start <= STOP_TIMEOUT and not (self.abort_requested or self.stop_requested):
             try:
                 sample = await vehicle.next_sample(self.settings.vehicle_link_timeout)
             except VehicleError as error:

@@ -291,7 +291,7 @@ class SwarmLink:
         the pipeline (each once)."""
         self._collecting = True
         self._release(now)
-        fresh = tuple(n for n in self.neighbours.values() if now - n.time <= self.timeout)
+        fresh = self._fresh(now)
         bearings = list(self._inbox)
         self._inbox.clear()
         self.neighbour_bearings_used += len(bearings)
@@ -306,6 +306,10 @@ class SwarmLink:
         self._collecting = False
         self._inbox.clear()
         self._release(now)
+        return self._fresh(now)
+
+    def _fresh(self, now: float) -> tuple[NeighbourState, ...]:
+        """The neighbours heard within neighbour_timeout_s of vehicle time `now` (s), by their stamps."""
         return tuple(n for n in self.neighbours.values() if now - n.time <= self.timeout)
 
     def summary(self) -> dict:

@@ -340,3 +340,22 @@ def test_a_swarm_pursuer_gives_up_braking_after_the_timeout():
     asyncio.run(sequencer.run(vehicle, follower))
     assert _phases(sequencer)[-2:] == [Phase.LANDING, Phase.DONE]
     assert follower.stops[-1] - follower.stops[0] == pytest.approx(STOP_TIMEOUT, abs=2 * DT)
+
+
+def test_an_abort_while_braking_ends_the_braking():
+    """An abort command during the braking before landing leaves offboard at the next sample (the autopilot holds
+    and lands), as an abort does in any other phase."""
+    class AbortedWhileBraking(SwarmFollower):
+        async def stop(self, sample) -> float:
+            await super().stop(sample)
+            sequencer.request_abort()
+            return 6.0
+
+    vehicle = FakeVehicle()
+    sequencer = MissionSequencer(CompanionConfig(settle_time=0.5), follow_duration=10.0, link_up=lambda: True,
+                                 link_name="bof/target/t", log=Events(), echo=lambda line: None)
+    follower = AbortedWhileBraking(vehicle)
+    asyncio.run(sequencer.run(vehicle, follower))
+    assert len(follower.stops) == 1
+    assert [what for _, what in vehicle.commands][-2:] == ["stop_offboard", "land"]
+    assert _phases(sequencer)[-2:] == [Phase.LANDING, Phase.DONE]
