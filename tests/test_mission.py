@@ -303,18 +303,25 @@ class SwarmFollower(FakeFollower):
         return self.speed
 
 
+def _fly_swarm(follower_class) -> tuple[MissionSequencer, FakeVehicle, SwarmFollower]:
+    """A nominal mission (10 s of following) with a swarm pursuer's follower of `follower_class`; the vehicle
+    knows its sequencer (vehicle.sequencer), for followers that command it."""
+    vehicle = FakeVehicle()
+    sequencer = MissionSequencer(CompanionConfig(settle_time=0.5, hold_after_abort=3.0), follow_duration=10.0,
+                                 link_up=lambda: True, link_name="bof/target/t", log=Events(), echo=lambda line: None)
+    vehicle.sequencer = sequencer
+    follower = follower_class(vehicle)
+    asyncio.run(sequencer.run(vehicle, follower))
+    return sequencer, vehicle, follower
+
+
 def test_a_swarm_pursuer_brakes_to_a_hover_before_the_autopilot_lands_it():
     """After the duration, a swarm pursuer stays in offboard and sends braking setpoints (the follower's stop: the
     separation filter with its neighbours) until slower than STOP_SPEED, then leaves offboard and lands; the
     phases are those of any mission, the braking is in the log."""
     from companion.mission import STOP_SPEED
 
-    vehicle = FakeVehicle()
-    config = CompanionConfig(settle_time=0.5, hold_after_abort=3.0)
-    sequencer = MissionSequencer(config, follow_duration=10.0, link_up=lambda: True, link_name="bof/target/t",
-                                 log=Events(), echo=lambda line: None)
-    follower = SwarmFollower(vehicle)
-    asyncio.run(sequencer.run(vehicle, follower))
+    sequencer, vehicle, follower = _fly_swarm(SwarmFollower)
     _assert_consistent(sequencer)
     assert _phases(sequencer) == [Phase.ARMING, Phase.TAKING_OFF, Phase.READY, Phase.FOLLOWING, Phase.LANDING, Phase.DONE]
     assert len(follower.stops) == math.ceil(math.log2(6.0 / STOP_SPEED))  # halving from 6 m/s to below 0.3 m/s
@@ -333,11 +340,7 @@ def test_a_swarm_pursuer_gives_up_braking_after_the_timeout():
             await super().stop(sample)
             return 6.0
 
-    vehicle = FakeVehicle()
-    sequencer = MissionSequencer(CompanionConfig(settle_time=0.5), follow_duration=10.0, link_up=lambda: True,
-                                 link_name="bof/target/t", log=Events(), echo=lambda line: None)
-    follower = NeverSlow(vehicle)
-    asyncio.run(sequencer.run(vehicle, follower))
+    sequencer, _, follower = _fly_swarm(NeverSlow)
     assert _phases(sequencer)[-2:] == [Phase.LANDING, Phase.DONE]
     assert follower.stops[-1] - follower.stops[0] == pytest.approx(STOP_TIMEOUT, abs=2 * DT)
 
@@ -348,14 +351,10 @@ def test_an_abort_while_braking_ends_the_braking():
     class AbortedWhileBraking(SwarmFollower):
         async def stop(self, sample) -> float:
             await super().stop(sample)
-            sequencer.request_abort()
+            self.vehicle.sequencer.request_abort()
             return 6.0
 
-    vehicle = FakeVehicle()
-    sequencer = MissionSequencer(CompanionConfig(settle_time=0.5), follow_duration=10.0, link_up=lambda: True,
-                                 link_name="bof/target/t", log=Events(), echo=lambda line: None)
-    follower = AbortedWhileBraking(vehicle)
-    asyncio.run(sequencer.run(vehicle, follower))
+    sequencer, vehicle, follower = _fly_swarm(AbortedWhileBraking)
     assert len(follower.stops) == 1
     assert [what for _, what in vehicle.commands][-2:] == ["stop_offboard", "land"]
     assert _phases(sequencer)[-2:] == [Phase.LANDING, Phase.DONE]
