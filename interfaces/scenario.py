@@ -484,10 +484,18 @@ class GuidanceConfig(_Strict):
         return self
 
 
+#: The longest flight a scenario may ask for, s: a day. Longer is a typo for a multirotor, and an in-process flight
+#: holds its whole log in memory (about 2 GB for a day at the default rates: 60 rows a second of 46 floats).
+MAX_DURATION_S = 86_400.0
+#: The fastest physics step a scenario may ask for, Hz: 20x the paper's 500 Hz. Faster would only make the plant
+#: crawl (a 60 s flight at 1 GHz is 6e10 RK4 steps) without a visible change in a 2 ms-scale rigid body.
+MAX_PHYSICS_RATE_HZ = 10_000.0
+
+
 class SimulationConfig(_Strict):
-    duration: Positive = 60.0
+    duration: Annotated[float, Field(gt=0.0, le=MAX_DURATION_S)] = 60.0
     seed: Annotated[int, Field(ge=0)] = 0
-    physics_rate_hz: Annotated[float, Field(ge=500.0)] = 500.0
+    physics_rate_hz: Annotated[float, Field(ge=500.0, le=MAX_PHYSICS_RATE_HZ)] = 500.0
     summary_window: Positive = 20.0
     converged_range_error: Positive = 1.0
 

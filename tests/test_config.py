@@ -54,6 +54,8 @@ def test_paper_constant_velocity_values(scenario_path):
         ("initial_velocity = [3.0, 4.0, 0.0]", "initial_velocity = [3.0, 4.0]", "target.initial_velocity"),
         ("noise_std = 0.01", 'noise_std = "small"', "sensor.noise_std"),
         ("[simulation]", "[simulation]\nbogus = 1", "simulation.bogus"),
+        ("duration = 60.0", "duration = 86400.5", "simulation.duration"),
+        ("physics_rate_hz = 500.0", "physics_rate_hz = 1e9", "simulation.physics_rate_hz"),
     ],
 )
 def test_bad_values_are_rejected_naming_the_key(tmp_path, old, new, key):
