@@ -2,6 +2,7 @@
 
     companion --config config/scenarios/constant_velocity.toml [--mavlink udpin://127.0.0.1:14540]
               [--zenoh-connect tcp/127.0.0.1:7447] [--log-dir runs/companion]
+    companion --precompile      # once after installing with numba: fill the kernel cache, open nothing
 
 As in the paper's flight experiment (section IX-A, Fig. 16), the target's position
 arrives over a radio link (Zenoh here, Zigbee there), the bearing is rebuilt on board
@@ -39,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from companion.core._jit import warm_up as warm_up_kernels
+from companion.core._jit import ENABLED as kernels_compiled, warm_up as warm_up_kernels
 from companion.adapters.mavsdk_vehicle import MavsdkVehicle, VehicleError
 from companion.adapters.recorder import RunRecorder, TlogWriter
 from companion.assembly import build_pipeline, build_sensor, pursuer_scenario
@@ -360,11 +361,39 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         help=f"which pursuer of a [swarm] scenario this companion flies, 1..{MAX_PURSUERS} (its start, its "
                              "share key bof/swarm/K/share, companion id <companion_id>-K); 1 without [swarm] "
                              "(default: %(default)s)")
+    parser.add_argument("--precompile", action="store_true",
+                        help="compile the estimator and setpoint kernels into numba's cache (or load them), say where and "
+                             "how long it took, and exit without opening any link: run it once on the onboard computer "
+                             "after installing, so that the first start before a flight does not wait for the compiler")
     return parser.parse_args(argv)
+
+
+def precompile() -> int:
+    """`companion --precompile`: compile (or load) the kernels now, print the time and numba's cache folder; 0."""
+    if not kernels_compiled:
+        print("companion: numba is not installed (or BOF_NO_JIT is set): the kernels run as plain Python, "
+              "nothing to compile", flush=True)
+        return 0
+    started = time.perf_counter()
+    warm_up_kernels()
+    print(f"companion: kernels ready in {time.perf_counter() - started:.1f} s (numba), cached in {kernel_cache_folder()}",
+          flush=True)
+    return 0
+
+
+def kernel_cache_folder() -> str:
+    """Where numba keeps the compiled kernels: NUMBA_CACHE_DIR when set, else beside the sources (__pycache__), or
+    the user's cache folder when the install is read-only. Read from one kernel's cache (numba's own choice)."""
+    from companion.core.estimators import _correct_kernel
+
+    cache = getattr(_correct_kernel, "_cache", None)
+    return str(getattr(cache, "_cache_path", None) or "numba's default cache folder")
 
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
+    if args.precompile:
+        return precompile()
     try:
         scenario, vehicle_config = load_scenario(args.config)
     except ConfigError as error:
@@ -396,7 +425,11 @@ def main(argv: list[str] | None = None) -> int:
     # Compile (or load from numba's cache) the estimator kernels before any link is open. Done later, inside the
     # event loop (build_estimator), it blocked odometry and fixes for the load time (0.3 s; ~30 s on an empty cache)
     # and the fixes queued meanwhile were refused as future-stamped against the stalled vehicle clock.
+    started = time.perf_counter()
     warm_up_kernels()
+    if kernels_compiled:
+        print(f"companion: kernels ready in {time.perf_counter() - started:.1f} s (numba; `companion --precompile` "
+              "fills the cache ahead of a flight)", flush=True)
     app = CompanionApp(scenario, vehicle_config, log_dir, args.mavlink, args.zenoh_connect, args.zenoh_listen, args.seed,
                        zenoh_tls=zenoh_tls, zenoh_namespace=args.zenoh_namespace, pursuer_id=args.pursuer_id)
 
