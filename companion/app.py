@@ -384,9 +384,9 @@ def precompile() -> int:
 def kernel_cache_folder() -> str:
     """Where numba keeps the compiled kernels: NUMBA_CACHE_DIR when set, else beside the sources (__pycache__), or
     the user's cache folder when the install is read-only. Read from one kernel's cache (numba's own choice)."""
-    from companion.core.estimators import _correct_kernel
+    from companion.core.estimators import _correct_into
 
-    cache = getattr(_correct_kernel, "_cache", None)
+    cache = getattr(_correct_into, "_cache", None)
     return str(getattr(cache, "_cache_path", None) or "numba's default cache folder")
 
 

@@ -58,7 +58,7 @@ from interfaces.records import CsvLog
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, VehicleConfig, load_scenario
 from studies.closed_loop import Termination, simulate
 from studies import reporting
-from studies.executors import make_executor
+from studies.executors import check_executor, make_executor
 from studies.metrics import write_summary
 from interfaces.cli import scenario_file
 
@@ -496,6 +496,7 @@ def main(argv: list[str] | None = None) -> int:
         print("bof-campaign: --seeds and --workers must be >= 1", file=sys.stderr)
         return 2
     try:
+        check_executor(args.executor, args.workers)
         scenario, vehicle = load_scenario(args.config)
         tasks = [(name, seed, with_faults(scenario, PATTERNS[name][0]), vehicle)
                  for name in args.patterns for seed in range(1, args.seeds + 1)]
@@ -522,6 +523,7 @@ def main(argv: list[str] | None = None) -> int:
             throughput.add(row["flown_s"])
             bar.update()
     finally:
+        throughput.executor = executor.name  # after map: a local pool starts no more processes than tasks
         throughput.stop()
         bar.close()
         executor.close()

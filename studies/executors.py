@@ -61,17 +61,42 @@ def compile_kernels() -> float:
     return time.perf_counter() - started
 
 
+#: Local worker processes per core at most: flights are CPU-bound, so more only wait, and each one holds its own
+#: interpreter, numpy and kernels (a typo such as --workers 10000 would fork ten thousand of them).
+WORKERS_PER_CORE = 4
+
+
+def local_workers(workers: int | None) -> int:
+    """The local worker processes to start: `workers`, default one per core; ValueError below 1 or above
+    WORKERS_PER_CORE per core of this machine (at least WORKERS_PER_CORE)."""
+    cores = os.cpu_count() or 1
+    if workers is None:
+        return cores
+    limit = WORKERS_PER_CORE * cores
+    if not 1 <= workers <= limit:
+        raise ValueError(f"{workers} local workers: use 1 to {limit} on this machine ({cores} cores, at most "
+                         f"{WORKERS_PER_CORE} per core; flights are CPU-bound, so more processes only wait)")
+    return workers
+
+
 class ProcessExecutor:
     """A pool of worker processes on this machine (concurrent.futures). The parent compiles the kernels first
-    (`compile_kernels`), so the workers share numba's cache rather than all compiling at once."""
+    (`compile_kernels`), so the workers share numba's cache rather than all compiling at once. The pool starts
+    when `map` is given its tasks, with no more processes than tasks."""
 
     def __init__(self, workers: int | None = None) -> None:
+        self.workers = local_workers(workers)
         compile_kernels()
-        self.workers = max(1, workers or os.cpu_count() or 1)
         self.name = f"local processes ({self.workers})"
-        self._pool = concurrent.futures.ProcessPoolExecutor(max_workers=self.workers)
+        self._pool: concurrent.futures.ProcessPoolExecutor | None = None
 
     def map(self, function: Callable[[Any], Any], tasks: Iterable[Any]) -> Iterator[tuple[int, Any]]:
+        tasks = list(tasks)
+        if self._pool is None:
+            # With the fork start method the pool forks all its processes at the first submit.
+            self.workers = max(1, min(self.workers, len(tasks)))
+            self.name = f"local processes ({self.workers})"
+            self._pool = concurrent.futures.ProcessPoolExecutor(max_workers=self.workers)
         futures = {self._pool.submit(function, task): index for index, task in enumerate(tasks)}
         try:
             for future in concurrent.futures.as_completed(futures):
@@ -81,7 +106,8 @@ class ProcessExecutor:
                 future.cancel()
 
     def close(self) -> None:
-        self._pool.shutdown(wait=True, cancel_futures=True)
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
 
 
 class DaskExecutor:
@@ -96,8 +122,8 @@ class DaskExecutor:
             raise RuntimeError("the Dask executor needs dask[distributed]: pip install 'bearing-follow[dask]'") from None
         self._cluster = None
         if address is None:
+            count = local_workers(workers)
             compile_kernels()  # the local workers share this machine's numba cache
-            count = max(1, workers or os.cpu_count() or 1)
             self._cluster = LocalCluster(n_workers=count, threads_per_worker=1, processes=True, host="127.0.0.1",
                                          scheduler_port=0, dashboard_address=None)
             self._client = Client(self._cluster)
@@ -124,14 +150,22 @@ class DaskExecutor:
             self._cluster.close()
 
 
+def check_executor(spec: str, workers: int | None) -> None:
+    """What make_executor(spec, workers) would refuse, refused now (ValueError), before a command makes its run
+    folder: an unknown executor, or local workers outside local_workers' bounds."""
+    if spec not in ("local", "serial", "dask-local") and "://" not in spec:
+        raise ValueError(f"unknown executor {spec!r}: use 'local', 'serial', 'dask-local' or a scheduler address tcp://host:port")
+    if spec in ("local", "dask-local"):
+        local_workers(workers)
+
+
 def make_executor(spec: str = "local", workers: int | None = None) -> Executor:
     """'local' (processes, default), 'serial', 'dask-local', or a Dask scheduler address (tcp://...)."""
+    check_executor(spec, workers)
     if spec == "local":
         return ProcessExecutor(workers)
     if spec == "serial":
         return SerialExecutor()
     if spec == "dask-local":
         return DaskExecutor(None, workers)
-    if "://" in spec:
-        return DaskExecutor(spec, workers)
-    raise ValueError(f"unknown executor {spec!r}: use 'local', 'serial', 'dask-local' or a scheduler address tcp://host:port")
+    return DaskExecutor(spec, workers)

@@ -52,7 +52,7 @@ from interfaces.overrides import apply_overrides, parse_assignment
 from interfaces.scenario import SCENARIOS_DIR, ConfigError, Scenario, VehicleConfig, load_scenario
 from studies.closed_loop import Termination, simulate
 from studies import reporting
-from studies.executors import make_executor
+from studies.executors import check_executor, make_executor
 from studies.metrics import write_summary
 from interfaces.cli import scenario_file
 
@@ -374,9 +374,10 @@ def run_tasks(tasks: list[FlightTask], executor_spec: str, workers: int | None, 
             bar.update()
     finally:
         bar.close()
+        name = executor.name  # after map: a local pool starts no more processes than tasks
         if throughput is not None:
+            throughput.executor = name
             throughput.stop()
-        name = executor.name
         executor.close()
         if partial is not None:
             partial.close()
@@ -444,6 +445,7 @@ def main(argv: list[str] | None = None) -> int:
         print("bof-montecarlo: --runs and --workers must be >= 1, --divergence-threshold > 0", file=sys.stderr)
         return 2
     try:
+        check_executor(args.executor, args.workers)
         paths = args.scenarios or ([SCENARIOS / f"{name}.toml" for name in study.scenarios] if study else [DEFAULT_SCENARIO])
         scenarios = [load_scenario(path) for path in paths]
         estimators = args.estimators or (list(study.estimators) if study else [SCENARIO_ESTIMATOR])

@@ -42,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from interfaces.scenario import ConfigError, Scenario, SwarmBlackout, VehicleConfig, load_scenario
-from studies.executors import make_executor
+from studies.executors import check_executor, make_executor
 from studies.metrics import write_summary
 from studies.swarm import simulate_swarm
 
@@ -399,6 +399,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     workers = args.workers if args.workers is not None else max(1, (os.cpu_count() or 1) - 1)
     try:
+        check_executor(args.executor, workers)
         cases = build_cases(tuple(args.parts), args.duration)
     except (ConfigError, ValueError, OSError) as error:
         print(f"bof-swarm-study: {error}", file=sys.stderr)

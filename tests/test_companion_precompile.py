@@ -21,7 +21,7 @@ def test_precompile_names_a_cache_that_holds_the_kernels(capsys):
     folder = Path(printed.rsplit("cached in ", 1)[1])
     # numba's index files of the kernels the warm-up compiled, in the folder it names
     index_files = {path.name.split("-")[0] for path in folder.glob("*.nbi")}
-    assert {"estimators._correct_kernel", "imm._imm_correction", "guidance._tracking_command"} <= index_files
+    assert {"estimators._correct_into", "imm._imm_correction", "guidance._tracking_command"} <= index_files
 
 
 def test_precompile_without_numba_says_so_and_opens_nothing(tmp_path):

@@ -5,6 +5,8 @@ from __future__ import annotations
 import csv
 import json
 import math
+import multiprocessing
+import os
 
 import numpy as np
 import pytest
@@ -13,7 +15,7 @@ from companion.assembly import build_estimator, build_lateral_guidance
 from interfaces.scenario import ConfigError, load_scenario
 from studies import montecarlo
 from studies.closed_loop import simulate
-from studies.executors import make_executor
+from studies.executors import WORKERS_PER_CORE, local_workers, make_executor
 
 SCENARIO = montecarlo.DEFAULT_SCENARIO
 
@@ -145,6 +147,41 @@ def test_local_processes_and_dask_give_the_serial_results(loaded):
 def test_unknown_executor_is_a_clear_error():
     with pytest.raises(ValueError, match="unknown executor"):
         make_executor("threads")
+
+
+def test_local_workers_are_bounded_by_the_machine(monkeypatch):
+    monkeypatch.setattr(os, "cpu_count", lambda: 2)
+    assert local_workers(None) == 2
+    assert [local_workers(count) for count in (1, 2, 8)] == [1, 2, 8]
+    for count in (0, -1, 9, 100_000):
+        with pytest.raises(ValueError, match="use 1 to 8 on this machine"):
+            local_workers(count)
+        with pytest.raises(ValueError, match="use 1 to 8 on this machine"):
+            make_executor("dask-local", count)  # refused before any cluster starts
+
+
+def _process_id(task: int) -> int:
+    return os.getpid()
+
+
+def test_a_local_pool_starts_no_more_processes_than_tasks():
+    before = set(multiprocessing.active_children())
+    executor = make_executor("local", WORKERS_PER_CORE * (os.cpu_count() or 1))
+    try:
+        pids = {pid for _, pid in executor.map(_process_id, [1, 2])}
+        started = set(multiprocessing.active_children()) - before  # the pool's processes, still alive until close
+        assert pids <= {process.pid for process in started}
+        assert 1 <= len(started) <= 2
+        assert executor.name == f"local processes ({len(started)})"
+    finally:
+        executor.close()
+    assert not set(multiprocessing.active_children()) - before
+
+
+def test_too_many_workers_are_refused_before_a_run_folder(tmp_path, capsys):
+    assert montecarlo.main(["--workers", "100000", "--runs", "1", "--out", str(tmp_path)]) == 2
+    assert "local workers: use 1 to" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_command_writes_table_csv_series_and_figures(tmp_path):
