@@ -12,6 +12,11 @@ import argparse
 from pathlib import Path
 
 
+#: bof-sitl's --speed-factor (and bof-campaign's --sitl-speed) bounds, simulated s per wall s: below 0.5 MAVSDK's
+#: heartbeats time out, above 20 the plant falls behind.
+SPEED_FACTOR_BOUNDS = (0.5, 20.0)
+
+
 def scenario_file(text: str) -> Path:
     """argparse type: an existing scenario file (not a folder, not a missing path)."""
     path = Path(text)

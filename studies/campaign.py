@@ -59,8 +59,9 @@ from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, Vehicle
 from studies.closed_loop import Termination, simulate
 from studies import reporting
 from studies.executors import check_executor, make_executor
+from studies.processes import Interrupted, interrupt_on_signals
 from studies.metrics import write_summary
-from interfaces.cli import scenario_file
+from interfaces.cli import SPEED_FACTOR_BOUNDS, scenario_file
 
 DEFAULT_SCENARIO = DEFAULT_SCENARIO
 CONVERGED = 1.0  # m, range-estimation error
@@ -495,6 +496,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.seeds < 1 or args.workers < 1:
         print("bof-campaign: --seeds and --workers must be >= 1", file=sys.stderr)
         return 2
+    low, high = SPEED_FACTOR_BOUNDS
+    if not low <= args.sitl_speed <= high:  # also refuses nan
+        print(f"bof-campaign: --sitl-speed must be within [{low:g}, {high:g}] (bof-sitl's --speed-factor)", file=sys.stderr)
+        return 2
     try:
         check_executor(args.executor, args.workers)
         scenario, vehicle = load_scenario(args.config)
@@ -505,30 +510,40 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     folder = args.out / f"campaign-{scenario.name}-{time.strftime('%Y%m%d-%H%M%S')}"
     folder.mkdir(parents=True, exist_ok=True)
+    print(f"bof-campaign: {len(tasks)} in-process flights -> {folder}", flush=True)
     slots: list[dict | None] = [None] * len(tasks)
     try:
         executor = make_executor(args.executor, args.workers)
-    except (RuntimeError, ValueError) as error:
+    except (RuntimeError, ValueError, OSError) as error:
         print(f"bof-campaign: {error}", file=sys.stderr)
         return 2
     results = None
+    # Rows in completion order, each on disk as it arrives; renamed results.csv once every flight is in.
+    partial = folder / "results.partial.csv"
     bar = reporting.progress_bar(len(tasks), "flights", enabled=not args.quiet, description="bof-campaign")
     throughput = reporting.Throughput(executor=executor.name)
     try:
-        for index, row in executor.map(_fly, tasks):
-            slots[index] = row
-            if results is None:
-                results = CsvLog(folder / "results.csv", row)
-            results.write(row)  # completion order; every row carries its pattern and seed
-            throughput.add(row["flown_s"])
-            bar.update()
-    finally:
-        throughput.executor = executor.name  # after map: a local pool starts no more processes than tasks
-        throughput.stop()
-        bar.close()
-        executor.close()
-        if results is not None:
-            results.close()
+        with interrupt_on_signals():
+            try:
+                for index, row in executor.map(_fly, tasks):
+                    slots[index] = row
+                    if results is None:
+                        results = CsvLog(partial, row)
+                    results.write(row)  # every row carries its pattern and seed
+                    throughput.add(row["flown_s"])
+                    bar.update()
+            finally:
+                throughput.executor = executor.name  # after map: a local pool starts no more processes than tasks
+                throughput.stop()
+                bar.close()
+                executor.close()
+                if results is not None:
+                    results.close()
+    except Interrupted as stop:
+        print(reporting.interrupted("bof-campaign", stop, partial, len(tasks)), file=sys.stderr)
+        return 128 + stop.signum
+    if results is not None:
+        partial.replace(folder / "results.csv")
     rows = [row for row in slots if row is not None]
     table = pattern_table(rows, scenario.guidance.desired_range)
     sitl_rows = [_sitl_intruder_case(args.config, name, folder / "sitl", args.sitl_speed) if name in INTRUDER_PATTERNS

@@ -19,9 +19,12 @@ from __future__ import annotations
 
 import concurrent.futures
 import os
+import signal
 import time
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any, Protocol
+
+from studies.processes import GRACE_PERIOD, death_signal_supported, set_death_signal
 
 
 class Executor(Protocol):
@@ -79,16 +82,31 @@ def local_workers(workers: int | None) -> int:
     return workers
 
 
+def _start_worker(parent: int) -> None:
+    """A local worker's first step. The owner decides on Ctrl-C and stop signals (it stops its workers), so a worker
+    ignores SIGINT and takes SIGTERM and SIGHUP as the default (end), whatever handlers it inherited through fork;
+    on Linux the kernel sends it SIGTERM when the owner dies (studies.processes.set_death_signal), so a killed
+    owner leaves no worker behind."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.signal(signal.SIGHUP, signal.SIG_DFL)
+    if death_signal_supported() and set_death_signal(parent) is not None:
+        os._exit(1)  # the owner is already gone: nobody would collect this worker's results
+
+
 class ProcessExecutor:
     """A pool of worker processes on this machine (concurrent.futures). The parent compiles the kernels first
     (`compile_kernels`), so the workers share numba's cache rather than all compiling at once. The pool starts
-    when `map` is given its tasks, with no more processes than tasks."""
+    when `map` is given its tasks, with no more processes than tasks. Workers never outlive the owner (see
+    `_start_worker`), and `close` with flights still unfinished (an interrupt) stops them at once instead of
+    waiting for the flights they had taken."""
 
     def __init__(self, workers: int | None = None) -> None:
         self.workers = local_workers(workers)
         compile_kernels()
         self.name = f"local processes ({self.workers})"
         self._pool: concurrent.futures.ProcessPoolExecutor | None = None
+        self._futures: dict = {}
 
     def map(self, function: Callable[[Any], Any], tasks: Iterable[Any]) -> Iterator[tuple[int, Any]]:
         tasks = list(tasks)
@@ -96,8 +114,10 @@ class ProcessExecutor:
             # With the fork start method the pool forks all its processes at the first submit.
             self.workers = max(1, min(self.workers, len(tasks)))
             self.name = f"local processes ({self.workers})"
-            self._pool = concurrent.futures.ProcessPoolExecutor(max_workers=self.workers)
+            self._pool = concurrent.futures.ProcessPoolExecutor(max_workers=self.workers, initializer=_start_worker,
+                                                                initargs=(os.getpid(),))
         futures = {self._pool.submit(function, task): index for index, task in enumerate(tasks)}
+        self._futures.update(futures)
         try:
             for future in concurrent.futures.as_completed(futures):
                 yield futures[future], future.result()
@@ -106,8 +126,24 @@ class ProcessExecutor:
                 future.cancel()
 
     def close(self) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=True)
+        """Wait for the workers to end when every flight is done; with flights unfinished (the caller stopped
+        early: an interrupt, an error), stop the workers now (SIGTERM, then SIGKILL after a grace period)."""
+        pool, self._pool = self._pool, None
+        if pool is None:
+            return
+        if all(future.done() for future in self._futures):
+            pool.shutdown(wait=True)
+            return
+        processes = list((getattr(pool, "_processes", None) or {}).values())  # concurrent.futures' own table
+        pool.shutdown(wait=False, cancel_futures=True)
+        for process in processes:
+            process.terminate()
+        deadline = time.monotonic() + GRACE_PERIOD
+        for process in processes:
+            process.join(max(0.0, deadline - time.monotonic()))
+            if process.is_alive():
+                process.kill()
+                process.join()
 
 
 class DaskExecutor:

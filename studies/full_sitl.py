@@ -49,7 +49,7 @@ from interfaces.records import write_json
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, load_scenario
 from studies.closed_loop import Termination
 from studies.metrics import convergence_text, summarize, suspect_warning, termination_name, write_summary
-from interfaces.cli import scenario_file, seed_argument
+from interfaces.cli import SPEED_FACTOR_BOUNDS, scenario_file, seed_argument
 from studies.processes import ChildProcess, Interrupted, StopSignals, free_port, stop_all
 
 DEFAULT_SCENARIO = DEFAULT_SCENARIO
@@ -557,8 +557,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quiet", action="store_true",
                         help="no progress line every 2 s of wall time, only the final summary (default: print them)")
     args = parser.parse_args(argv)
-    if args.speed_factor is not None and not 0.5 <= args.speed_factor <= 20.0:
-        parser.error("--speed-factor must be within [0.5, 20] (MAVSDK needs heartbeats; the plant tops out near 20x)")
+    low, high = SPEED_FACTOR_BOUNDS
+    if args.speed_factor is not None and not low <= args.speed_factor <= high:
+        parser.error(f"--speed-factor must be within [{low:g}, {high:g}] (MAVSDK needs heartbeats; the plant tops out near 20x)")
     if args.abort_after is not None and not (math.isfinite(args.abort_after) and args.abort_after > 0):
         parser.error(f"--abort-after {args.abort_after:g}: must be > 0 simulated seconds after engagement")
     if not 1 <= args.gcs_port <= 65535:

@@ -53,6 +53,7 @@ from interfaces.scenario import SCENARIOS_DIR, ConfigError, Scenario, VehicleCon
 from studies.closed_loop import Termination, simulate
 from studies import reporting
 from studies.executors import check_executor, make_executor
+from studies.processes import Interrupted, interrupt_on_signals
 from studies.metrics import write_summary
 from interfaces.cli import scenario_file
 
@@ -441,8 +442,8 @@ def main(argv: list[str] | None = None) -> int:
 
     study = STUDIES.get(args.study) if args.study else None
     runs = args.runs if args.runs is not None else (study.runs if study else 10)
-    if runs < 1 or (args.workers is not None and args.workers < 1) or args.divergence_threshold <= 0:
-        print("bof-montecarlo: --runs and --workers must be >= 1, --divergence-threshold > 0", file=sys.stderr)
+    if runs < 1 or (args.workers is not None and args.workers < 1) or not 0 < args.divergence_threshold < math.inf:
+        print("bof-montecarlo: --runs and --workers must be >= 1, --divergence-threshold > 0 and finite", file=sys.stderr)
         return 2
     try:
         check_executor(args.executor, args.workers)
@@ -454,8 +455,8 @@ def main(argv: list[str] | None = None) -> int:
         box = study.initial_box if study else None
         if args.initial_box:
             box = tuple(float(v) for v in args.initial_box.split(","))
-            if len(box) != 6 or any(box[2 * k] > box[2 * k + 1] for k in range(3)):
-                raise ValueError("--initial-box needs X0,X1,Y0,Y1,Z0,Z1 with each low <= high")
+            if len(box) != 6 or not all(map(math.isfinite, box)) or any(box[2 * k] > box[2 * k + 1] for k in range(3)):
+                raise ValueError("--initial-box needs X0,X1,Y0,Y1,Z0,Z1, finite, with each low <= high")
         windows = [parse_window(text) for text in args.error_window] if args.error_window else (list(study.windows) if study else [])
         tasks = build_tasks(scenarios, estimators, guidance, cases, runs, box, args.divergence_threshold, args.duration,
                             tuple(windows), dict(study.overrides) if study else None)
@@ -469,8 +470,13 @@ def main(argv: list[str] | None = None) -> int:
     print(f"bof-montecarlo: {len(tasks)} flights -> {folder}", flush=True)
     throughput = reporting.Throughput()
     try:
-        rows, series, executor_name = run_tasks(tasks, args.executor, args.workers, folder, progress=not args.quiet,
-                                                throughput=throughput)
+        with interrupt_on_signals():
+            rows, series, executor_name = run_tasks(tasks, args.executor, args.workers, folder,
+                                                    progress=not args.quiet, throughput=throughput)
+    except Interrupted as stop:
+        # Every flight that finished is in results.partial.csv, a row each, written as it arrived.
+        print(reporting.interrupted("bof-montecarlo", stop, folder / "results.partial.csv", len(tasks)), file=sys.stderr)
+        return 128 + stop.signum
     except (RuntimeError, ValueError, OSError) as error:
         print(f"bof-montecarlo: {error}", file=sys.stderr)
         return 2

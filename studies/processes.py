@@ -88,17 +88,57 @@ def with_death_signal(command: list[str]) -> list[str]:
     return [sys.executable, "-m", "studies.processes", "--parent", str(os.getpid()), "--", *command]
 
 
+def set_death_signal(parent: int) -> str | None:
+    """In a fresh child of `parent` (pid): ask the kernel for SIGTERM when the thread of `parent` that started this
+    process ends (prctl PR_SET_PDEATHSIG), then check that `parent` is still the parent (it may have died before
+    the prctl). None when set; else why not (the caller should exit: nobody would ever stop it)."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    if libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0) != 0:
+        return f"prctl failed: {os.strerror(ctypes.get_errno())}"
+    if os.getppid() != parent:
+        return f"the owner (pid {parent}) is gone"
+    return None
+
+
+class interrupt_on_signals:
+    """SIGINT, SIGTERM and SIGHUP raise Interrupted in the main thread, once (a context manager).
+
+    For the study commands, whose loops wait on workers: the first signal raises Interrupted where the main thread
+    is, and every later one is ignored from then on, so the cleanup that follows (stopping the workers, closing the
+    logs, saying what was kept) is not itself interrupted: a second Ctrl-C used to leave the parent waiting on its
+    workers for good. Without a signal the previous handlers are restored on exit; after one they are not (the
+    command is on its way out)."""
+
+    def __init__(self, signals: Iterable[int] = STOP_SIGNALS) -> None:
+        self.signals = tuple(signals)
+        self.received: int | None = None
+        self._previous: dict = {}
+
+    def _handle(self, signum, frame) -> None:  # noqa: ARG002
+        for sig in self.signals:
+            signal.signal(sig, signal.SIG_IGN)
+        self.received = signum
+        raise Interrupted(signum)
+
+    def __enter__(self) -> "interrupt_on_signals":
+        self._previous = {sig: signal.signal(sig, self._handle) for sig in self.signals}
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        if self.received is None:
+            for sig, handler in self._previous.items():
+                signal.signal(sig, handler)
+
+
 def _trampoline(argv: list[str]) -> int:
     """`--parent PID -- COMMAND...`: set PR_SET_PDEATHSIG = SIGTERM, make sure PID is still the parent, exec."""
     if len(argv) < 4 or argv[0] != "--parent" or argv[2] != "--":
         print("usage: python -m studies.processes --parent PID -- COMMAND...", file=sys.stderr)
         return 2
-    parent = int(argv[1])
-    libc = ctypes.CDLL(None, use_errno=True)
-    if libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0) != 0:
-        print(f"studies.processes: prctl failed: {os.strerror(ctypes.get_errno())}", file=sys.stderr)
-        return 1
-    if os.getppid() != parent:  # the owner died before prctl: nobody would ever stop us
+    problem = set_death_signal(int(argv[1]))
+    if problem is not None:
+        if problem.startswith("prctl"):
+            print(f"studies.processes: {problem}", file=sys.stderr)
         return 1
     command = argv[3:]
     os.execvp(command[0], command)

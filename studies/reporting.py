@@ -10,11 +10,13 @@ over the runs that have the figure, '-' (`cell`) where no run has it.
 
 from __future__ import annotations
 
+import csv
 import math
 import sys
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import pandas as pd
@@ -103,3 +105,13 @@ def progress_bar(total: int | None, unit: str, enabled: bool = True, description
     return tqdm(total=total, unit=f" {unit}", desc=description, file=sys.stderr, disable=not enabled,
                 dynamic_ncols=interactive, mininterval=0.5 if interactive else 0.0,
                 miniters=None if interactive else max(1, (total or 10) // 10), ascii=not interactive)
+
+
+def interrupted(command: str, reason: object, path: Path | None, total: int) -> str:
+    """The line a study command prints when a stop signal ends it early: how many of `total` flights the log at
+    `path` holds (its records as they are on disk: CSV rows after the header, or JSON lines), and where."""
+    if path is None or not path.exists():
+        return f"{command}: {reason}: no flight had finished ({total} planned); nothing written"
+    with path.open(newline="") as handle:
+        kept = sum(1 for _ in csv.reader(handle)) - 1 if path.suffix == ".csv" else sum(1 for line in handle if line.strip())
+    return f"{command}: {reason}: {kept} of {total} flights kept in {path}"

@@ -22,6 +22,7 @@ from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, load_sc
 from studies.closed_loop import SimulationResult, simulate
 from studies.metrics import convergence_text, suspect_warning, write_summary
 from studies.plots import plot_errors, plot_swarm_tracks, plot_trajectories
+from studies.processes import Interrupted, interrupt_on_signals
 from studies.swarm import SwarmResult, simulate_swarm
 
 DEFAULT_SCENARIO = DEFAULT_SCENARIO
@@ -144,8 +145,18 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as error:
         print(f"bof-sim: {error}", file=sys.stderr)
         return 2
-    if scenario.swarm is not None:
-        return _fly_swarm(scenario, vehicle, args)
+    try:
+        with interrupt_on_signals():
+            return _fly_swarm(scenario, vehicle, args) if scenario.swarm is not None else _fly(scenario, vehicle, args)
+    except Interrupted as stop:
+        # An in-process flight lives in memory until it ends (a minute of flight takes about 0.1 s), then its
+        # folder is written in one go: there is nothing partial worth keeping.
+        print(f"bof-sim: {stop}: the flight is written when it ends, so nothing was kept (a folder being written "
+              f"may be incomplete)", file=sys.stderr)
+        return 128 + stop.signum
+
+
+def _fly(scenario: Scenario, vehicle, args) -> int:
     started = time.perf_counter()
     result = simulate(scenario, vehicle, seed=args.seed)
     elapsed = time.perf_counter() - started

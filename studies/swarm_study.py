@@ -41,8 +41,12 @@ from pathlib import Path
 
 import numpy as np
 
+from interfaces.overrides import apply_overrides
+from interfaces.records import JsonLinesLog
 from interfaces.scenario import ConfigError, Scenario, SwarmBlackout, VehicleConfig, load_scenario
+from studies import reporting
 from studies.executors import check_executor, make_executor
+from studies.processes import Interrupted, interrupt_on_signals
 from studies.metrics import write_summary
 from studies.swarm import simulate_swarm
 
@@ -95,8 +99,10 @@ def build_cases(parts: tuple[str, ...] = PARTS, duration: float | None = None) -
     loaded = {}
     for label, path in (("constant velocity", CONSTANT_VELOCITY), ("turning", TURNING)):
         scenario, vehicle = load_scenario(path)
-        if duration is not None:
-            scenario = scenario.model_copy(update={"simulation": scenario.simulation.model_copy(update={"duration": duration})})
+        if duration is not None:  # validated as the file's own duration would be (ConfigError naming the key)
+            window = min(scenario.simulation.summary_window, duration)  # as bof-montecarlo --duration does
+            scenario = apply_overrides(scenario, {"simulation.duration": float(duration),
+                                                  "simulation.summary_window": window}, f"--duration {duration}")
         if scenario.swarm is None:
             raise ConfigError(f"{path.name} has no [swarm]")
         loaded[label] = (scenario, vehicle)
@@ -336,11 +342,9 @@ def markdown(tables: dict[str, dict], goal_rows: list[dict], seeds: int, executo
     return "\n".join(lines)
 
 
-def run_study(cases: list[Case], seeds: int, executor_spec: str = "local", workers: int | None = None,
-              progress: bool = True) -> tuple[list[dict], list[dict], str, float]:
-    """Fly every case for seeds 1..seeds; returns (pursuer rows, flights flown, executor name, wall s), in
-    case and seed order whatever order the workers finish in."""
-    # A case whose scenario another case already flies (cv_shared_bearings is cv_swarm) is flown once.
+def flown_cases(cases: list[Case]) -> tuple[list[Case], dict[str, int]]:
+    """The cases to fly and, for each case's name, the index of the one flown for it: a case whose scenario another
+    case already flies (cv_shared_bearings is cv_swarm) is flown once."""
     flown: list[Case] = []
     same_as: dict[str, int] = {}
     for case in cases:
@@ -349,17 +353,34 @@ def run_study(cases: list[Case], seeds: int, executor_spec: str = "local", worke
             flown.append(case)
             twin = len(flown) - 1
         same_as[case.name] = twin
+    return flown, same_as
+
+
+def run_study(cases: list[Case], seeds: int, executor_spec: str = "local", workers: int | None = None,
+              progress: bool = True, partial_log: Path | None = None) -> tuple[list[dict], list[dict], str, float]:
+    """Fly every case for seeds 1..seeds; returns (pursuer rows, flights flown, executor name, wall s), in
+    case and seed order whatever order the workers finish in. partial_log: a JSON-lines file that gets each
+    flight's result as it arrives (None: none)."""
+    flown, same_as = flown_cases(cases)
     tasks = [(case, seed) for case in flown for seed in range(1, seeds + 1)]
     executor = make_executor(executor_spec, workers)
     results: list[dict | None] = [None] * len(tasks)
+    # Each flight's result on disk as it arrives (a JSON line: task index, case, seed, rows, flight), so that an
+    # interrupted study keeps what it flew; removed once the study's own files are written (main).
+    log = JsonLinesLog(partial_log) if partial_log is not None else None
     started = time.perf_counter()
     try:
         for done, (index, result) in enumerate(executor.map(fly, tasks), start=1):
             results[index] = result
+            if log is not None:
+                case, seed = tasks[index]
+                log.write({"task": index, "case": case.name, "seed": seed, **result})
             if progress:
                 print(f"\r{done}/{len(tasks)} flights", end="", file=sys.stderr, flush=True)
     finally:
         executor.close()
+        if log is not None:
+            log.close()
         if progress:
             print(file=sys.stderr)
     wall = time.perf_counter() - started
@@ -407,8 +428,15 @@ def main(argv: list[str] | None = None) -> int:
     folder = args.out / f"swarm-study-{time.strftime('%Y%m%d-%H%M%S')}"
     folder.mkdir(parents=True, exist_ok=True)
     print(f"bof-swarm-study: {len(cases)} cases x {args.seeds} seeds -> {folder}", flush=True)
+    partial = folder / "flights.partial.jsonl"
     try:
-        rows, flights, executor_name, wall = run_study(cases, args.seeds, args.executor, workers, progress=not args.quiet)
+        with interrupt_on_signals():
+            rows, flights, executor_name, wall = run_study(cases, args.seeds, args.executor, workers,
+                                                           progress=not args.quiet, partial_log=partial)
+    except Interrupted as stop:
+        planned = len(flown_cases(cases)[0]) * args.seeds
+        print(reporting.interrupted("bof-swarm-study", stop, partial, planned), file=sys.stderr)
+        return 128 + stop.signum
     except (RuntimeError, ValueError, OSError) as error:
         print(f"bof-swarm-study: {error}", file=sys.stderr)
         return 2
@@ -421,6 +449,7 @@ def main(argv: list[str] | None = None) -> int:
                                             "goals": goal_rows, "flights": flights, "wall_s": wall,
                                             "flight_seconds": flight_seconds})
     (folder / "summary.md").write_text(report)
+    partial.unlink(missing_ok=True)  # every flight is in results.csv and summary.json now
     print(report)
     print(f"run folder: {folder}")
     print(f"{flight_seconds:.0f} simulated flight-seconds (pursuers x s) in {wall:.0f} s wall: "

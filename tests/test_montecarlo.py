@@ -236,6 +236,12 @@ def test_command_rejects_bad_arguments(tmp_path, capsys):
     assert montecarlo.main(["--initial-box", "1,0,0,1,0,1", "--out", str(tmp_path)]) == 2
     assert montecarlo.main(["--error-window", "5", "--out", str(tmp_path)]) == 2
     assert "bof-montecarlo:" in capsys.readouterr().err
+    # not a number: nan passed `<= 0` and counted every flight diverged; an infinite box crashed numpy's uniform
+    assert montecarlo.main(["--divergence-threshold", "nan", "--out", str(tmp_path)]) == 2
+    assert montecarlo.main(["--initial-box=nan,nan,0,1,0,1", "--out", str(tmp_path)]) == 2
+    assert montecarlo.main(["--initial-box=-inf,inf,0,1,0,1", "--out", str(tmp_path)]) == 2
+    assert capsys.readouterr().err.count("bof-montecarlo:") == 3
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_scenarios_of_different_durations_share_one_series_file(tmp_path):
