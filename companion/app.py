@@ -53,7 +53,7 @@ from companion.swarm_link import SwarmLink, swarm_companion_id
 from companion.target_link import TargetLink
 from interfaces import link_schema as link
 from interfaces import zenoh_transport
-from interfaces.cli import add_zenoh_security_arguments, scenario_file, seed_argument
+from interfaces.cli import add_zenoh_security_arguments, output_folder, scenario_file, seed_argument
 from interfaces.scenario import (DEFAULT_SCENARIO, MAX_PURSUERS, ConfigError, Scenario, VehicleConfig, load_scenario,
                                  pursuer_starts)
 
@@ -355,7 +355,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--zenoh-connect", action="append", default=None, help="Zenoh endpoint to connect to (repeatable)")
     parser.add_argument("--zenoh-listen", action="append", default=None, help="Zenoh endpoint to listen on (repeatable)")
     add_zenoh_security_arguments(parser, "companion")
-    parser.add_argument("--log-dir", type=Path, default=None, help="run folder (default runs/companion-<time>)")
+    parser.add_argument("--log-dir", type=output_folder, default=None, help="run folder (default runs/companion-<time>)")
     parser.add_argument("--seed", type=seed_argument, default=None, help="bearing-noise seed, an integer >= 0 ([simulation] seed)")
     parser.add_argument("--pursuer-id", type=_pursuer_id, default=1, metavar="K",
                         help=f"which pursuer of a [swarm] scenario this companion flies, 1..{MAX_PURSUERS} (its start, its "

@@ -27,6 +27,19 @@ def scenario_file(text: str) -> Path:
     return path
 
 
+def output_folder(text: str) -> Path:
+    """argparse type: a folder to write into, existing or to be made (--out, --log-dir). Refuses, before anything
+    runs, a path that exists and is not a folder, or whose nearest existing parent is not one: such a run used to
+    end in a traceback when it wrote its results (after the whole flight, for bof-sim)."""
+    path = Path(text)
+    for where in (path, *path.parents):
+        if where.exists():
+            if not where.is_dir():
+                raise argparse.ArgumentTypeError(f"{text}: {where} exists and is not a folder")
+            break
+    return path
+
+
 def seed_argument(text: str) -> int:
     """argparse type: a seed for numpy's SeedSequence, an integer >= 0."""
     try:

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from interfaces.shutdown import arm_exit_deadline
-from interfaces.cli import add_zenoh_security_arguments
+from interfaces.cli import add_zenoh_security_arguments, output_folder
 from interfaces.scenario import (DEFAULT_SCENARIO, ConfigError, PlantScenario, VehicleConfig, load_plant_scenario,
                                  pursuer_starts)
 from interfaces.records import AggregatingLog, CsvLog, JsonLinesLog, write_json
@@ -374,7 +374,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         help="UDP port the ground station listens on (default 14550 on [sitl] gcs_host, 127.0.0.1)")
     parser.add_argument("--duration", type=_positive, default=None, help="stop after this many simulated seconds (> 0)")
     parser.add_argument("--seed", type=int, default=None, help="telemetry noise seed ([simulation] seed)")
-    parser.add_argument("--log-dir", type=Path, default=None, help="write vehicle.csv, events.jsonl, stats.json here")
+    parser.add_argument("--log-dir", type=output_folder, default=None, help="write vehicle.csv, events.jsonl, stats.json here")
     parser.add_argument("--log-rate", type=_positive, default=50.0, help="vehicle.csv rows per simulated second (> 0)")
     parser.add_argument("--latency-log", action="store_true", help="also log wall time of every ODOMETRY sent")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")

@@ -61,7 +61,7 @@ from studies import reporting
 from studies.executors import check_executor, make_executor
 from studies.processes import Interrupted, interrupt_on_signals
 from studies.metrics import write_summary
-from interfaces.cli import SPEED_FACTOR_BOUNDS, scenario_file
+from interfaces.cli import SPEED_FACTOR_BOUNDS, output_folder, scenario_file
 
 DEFAULT_SCENARIO = DEFAULT_SCENARIO
 CONVERGED = 1.0  # m, range-estimation error
@@ -485,7 +485,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="worker processes for the in-process flights")
     parser.add_argument("--executor", default="local",
                         help="where the in-process flights run: local (processes), serial, dask-local, or tcp://scheduler:port")
-    parser.add_argument("--out", type=Path, default=Path("runs"),
+    parser.add_argument("--out", type=output_folder, default=Path("runs"),
                         help="parent folder; the run goes to OUT/campaign-<scenario>-<time>/")
     parser.add_argument("--quiet", action="store_true", help="no progress bars (they go to stderr)")
     return parser.parse_args(argv)

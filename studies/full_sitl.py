@@ -49,7 +49,7 @@ from interfaces.records import write_json
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, load_scenario
 from studies.closed_loop import Termination
 from studies.metrics import convergence_text, summarize, suspect_warning, termination_name, write_summary
-from interfaces.cli import SPEED_FACTOR_BOUNDS, scenario_file, seed_argument
+from interfaces.cli import SPEED_FACTOR_BOUNDS, output_folder, scenario_file, seed_argument
 from studies.processes import ChildProcess, Interrupted, StopSignals, free_port, stop_all
 
 DEFAULT_SCENARIO = DEFAULT_SCENARIO
@@ -532,7 +532,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=seed_argument, default=None,
                         help="seed of the plant's, target's and companion's noise, an integer >= 0 (default: the "
                              "scenario's [simulation] seed)")
-    parser.add_argument("--out", type=Path, default=Path("runs"),
+    parser.add_argument("--out", type=output_folder, default=Path("runs"),
                         help="parent folder: the run folder sitl-<scenario>-seed<seed>-<time>/ is created inside it "
                              "(default: %(default)s)")
     parser.add_argument("--timeout", type=float, default=None,

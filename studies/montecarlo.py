@@ -55,7 +55,7 @@ from studies import reporting
 from studies.executors import check_executor, make_executor
 from studies.processes import Interrupted, interrupt_on_signals
 from studies.metrics import write_summary
-from interfaces.cli import scenario_file
+from interfaces.cli import output_folder, scenario_file
 
 SCENARIOS = SCENARIOS_DIR
 DEFAULT_SCENARIO = SCENARIOS / "constant_velocity.toml"
@@ -434,7 +434,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--divergence-threshold", type=float, default=2.0, help="m (see the module docstring)")
     parser.add_argument("--executor", default="local", help="local (default), serial, dask-local, or tcp://scheduler:port")
     parser.add_argument("--workers", type=int, default=None, help="worker processes (default: all cores)")
-    parser.add_argument("--out", type=Path, default=Path("runs"),
+    parser.add_argument("--out", type=output_folder, default=Path("runs"),
                         help="parent folder: the run folder montecarlo-<study, or grid>-<time>/ is made inside it (default runs/)")
     parser.add_argument("--no-plots", action="store_true", help="write the tables and series only, no PNG figures")
     parser.add_argument("--quiet", action="store_true", help="no progress bar (it goes to stderr)")

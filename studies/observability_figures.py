@@ -20,6 +20,7 @@ import matplotlib.pyplot as plt  # noqa: E402  (backend must be chosen first)
 import numpy as np  # noqa: E402
 
 from interfaces.scenario import DEFAULT_SCENARIO  # noqa: E402
+from interfaces.cli import output_folder
 from studies.metrics import write_summary  # noqa: E402
 from companion.core.observability import (  # noqa: E402
     Plane,
@@ -163,7 +164,7 @@ def guidance_comparison(config: Path, path: Path) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="bof-observability", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--out", type=Path, default=Path("runs"),
+    parser.add_argument("--out", type=output_folder, default=Path("runs"),
                         help="parent folder: the run folder observability-<time>/ is created inside it "
                              "(default: %(default)s)")
     parser.add_argument("--seed", type=int, default=1, help="seed of the initial and random placements (default: %(default)s)")

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from interfaces.cli import scenario_file, seed_argument
+from interfaces.cli import output_folder, scenario_file, seed_argument
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, load_scenario
 from studies.closed_loop import SimulationResult, simulate
 from studies.metrics import convergence_text, suspect_warning, write_summary
@@ -131,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="bof-sim", description="Fly a bearing-only following scenario in the in-process simulator.")
     parser.add_argument("scenario", nargs="?", type=scenario_file, default=DEFAULT_SCENARIO,
                         help="scenario TOML (default: the paper's constant-velocity case, %(default)s)")
-    parser.add_argument("--out", default="runs",
+    parser.add_argument("--out", type=output_folder, default="runs",
                         help="parent folder: the run folder <scenario>-seed<seed>-<time>/ is created inside it "
                              "(default: %(default)s)")
     parser.add_argument("--seed", type=seed_argument, default=None,

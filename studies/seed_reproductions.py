@@ -46,6 +46,7 @@ import numpy as np
 import studies.swarm as swarm_module
 from interfaces.overrides import apply_overrides
 from interfaces.scenario import ConfigError, Scenario, VehicleConfig, load_scenario
+from interfaces.cli import output_folder
 from studies.metrics import write_summary
 from studies.swarm import SwarmResult
 
@@ -394,7 +395,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="only these variants (default: all; names in docs/reproduction.md)")
     parser.add_argument("--duration", type=float, default=None,
                         help="s, shorten (or lengthen) every flight (default: the scenario files' durations)")
-    parser.add_argument("--out", default="runs", help="parent folder of the run folder (default: %(default)s)")
+    parser.add_argument("--out", type=output_folder, default="runs", help="parent folder of the run folder (default: %(default)s)")
     parser.add_argument("--no-figures", action="store_true", help="metrics only, no PNGs")
     args = parser.parse_args(argv)
     if any(seed < 0 for seed in args.seeds):

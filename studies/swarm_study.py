@@ -44,6 +44,7 @@ import numpy as np
 from interfaces.overrides import apply_overrides
 from interfaces.records import JsonLinesLog
 from interfaces.scenario import ConfigError, Scenario, SwarmBlackout, VehicleConfig, load_scenario
+from interfaces.cli import output_folder
 from studies import reporting
 from studies.executors import check_executor, make_executor
 from studies.processes import Interrupted, interrupt_on_signals
@@ -412,7 +413,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--executor", default="local", help="local (default), serial, dask-local, or tcp://scheduler:port")
     parser.add_argument("--workers", type=int, default=None, help="worker processes (default: the cores but one)")
     parser.add_argument("--duration", type=float, default=None, help="override the scenarios' duration, s (quick looks)")
-    parser.add_argument("--out", type=Path, default=Path("runs"), help="parent of the run folder swarm-study-<time>/")
+    parser.add_argument("--out", type=output_folder, default=Path("runs"), help="parent of the run folder swarm-study-<time>/")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
     args = parser.parse_args(argv)
     if args.seeds < 1 or (args.workers is not None and args.workers < 1) or (args.duration is not None and args.duration <= 0):

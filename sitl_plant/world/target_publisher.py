@@ -50,7 +50,7 @@ from pathlib import Path
 import numpy as np
 
 from interfaces.shutdown import arm_exit_deadline
-from interfaces.cli import add_zenoh_security_arguments
+from interfaces.cli import add_zenoh_security_arguments, output_folder
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, FaultsConfig, TargetConfig, load_plant_scenario
 from interfaces.link_schema import (CLOCK_KEY, PayloadError, TargetFix, decode_clock, decode_command, encode_target_fix,
                                     new_epoch, target_command_key, target_fix_key)
@@ -314,7 +314,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                              "action command); the scenario then starts at that simulated time")
     parser.add_argument("--duration", type=float, default=None, help="stop at this simulated time (s)")
     parser.add_argument("--seed", type=int, default=None, help="noise seed (default: [simulation] seed)")
-    parser.add_argument("--log-dir", type=Path, default=None, help="write target.csv and faults.jsonl here")
+    parser.add_argument("--log-dir", type=output_folder, default=None, help="write target.csv and faults.jsonl here")
     parser.add_argument("--faults", choices=("on", "off"), default="on",
                         help="inject the scenario's [faults] on the link (default: on); off ignores --fault too")
     parser.add_argument("--fault", action="append", default=[], metavar="KEY=VALUE",
