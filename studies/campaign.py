@@ -58,7 +58,7 @@ from interfaces.records import CsvLog
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, VehicleConfig, load_scenario
 from studies.closed_loop import Termination, simulate
 from studies import reporting
-from studies.executors import check_executor, make_executor
+from studies.executors import check_executor, check_flight_count, make_executor
 from studies.processes import Interrupted, interrupt_on_signals
 from studies.metrics import write_summary
 from interfaces.cli import SPEED_FACTOR_BOUNDS, output_folder, scenario_file
@@ -502,6 +502,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         check_executor(args.executor, args.workers)
+        check_flight_count(len(args.patterns) * args.seeds, "--patterns x --seeds")
         scenario, vehicle = load_scenario(args.config)
         tasks = [(name, seed, with_faults(scenario, PATTERNS[name][0]), vehicle)
                  for name in args.patterns for seed in range(1, args.seeds + 1)]

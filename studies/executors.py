@@ -186,6 +186,18 @@ class DaskExecutor:
             self._cluster.close()
 
 
+#: The most flights one study command takes: the parent holds every task (a validated scenario, ~25 kB) and every
+#: flight's series (~34 kB for 60 s) until it writes them, so 100,000 flights are already some 6 GB of memory.
+MAX_FLIGHTS = 100_000
+
+
+def check_flight_count(count: int, what: str) -> None:
+    """ValueError when `count` flights (`what` says how they were asked for) exceed MAX_FLIGHTS."""
+    if count > MAX_FLIGHTS:
+        raise ValueError(f"{what} make {count:,} flights; at most {MAX_FLIGHTS:,} in one run (the parent holds every "
+                         f"flight's task and series in memory until the end)")
+
+
 def check_executor(spec: str, workers: int | None) -> None:
     """What make_executor(spec, workers) would refuse, refused now (ValueError), before a command makes its run
     folder: an unknown executor, or local workers outside local_workers' bounds."""

@@ -52,7 +52,7 @@ from interfaces.overrides import apply_overrides, parse_assignment
 from interfaces.scenario import SCENARIOS_DIR, ConfigError, Scenario, VehicleConfig, load_scenario
 from studies.closed_loop import Termination, simulate
 from studies import reporting
-from studies.executors import check_executor, make_executor
+from studies.executors import check_executor, check_flight_count, make_executor
 from studies.processes import Interrupted, interrupt_on_signals
 from studies.metrics import write_summary
 from interfaces.cli import output_folder, scenario_file
@@ -458,6 +458,14 @@ def main(argv: list[str] | None = None) -> int:
             if len(box) != 6 or not all(map(math.isfinite, box)) or any(box[2 * k] > box[2 * k + 1] for k in range(3)):
                 raise ValueError("--initial-box needs X0,X1,Y0,Y1,Z0,Z1, finite, with each low <= high")
         windows = [parse_window(text) for text in args.error_window] if args.error_window else (list(study.windows) if study else [])
+        # A name given twice would put two sets of flights (or the same seeds twice) in one row of the table.
+        for flag, names in (("scenario", [scenario.name for scenario, _ in scenarios]), ("--estimators", estimators),
+                            ("--guidance", guidance), ("--case", [name for name, _ in cases])):
+            repeated = sorted({name for name in names if names.count(name) > 1})
+            if repeated:
+                raise ValueError(f"{flag} {', '.join(repeated)} given twice: its rows would mix two sets of flights")
+        check_flight_count(len(scenarios) * len(estimators) * len(guidance) * len(cases) * runs,
+                           "the scenarios x estimators x guidance laws x cases x --runs")
         tasks = build_tasks(scenarios, estimators, guidance, cases, runs, box, args.divergence_threshold, args.duration,
                             tuple(windows), dict(study.overrides) if study else None)
     except (ConfigError, ValueError) as error:

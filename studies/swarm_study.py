@@ -46,7 +46,7 @@ from interfaces.records import JsonLinesLog
 from interfaces.scenario import ConfigError, Scenario, SwarmBlackout, VehicleConfig, load_scenario
 from interfaces.cli import output_folder
 from studies import reporting
-from studies.executors import check_executor, make_executor
+from studies.executors import check_executor, check_flight_count, make_executor
 from studies.processes import Interrupted, interrupt_on_signals
 from studies.metrics import write_summary
 from studies.swarm import simulate_swarm
@@ -423,6 +423,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         check_executor(args.executor, workers)
         cases = build_cases(tuple(args.parts), args.duration)
+        check_flight_count(len(flown_cases(cases)[0]) * args.seeds, "the cases x --seeds")
     except (ConfigError, ValueError, OSError) as error:
         print(f"bof-swarm-study: {error}", file=sys.stderr)
         return 2

@@ -82,3 +82,9 @@ def test_a_sitl_speed_bof_sitl_would_refuse_is_refused_before_any_flight(tmp_pat
                           "--out", str(tmp_path)]) == 2
     assert "--sitl-speed must be within [0.5, 20]" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_huge_seed_count_is_refused_before_its_tasks_are_built(tmp_path, capsys):
+    assert campaign.main(["--seeds", "100000000", "--patterns", "none", "--out", str(tmp_path)]) == 2
+    assert "make 100,000,000 flights; at most 100,000 in one run" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []

@@ -241,6 +241,13 @@ def test_command_rejects_bad_arguments(tmp_path, capsys):
     assert montecarlo.main(["--initial-box=nan,nan,0,1,0,1", "--out", str(tmp_path)]) == 2
     assert montecarlo.main(["--initial-box=-inf,inf,0,1,0,1", "--out", str(tmp_path)]) == 2
     assert capsys.readouterr().err.count("bof-montecarlo:") == 3
+    # a typo of a count is refused before a billion tasks are built (each holds a validated scenario)
+    assert montecarlo.main(["--runs", "1000000000", "--executor", "serial", "--out", str(tmp_path)]) == 2
+    assert "make 1,000,000,000 flights; at most 100,000 in one run" in capsys.readouterr().err
+    # a name twice would mix two sets of flights in one row of the table
+    assert montecarlo.main(["--guidance", "hng", "hng", "--out", str(tmp_path)]) == 2
+    assert montecarlo.main(["--case=a:guidance.c_y=0", "--case=a:guidance.c_y=3.5", "--out", str(tmp_path)]) == 2
+    assert capsys.readouterr().err.count("given twice") == 2
     assert list(tmp_path.iterdir()) == []
 
 
@@ -251,7 +258,9 @@ def test_scenarios_of_different_durations_share_one_series_file(tmp_path):
     paths = []
     for name, duration in (("short", 4.0), ("long", 6.0)):
         path = tmp_path / f"{name}.toml"
+        # each its own name: two files of one name would share a row of the table (refused)
         path.write_text(text.replace('vehicle = "../vehicles/', f'vehicle = "{SCENARIO.parent.parent}/vehicles/')
+                        .replace('name = "constant_velocity"', f'name = "{name}"')
                         .replace("duration = 60.0", f"duration = {duration}").replace("summary_window = 20.0", "summary_window = 2.0"))
         paths.append(path)
     out = tmp_path / "out"

@@ -76,6 +76,10 @@ def test_worker_processes_give_the_serial_rows():
 def test_bad_arguments_are_refused(tmp_path):
     assert swarm_study.main(["--seeds", "0", "--out", str(tmp_path)]) == 2
     assert swarm_study.main(["--workers", "0", "--out", str(tmp_path)]) == 2
+    assert swarm_study.main(["--seeds", "100000000", "--out", str(tmp_path)]) == 2  # before its tasks are built
+    # --duration goes through the schema as the files' own would (it skipped validation: nan, inf, a year)
+    for duration in ("nan", "inf", "100000"):
+        assert swarm_study.main(["--duration", duration, "--seeds", "1", "--out", str(tmp_path)]) == 2
     assert list(tmp_path.iterdir()) == []
 
 
