@@ -45,7 +45,7 @@ import numpy as np
 
 import studies.swarm as swarm_module
 from interfaces.overrides import apply_overrides
-from interfaces.scenario import ConfigError, Scenario, VehicleConfig, load_scenario
+from interfaces.scenario import MAX_DURATION_S, ConfigError, Scenario, VehicleConfig, load_scenario
 from interfaces.cli import output_folder
 from studies.metrics import write_summary
 from studies.swarm import SwarmResult
@@ -400,8 +400,12 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if any(seed < 0 for seed in args.seeds):
         parser.error("--seeds: each seed must be >= 0")
-    if args.duration is not None and not args.duration > 0.0:
-        parser.error("--duration must be > 0")
+    for flag, values in (("--seeds", args.seeds), ("--variants", args.variants or [])):
+        repeated = sorted({str(value) for value in values if values.count(value) > 1})
+        if repeated:  # a seed twice wrote the same run folder twice (FileExistsError after the first flight)
+            parser.error(f"{flag}: {', '.join(repeated)} given twice")
+    if args.duration is not None and not 0.0 < args.duration <= MAX_DURATION_S:
+        parser.error(f"--duration must be > 0 and at most {MAX_DURATION_S:g} s")
     try:
         folder = run(args.paper, args.seeds, Path(args.out), args.duration, args.variants, not args.no_figures)
     except ConfigError as error:

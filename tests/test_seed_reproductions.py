@@ -106,3 +106,17 @@ def test_short_reproduction_writes_its_folder_and_the_pursuers_close_in(tmp_path
 def test_cli_refuses_an_unknown_variant(tmp_path, capsys):
     assert repro.main(["002", "--variants", "nope", "--out", str(tmp_path)]) == 2
     assert "no variant" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("arguments, message", [
+    (["--seeds", "1", "1"], "--seeds: 1 given twice"),  # wrote one run folder twice: FileExistsError after a flight
+    (["--duration", "inf"], "--duration must be > 0"),
+    (["--duration", "nan"], "--duration must be > 0"),
+    (["--duration", "1e9"], "--duration must be > 0"),
+])
+def test_cli_refuses_what_it_cannot_fly_before_it_flies(tmp_path, capsys, arguments, message):
+    with pytest.raises(SystemExit) as exit_:
+        repro.main(["004", *arguments, "--variants", "uplkf", "--out", str(tmp_path)])
+    assert exit_.value.code == 2
+    assert message in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
