@@ -408,10 +408,10 @@ def main(argv: list[str] | None = None) -> int:
         zenoh_tls = zenoh_transport.tls_identity(args.zenoh_tls, "companion")
         if args.zenoh_namespace is not None:
             zenoh_transport.check_namespace(args.zenoh_namespace)
-        if zenoh_tls is not None:  # a plain endpoint with --zenoh-tls: say so now, not as a traceback later
-            zenoh_transport.zenoh_config(scenario.link.mode, listen=args.zenoh_listen or scenario.link.listen,
-                                         connect=args.zenoh_connect or scenario.link.connect,
-                                         overrides=scenario.link.zenoh_overrides, tls=zenoh_tls)
+        # A malformed endpoint, or a plain one with --zenoh-tls: say so now, not as a traceback once the app starts.
+        zenoh_transport.zenoh_config(scenario.link.mode, listen=args.zenoh_listen or scenario.link.listen,
+                                     connect=args.zenoh_connect or scenario.link.connect,
+                                     overrides=scenario.link.zenoh_overrides, tls=zenoh_tls)
     except zenoh_transport.LinkError as error:
         print(f"companion: {error}", file=sys.stderr)
         return 2

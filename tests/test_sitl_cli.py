@@ -225,3 +225,22 @@ def test_termination_names_are_the_documented_ones():
 
     names = {termination_name(t) for t in Termination}
     assert {"completed", "aborted", "failsafe", "interrupted", "diverged"} <= names
+
+
+@pytest.mark.parametrize("endpoint", ["bogus", "tcp/127.0.0.1", "tcp/:7447"])
+def test_companion_refuses_a_malformed_endpoint_in_one_line_before_making_anything(tmp_path, capsys, endpoint):
+    # It used to say so only with --zenoh-tls; without it the app started and died in a 37-line traceback.
+    from companion import app
+
+    assert app.main(["--zenoh-connect", endpoint, "--log-dir", str(tmp_path / "log")]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"companion: Zenoh endpoint {endpoint!r}: expected <protocol>/<host>:<port>, e.g. tcp/127.0.0.1:7447"]
+    assert not (tmp_path / "log").exists()
+
+
+@pytest.mark.parametrize("rate", ["0", "nan", "1e300", "1000.5"])
+def test_sitl_target_rate_is_bounded(capsys, rate):
+    from sitl_plant.world import target_publisher
+
+    assert target_publisher.main(["--rate", rate]) == 2
+    assert "--rate" in capsys.readouterr().err
