@@ -94,13 +94,17 @@ def honest_termination(termination: enum.Enum, divergence: dict | None) -> enum.
     return termination
 
 
-def verdict(termination: enum.Enum, divergence: dict | None) -> str:
-    """One word for the flight: "failed" (did not fly as asked: FLOWN lists what did), "suspect" (the health
-    monitor still called the estimate suspect at the end: the flight's range may be wrong), "recovered" (it
-    called it suspect at some time and OK again at the end: the range was doubted during the flight, so not a
-    clean success either), else "clean" (never flagged)."""
+def verdict(termination: enum.Enum, divergence: dict | None, estimated: bool = True) -> str:
+    """One word for the flight: "failed" (did not fly as asked: FLOWN lists what did), "no_estimate" (flown, but
+    `estimated` is False: no estimate over the summary window, e.g. no bearing was ever used, so nothing measured
+    the estimate and the monitor had nothing to flag), "suspect" (the health monitor still called the estimate
+    suspect at the end: the flight's range may be wrong), "recovered" (it called it suspect at some time and OK
+    again at the end: the range was doubted during the flight, so not a clean success either), else "clean"
+    (never flagged)."""
     if termination.name not in FLOWN:
         return "failed"
+    if not estimated:
+        return "no_estimate"
     if divergence is not None and divergence["at_end"]:
         return "suspect"
     if divergence is not None and divergence["episodes"] > 0:
@@ -109,10 +113,15 @@ def verdict(termination: enum.Enum, divergence: dict | None) -> str:
 
 
 def suspect_warning(flight: dict, reasons: list[str] | tuple[str, ...] = ()) -> str | None:
-    """The warning line for people when the health monitor called the estimate suspect at the end, else None.
+    """The warning line for people when the health monitor called the estimate suspect at the end, or when there
+    was no estimate to judge (verdict "no_estimate"), else None.
 
     flight: a `summarize` result (or its JSON). reasons: the monitor's reasons at the end, if known.
     """
+    if flight.get("verdict") == "no_estimate":
+        seen = flight.get("bearings_used")
+        why = "" if seen is None else f": {seen} bearings used, {flight.get('bearings_out_of_view', 0)} out of view"
+        return f"WARNING: no range estimate over the last {flight['summary_window']:g} s{why} — not a success"
     divergence = flight.get("suspected_divergence")
     if not divergence or not divergence.get("at_end"):
         return None
@@ -165,7 +174,7 @@ def summarize(series: dict[str, np.ndarray], scenario: Scenario, termination: en
         "heading_error_rms_deg": rms(heading_error[np.isfinite(heading_error)]),
         "observability_log_det_median": median_finite(series.get("observability_log_det"), window),
         "suspected_divergence": divergence,
-        "verdict": verdict(termination, divergence),
+        "verdict": verdict(termination, divergence, bool(np.isfinite(estimation_error[window]).any())),
     }
 
 

@@ -173,7 +173,8 @@ def _fly(scenario: Scenario, vehicle, args) -> int:
     print(format_summary(result.summary))
     print(f"  simulated {result.summary['duration']:.0f} s in {elapsed:.2f} s ({result.summary['duration'] / elapsed:.0f}x real time)")
     print(f"run folder: {folder}")
-    return 0 if result.termination.name in ("COMPLETED", "INTERRUPTED") else 1
+    flown = result.termination.name in ("COMPLETED", "INTERRUPTED") and result.summary["verdict"] != "no_estimate"
+    return 0 if flown else 1
 
 
 if __name__ == "__main__":

@@ -188,6 +188,22 @@ def test_a_circling_target_the_default_loses_is_flagged_and_not_a_clean_success(
     json.dumps(summary)  # plain types for summary.json
 
 
+def test_a_flight_that_never_sees_its_target_is_no_success(scenario_path):
+    """The Table I camera with its focal length typed in metres (8 instead of 0.008): a 1 mm field of view, no bearing
+    in 60 s, no estimate. The monitor had nothing to flag, so the verdict must not be "clean"."""
+    scenario, vehicle = load_scenario(scenario_path("constant_velocity"))
+    document = scenario.model_dump()
+    document["sensor"]["model"] = "camera"
+    document["sensor"]["camera"] = {**(document["sensor"].get("camera") or {}), "focal_length": 8.0}
+    result = simulate(type(scenario).model_validate(document), vehicle)
+    summary = result.summary
+    assert summary["bearings_used"] == 0 and summary["bearings_out_of_view"] == 301  # 5 Hz for 60 s
+    assert np.isnan(result.series["range_estimate"]).all()
+    assert summary["termination"] == "completed" and summary["verdict"] == "no_estimate"
+    assert "WARNING: no range estimate over the last 20 s: 0 bearings used, 301 out of view" in format_summary(summary)
+    json.dumps(summary)
+
+
 def test_the_default_follows_the_circle_the_old_default_lost(scenario_path):
     """The same 25 m circle with today's defaults (issue 13: the IMM's turn models): followed, and not flagged."""
     summary = simulate(*_circling(scenario_path, 5.0, 1.0, old_defaults=False), seed=2).summary
