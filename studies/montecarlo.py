@@ -168,12 +168,41 @@ def drawn_initial_position(seed: int, box: tuple[float, ...]) -> tuple[float, fl
     return tuple(float(v) for v in rng.uniform(low, high))
 
 
+#: Keys a case may not set: the runner sets them itself, so the case's value would be silently ignored.
+_RUNNER_KEYS = {"simulation.seed": "--runs sets the seeds (1..N)",
+                "vehicle": "a case cannot change the vehicle file: give a scenario file that names it"}
+
+
+def _assignments(body: str) -> list[str]:
+    """body split at the commas between assignments, not those inside a TOML array, table or string."""
+    items, depth, quote, start = [], 0, "", 0
+    for index, char in enumerate(body):
+        if quote:
+            quote = "" if char == quote else quote
+        elif char in "\"'":
+            quote = char
+        elif char in "[{":
+            depth += 1
+        elif char in "]}":
+            depth -= 1
+        elif char == "," and depth == 0:
+            items.append(body[start:index])
+            start = index + 1
+    items.append(body[start:])
+    return items
+
+
 def parse_case(text: str) -> tuple[str, dict[str, Any]]:
-    """'NAME:key=value,key=value' -> (NAME, overrides); values are TOML literals (interfaces.overrides)."""
+    """'NAME:key=value,key=value' -> (NAME, overrides); values are TOML literals (interfaces.overrides), arrays
+    included ("x:pursuer.initial_position=[1,2,3]")."""
     name, _, body = text.partition(":")
     if not name or not body:
         raise ValueError(f"case {text!r}: expected NAME:key=value[,key=value]")
-    return name, dict(parse_assignment(item, f"case {text!r}:") for item in body.split(","))
+    overrides = dict(parse_assignment(item, f"case {text!r}:") for item in _assignments(body))
+    for key in overrides:
+        if key in _RUNNER_KEYS:
+            raise ValueError(f"case {text!r}: {key}: {_RUNNER_KEYS[key]}")
+    return name, overrides
 
 
 def build_tasks(scenarios: list[tuple[Scenario, VehicleConfig]], estimators: list[str], guidance: list[str],
@@ -466,6 +495,10 @@ def main(argv: list[str] | None = None) -> int:
                 raise ValueError(f"{flag} {', '.join(repeated)} given twice: its rows would mix two sets of flights")
         check_flight_count(len(scenarios) * len(estimators) * len(guidance) * len(cases) * runs,
                            "the scenarios x estimators x guidance laws x cases x --runs")
+        shortest = args.duration if args.duration is not None else min(scenario.simulation.duration for scenario, _ in scenarios)
+        late = [f"{start:g}:{stop:g}" for start, stop in windows if stop > shortest + 1e-9]
+        if late:  # its column would be empty (NaN) for every flight that ends before it
+            raise ValueError(f"--error-window {', '.join(late)} ends after the shortest flight ({shortest:g} s)")
         tasks = build_tasks(scenarios, estimators, guidance, cases, runs, box, args.divergence_threshold, args.duration,
                             tuple(windows), dict(study.overrides) if study else None)
     except (ConfigError, ValueError) as error:

@@ -10,6 +10,8 @@ import os
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from companion.assembly import build_estimator, build_lateral_guidance
 from interfaces.scenario import ConfigError, load_scenario
@@ -45,6 +47,28 @@ def test_case_parsing():
     for bad in ("planar", "planar:", "x:guidance.c_y", "x:guidance.law=hng"):
         with pytest.raises(ValueError):
             montecarlo.parse_case(bad)
+    # keys the runner sets itself were silently ignored
+    with pytest.raises(ValueError, match="--runs sets the seeds"):
+        montecarlo.parse_case("x:simulation.seed=7")
+    with pytest.raises(ValueError, match="cannot change the vehicle file"):
+        montecarlo.parse_case("x:vehicle='other.toml'")
+
+
+def _literal(value) -> str:
+    """A TOML literal of an int, a list of ints or a string without quotes."""
+    if isinstance(value, list):
+        return "[" + ",".join(map(str, value)) + "]"
+    return f"'{value}'" if isinstance(value, str) else str(value)
+
+
+@given(st.dictionaries(st.from_regex(r"[a-z]{1,6}\.[a-z_]{1,8}", fullmatch=True).filter(lambda key: key != "simulation.seed"),
+                       st.one_of(st.integers(-1000, 1000), st.lists(st.integers(-99, 99), max_size=4),
+                                 st.text(alphabet="ab,[] =", max_size=6)),
+                       min_size=1, max_size=4))
+def test_a_case_reads_back_every_assignment_arrays_and_commas_in_strings_included(assignments):
+    # It split on every comma, so an array value ("[1,2,3]") could not be given at all.
+    body = ",".join(f"{key}={_literal(value)}" for key, value in assignments.items())
+    assert montecarlo.parse_case(f"c:{body}") == ("c", assignments)
 
 
 def test_every_preset_study_resolves_to_valid_flights():
@@ -248,6 +272,9 @@ def test_command_rejects_bad_arguments(tmp_path, capsys):
     assert montecarlo.main(["--guidance", "hng", "hng", "--out", str(tmp_path)]) == 2
     assert montecarlo.main(["--case=a:guidance.c_y=0", "--case=a:guidance.c_y=3.5", "--out", str(tmp_path)]) == 2
     assert capsys.readouterr().err.count("given twice") == 2
+    # a window past the end of the flight gave an all-NaN column and no word about it
+    assert montecarlo.main(["--duration", "3", "--error-window", "100:200", "--out", str(tmp_path)]) == 2
+    assert "--error-window 100:200 ends after the shortest flight (3 s)" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
 
 
