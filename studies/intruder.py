@@ -63,6 +63,7 @@ import zenoh  # noqa: E402
 from interfaces import link_schema as link  # noqa: E402
 from interfaces.geodesy import geodetic_to_ned, ned_to_geodetic  # noqa: E402
 from interfaces.zenoh_transport import LinkError, open_session, publisher, zenoh_config  # noqa: E402
+from interfaces.cli import scenario_file  # noqa: E402
 
 FUTURE_SEQ = 2**62
 FUTURE_STAMP_OFFSET = 1e6  # s
@@ -1020,7 +1021,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--mavlink", default=None,
                         help="pymavlink URL of the plant's ground-station link, e.g. udpout:127.0.0.1:PORT or "
                              "udpin:127.0.0.1:14550 (default: udpout to the socket in --run's plant/stats.json)")
-    parser.add_argument("--config", type=Path, default=None,
+    parser.add_argument("--config", type=scenario_file, default=None,
                         help="the SITL's scenario (home, target sender, companion id, r_d, fix rate; default: bof-sitl's)")
     parser.add_argument("--target-sender", default=None, help="target sender id (default: the scenario's)")
     parser.add_argument("--companion-id", default=None, help="companion id (default: the scenario's)")
@@ -1056,6 +1057,12 @@ def main(argv: list[str] | None = None) -> int:
         value = getattr(args, name)
         if value is not None and not (math.isfinite(value) and value > 0):
             parser.error(f"--{name} must be positive, got {value}")
+    if args.settle is not None and not (math.isfinite(args.settle) and args.settle >= 0):
+        parser.error(f"--settle must be >= 0 s, got {args.settle}")
+    if args.takeoff is not None and not (math.isfinite(args.takeoff) and args.takeoff > 0):
+        parser.error(f"--takeoff must be a positive height in metres, got {args.takeoff}")
+    if args.seq_lead is not None and args.seq_lead < 1:
+        parser.error(f"--seq-lead must be >= 1 (how far ahead of the genuine sequence), got {args.seq_lead}")
     try:
         endpoints = discover(args.run) if args.run else SitlEndpoints()
         endpoints.zenoh = args.zenoh or endpoints.zenoh

@@ -574,3 +574,17 @@ def test_the_command_line_attacks_a_scripted_sitl_and_writes_its_row(tmp_path):
     spoofs = [link.decode_target_fix(p) for p in listener.on(link.target_fix_key(SENDER))]
     assert code == 0 and result["row"]["attack"] == "future-seq" and result["row"]["sent"] == 1
     assert [fix.seq for fix in spoofs if fix.seq == 2**62] == [2**62]
+
+
+@pytest.mark.parametrize("arguments, fragment", [
+    (["--config", "config"], "is a folder"),  # an IsADirectoryError traceback before
+    (["--settle", "nan"], "--settle"), (["--settle", "-1"], "--settle"),
+    (["--takeoff", "nan"], "--takeoff"), (["--takeoff", "0"], "--takeoff"),
+    (["--seq-lead", "-1"], "--seq-lead"),
+])
+def test_bad_arguments_are_refused_in_one_line(capsys, arguments, fragment):
+    with pytest.raises(SystemExit) as exit_:
+        intruder.main(["replay", "--zenoh", "tcp/127.0.0.1:9", *arguments])
+    assert exit_.value.code == 2
+    line = capsys.readouterr().err.strip().splitlines()[-1]
+    assert line.startswith("bof-intruder: error:") and fragment in line, line
