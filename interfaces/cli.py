@@ -11,10 +11,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from interfaces.scenario import MAX_SPEED_FACTOR, MIN_SPEED_FACTOR
 
-#: bof-sitl's --speed-factor (and bof-campaign's --sitl-speed) bounds, simulated s per wall s: below 0.5 MAVSDK's
-#: heartbeats time out, above 20 the plant falls behind.
-SPEED_FACTOR_BOUNDS = (0.5, 20.0)
+
+#: bof-sitl's --speed-factor (and bof-campaign's --sitl-speed) bounds, simulated s per wall s: those of the
+#: scenario's [sitl] speed_factor (below 0.5 MAVSDK's heartbeats time out, above 20 the plant falls behind).
+SPEED_FACTOR_BOUNDS = (MIN_SPEED_FACTOR, MAX_SPEED_FACTOR)
 
 
 def scenario_file(text: str) -> Path:

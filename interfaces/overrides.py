@@ -46,6 +46,9 @@ def parse_assignment(text: str, context: str, example: str = "") -> tuple[str, A
         value = tomllib.loads(f"value = {literal}")["value"]
     except tomllib.TOMLDecodeError as error:
         raise ConfigError(f"{context} {key}: {literal!r} is not a TOML value ({error}; quote strings)") from None
+    except (RecursionError, ValueError):  # arrays nested too deeply, an integer over Python's 4300 digits
+        raise ConfigError(f"{context} {key}: the value is not a TOML value Python can read (nested too deeply or "
+                          "an integer too long)") from None
     return key, value
 
 

@@ -9,6 +9,10 @@ names the file and the key; nothing half-runs.
 from __future__ import annotations
 
 import math
+import os
+import re
+import stat
+import sys
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,14 +46,51 @@ VEHICLES_DIR = CONFIG_DIR / "vehicles"
 DEFAULT_SCENARIO = SCENARIOS_DIR / "constant_velocity.toml"
 
 
+#: The largest scenario or vehicle file read, bytes: 16 MiB. The shipped files are under 5 kB and a scenario with a
+#: 100,000-entry maneuvers list is about 8 MB (it loads); anything bigger is not a configuration, and without a cap a
+#: huge or growing file would be read into memory whole.
+MAX_CONFIG_BYTES = 16 * 1024 * 1024
+
+
 def _read_toml(path: Path) -> dict:
+    """The TOML document in `path`. ConfigError, one line naming the file, unless it is a readable regular file
+    (not a directory, device or pipe: /dev/zero never ends, a FIFO blocks) of at most MAX_CONFIG_BYTES bytes of
+    UTF-8 TOML that tomllib can read (no nesting deeper than Python's recursion limit, no integer literal longer
+    than Python's 4300 digits)."""
     try:
-        with path.open("rb") as handle:
-            return tomllib.load(handle)
+        # O_NONBLOCK: opening a FIFO must not wait for a writer (it is refused just below, after fstat, which
+        # also judges the file actually opened); it changes nothing for a regular file.
+        descriptor = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
     except FileNotFoundError:
         raise ConfigError(f"{path}: file not found") from None
+    except PermissionError:
+        raise ConfigError(f"{path}: cannot be read: permission denied") from None
+    except (OSError, ValueError) as error:  # ValueError: a NUL byte in the path
+        raise ConfigError(f"{path}: cannot be read: {getattr(error, 'strerror', None) or error}") from None
+    try:
+        if not stat.S_ISREG(os.fstat(descriptor).st_mode):
+            raise ConfigError(f"{path}: not a regular file (a directory, device or pipe is no configuration file)")
+        with os.fdopen(descriptor, "rb", closefd=False) as handle:
+            data = handle.read(MAX_CONFIG_BYTES + 1)
+    except OSError as error:
+        raise ConfigError(f"{path}: cannot be read: {error.strerror or error}") from None
+    finally:
+        os.close(descriptor)
+    if len(data) > MAX_CONFIG_BYTES:
+        raise ConfigError(f"{path}: larger than {MAX_CONFIG_BYTES // 2**20} MiB, too large for a configuration file")
+    try:
+        return tomllib.loads(data.decode("utf-8"))
+    except UnicodeDecodeError as error:
+        raise ConfigError(f"{path}: not UTF-8 text (byte {data[error.start]:#04x} at offset {error.start}); "
+                          "TOML files are UTF-8") from None
     except tomllib.TOMLDecodeError as error:
         raise ConfigError(f"{path}: not valid TOML: {error}") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: not valid TOML: arrays or inline tables nested too deeply") from None
+    except ValueError as error:  # an integer literal over Python's int_max_str_digits
+        reason = (f"an integer literal has more than {sys.get_int_max_str_digits()} digits" if "digits" in str(error)
+                  else str(error).splitlines()[0])
+        raise ConfigError(f"{path}: not valid TOML: {reason}") from None
 
 
 #: The paper's Table I airframe. Its numbers live in this file only: VehicleConfig's defaults
@@ -198,6 +239,10 @@ class StopAndGoConfig(_Strict):
         return self
 
 
+#: s: the shortest [target.singer] update_period (SingerConfig).
+MIN_SINGER_UPDATE_PERIOD = 1e-3
+
+
 class SingerConfig(_Strict):
     """[target.singer]: random acceleration, first-order Gauss-Markov (Singer): time_constant tau (s),
     stationary std sigma (m/s^2, north and east) and vertical_sigma (down; 0 = level), held over
@@ -209,7 +254,9 @@ class SingerConfig(_Strict):
     vertical_sigma: NonNegative = 0.0
     max_speed: Positive = 10.0
     max_lateral_acceleration: Positive = 2.0
-    update_period: Annotated[float, Field(gt=0.0, le=1.0)] = 0.02
+    # At least 1 ms (1 kHz, twice the default physics rate): a shorter hold changes nothing a 500 Hz plant resolves,
+    # and each update costs about 1 us of wall time, so 1e-300 s would never finish a flight.
+    update_period: Annotated[float, Field(ge=MIN_SINGER_UPDATE_PERIOD, le=1.0)] = 0.02
 
 
 class TargetConfig(_Strict):
@@ -501,6 +548,8 @@ class SimulationConfig(_Strict):
 
 
 Port = Annotated[int, Field(ge=1, le=65535)]
+#: [sitl] speed_factor bounds, simulated s per wall s: bof-sitl's --speed-factor range.
+MIN_SPEED_FACTOR, MAX_SPEED_FACTOR = 0.5, 20.0
 
 
 class SitlConfig(_Strict):
@@ -513,7 +562,9 @@ class SitlConfig(_Strict):
     """
 
     home: Vector3 = (47.397742, 8.545594, 488.0)
-    speed_factor: Annotated[float, Field(gt=0.0, le=100.0)] = 1.0
+    # bof-sitl's --speed-factor range (studies/full_sitl.py: below 0.5 MAVSDK misses heartbeats, above 20 the plant
+    # cannot keep up); sitl-plant's own --speed-factor flag, which overrides this key, takes (0, 100].
+    speed_factor: Annotated[float, Field(ge=MIN_SPEED_FACTOR, le=MAX_SPEED_FACTOR)] = 1.0
     companion_host: str = "127.0.0.1"
     companion_port: Port = 14540
     gcs_host: str = "127.0.0.1"
@@ -587,7 +638,7 @@ class CompanionConfig(_Strict):
     mavlink_url: str = "udpin://127.0.0.1:14540"
     engage_altitude: Annotated[float, Field(gt=1.0, le=120.0)] = 20.0
     settle_time: NonNegative = 1.5
-    follow_duration: Positive | None = None
+    follow_duration: Annotated[float, Field(gt=0.0, le=MAX_DURATION_S)] | None = None
     link_timeout: Positive = 60.0
     connect_timeout: Positive = 30.0
     hold_after_abort: NonNegative = 3.0
@@ -664,6 +715,11 @@ class MavlinkFaultsConfig(_Strict):
         return self
 
 
+#: Hz: the fastest impostor or steady spoofer [faults] may inject (each of its messages is an event of the flight: an
+#: unbounded rate never finishes and fills memory; 1 kHz is 200x the default bearing rate).
+MAX_ATTACK_RATE_HZ = 1000.0
+
+
 class FaultsConfig(_Strict):
     """Fault injection on the target -> companion link (sitl_plant.world.link_faults); defaults inject nothing.
 
@@ -708,7 +764,7 @@ class FaultsConfig(_Strict):
     stale_max_age_s: Positive = 5.0
     corrupt_probability: Probability = 0.0
     corrupt_kinds: Annotated[tuple[CorruptKind, ...], FROM_ARRAY, Field(min_length=1)] = CORRUPT_KINDS
-    impostor_rate_hz: NonNegative = 0.0
+    impostor_rate_hz: Annotated[float, Field(ge=0.0, le=MAX_ATTACK_RATE_HZ)] = 0.0
     impostor_sender: SenderName = "impostor-1"
     impostor_offset: Vector3 = (30.0, 0.0, 0.0)
     future_seq_at: NonNegative | None = None
@@ -719,7 +775,7 @@ class FaultsConfig(_Strict):
     restart_gap_s: NonNegative = 1.0
     spoof_burst_at: NonNegative | None = None
     spoof_burst_count: Annotated[int, Field(ge=1, le=1000)] = 3
-    spoof_rate_hz: Annotated[float, Field(ge=0.0, le=1000.0)] = 0.0
+    spoof_rate_hz: Annotated[float, Field(ge=0.0, le=MAX_ATTACK_RATE_HZ)] = 0.0
     spoof_from: NonNegative = 0.0
     spoof_offset: Vector3 = (30.0, 0.0, 0.0)
     spoof_seq_lead: Annotated[int, Field(ge=0, le=2**62)] = 2**40
@@ -821,10 +877,18 @@ class HealthSection(_Strict):
         return self
 
 
+#: Hz: the slowest loop rate (one period of 100 s). Slower is a typo, and 1e-300 Hz passes the divides-the-physics-
+#: rate check yet overflows the estimator's transition matrix (period**2) with an OverflowError at take-off.
+MIN_LOOP_RATE_HZ = 0.01
+
+
 def _check_rates(physics_rate_hz: float, **rates_hz: float) -> None:
-    """Every loop rate (Hz, by section) must divide the physics rate into whole steps; ValueError naming the key."""
+    """Every loop rate (Hz, by section) must be at least MIN_LOOP_RATE_HZ and divide the physics rate into whole
+    steps; ValueError naming the key."""
     for section, rate in rates_hz.items():
         key = f"{section}.{'tick_rate_hz' if section == 'sitl' else 'rate_hz'}"
+        if rate < MIN_LOOP_RATE_HZ:
+            raise ValueError(f"{key} = {rate:g} must be at least {MIN_LOOP_RATE_HZ:g} Hz (one step per 100 s)")
         ratio = physics_rate_hz / rate
         if rate > physics_rate_hz or abs(ratio - round(ratio)) > 1e-9:
             raise ValueError(f"{key} = {rate} must divide simulation.physics_rate_hz = {physics_rate_hz} into whole steps")
@@ -1106,8 +1170,50 @@ def _check_swarm_geometry(scenario: "Scenario") -> None:
 
 
 
+#: Longest scenario name: it becomes part of run-folder names (e.g. sitl-<name>-seed<k>-<time>/), within 255 bytes.
+MAX_NAME_LENGTH = 100
+_NAME_PATTERN = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*")
+
+
+def _run_folder_name(value: str) -> str:
+    """A scenario name usable as one path component: letters, digits, '_', '-', '.'; not starting with '.'
+    (hidden, '..') or '-' (read as an option); 1..MAX_NAME_LENGTH characters. No '/', NUL or absolute path."""
+    if not (len(value) <= MAX_NAME_LENGTH and _NAME_PATTERN.fullmatch(value)):
+        shown = repr(value) if len(value) <= 40 else f"{value[:40]!r}... ({len(value)} characters)"
+        raise ValueError(f"must be 1-{MAX_NAME_LENGTH} letters, digits, '_', '-' or '.', starting with a letter, digit "
+                         f"or '_' (it names run folders), got {shown}")
+    return value
+
+
+ScenarioName = Annotated[str, AfterValidator(_run_folder_name)]
+
+#: Defaults companion.assembly derives from guidance.desired_range r_d when a key is left out: health.min_range =
+#: r_d / 4 (health_config), dropout.safe_range = 1.5 r_d and dropout.min_range = r_d / 2 (dropout_policy).
+HEALTH_MIN_RANGE_FACTOR, DROPOUT_SAFE_RANGE_FACTOR, DROPOUT_MIN_RANGE_FACTOR = 0.25, 1.5, 0.5
+
+
+def _check_ranges(scenario: "Scenario") -> None:
+    """The companion's health monitor needs min_range < max_range and its dropout policy min_range < safe_range,
+    with the defaults derived from guidance.desired_range: refused here, naming the keys, not at take-off."""
+    desired = scenario.guidance.desired_range
+    health = scenario.health
+    if health.min_range is None and HEALTH_MIN_RANGE_FACTOR * desired >= health.max_range:
+        raise ValueError(f"health.max_range ({health.max_range:g} m) must exceed health.min_range, whose default is "
+                         f"guidance.desired_range / 4 = {HEALTH_MIN_RANGE_FACTOR * desired:g} m: raise max_range or "
+                         "set health.min_range")
+    dropout = scenario.dropout
+    safe = dropout.safe_range if dropout.safe_range is not None else DROPOUT_SAFE_RANGE_FACTOR * desired
+    low = dropout.min_range if dropout.min_range is not None else DROPOUT_MIN_RANGE_FACTOR * desired
+    if low >= safe:
+        def said(key: str, value: float, factor: float) -> str:
+            given = getattr(dropout, key) is not None
+            return f"dropout.{key} ({value:g} m{'' if given else f', default {factor:g} x guidance.desired_range'})"
+        raise ValueError(f"{said('min_range', low, DROPOUT_MIN_RANGE_FACTOR)} must be below "
+                         f"{said('safe_range', safe, DROPOUT_SAFE_RANGE_FACTOR)}")
+
+
 class Scenario(_Strict):
-    name: str
+    name: ScenarioName
     description: str = ""
     vehicle: str = "../vehicles/paper_table1.toml"
     pursuer: PursuerConfig = PursuerConfig()
@@ -1141,6 +1247,7 @@ class Scenario(_Strict):
             raise ValueError(f"estimator.gain_projection applies to the u-PLKF only, not to kind = {self.estimator.kind!r}")
         _check_swarm(self)
         _check_swarm_geometry(self)
+        _check_ranges(self)
         return self
 
 
@@ -1161,7 +1268,7 @@ class PlantScenario(_Strict):
     """What sitl-plant and sitl-target read of a scenario, validated as strictly as Scenario
     (same section models); COMPANION_SECTIONS and the rest of [sensor] are not looked at."""
 
-    name: str
+    name: ScenarioName
     description: str = ""
     vehicle: str = Scenario.model_fields["vehicle"].default
     pursuer: PursuerConfig = PursuerConfig()
@@ -1200,6 +1307,19 @@ def _format(path: Path, error: ValidationError) -> str:
     return "\n".join([f"{path}: invalid configuration", *(f"  {problem}" for problem in describe_errors(error))])
 
 
+def _scenario_vehicle(scenario_path: Path, vehicle: str) -> VehicleConfig:
+    """The vehicle file a scenario names (relative to the scenario's folder), read and validated; a ConfigError names
+    the scenario file and its `vehicle` key besides the vehicle file's own message."""
+    try:
+        resolved = (scenario_path.parent / vehicle).resolve()
+    except (OSError, ValueError, RuntimeError) as error:  # a NUL byte, a symlink loop
+        raise ConfigError(f"{scenario_path}: vehicle: {vehicle!r} is not a usable path ({error})") from None
+    try:
+        return load_vehicle(resolved)
+    except ConfigError as error:
+        raise ConfigError(f"{scenario_path}: vehicle = {vehicle!r}: {error}") from None
+
+
 def load_vehicle(path: str | Path) -> VehicleConfig:
     """Read and validate a vehicle TOML file."""
     path = Path(path)
@@ -1226,8 +1346,7 @@ def load_plant_scenario(path: str | Path) -> tuple[PlantScenario, VehicleConfig]
         scenario = PlantScenario.model_validate(document)
     except ValidationError as error:
         raise ConfigError(_format(path, error)) from None
-    vehicle = load_vehicle((path.parent / scenario.vehicle).resolve())
-    return scenario, vehicle
+    return scenario, _scenario_vehicle(path, scenario.vehicle)
 
 
 def load_scenario(path: str | Path) -> tuple[Scenario, VehicleConfig]:
@@ -1237,5 +1356,4 @@ def load_scenario(path: str | Path) -> tuple[Scenario, VehicleConfig]:
         scenario = Scenario.model_validate(_read_toml(path))
     except ValidationError as error:
         raise ConfigError(_format(path, error)) from None
-    vehicle = load_vehicle((path.parent / scenario.vehicle).resolve())
-    return scenario, vehicle
+    return scenario, _scenario_vehicle(path, scenario.vehicle)
