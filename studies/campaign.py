@@ -59,7 +59,7 @@ from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, Vehicle
 from studies.closed_loop import Termination, simulate
 from studies import reporting
 from studies.executors import check_executor, check_flight_count, make_executor
-from studies.processes import Interrupted, interrupt_on_signals
+from studies.processes import Interrupted, interrupt_on_signals, wait_for
 from studies.metrics import write_summary
 from interfaces.cli import SPEED_FACTOR_BOUNDS, output_folder, scenario_file
 
@@ -314,14 +314,6 @@ def _sitl_case(config: Path, name: str, folder: Path, speed: float, show_progres
     return row
 
 
-def _wait_for(condition, timeout: float, what: str) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise RuntimeError(f"timed out after {timeout:g} s waiting for {what}")
-        time.sleep(0.1)
-
-
 def _sitl_intruder_case(config: Path, name: str, folder: Path, speed: float) -> dict:
     """One `bof-sitl --secure` flight with the INTRUDER_PATTERNS attack `name` sent by studies.intruder
     once the companion follows; the flight's figures and what the intruder achieved.
@@ -352,12 +344,12 @@ def _sitl_intruder_case(config: Path, name: str, folder: Path, speed: float) -> 
     thread.start()
     attack_result: dict = {}
     try:
-        _wait_for(lambda: "error" in outcome or any((f / "links.json").exists() for f in set(folder.glob("sitl-*")) - before),
+        wait_for(lambda: "error" in outcome or any((f / "links.json").exists() for f in set(folder.glob("sitl-*")) - before),
                   120.0, "the SITL run folder")
         if "error" in outcome:
             raise RuntimeError(outcome["error"])
         run_folder = next(f for f in set(folder.glob("sitl-*")) - before if (f / "links.json").exists())
-        _wait_for(lambda: "run" in outcome or "error" in outcome or "companion: following" in
+        wait_for(lambda: "run" in outcome or "error" in outcome or "companion: following" in
                   ((run_folder / "companion.out").read_text(errors="replace")
                    if (run_folder / "companion.out").exists() else ""), 180.0, "the companion to follow")
         time.sleep(2.0 / speed * 5)  # 10 s of simulated following before the attack

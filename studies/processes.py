@@ -88,6 +88,15 @@ def with_death_signal(command: list[str]) -> list[str]:
     return [sys.executable, "-m", "studies.processes", "--parent", str(os.getpid()), "--", *command]
 
 
+def wait_for(condition, timeout: float, what: str, interval: float = 0.1) -> None:
+    """Poll `condition()` every `interval` s until it is true; RuntimeError naming `what` after `timeout` s."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"timed out after {timeout:g} s waiting for {what}")
+        time.sleep(interval)
+
+
 def set_death_signal(parent: int) -> str | None:
     """In a fresh child of `parent` (pid): ask the kernel for SIGTERM when the thread of `parent` that started this
     process ends (prctl PR_SET_PDEATHSIG), then check that `parent` is still the parent (it may have died before

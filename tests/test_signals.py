@@ -21,7 +21,7 @@ from pathlib import Path
 import psutil
 import pytest
 
-from studies.processes import ChildProcess, free_port
+from studies.processes import ChildProcess, free_port, wait_for
 
 SPEED = "5"
 
@@ -31,14 +31,6 @@ def _alive(pid: int) -> bool:
         return psutil.Process(pid).status() != psutil.STATUS_ZOMBIE
     except psutil.NoSuchProcess:
         return False
-
-
-def _wait_until(condition, timeout: float, what: str) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
-        time.sleep(0.1)
 
 
 def _kill_all(pids) -> None:
@@ -82,7 +74,7 @@ class RunningSitl:
             return folder is not None and f"companion: {phase}" in (folder / "companion.out").read_text(errors="replace") \
                 if folder is not None and (folder / "companion.out").exists() else False
 
-        _wait_until(following, timeout, f"the companion to reach {phase}")
+        wait_for(following, timeout, f"the companion to reach {phase}")
         for child in psutil.Process(self.process.pid).children(recursive=True):
             line = " ".join(child.cmdline())
             for name, module in (("plant", "sitl_plant.sitl"), ("target", "sitl_plant.world.target_publisher"),
@@ -162,7 +154,7 @@ def test_sigkill_to_bof_sitl_leaves_no_child_behind(sitl):
     sitl.process.kill()
     sitl.process.wait(10.0)
     try:
-        _wait_until(lambda: not any(_alive(pid) for pid in sitl.children.values()), 20.0,
+        wait_for(lambda: not any(_alive(pid) for pid in sitl.children.values()), 20.0,
                     f"the children {sitl.children} to exit")
     except AssertionError as error:  # say which child stayed and what it last printed
         alive = {name: psutil.Process(pid).status() for name, pid in sitl.children.items() if _alive(pid)}

@@ -21,6 +21,7 @@ import psutil
 import pytest
 
 from interfaces.scenario import SCENARIOS_DIR, VEHICLES_DIR
+from studies.processes import wait_for
 
 
 def _session(sid: int) -> list[int]:
@@ -33,14 +34,6 @@ def _session(sid: int) -> list[int]:
         except (ProcessLookupError, PermissionError, psutil.Error):
             continue
     return found
-
-
-def _wait_until(condition, timeout: float, what: str) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
-        time.sleep(0.05)
 
 
 class Command:
@@ -88,7 +81,7 @@ def _first_record(out: Path, name: str) -> Path:
         found[:] = list(out.glob(f"*/{name}"))
         return bool(found) and len(found[0].read_text().splitlines()) >= (2 if name.endswith(".csv") else 1)
 
-    _wait_until(written, 120, f"a first record in {name}")
+    wait_for(written, 120, f"a first record in {name}")
     return found[0]
 
 
@@ -106,7 +99,7 @@ def test_ctrl_c_twice_keeps_every_finished_flight(tmp_path):
             command.process.send_signal(signal.SIGINT)
         code, _, err = command.finish(timeout=30)
         assert code == 128 + signal.SIGINT
-        _wait_until(lambda: not _session(command.sid), 10, "no process left in the study's session")
+        wait_for(lambda: not _session(command.sid), 10, "no process left in the study's session")
         rows = _rows(partial)
         kept = re.search(r"interrupted by SIGINT: (\d+) of 240 flights kept in (.+)$", err.strip().splitlines()[-1])
         assert kept and int(kept.group(1)) == len(rows) >= 1 and Path(kept.group(2)) == partial
@@ -123,14 +116,14 @@ def test_an_interrupted_study_does_not_wait_for_the_flights_in_the_air(tmp_path)
     command = Command(["studies.montecarlo", "--study", "estimators", "--runs", "1", "--duration", "20000",
                        "--workers", "2", "--no-plots", "--quiet", "--out", str(tmp_path)], tmp_path)
     try:
-        _wait_until(lambda: len(command.children()) == 2, 60, "two workers")
+        wait_for(lambda: len(command.children()) == 2, 60, "two workers")
         time.sleep(2.0)
         command.process.send_signal(signal.SIGINT)
         code, _, err = command.finish(timeout=15)  # a flight in the air would take 30 s or more to end
         assert code == 128 + signal.SIGINT
         assert err.strip().splitlines()[-1] == ("bof-montecarlo: interrupted by SIGINT: no flight had finished "
                                                 "(12 planned); nothing written")
-        _wait_until(lambda: not _session(command.sid), 10, "no process left in the study's session")
+        wait_for(lambda: not _session(command.sid), 10, "no process left in the study's session")
     finally:
         command.stop()
 
@@ -146,7 +139,7 @@ def test_a_killed_study_leaves_no_worker(tmp_path):
         assert len(workers) == 2
         command.process.kill()
         command.process.wait(timeout=10)
-        _wait_until(lambda: not any(psutil.pid_exists(pid) and psutil.Process(pid).status() != psutil.STATUS_ZOMBIE
+        wait_for(lambda: not any(psutil.pid_exists(pid) and psutil.Process(pid).status() != psutil.STATUS_ZOMBIE
                                     for pid in workers), 10, "the workers to end")
     finally:
         command.stop()
@@ -165,7 +158,7 @@ def test_a_campaign_stopped_by_sigterm_keeps_its_rows_under_a_partial_name(tmp_p
         rows = _rows(partial)
         assert f"interrupted by SIGTERM: {len(rows)} of " in err and len(rows) >= 1
         assert not (folder / "results.csv").exists() and not (folder / "summary.json").exists()
-        _wait_until(lambda: not _session(command.sid), 10, "no process left in the campaign's session")
+        wait_for(lambda: not _session(command.sid), 10, "no process left in the campaign's session")
     finally:
         command.stop()
 
@@ -183,7 +176,7 @@ def test_a_swarm_study_stopped_by_sighup_keeps_its_flights(tmp_path):
         for record in records:  # what the finished study would have tabulated: each pursuer's row of that flight
             assert {row["seed"] for row in record["rows"]} == {record["seed"]}
             assert record["case"] in ("cv_single", "cv_swarm", "turn_single", "turn_swarm")
-        _wait_until(lambda: not _session(command.sid), 10, "no process left in the study's session")
+        wait_for(lambda: not _session(command.sid), 10, "no process left in the study's session")
     finally:
         command.stop()
 
