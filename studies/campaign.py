@@ -59,7 +59,7 @@ from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, Vehicle
 from studies.closed_loop import Termination, simulate
 from studies import reporting
 from studies.executors import check_executor, check_flight_count, make_executor
-from studies.processes import Interrupted, interrupt_on_signals, wait_for
+from studies.processes import Interrupted, RaisingStopSignals, wait_for
 from studies.metrics import write_summary
 from interfaces.cli import SPEED_FACTOR_BOUNDS, output_folder, scenario_file
 
@@ -516,7 +516,7 @@ def main(argv: list[str] | None = None) -> int:
     bar = reporting.progress_bar(len(tasks), "flights", enabled=not args.quiet, description="bof-campaign")
     throughput = reporting.Throughput(executor=executor.name)
     try:
-        with interrupt_on_signals():
+        with RaisingStopSignals():
             try:
                 for index, row in executor.map(_fly, tasks):
                     slots[index] = row

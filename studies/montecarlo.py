@@ -53,7 +53,7 @@ from interfaces.scenario import SCENARIOS_DIR, ConfigError, Scenario, VehicleCon
 from studies.closed_loop import Termination, simulate
 from studies import reporting
 from studies.executors import check_executor, check_flight_count, make_executor
-from studies.processes import Interrupted, interrupt_on_signals
+from studies.processes import Interrupted, RaisingStopSignals
 from studies.metrics import write_summary
 from interfaces.cli import output_folder, scenario_file
 
@@ -511,7 +511,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"bof-montecarlo: {len(tasks)} flights -> {folder}", flush=True)
     throughput = reporting.Throughput()
     try:
-        with interrupt_on_signals():
+        with RaisingStopSignals():
             rows, series, executor_name = run_tasks(tasks, args.executor, args.workers, folder,
                                                     progress=not args.quiet, throughput=throughput)
     except Interrupted as stop:

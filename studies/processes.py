@@ -109,34 +109,22 @@ def set_death_signal(parent: int) -> str | None:
     return None
 
 
-class interrupt_on_signals:
-    """SIGINT, SIGTERM and SIGHUP raise Interrupted in the main thread, once (a context manager).
+class RaisingStopSignals(StopSignals):
+    """StopSignals that raise Interrupted in the main thread at the first signal, for loops that wait on workers
+    rather than poll (the study commands). Every later signal is ignored from then on, so the cleanup that follows
+    (stopping the workers, closing the logs, saying what was kept) is not itself interrupted: a second Ctrl-C used
+    to leave the parent waiting on its workers for good. Without a signal the previous handlers are restored on
+    exit; after one they are not (the command is on its way out)."""
 
-    For the study commands, whose loops wait on workers: the first signal raises Interrupted where the main thread
-    is, and every later one is ignored from then on, so the cleanup that follows (stopping the workers, closing the
-    logs, saying what was kept) is not itself interrupted: a second Ctrl-C used to leave the parent waiting on its
-    workers for good. Without a signal the previous handlers are restored on exit; after one they are not (the
-    command is on its way out)."""
-
-    def __init__(self, signals: Iterable[int] = STOP_SIGNALS) -> None:
-        self.signals = tuple(signals)
-        self.received: int | None = None
-        self._previous: dict = {}
-
-    def _handle(self, signum, frame) -> None:  # noqa: ARG002
+    def _handle(self, signum, frame) -> None:
         for sig in self.signals:
             signal.signal(sig, signal.SIG_IGN)
-        self.received = signum
+        super()._handle(signum, frame)
         raise Interrupted(signum)
-
-    def __enter__(self) -> "interrupt_on_signals":
-        self._previous = {sig: signal.signal(sig, self._handle) for sig in self.signals}
-        return self
 
     def __exit__(self, *exc_info) -> None:
         if self.received is None:
-            for sig, handler in self._previous.items():
-                signal.signal(sig, handler)
+            super().__exit__(*exc_info)
 
 
 def _trampoline(argv: list[str]) -> int:

@@ -113,5 +113,6 @@ def interrupted(command: str, reason: object, path: Path | None, total: int) -> 
     if path is None or not path.exists():
         return f"{command}: {reason}: no flight had finished ({total} planned); nothing written"
     with path.open(newline="") as handle:
-        kept = sum(1 for _ in csv.reader(handle)) - 1 if path.suffix == ".csv" else sum(1 for line in handle if line.strip())
+        records = sum(1 for _ in csv.reader(handle)) - 1 if path.suffix == ".csv" else sum(1 for line in handle if line.strip())
+    kept = max(0, records)  # a CSV interrupted before its header was written holds none
     return f"{command}: {reason}: {kept} of {total} flights kept in {path}"

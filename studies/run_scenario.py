@@ -22,7 +22,7 @@ from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, load_sc
 from studies.closed_loop import SimulationResult, simulate
 from studies.metrics import convergence_text, suspect_warning, write_summary
 from studies.plots import plot_errors, plot_swarm_tracks, plot_trajectories
-from studies.processes import Interrupted, interrupt_on_signals
+from studies.processes import Interrupted, RaisingStopSignals
 from studies.swarm import SwarmResult, simulate_swarm
 
 DEFAULT_SCENARIO = DEFAULT_SCENARIO
@@ -146,7 +146,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"bof-sim: {error}", file=sys.stderr)
         return 2
     try:
-        with interrupt_on_signals():
+        with RaisingStopSignals():
             return _fly_swarm(scenario, vehicle, args) if scenario.swarm is not None else _fly(scenario, vehicle, args)
     except Interrupted as stop:
         # An in-process flight lives in memory until it ends (a minute of flight takes about 0.1 s), then its

@@ -47,7 +47,7 @@ from interfaces.scenario import ConfigError, Scenario, SwarmBlackout, VehicleCon
 from interfaces.cli import output_folder
 from studies import reporting
 from studies.executors import check_executor, check_flight_count, make_executor
-from studies.processes import Interrupted, interrupt_on_signals
+from studies.processes import Interrupted, RaisingStopSignals
 from studies.metrics import write_summary
 from studies.swarm import simulate_swarm
 
@@ -432,7 +432,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"bof-swarm-study: {len(cases)} cases x {args.seeds} seeds -> {folder}", flush=True)
     partial = folder / "flights.partial.jsonl"
     try:
-        with interrupt_on_signals():
+        with RaisingStopSignals():
             rows, flights, executor_name, wall = run_study(cases, args.seeds, args.executor, workers,
                                                            progress=not args.quiet, partial_log=partial)
     except Interrupted as stop:
