@@ -8,6 +8,7 @@ factory, so adding a baseline is one entry.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -26,6 +27,7 @@ from companion.core.guidance import (HelicalNavigationGuidance, LateralGuidance,
                                      RangeExcitation)
 from companion.core.health import HealthActionConfig, HealthActionPolicy, HealthConfig, HealthMonitor
 from companion.core.imm import IMMEstimator, standard_models
+from companion.core.safety import SafetyEnvelope
 from companion.core.cooperative_estimation import FusionEstimator, TriangulationKalmanEstimator
 from companion.core.cooperative_guidance import CircumnavigationGuidance, SeparationFilter, StandoffTrackingGuidance
 from companion.core.pipeline import Cooperation, DropoutPolicy, FollowingPipeline
@@ -227,7 +229,30 @@ def build_pipeline(scenario: Scenario, vehicle: VehicleConfig, hover_thrust_norm
         actions=HealthActionPolicy(health_action_config(scenario)),
         action_excitation=build_action_excitation(scenario),
         cooperation=build_cooperation(scenario, pursuer_id),
+        envelope=safety_envelope(scenario, vehicle),
     )
+
+
+def safety_envelope(scenario: Scenario, vehicle: VehicleConfig) -> SafetyEnvelope | None:
+    """[safety] as the pipeline's SafetyEnvelope (None when disabled): the closest approach is the dropout
+    policy's min_range (r_d / 2 by default), the target's braking [estimator] target_max_acceleration, and
+    the pursuer's own braking, unless given, half of g tan(max_tilt) planned and 0.9 g tan(max_tilt) at most."""
+    settings = scenario.safety
+    if not settings.enabled:
+        return None
+    tilt_limited = vehicle.gravity * math.tan(math.radians(vehicle.max_tilt_deg))
+    braking = settings.braking_acceleration if settings.braking_acceleration is not None else 0.5 * tilt_limited
+    try:
+        return SafetyEnvelope(min_range=dropout_policy(scenario).min_range,
+                              target_max_acceleration=scenario.estimator.target_max_acceleration,
+                              braking_acceleration=braking,
+                              max_braking_acceleration=max(0.9 * tilt_limited, braking), range_sigmas=settings.range_sigmas,
+                              reaction_time=settings.reaction_time, velocity_gain=settings.velocity_gain,
+                              max_yaw_rate=math.radians(settings.max_yaw_rate_deg),
+                              untrusted_range_share=settings.untrusted_range_share,
+                              tilt_margin=math.radians(settings.tilt_margin_deg))
+    except ValueError as error:
+        raise ConfigError(f"safety: {error}") from None
 
 
 def pursuer_scenario(scenario: Scenario, start: PursuerStart) -> Scenario:

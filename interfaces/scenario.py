@@ -434,6 +434,9 @@ class EstimatorConfig(_Strict):
     (0, IMM_MAX_TURN_RATE]; an empty list leaves the constant-velocity model alone (the u-PLKF)."""
     imm_turn_process_noise: Positive = 0.04
     """kind 'imm' only: q of the turn models, (m/s^2)^2 per axis (the constant-velocity model uses process_noise)."""
+    target_max_acceleration: Annotated[float, Field(gt=0.0, le=30.0)] = 3.0
+    """m/s^2: the largest acceleration (or braking) the followed target is expected to have. The safety
+    envelope plans for a target braking this hard ([safety])."""
     imm_stay_probability: float = Field(0.98, gt=0.0, le=1.0)
     """kind 'imm' only: p_ii, the probability that the target keeps its motion model over imm_stay_time s
     (seed 004: 0.98, the rest split evenly over the other models)."""
@@ -822,6 +825,29 @@ class DropoutConfig(_Strict):
         if self.coast_after > self.coast_limit:
             raise ValueError("coast_after must not exceed coast_limit")
         return self
+
+
+class SafetyConfig(_Strict):
+    """The safety envelope applied to every command (companion.core.safety.SafetyEnvelope), whatever the estimate.
+
+    enabled: False flies the guidance laws' commands as they are (for studies of the laws alone). The closest
+    the pursuer may come is [dropout] min_range (r_d / 2 by default). range_sigmas: k of the pessimistic range
+    r^ - k sigma_r and target speed. braking_acceleration: m/s^2 the pursuer plans to brake with; default half
+    of g tan(max_tilt) of the airframe. reaction_time: s until braking takes effect. velocity_gain: 1/s.
+    max_yaw_rate_deg: deg/s, the setpoint heading's largest rate of turn. untrusted_range_share: the share of
+    the pessimistic range counted on while the estimate is not trusted (suspect, coasting, degraded).
+    tilt_margin_deg: deg, the setpoints' tilt limit is the airframe's max_tilt_deg less this. The
+    target's largest deceleration is [estimator] target_max_acceleration.
+    """
+
+    enabled: bool = True
+    range_sigmas: Annotated[float, Field(ge=0.0, le=10.0)] = 2.0
+    braking_acceleration: Annotated[float, Field(gt=0.0, le=30.0)] | None = None
+    reaction_time: Annotated[float, Field(ge=0.0, le=5.0)] = 0.3
+    velocity_gain: Annotated[float, Field(gt=0.0, le=20.0)] = 2.0
+    max_yaw_rate_deg: Annotated[float, Field(gt=0.0, le=1000.0)] = 90.0
+    untrusted_range_share: Annotated[float, Field(gt=0.0, le=1.0)] = 1.0
+    tilt_margin_deg: Annotated[float, Field(ge=0.0, lt=20.0)] = 3.0
 
 
 HealthReasonName = Literal["nis", "range_uncertain", "behind_sensor", "range_implausible", "range_unobservable"]
@@ -1227,6 +1253,7 @@ class Scenario(_Strict):
     companion: CompanionConfig = CompanionConfig()
     faults: FaultsConfig = FaultsConfig()
     dropout: DropoutConfig = DropoutConfig()
+    safety: SafetyConfig = SafetyConfig()
     health: HealthSection = HealthSection()
     swarm: SwarmConfig | None = None
 

@@ -38,6 +38,7 @@ from companion.core.messages import (
     fast_frozen,
 )
 from companion.core.observability import WindowedObservability
+from companion.core.safety import EnvelopeRecord, SafetyEnvelope
 
 _TIME_EPS = 1e-9
 
@@ -223,6 +224,10 @@ class FollowingPipeline:
     rho = sigma_r / r^ at the control time, s = 1 while the health monitor says suspect.
     Not added in the degraded mode (safe behaviour) nor to a complete law (PD).
     `excitation_level` holds the latest s.
+
+    envelope: the safety envelope applied to every command after the law and the blend, before the
+    separation filter (companion.core.safety: the closing speed from a pessimistic range, the heading's
+    rate of turn); None flies the laws' commands as they are. `envelope_record` counts the ticks it acted.
     """
 
     def __init__(
@@ -241,6 +246,7 @@ class FollowingPipeline:
         actions: HealthActionPolicy | None = None,
         action_excitation: RangeExcitation | None = None,
         cooperation: Cooperation | None = None,
+        envelope: SafetyEnvelope | None = None,
     ) -> None:
         if control_period <= 0.0:
             raise ValueError("control period must be positive")
@@ -249,6 +255,7 @@ class FollowingPipeline:
         self.estimator = estimator
         self.lateral_guidance = lateral_guidance
         self.range_controller = range_controller
+        self.envelope = envelope
         self.limits = limits
         self.initial_guess = initial_guess
         self.control_period = float(control_period)
@@ -289,6 +296,17 @@ class FollowingPipeline:
         self.weaving = True
         self.cooperating = False
         self.law_changes: list[tuple[float, str]] = []
+        self.envelope_record = EnvelopeRecord()
+
+    @property
+    def limits(self) -> VehicleLimits:
+        """The limits the setpoints are computed with: the airframe's (as set), within the envelope's tilt margin."""
+        return self._limits
+
+    @limits.setter
+    def limits(self, airframe: VehicleLimits) -> None:
+        self.airframe_limits = airframe
+        self._limits = airframe if self.envelope is None else self.envelope.commanded_limits(airframe)
 
     def set_neighbours(self, neighbours) -> None:
         """The fresh neighbours (companion.core.messages.NeighbourState, the caller filters freshness) the next
@@ -627,7 +645,8 @@ class FollowingPipeline:
                     lateral_law, self.range_controller, time - self._engaged_at, estimate.position,
                     estimate.velocity, estimate.covariance, np.asarray(pursuer.position, dtype=float),
                     np.asarray(pursuer.velocity, dtype=float), excitation, suspect, self.limits.setpoint_terms,
-                    not (keep_off or blend or separate), None if previous is None else previous.rotation)
+                    not (keep_off or blend or separate or self.envelope is not None),
+                    None if previous is None else previous.rotation)
         if tick is not None:
             range_estimate, level, los, lateral, longitudinal, command, compiled_setpoint = tick
             if level is not None:
@@ -672,6 +691,13 @@ class FollowingPipeline:
             size = norm(change)
             if size > step_limit:
                 command = self._last_command + change * (step_limit / size)
+        heading = None
+        if self.envelope is not None:
+            # The target's velocity is counted on while bearings keep the estimate tight (tracking, or coasting
+            # through a steady latency) and the monitor does not doubt it.
+            trusted = (self.mode in (TrackMode.TRACKING, TrackMode.COASTING) and not suspect
+                       and self.health_action is not HealthAction.RECOVERING)
+            command, heading = self._within_envelope(time, command, los, range_estimate, estimate, pursuer, trusted)
         if separate:
             # Last, so that no mode, law or blend can undo it.
             command = cooperation.separation.filter(pursuer.position, pursuer.velocity, command, neighbours)
@@ -681,9 +707,37 @@ class FollowingPipeline:
             self._setpoint = fast_frozen(AttitudeSetpoint, time=time, rotation=rotation,
                                          thrust_normalized=thrust_normalized, thrust=thrust, acceleration=flown)
         else:  # heading fallback: the previous setpoint's r1
-            self._setpoint = attitude_setpoint_after(time, command, los, self.limits, self._setpoint)
+            self._setpoint = attitude_setpoint_after(time, command, los if heading is None else heading, self.limits,
+                                                     self._setpoint)
         self._guidance = fast_frozen(GuidanceTerms, lateral=lateral, longitudinal=longitudinal, los=los,
                                      range_estimate=range_estimate)
+
+    def _within_envelope(self, time: float, command: np.ndarray, los: np.ndarray, range_estimate: float,
+                         estimate: TargetEstimate, pursuer: PursuerState, trusted: bool) -> tuple[np.ndarray, np.ndarray | None]:
+        """The command (m/s^2, (3,)) within the safety envelope, and the heading direction for R_d (None: the line
+        of sight): companion.core.safety, its closing-speed rule from this estimate's sigma_r and sigma_v along
+        `los`, the target's velocity counted only when `trusted`. Counts the ticks it acted in envelope_record."""
+        envelope, record = self.envelope, self.envelope_record
+        heading_los = los
+        covariance = estimate.covariance
+        if self._last_bearing is not None and time - self._last_bearing_time < self.dropout.coast_after:
+            los = self._last_bearing  # the measured line of sight while fresh: a measurement, not the estimate
+        range_std = math.sqrt(max(float(los @ covariance[:3, :3] @ los), 0.0))
+        speed_std = math.sqrt(max(float(los @ covariance[3:, 3:] @ los), 0.0))
+        limit = envelope.closing_speed_limit(range_estimate, range_std, float(estimate.velocity @ los), speed_std,
+                                             trusted)
+        limited = envelope.limit_closing(command, los, np.asarray(pursuer.velocity, dtype=float), limit)
+        if limited is not None:
+            command = limited
+            record.closing_ticks += 1
+            record.closing_seconds += self.control_period
+        previous = self._setpoint
+        heading = None if previous is None else envelope.heading(heading_los, previous.rotation[:, 0],
+                                                                 time - previous.time)
+        if heading is not None:
+            record.heading_ticks += 1
+            record.heading_seconds += self.control_period
+        return command, heading
 
 
 @jit

@@ -1,0 +1,178 @@
+"""The safety envelope: what the command may never do, whatever the estimate says.
+
+The guidance laws fly on the estimate. A bearing-only estimate can be wrong in exactly the way that
+matters most for safety: while the target accelerates away the range estimate collapses towards
+r_d, and when it then brakes the pursuer arrives too fast. The envelope is applied to every
+command after the law (and before the vehicle's own limits), with two rules:
+
+1. **Closing speed from a pessimistic range.** With r_p = r^ - k sigma_r the range the estimate
+   cannot rule out (sigma_r = sqrt(lambda^T P_pp lambda)), and the target's speed away from us
+   u_T = v^_T . lambda - k sigma_v (pessimistic too), the pursuer closes along the line of sight
+   no faster than it can stop before min_range even if the target starts braking now at the
+   largest deceleration a target can have (a_T):
+
+       gap = r_p - r_min + max(u_T, 0)^2 / (2 a_T)                    (target's stopping distance)
+       u_max = sqrt((a_P t_r)^2 + 2 a_P gap) - a_P t_r   if gap > 0,    (own stopping distance,
+       u_max = gain_retreat * gap                         otherwise     t_r of reaction)
+
+   plus min(u_T, 0) when the target comes towards us. While the pursuer's own closing speed
+   u_P = v_P . lambda exceeds u_max the command's line-of-sight component becomes
+   min(a . lambda, k_v (u_max - u_P)), bounded below by -a_max, the hardest braking the airframe
+   flies (a_P < a_max keeps the rest for the lateral law while the envelope only plans).
+   It is the longitudinal rule of responsibility-sensitive safety (Shalev-Shwartz et al. 2017)
+   applied to a target whose range is known only up to k sigma. When the estimate is not trusted
+   (coasting, degraded, the health monitor judging it suspect) the envelope counts on only
+   untrusted_range_share of the pessimistic range and leaves the target's stopping distance out
+   (u_T taken as at most 0): a suspect bearing-only estimate is most often wrong by a factor, not
+   by a few sigma. The line of sight is the latest measured bearing while it is fresh (a
+   measurement, not the estimate), else the estimate's.
+
+2. **Heading rate.** The setpoint's heading turns towards the line of sight at most max_yaw_rate
+   (rad/s): a geometric attitude controller tracking a yaw step couples the yaw error into roll and
+   pitch, and a pursuer close to a target whose bearing swings fast tilted 10 deg past its tilt
+   limit that way. The returned heading direction replaces lambda in eq. (21)'s R_d only when the
+   line of sight turned further than that since the last setpoint.
+
+3. **Tilt margin.** The setpoints' tilt is kept tilt_margin below the airframe's limit: the
+   attitude loop overshoots a fast-moving tilt setpoint by a few degrees, and the limit is the
+   airframe's, not the setpoint's.
+
+Plain numpy and math: a few scalar operations per control tick.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from companion.core.attitude import VehicleLimits
+
+
+@dataclass(frozen=True)
+class SafetyEnvelope:
+    """The envelope's parameters (module docstring). Distances m, speeds m/s, accelerations m/s^2, times s.
+
+    min_range: r_min, the closest the pursuer may come to the target (the default setup takes r_d / 2).
+    range_sigmas: k of the pessimistic range r^ - k sigma_r and target speed u_T - k sigma_v.
+    target_max_acceleration: a_T, the largest deceleration a target can have (the estimator's stated
+    target acceleration bound). braking_acceleration: a_P, the braking the pursuer plans with (well
+    inside what its tilt limit allows, since the lateral law needs the rest). reaction_time: t_r, the
+    latency until a braking command takes effect. max_braking_acceleration: a_max, the hardest braking the
+    envelope commands when the closing speed is already above the limit (at least a_P). velocity_gain: k_v, 1/s, how hard the closing speed
+    is pulled down to the limit. retreat_gain: 1/s, the speed away per metre inside r_min.
+    max_yaw_rate: rad/s, the heading's largest rate of turn. untrusted_range_share: the share of the
+    pessimistic range counted on while the estimate is not trusted, in (0, 1]. tilt_margin: rad, kept
+    between the setpoints' tilt and the airframe's limit (`commanded_limits`).
+    """
+
+    min_range: float
+    target_max_acceleration: float
+    braking_acceleration: float
+    max_braking_acceleration: float
+    range_sigmas: float = 2.0
+    reaction_time: float = 0.3
+    velocity_gain: float = 2.0
+    retreat_gain: float = 1.0
+    max_yaw_rate: float = math.radians(90.0)
+    untrusted_range_share: float = 1.0
+    tilt_margin: float = math.radians(3.0)
+
+    def __post_init__(self) -> None:
+        values = (self.min_range, self.target_max_acceleration, self.braking_acceleration, self.velocity_gain,
+                  self.retreat_gain, self.max_yaw_rate)
+        if not all(math.isfinite(v) and v > 0.0 for v in values):
+            raise ValueError("the safety envelope's min_range, accelerations, gains and max_yaw_rate must be finite and > 0")
+        if not (math.isfinite(self.max_braking_acceleration) and self.max_braking_acceleration >= self.braking_acceleration):
+            raise ValueError("max_braking_acceleration must be finite and at least braking_acceleration")
+        if not (math.isfinite(self.range_sigmas) and self.range_sigmas >= 0.0):
+            raise ValueError(f"range_sigmas must be finite and >= 0, got {self.range_sigmas!r}")
+        if not (math.isfinite(self.reaction_time) and self.reaction_time >= 0.0):
+            raise ValueError(f"reaction_time must be finite and >= 0, got {self.reaction_time!r}")
+        if not (math.isfinite(self.tilt_margin) and 0.0 <= self.tilt_margin < math.radians(20.0)):
+            raise ValueError(f"tilt_margin must be in [0, 20) deg, got {math.degrees(self.tilt_margin)!r} deg")
+        if not 0.0 < self.untrusted_range_share <= 1.0:
+            raise ValueError(f"untrusted_range_share must be in (0, 1], got {self.untrusted_range_share!r}")
+
+    def commanded_limits(self, limits: VehicleLimits) -> VehicleLimits:
+        """The airframe's limits with the setpoints' tilt limit tilt_margin below its own (module docstring,
+        rule 3); the airframe's limits when the margin would leave less than 5 deg."""
+        tilt = limits.max_tilt - self.tilt_margin
+        if self.tilt_margin == 0.0 or tilt < math.radians(5.0):
+            return limits
+        return dataclasses.replace(limits, max_tilt=tilt)
+
+    def closing_speed_limit(self, range_estimate: float, range_std: float, target_speed_away: float,
+                            target_speed_std: float, trust_target_velocity: bool) -> float:
+        """u_max, m/s (module docstring, rule 1): the largest speed along the line of sight towards the target
+        that still stops the pursuer before min_range. range_estimate r^ and range_std sigma_r, m;
+        target_speed_away v^_T . lambda and its std, m/s; trust_target_velocity False counts on
+        untrusted_range_share of the pessimistic range and leaves out the target's stopping distance (its speed
+        counts only when it comes towards us)."""
+        k = self.range_sigmas
+        pessimistic_range = range_estimate - k * range_std
+        away = target_speed_away - k * target_speed_std
+        if not trust_target_velocity:
+            pessimistic_range *= self.untrusted_range_share
+            away = min(away, 0.0)
+        gap = pessimistic_range - self.min_range
+        if away > 0.0:
+            gap += away * away / (2.0 * self.target_max_acceleration)
+        braking, lag = self.braking_acceleration, self.reaction_time
+        if gap > 0.0:
+            limit = math.sqrt((braking * lag) ** 2 + 2.0 * braking * gap) - braking * lag
+        else:
+            limit = self.retreat_gain * gap
+        return limit + min(away, 0.0)
+
+    def limit_closing(self, command: np.ndarray, los: np.ndarray, pursuer_velocity: np.ndarray,
+                      speed_limit: float) -> np.ndarray | None:
+        """The command (m/s^2, (3,)) with its line-of-sight component lowered so the closing speed
+        v_P . lambda comes down to speed_limit (m/s) at velocity_gain, never below -max_braking_acceleration;
+        None when the command already keeps within the limit (nothing to change). los: unit lambda (3,);
+        pursuer_velocity: v_P, m/s (3,)."""
+        closing_speed = float(pursuer_velocity @ los)
+        along = float(command @ los)
+        if closing_speed <= speed_limit and along <= self.velocity_gain * (speed_limit - closing_speed):
+            return None
+        wanted = max(self.velocity_gain * (speed_limit - closing_speed), -self.max_braking_acceleration)
+        if along <= wanted:
+            return None
+        return command + (wanted - along) * los
+
+    def heading(self, los: np.ndarray, previous_forward: np.ndarray | None, interval: float) -> np.ndarray | None:
+        """The direction R_d's heading is built from (module docstring, rule 2): None when lambda's horizontal
+        direction is within max_yaw_rate x interval of the previous setpoint's forward axis (or either is
+        vertical, or there is no previous setpoint): lambda itself then; else the horizontal unit vector turned
+        from the previous heading towards lambda's by that much. los: unit lambda (3,); previous_forward: the
+        last R_d's first column (3,); interval: s since that setpoint."""
+        if previous_forward is None:
+            return None
+        wanted = math.atan2(float(los[1]), float(los[0]))
+        if math.hypot(float(los[0]), float(los[1])) < 1e-6 or math.hypot(float(previous_forward[0]),
+                                                                           float(previous_forward[1])) < 1e-6:
+            return None
+        current = math.atan2(float(previous_forward[1]), float(previous_forward[0]))
+        turn = math.remainder(wanted - current, 2.0 * math.pi)
+        step = self.max_yaw_rate * max(interval, 0.0)
+        if abs(turn) <= step:
+            return None
+        heading = current + math.copysign(step, turn)
+        return np.array([math.cos(heading), math.sin(heading), 0.0])
+
+
+@dataclass
+class EnvelopeRecord:
+    """How often the envelope acted: control ticks whose closing speed it limited, and whose heading it
+    rate-limited, each with the simulated seconds of those ticks (ticks x control period)."""
+
+    closing_ticks: int = 0
+    heading_ticks: int = 0
+    closing_seconds: float = 0.0
+    heading_seconds: float = 0.0
+
+    def as_dict(self) -> dict:
+        return {"closing_ticks": self.closing_ticks, "closing_seconds": self.closing_seconds,
+                "heading_ticks": self.heading_ticks, "heading_seconds": self.heading_seconds}
