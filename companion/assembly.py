@@ -124,9 +124,11 @@ def _range_azel_ekf(s: EstimatorSettings) -> TargetEstimator:
 
 def _imm(s: EstimatorSettings) -> TargetEstimator:
     """The interacting-multiple-model estimator (companion.core.imm): constant velocity with Q = process_noise I,
-    and a right and a left coordinated turn (Q = imm_turn_process_noise I) per imm_turn_rates entry."""
+    a right and a left coordinated turn (Q = imm_turn_process_noise I) per imm_turn_rates entry, and with
+    imm_manoeuvre_model the manoeuvre model of target_max_acceleration (imm.manoeuvre_model)."""
     c = s.config
-    models = standard_models(c.imm_turn_rates, c.process_noise, c.imm_turn_process_noise)
+    models = standard_models(c.imm_turn_rates, c.process_noise, c.imm_turn_process_noise,
+                             c.target_max_acceleration if c.imm_manoeuvre_model else None)
     return IMMEstimator(s.period, models, s.measurement_noise, gain_projection=GainProjection(c.gain_projection),
                         pursuer_position_std=c.pursuer_position_std, restart_when_behind=c.restart_when_behind,
                         stay_probability=c.imm_stay_probability, stay_time=c.imm_stay_time)

@@ -434,9 +434,13 @@ class EstimatorConfig(_Strict):
     (0, IMM_MAX_TURN_RATE]; an empty list leaves the constant-velocity model alone (the u-PLKF)."""
     imm_turn_process_noise: Positive = 0.04
     """kind 'imm' only: q of the turn models, (m/s^2)^2 per axis (the constant-velocity model uses process_noise)."""
+    imm_manoeuvre_model: bool = True
+    """kind 'imm' only: add the manoeuvre model (white-noise acceleration, q = (target_max_acceleration / 3)^2
+    per axis) for a target that changes speed: hovers, dashes, brakes. False: the constant-velocity and turn
+    models alone."""
     target_max_acceleration: Annotated[float, Field(gt=0.0, le=30.0)] = 3.0
-    """m/s^2: the largest acceleration (or braking) the followed target is expected to have. The safety
-    envelope plans for a target braking this hard ([safety])."""
+    """m/s^2: the largest acceleration (or braking) the followed target is expected to have: the IMM's
+    manoeuvre model's noise, and the braking the safety envelope plans for ([safety])."""
     imm_stay_probability: float = Field(0.98, gt=0.0, le=1.0)
     """kind 'imm' only: p_ii, the probability that the target keeps its motion model over imm_stay_time s
     (seed 004: 0.98, the rest split evenly over the other models)."""
@@ -477,7 +481,7 @@ class EstimatorConfig(_Strict):
 IMM_MAX_TURN_RATE = 2.0
 """rad/s: the largest turn rate an IMM model may assume (a 2 m/s^2 turn at 1 m/s; a multirotor target
 turning faster is hovering, which the constant-velocity model covers)."""
-IMM_OPTIONS = ("imm_turn_rates", "imm_turn_process_noise", "imm_stay_probability", "imm_stay_time")
+IMM_OPTIONS = ("imm_turn_rates", "imm_turn_process_noise", "imm_stay_probability", "imm_stay_time", "imm_manoeuvre_model")
 
 
 GUIDANCE_LAWS = ("hng", "ppg", "png", "pd", "retro_png", "zem", "seed003")

@@ -85,14 +85,30 @@ class MotionModel:
     process_noise: float
 
 
-def standard_models(turn_rates: Sequence[float], cv_process_noise: float, turn_process_noise: float) -> list[MotionModel]:
+def standard_models(turn_rates: Sequence[float], cv_process_noise: float, turn_process_noise: float,
+                    manoeuvre_acceleration: float | None = None) -> list[MotionModel]:
     """Constant velocity first, then a right (+omega) and a left (-omega) coordinated turn per
-    turn rate (rad/s, each > 0): seed 004's straight / right / left set for one rate."""
+    turn rate (rad/s, each > 0): seed 004's straight / right / left set for one rate; then, when
+    manoeuvre_acceleration (m/s^2) is given, a manoeuvre model (`manoeuvre_model`)."""
     models = [MotionModel("cv", 0.0, cv_process_noise)]
     for rate in turn_rates:
         models.append(MotionModel(f"ct+{rate:g}", float(rate), turn_process_noise))
         models.append(MotionModel(f"ct-{rate:g}", -float(rate), turn_process_noise))
+    if manoeuvre_acceleration is not None:
+        models.append(manoeuvre_model(manoeuvre_acceleration))
     return models
+
+
+def manoeuvre_model(max_acceleration: float) -> MotionModel:
+    """The model of a target changing speed or direction: white-noise acceleration whose per-axis standard
+    deviation is a third of the target's largest acceleration a_max (m/s^2; a_max its 3-sigma bound),
+    q = (a_max / 3)^2. Bar-Shalom, Li and Kirubarajan (2001, section 6.3.2) give 0.5 a_max to a_max for a
+    filter alone; inside an IMM beside a quiet model the manoeuvre model needs only to cover the
+    acceleration, and a larger q lets it explain the pursuer's own weave as target motion (the range
+    then no longer shows in the bearings)."""
+    if not (math.isfinite(max_acceleration) and max_acceleration > 0.0):
+        raise ValueError(f"the manoeuvre model needs a finite max_acceleration > 0, got {max_acceleration!r}")
+    return MotionModel("manoeuvre", 0.0, (max_acceleration / 3.0) ** 2)
 
 
 @jit

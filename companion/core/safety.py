@@ -16,9 +16,9 @@ command after the law (and before the vehicle's own limits), with two rules:
        u_max = gain_retreat * gap                         otherwise     t_r of reaction)
 
    plus min(u_T, 0) when the target comes towards us. While the pursuer's own closing speed
-   u_P = v_P . lambda exceeds u_max the command's line-of-sight component becomes
-   min(a . lambda, k_v (u_max - u_P)), bounded below by -a_max, the hardest braking the airframe
-   flies (a_P < a_max keeps the rest for the lateral law while the envelope only plans).
+   u_P = v_P . lambda comes near u_max the command's line-of-sight component becomes
+   min(a . lambda, k_v (u_max - u_P) + du_max/dt), bounded below by -a_max, the hardest braking the
+   airframe flies (a_P < a_max keeps the rest for the lateral law while the envelope only plans).
    It is the longitudinal rule of responsibility-sensitive safety (Shalev-Shwartz et al. 2017)
    applied to a target whose range is known only up to k sigma. When the estimate is not trusted
    (coasting, degraded, the health monitor judging it suspect) the envelope counts on only
@@ -130,17 +130,29 @@ class SafetyEnvelope:
     def limit_closing(self, command: np.ndarray, los: np.ndarray, pursuer_velocity: np.ndarray,
                       speed_limit: float) -> np.ndarray | None:
         """The command (m/s^2, (3,)) with its line-of-sight component lowered so the closing speed
-        v_P . lambda comes down to speed_limit (m/s) at velocity_gain, never below -max_braking_acceleration;
+        v_P . lambda stays at or comes down to speed_limit (m/s) (`_limit_tracking`), never below
+        -max_braking_acceleration;
         None when the command already keeps within the limit (nothing to change). los: unit lambda (3,);
         pursuer_velocity: v_P, m/s (3,)."""
         closing_speed = float(pursuer_velocity @ los)
         along = float(command @ los)
-        if closing_speed <= speed_limit and along <= self.velocity_gain * (speed_limit - closing_speed):
-            return None
-        wanted = max(self.velocity_gain * (speed_limit - closing_speed), -self.max_braking_acceleration)
+        wanted = max(self._limit_tracking(speed_limit, closing_speed), -self.max_braking_acceleration)
         if along <= wanted:
             return None
         return command + (wanted - along) * los
+
+    def _limit_tracking(self, speed_limit: float, closing_speed: float) -> float:
+        """The line-of-sight acceleration that keeps the closing speed at or below a limit that itself falls as
+        the range does: k_v (u_max - u_P) plus the limit's own rate, du_max/dt = -(a_P / (u_max + a_P t_r)) u_P
+        (the derivative of rule 1's u_max with respect to the gap, the gap shrinking at u_P). At u_P = u_max
+        with t_r = 0 that is braking at exactly a_P, the profile u_max was built on."""
+        braking = self.braking_acceleration
+        feed_forward = 0.0
+        if closing_speed > 0.0 and speed_limit > 0.0:
+            feed_forward = braking * closing_speed / (speed_limit + braking * self.reaction_time)
+        elif closing_speed > 0.0:
+            return -self.max_braking_acceleration
+        return self.velocity_gain * (speed_limit - closing_speed) - feed_forward
 
     def heading(self, los: np.ndarray, previous_forward: np.ndarray | None, interval: float) -> np.ndarray | None:
         """The direction R_d's heading is built from (module docstring, rule 2): None when lambda's horizontal

@@ -1,0 +1,134 @@
+"""The safety envelope (companion.core.safety) against kinematics written here, and in flight."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from companion.core.attitude import VehicleLimits
+from companion.core.imm import manoeuvre_model
+from companion.core.safety import SafetyEnvelope
+from interfaces.scenario import SCENARIOS_DIR, load_scenario
+from studies.closed_loop import simulate
+from studies.montecarlo import with_overrides
+
+G = 9.81
+
+
+def envelope(**changes) -> SafetyEnvelope:
+    values = dict(min_range=4.0, target_max_acceleration=3.0, braking_acceleration=3.0, max_braking_acceleration=6.0,
+                  range_sigmas=2.0, reaction_time=0.0)
+    values.update(changes)
+    return SafetyEnvelope(**values)
+
+
+@given(gap=st.floats(0.01, 200.0), braking=st.floats(0.5, 10.0))
+def test_the_closing_limit_is_the_speed_that_stops_within_the_gap(gap: float, braking: float) -> None:
+    """No reaction time, an exact estimate and a target that is not moving: u_max = sqrt(2 a_P gap), the speed
+    from which braking at a_P ends exactly at min_range (v^2 = 2 a d)."""
+    rule = envelope(braking_acceleration=braking, max_braking_acceleration=braking)
+    limit = rule.closing_speed_limit(4.0 + gap, 0.0, 0.0, 0.0, True)
+    assert limit == pytest.approx(math.sqrt(2.0 * braking * gap), rel=1e-12)
+
+
+@given(gap=st.floats(0.01, 100.0), lag=st.floats(0.0, 2.0))
+def test_with_a_reaction_time_the_distance_to_stop_is_the_gap(gap: float, lag: float) -> None:
+    """u t_r + u^2 / (2 a_P) = gap at u = u_max: coasting through the reaction time, then braking."""
+    rule = envelope(reaction_time=lag)
+    u = rule.closing_speed_limit(4.0 + gap, 0.0, 0.0, 0.0, True)
+    assert u * lag + u * u / (2.0 * 3.0) == pytest.approx(gap, rel=1e-9)
+
+
+def test_the_pessimistic_range_and_the_targets_stopping_distance() -> None:
+    """r_p = r^ - k sigma_r; a target moving away at u_T adds u_T^2 / (2 a_T), only while trusted; one coming
+    towards us takes its speed off the limit; inside min_range the limit is a retreat."""
+    rule = envelope()
+    assert rule.closing_speed_limit(10.0, 1.0, 0.0, 0.0, True) == pytest.approx(math.sqrt(2 * 3.0 * (10 - 2 - 4)))
+    # away at 6 m/s with sigma 0.5: 5 m/s counts, 25 / 6 m of stopping
+    expected = math.sqrt(2 * 3.0 * (10 - 2 - 4 + 25.0 / 6.0))
+    assert rule.closing_speed_limit(10.0, 1.0, 6.0, 0.5, True) == pytest.approx(expected)
+    assert rule.closing_speed_limit(10.0, 1.0, 6.0, 0.5, False) == pytest.approx(math.sqrt(2 * 3.0 * 4.0))
+    assert rule.closing_speed_limit(10.0, 0.0, -2.0, 0.0, True) == pytest.approx(math.sqrt(2 * 3.0 * 6.0) - 2.0)
+    assert rule.closing_speed_limit(3.0, 0.0, 0.0, 0.0, True) == pytest.approx(-1.0)  # 1 m inside: back at 1 m/s
+    halved = envelope(untrusted_range_share=0.5)
+    assert halved.closing_speed_limit(20.0, 0.0, 0.0, 0.0, False) == pytest.approx(math.sqrt(2 * 3.0 * 6.0))
+
+
+@settings(max_examples=60, deadline=None)
+@given(start_range=st.floats(6.0, 60.0), speed=st.floats(0.0, 15.0), sigma=st.floats(0.0, 2.0))
+def test_a_point_mass_closing_on_a_hovering_target_never_passes_min_range(start_range: float, speed: float,
+                                                                          sigma: float) -> None:
+    """A double integrator at 50 Hz that asks to close at 3 m/s^2 for good, the envelope between it and its
+    acceleration, an estimate that is right (its sigma only makes it more careful): the range never goes
+    below min_range, whatever the start speed, as long as it could stop from there at all."""
+    rule = envelope(reaction_time=0.1)
+    los = np.array([1.0, 0.0, 0.0])
+    position, velocity, target = 0.0, speed, start_range
+    if speed * speed / (2 * 6.0) > start_range - 4.0 - 2.0 * sigma:
+        return  # even the hardest braking cannot stop it in time: outside what any rule can promise
+    dt = 0.02
+    closest = target - position
+    for _ in range(int(40.0 / dt)):
+        distance = target - position
+        limit = rule.closing_speed_limit(distance, sigma, 0.0, 0.0, True)
+        command = np.array([3.0, 0.0, 0.0])
+        limited = rule.limit_closing(command, los, np.array([velocity, 0.0, 0.0]), limit)
+        acceleration = float((command if limited is None else limited)[0])
+        assert acceleration >= -6.0 - 1e-12
+        position += velocity * dt + 0.5 * acceleration * dt * dt
+        velocity += acceleration * dt
+        closest = min(closest, target - position)
+    assert closest >= 4.0 - 0.05, closest
+
+
+@given(previous=st.floats(-math.pi, math.pi), wanted=st.floats(-math.pi, math.pi), interval=st.floats(0.01, 0.5))
+def test_the_heading_turns_at_most_at_the_yaw_rate(previous: float, wanted: float, interval: float) -> None:
+    rule = envelope(max_yaw_rate=math.radians(90.0))
+    forward = np.array([math.cos(previous), math.sin(previous), 0.0])
+    los = np.array([math.cos(wanted), math.sin(wanted), -0.3])
+    los /= np.linalg.norm(los)
+    heading = rule.heading(los, forward, interval)
+    turn = math.remainder(wanted - previous, 2 * math.pi)
+    step = math.radians(90.0) * interval
+    if abs(turn) <= step:
+        assert heading is None  # lambda itself
+    else:
+        assert heading is not None and heading[2] == 0.0
+        moved = math.remainder(math.atan2(heading[1], heading[0]) - previous, 2 * math.pi)
+        assert moved == pytest.approx(math.copysign(step, turn), abs=1e-9)
+
+
+def test_the_setpoints_keep_the_tilt_margin() -> None:
+    limits = VehicleLimits(2.0 / 3.0, max_tilt=math.radians(35.0), gravity=G, mass=1.0)
+    commanded = envelope(tilt_margin=math.radians(3.0)).commanded_limits(limits)
+    assert math.degrees(commanded.max_tilt) == pytest.approx(32.0)
+    assert envelope(tilt_margin=0.0).commanded_limits(limits) is limits
+
+
+@pytest.mark.parametrize("field, value", [("min_range", 0.0), ("braking_acceleration", -1.0), ("range_sigmas", -1.0),
+                                          ("max_braking_acceleration", 1.0), ("untrusted_range_share", 0.0),
+                                          ("tilt_margin", math.radians(25.0)), ("max_yaw_rate", math.nan)])
+def test_bad_envelope_parameters_are_refused(field: str, value: float) -> None:
+    with pytest.raises(ValueError):
+        envelope(**{field: value})
+
+
+def test_the_manoeuvre_model_takes_a_max_as_its_three_sigma_bound() -> None:
+    model = manoeuvre_model(3.0)
+    assert model.turn_rate == 0.0 and model.process_noise == pytest.approx(1.0)
+    with pytest.raises(ValueError):
+        manoeuvre_model(0.0)
+
+
+def test_a_stop_and_go_flight_keeps_its_tilt_inside_the_airframes_limit_and_counts_the_envelope() -> None:
+    """The stop-and-go target with the defaults: the setpoints' tilt stays 3 deg inside 35 deg, and the vehicle's
+    own tilt (the plant's attitude loop tracking them) never passes 35 deg; with the envelope off the same
+    flight tilts past the limit (the yaw steps the heading rule takes out)."""
+    scenario, vehicle = load_scenario(SCENARIOS_DIR / "stop_and_go.toml")
+    on = simulate(scenario, vehicle, 101)
+    assert on.summary["max_tilt_deg"] <= vehicle.max_tilt_deg
+    off = simulate(with_overrides(scenario, {"safety.enabled": False}), vehicle, 101)
+    assert off.summary["max_tilt_deg"] > vehicle.max_tilt_deg
