@@ -80,8 +80,15 @@ def test_prior_line_of_sight(seed, exponent, lead, where, value):
 
 def test_prior_line_of_sight_clips_as_pythons_min_and_max():
     """Cosines beyond +-1 by rounding are clipped, a NaN is kept (the guard then does not fire on the cosine)."""
-    direction = np.array([-0.29634718220320333, -0.9501875070900958, 0.0965507585165991])  # unit, to rounding
-    ahead = np.concatenate((32.425080287829374 * direction, np.zeros(3)))  # cosine 1 + 2^-52 unclipped
+    # A target straight ahead whose cosine rounds above 1 on this machine's BLAS (which vectors do depends on
+    # its dot kernel, so one is searched for: a few in a hundred random ones do).
+    rng = np.random.default_rng(7)
+    for _ in range(100_000):
+        direction = rng.normal(size=3)
+        direction /= np.linalg.norm(direction)
+        ahead = np.concatenate((rng.uniform(1.0, 100.0) * direction, np.zeros(3)))
+        if float(direction @ ahead[:3] / math.sqrt(float(ahead[:3] @ ahead[:3]))) > 1.0:
+            break
     assert float(direction @ ahead[:3] / math.sqrt(float(ahead[:3] @ ahead[:3]))) > 1.0
     for state, cosine in ((ahead, 1.0), (-ahead, -1.0), (np.array([math.nan, 0.0, 0.0, 0, 0, 0]), math.nan)):
         for function in (estimators._prior_line_of_sight, python(estimators._prior_line_of_sight)):
