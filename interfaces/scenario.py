@@ -3,7 +3,9 @@
 A scenario names a vehicle file (path relative to the scenario file) and sets the
 pursuer, target, sensor, estimator, guidance and simulation. Unknown or mistyped
 keys, non-finite numbers and impossible values are rejected with a ConfigError that
-names the file and the key; nothing half-runs.
+names the file and the key; nothing half-runs. A target replaying a recorded track
+([target.trajectory]) names its file relative to the scenario file too: the loaders
+read and check it and make the path absolute (docs/targets.md).
 """
 
 from __future__ import annotations

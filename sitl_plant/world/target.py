@@ -9,10 +9,16 @@
   acceleration ([target.stop_and_go]).
 - SingerTarget: random acceleration, a first-order Gauss-Markov process (Singer 1970) held
   over short updates, with the speed and the lateral acceleration bounded ([target.singer]).
+- SegmentTarget: a list of hover, accelerate, cruise, turn, climb and brake segments flown in
+  order ([target] segments); after the last one the target holds its final velocity.
+- TrajectoryTarget: a recorded track (CSV or PX4 ULog, interfaces.trajectory) replayed through
+  a C2 cubic spline ([target.trajectory]); it hovers at its first point before the replay
+  starts and flies on at the spline's final velocity after the last sample.
 
 Every model keeps position, velocity and acceleration exactly consistent (closed-form
-propagation between events), and target_from_config builds the one a scenario names, for
-both the in-process simulator and sitl-target.
+propagation between events; the spline and its derivatives for a recorded track), and
+target_from_config builds the one a scenario names, for both the in-process simulator and
+sitl-target. docs/targets.md describes the segment kinds and the trajectory formats.
 """
 
 from __future__ import annotations
