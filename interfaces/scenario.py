@@ -365,8 +365,6 @@ class BrakeSegment(_Strict):
 
 TargetSegment = Annotated[HoverSegment | AccelerateSegment | CruiseSegment | TurnSegment | ClimbSegment | BrakeSegment,
                           Field(discriminator="kind")]
-#: The segment kinds, in the order the documentation lists them.
-SEGMENT_KINDS = ("hover", "accelerate", "cruise", "turn", "climb", "brake")
 
 
 def _check_segments(initial_velocity: tuple[float, float, float], segments: tuple) -> None:

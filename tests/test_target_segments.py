@@ -361,3 +361,20 @@ def test_segments_fly_in_the_in_process_simulator():
     assert checked > 50
     hovering = times <= 4.0
     assert np.all(series["target_position"][hovering] == [50.0, -25.0, -20.0])
+
+
+def test_the_shipped_hover_dash_scenario_flies_its_description():
+    scenario, _ = load_scenario(SCENARIOS_DIR / "hover_dash.toml")
+    model = target_from_config(scenario.target, 1)
+    start = np.array([50.0, -25.0, -20.0])
+    # hover 8 s; 0 -> 8 m/s north at 2.5 m/s^2: 3.2 s, 8^2 / 5 = 12.8 m; cruise 10 s, 80 m; brake: 3.2 s, 12.8 m.
+    expected = {8.0: start, 11.2: start + [12.8, 0, 0], 21.2: start + [92.8, 0, 0], 24.4: start + [105.6, 0, 0],
+                34.4: start + [105.6, 0, 0]}
+    for time, position in expected.items():
+        model.advance_to(time)
+        assert np.allclose(model.position, position, rtol=0, atol=1e-9)
+    assert model.velocity.tolist() == [0.0, 0.0, 0.0]
+    # then east to 7 m/s at 2.5 m/s^2 (2.8 s, 9.8 m) and on at 7 m/s
+    model.advance_to(60.0)
+    assert np.allclose(model.position, start + [105.6, 9.8 + 7.0 * (60.0 - 34.4 - 2.8), 0.0], rtol=0, atol=1e-9)
+    assert np.allclose(model.velocity, [0.0, 7.0, 0.0], rtol=0, atol=1e-12)

@@ -9,6 +9,7 @@ values written into each file.
 from __future__ import annotations
 
 import math
+import os
 import struct
 import sys
 from pathlib import Path
@@ -23,6 +24,7 @@ from interfaces.link_schema import fix_to_ned
 from interfaces.scenario import SCENARIOS_DIR, ConfigError, TargetConfig, load_plant_scenario, load_scenario
 from interfaces.trajectory import read_trajectory
 from sitl_plant.world.target import TrajectoryTarget, target_from_config
+from studies.closed_loop import simulate
 from studies.processes import ChildProcess
 from ulog_writer import LOCAL_POSITION_FIELDS, ulog_bytes, write_local_position_ulog
 
@@ -220,6 +222,10 @@ def test_files_that_are_no_trajectory_are_refused(tmp_path):
     with open(huge, "wb") as handle:
         handle.truncate(64 * 1024 * 1024 + 1)  # sparse: no disk used
     cases[huge] = "larger than 64 MiB"
+    cases[Path("/dev/zero")] = "not a regular file"  # never ends: refused before reading
+    fifo = tmp_path / "fifo.csv"
+    os.mkfifo(fifo)
+    cases[fifo] = "not a regular file"  # would block a reader: refused without waiting for a writer
     for path, message in cases.items():
         with pytest.raises(ConfigError, match=message) as error:
             read_trajectory(path, "csv")
@@ -296,6 +302,7 @@ def test_the_loaders_resolve_the_file_against_the_scenario_folder_from_any_worki
     ('file = "nowhere.csv"\n', "target.trajectory.file = 'nowhere.csv': .*nowhere.csv: file not found"),
     ('file = "bad.csv"\n', "bad.csv: 2 samples"),
     ('file = "circle.csv"\nskip = 50.0\n', "target.trajectory.skip: 50 s leaves nothing of the 40 s track"),
+    ('file = "a\\u0000b.csv"\n', "target.trajectory.file: 'a\\\\x00b.csv' is not a usable path"),
 ])
 def test_a_scenario_with_a_bad_trajectory_is_refused_naming_the_scenario_and_the_key(tmp_path, trajectory, message):
     _write_circle_csv(tmp_path / "circle.csv")
@@ -360,3 +367,20 @@ def test_the_sitl_target_process_flies_the_recorded_track(tmp_path, clock_and_fi
         assert np.allclose(fix_to_ned(fix, scenario.sitl.home), position - _circle(0.0)[0] + [50.0, -25.0, -20.0],
                            rtol=0, atol=1e-2)
         assert np.allclose(fix.velocity, velocity, rtol=0, atol=0.1)
+
+
+def test_the_shipped_replay_flies_its_csv_samples_in_the_in_process_simulator():
+    scenario, vehicle = load_scenario(SCENARIOS_DIR / "replay_csv.toml")
+    samples = np.loadtxt(SCENARIOS_DIR.parent / "trajectories" / "hover_legs.csv", delimiter=",", skiprows=1)
+    assert samples.shape[0] >= 600 and samples[-1, 0] >= 60.0
+    scenario = scenario.model_copy(update={"simulation": scenario.simulation.model_copy(update={"duration": 12.0,
+                                                                                              "summary_window": 4.0})})
+    series = simulate(scenario, vehicle, seed=2).series
+    offset = np.array(scenario.target.initial_position) - samples[0, 1:]
+    matched = 0
+    for time, position in zip(series["time"], series["target_position"]):
+        index = round(time * 10.0)
+        if abs(time - samples[index, 0]) < 1e-9:  # a flight instant on a sample: the spline passes through it
+            assert np.allclose(position, samples[index, 1:] + offset, rtol=0, atol=1e-6)
+            matched += 1
+    assert matched >= 100
