@@ -3,7 +3,9 @@
 A scenario names a vehicle file (path relative to the scenario file) and sets the
 pursuer, target, sensor, estimator, guidance and simulation. Unknown or mistyped
 keys, non-finite numbers and impossible values are rejected with a ConfigError that
-names the file and the key; nothing half-runs.
+names the file and the key; nothing half-runs. A target replaying a recorded track
+([target.trajectory]) names its file relative to the scenario file too: the loaders
+read and check it and make the path absolute (docs/targets.md).
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ import sys
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Literal, get_args
+from typing import Annotated, Literal, TypeVar, get_args
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, Strict, ValidationError, field_validator, model_validator
 
@@ -52,11 +54,10 @@ DEFAULT_SCENARIO = SCENARIOS_DIR / "constant_velocity.toml"
 MAX_CONFIG_BYTES = 16 * 1024 * 1024
 
 
-def _read_toml(path: Path) -> dict:
-    """The TOML document in `path`. ConfigError, one line naming the file, unless it is a readable regular file
-    (not a directory, device or pipe: /dev/zero never ends, a FIFO blocks) of at most MAX_CONFIG_BYTES bytes of
-    UTF-8 TOML that tomllib can read (no nesting deeper than Python's recursion limit, no integer literal longer
-    than Python's 4300 digits)."""
+def read_regular_file(path: Path, limit: int, noun: str = "configuration file") -> bytes:
+    """The bytes of `path`, a readable regular file (not a directory, device or pipe: /dev/zero never ends, a FIFO
+    blocks) of at most `limit` bytes; else ConfigError, one line naming the file. noun: what the file should be,
+    for the messages."""
     try:
         # O_NONBLOCK: opening a FIFO must not wait for a writer (it is refused just below, after fstat, which
         # also judges the file actually opened); it changes nothing for a regular file.
@@ -69,15 +70,23 @@ def _read_toml(path: Path) -> dict:
         raise ConfigError(f"{path}: cannot be read: {getattr(error, 'strerror', None) or error}") from None
     try:
         if not stat.S_ISREG(os.fstat(descriptor).st_mode):
-            raise ConfigError(f"{path}: not a regular file (a directory, device or pipe is no configuration file)")
+            raise ConfigError(f"{path}: not a regular file (a directory, device or pipe is no {noun})")
         with os.fdopen(descriptor, "rb", closefd=False) as handle:
-            data = handle.read(MAX_CONFIG_BYTES + 1)
+            data = handle.read(limit + 1)
     except OSError as error:
         raise ConfigError(f"{path}: cannot be read: {error.strerror or error}") from None
     finally:
         os.close(descriptor)
-    if len(data) > MAX_CONFIG_BYTES:
-        raise ConfigError(f"{path}: larger than {MAX_CONFIG_BYTES // 2**20} MiB, too large for a configuration file")
+    if len(data) > limit:
+        raise ConfigError(f"{path}: larger than {limit // 2**20} MiB, too large for a {noun}")
+    return data
+
+
+def _read_toml(path: Path) -> dict:
+    """The TOML document in `path`. ConfigError, one line naming the file, unless it is a readable regular file
+    of at most MAX_CONFIG_BYTES bytes (read_regular_file) of UTF-8 TOML that tomllib can read (no nesting deeper
+    than Python's recursion limit, no integer literal longer than Python's 4300 digits)."""
+    data = read_regular_file(path, MAX_CONFIG_BYTES)
     try:
         return tomllib.loads(data.decode("utf-8"))
     except UnicodeDecodeError as error:
@@ -160,7 +169,7 @@ class ManeuverConfig(_Strict):
 
 TurnDirection = Literal["right", "left"]
 #: The target models a [target] may name besides its maneuvers; at most one per scenario.
-TARGET_PATTERNS = ("circle", "weave", "turn", "stop_and_go", "singer")
+TARGET_PATTERNS = ("circle", "weave", "turn", "stop_and_go", "singer", "segments", "trajectory")
 
 
 class CircleConfig(_Strict):
@@ -259,18 +268,192 @@ class SingerConfig(_Strict):
     update_period: Annotated[float, Field(ge=MIN_SINGER_UPDATE_PERIOD, le=1.0)] = 0.02
 
 
+#: Bounds of [target] segments: a segment lasts at most a day (s); accelerations up to 50 m/s^2 (5 g, beyond any
+#: small drone); speeds and climb rates up to 100 m/s; turn rates up to 3 rad/s (a full turn in about 2 s); at most
+#: 10000 segments (a longer plan is a recorded track: [target.trajectory]).
+MAX_SEGMENT_DURATION = 86400.0
+MAX_SEGMENT_ACCELERATION = 50.0
+MAX_SEGMENT_SPEED = 100.0
+MAX_TURN_RATE = 3.0
+MAX_SEGMENTS = 10000
+
+
+def _bounded_speed(value: tuple[float, float, float]) -> tuple[float, float, float]:
+    speed = math.sqrt(sum(component**2 for component in value))
+    if speed > MAX_SEGMENT_SPEED:
+        raise ValueError(f"speed {speed:g} m/s exceeds {MAX_SEGMENT_SPEED:g} m/s")
+    return value
+
+
+SegmentDuration = Annotated[float, Field(gt=0.0, le=MAX_SEGMENT_DURATION)]
+SegmentAcceleration = Annotated[float, Field(gt=0.0, le=MAX_SEGMENT_ACCELERATION)]
+SegmentVelocity = Annotated[tuple[float, float, float], FROM_ARRAY, AfterValidator(_finite_vector),
+                            AfterValidator(_bounded_speed)]
+
+
+class HoverSegment(_Strict):
+    """kind = "hover": hold the position (velocity 0) for duration (s). The target must be at rest when it starts
+    (after a brake, an accelerate to [0, 0, 0] or a zero initial_velocity)."""
+
+    kind: Literal["hover"]
+    duration: SegmentDuration
+
+
+class AccelerateSegment(_Strict):
+    """kind = "accelerate": change the velocity to `velocity` (m/s, NED, |v| <= 100) along the straight line in
+    velocity space, at max_acceleration (m/s^2, <= 50). The segment ends when the velocity is reached, or after
+    duration (s) if given, flying the new velocity for the rest of it; duration must cover the change."""
+
+    kind: Literal["accelerate"]
+    velocity: SegmentVelocity
+    max_acceleration: SegmentAcceleration = 1.0
+    duration: SegmentDuration | None = None
+
+
+class CruiseSegment(_Strict):
+    """kind = "cruise": hold the velocity for duration (s)."""
+
+    kind: Literal["cruise"]
+    duration: SegmentDuration
+
+
+class TurnSegment(_Strict):
+    """kind = "turn": a constant-rate horizontal turn at rate (rad/s about NED down, 0 < |rate| <= 3: + turns right,
+    heading increasing; - left) for duration (s) or through angle_deg (deg, > 0: the duration is angle / |rate|),
+    one of the two. The horizontal speed (which must be nonzero) and the vertical velocity are kept: a climbing
+    turn is a helix. The lateral acceleration |rate| x horizontal speed must stay within 50 m/s^2."""
+
+    kind: Literal["turn"]
+    rate: Annotated[float, Field(ge=-MAX_TURN_RATE, le=MAX_TURN_RATE)]
+    duration: SegmentDuration | None = None
+    angle_deg: Annotated[float, Field(gt=0.0, le=36000.0)] | None = None
+
+    @model_validator(mode="after")
+    def _one_length(self) -> "TurnSegment":
+        if self.rate == 0.0:
+            raise ValueError("rate must be nonzero (rad/s; + right, - left); a straight flight is kind = \"cruise\"")
+        if (self.duration is None) == (self.angle_deg is None):
+            raise ValueError("give duration or angle_deg (one of them)")
+        if self.turn_time > MAX_SEGMENT_DURATION:
+            raise ValueError(f"angle_deg / |rate| = {self.turn_time:g} s exceeds {MAX_SEGMENT_DURATION:g} s")
+        return self
+
+    @property
+    def turn_time(self) -> float:
+        """s: duration, or angle_deg / |rate|."""
+        return self.duration if self.duration is not None else math.radians(self.angle_deg) / abs(self.rate)
+
+
+class ClimbSegment(_Strict):
+    """kind = "climb": change the vertical speed to rate (m/s, + up, - descends, 0 levels off; |rate| <= 100) at
+    max_acceleration (m/s^2), keeping the horizontal velocity. Ends when the rate is reached, or after duration (s)
+    if given, climbing at the new rate for the rest of it; duration must cover the change."""
+
+    kind: Literal["climb"]
+    rate: Annotated[float, Field(ge=-MAX_SEGMENT_SPEED, le=MAX_SEGMENT_SPEED)]
+    max_acceleration: SegmentAcceleration = 1.0
+    duration: SegmentDuration | None = None
+
+
+class BrakeSegment(_Strict):
+    """kind = "brake": decelerate to rest along the velocity at max_acceleration (m/s^2); the segment ends at rest,
+    |v| / max_acceleration s later, |v|^2 / (2 max_acceleration) m further."""
+
+    kind: Literal["brake"]
+    max_acceleration: SegmentAcceleration = 1.0
+
+
+TargetSegment = Annotated[HoverSegment | AccelerateSegment | CruiseSegment | TurnSegment | ClimbSegment | BrakeSegment,
+                          Field(discriminator="kind")]
+
+
+def _check_segments(initial_velocity: tuple[float, float, float], segments: tuple) -> None:
+    """The velocity at each segment's start (m/s, NED), followed in closed form, fits that segment: a hover starts
+    at rest, a turn with a horizontal speed and within the lateral acceleration bound, an accelerate or climb with a
+    duration long enough for its change. ValueError naming the segment otherwise."""
+    north, east, down = initial_velocity
+    for index, segment in enumerate(segments):
+        where = f"segments[{index}] ({segment.kind})"
+        if segment.kind == "hover":
+            if (north, east, down) != (0.0, 0.0, 0.0):
+                speed = math.sqrt(north**2 + east**2 + down**2)
+                raise ValueError(f"{where}: the target still moves at {speed:g} m/s when the hover starts; brake "
+                                 "(or accelerate to [0, 0, 0]) before it")
+        elif segment.kind in ("accelerate", "climb"):
+            goal = segment.velocity if segment.kind == "accelerate" else (north, east, -segment.rate)
+            change = math.sqrt(sum((b - a) ** 2 for a, b in zip((north, east, down), goal)))
+            takes = change / segment.max_acceleration
+            if segment.duration is not None and segment.duration < takes:
+                raise ValueError(f"{where}: duration {segment.duration:g} s is shorter than the {takes:g} s the "
+                                 f"change of {change:g} m/s takes at max_acceleration {segment.max_acceleration:g} m/s^2")
+            north, east, down = goal
+        elif segment.kind == "turn":
+            horizontal = math.hypot(north, east)
+            if horizontal < 1e-6:
+                raise ValueError(f"{where}: the target has no horizontal speed to turn (accelerate first)")
+            if abs(segment.rate) * horizontal > MAX_SEGMENT_ACCELERATION:
+                raise ValueError(f"{where}: |rate| x horizontal speed = {abs(segment.rate) * horizontal:g} m/s^2 "
+                                 f"exceeds {MAX_SEGMENT_ACCELERATION:g} m/s^2")
+            angle = segment.rate * segment.turn_time
+            north, east = (north * math.cos(angle) - east * math.sin(angle),
+                           north * math.sin(angle) + east * math.cos(angle))
+        elif segment.kind == "brake":
+            north, east, down = 0.0, 0.0, 0.0
+
+
+#: The largest recorded trajectory file read, bytes: 64 MiB (an hour of 50 Hz CSV is about 10 MB).
+MAX_TRAJECTORY_BYTES = 64 * 1024 * 1024
+#: File extensions that tell a trajectory's format (TrajectoryConfig.format).
+TRAJECTORY_EXTENSIONS = {".csv": "csv", ".ulg": "ulog"}
+
+
+class TrajectoryConfig(_Strict):
+    """[target.trajectory]: a recorded track, replayed through a C2 cubic spline.
+
+    file: the track, relative to the scenario file's folder or absolute (load_scenario makes it absolute).
+    format: "csv" (header t,north,east,down: s, m NED) or "ulog" (PX4 ULog, topic vehicle_local_position: timestamp
+    us, x, y, z m NED); by default from the extension (.csv, .ulg). skip: s of the file, from its first sample, left
+    out (0 to a day). start: the scenario time (s, 0 to a day) at which the replay starts; before it the target
+    hovers at the replay's first point. That point is put at [target] initial_position (the track is translated,
+    not rotated). After the file's last sample the target flies on at the spline's final velocity.
+    """
+
+    file: Annotated[str, Field(min_length=1)]
+    format: Literal["csv", "ulog"] | None = None
+    skip: Annotated[float, Field(ge=0.0, le=MAX_SEGMENT_DURATION)] = 0.0
+    start: Annotated[float, Field(ge=0.0, le=MAX_SEGMENT_DURATION)] = 0.0
+
+    @model_validator(mode="after")
+    def _format_known(self) -> "TrajectoryConfig":
+        if self.format is None and Path(self.file).suffix.lower() not in TRAJECTORY_EXTENSIONS:
+            raise ValueError(f"cannot tell the format of {self.file!r} from its extension: name it .csv or .ulg, "
+                             "or give format = \"csv\" or \"ulog\"")
+        return self
+
+    @property
+    def file_format(self) -> str:
+        """"csv" or "ulog": format, or the one the extension tells."""
+        return self.format or TRAJECTORY_EXTENSIONS[Path(self.file).suffix.lower()]
+
+
 class TargetConfig(_Strict):
     """[target]: initial state (m, m/s, NED) and its motion: constant velocity plus `maneuvers`
-    (constant-speed horizontal turns), or one named model: circle, weave, turn, stop_and_go, singer."""
+    (constant-speed horizontal turns), or one named model: circle, weave, turn, stop_and_go, singer,
+    segments (a list of hover, accelerate, cruise, turn, climb and brake segments flown in order from
+    initial_velocity; after the last one the target holds its final velocity) or trajectory (a recorded
+    track, [target.trajectory]; it gives the velocity, so initial_velocity is left out)."""
 
     initial_position: Vector3
-    initial_velocity: Vector3
+    initial_velocity: Vector3 | None = None
     maneuvers: Annotated[tuple[ManeuverConfig, ...], FROM_ARRAY] = ()
     circle: CircleConfig | None = None
     weave: WeaveConfig | None = None
     turn: TurnConfig | None = None
     stop_and_go: StopAndGoConfig | None = None
     singer: SingerConfig | None = None
+    # The emptiness check is _no_overlap's: a Field(min_length=1) would also report every list whose items fail.
+    segments: Annotated[tuple[TargetSegment, ...], FROM_ARRAY, Field(max_length=MAX_SEGMENTS)] | None = None
+    trajectory: TrajectoryConfig | None = None
 
     @model_validator(mode="after")
     def _no_overlap(self) -> "TargetConfig":
@@ -282,6 +465,12 @@ class TargetConfig(_Strict):
         if len(named) + bool(self.maneuvers) > 1:
             raise ValueError(f"give maneuvers or one of {', '.join(TARGET_PATTERNS)}, not several "
                              f"(got {', '.join(named + (['maneuvers'] if self.maneuvers else []))})")
+        if self.trajectory is not None:
+            if self.initial_velocity is not None:
+                raise ValueError("trajectory gives the velocity: leave initial_velocity out")
+            return self
+        if self.initial_velocity is None:
+            raise ValueError("initial_velocity (m/s, NED) is required unless [target.trajectory] gives the motion")
         turning = bool(self.maneuvers) or any(getattr(self, name) is not None for name in ("circle", "weave", "turn"))
         if turning and math.hypot(*self.initial_velocity[:2]) < 1e-6:
             raise ValueError("a turning target needs a nonzero horizontal initial_velocity")
@@ -290,6 +479,12 @@ class TargetConfig(_Strict):
             raise ValueError("stop_and_go needs a nonzero initial_velocity (its direction is the track)")
         if self.singer is not None and speed > self.singer.max_speed:
             raise ValueError(f"initial speed {speed:g} m/s exceeds singer.max_speed {self.singer.max_speed:g}")
+        if self.segments is not None:
+            if not self.segments:
+                raise ValueError("segments: give at least one segment")
+            if speed > MAX_SEGMENT_SPEED:
+                raise ValueError(f"initial speed {speed:g} m/s exceeds {MAX_SEGMENT_SPEED:g} m/s")
+            _check_segments(self.initial_velocity, self.segments)
         return self
 
 
@@ -1334,6 +1529,9 @@ def describe_errors(error: ValidationError, root: str = "") -> list[str]:
     return problems
 
 
+ScenarioT = TypeVar("ScenarioT", Scenario, PlantScenario)
+
+
 def _format(path: Path, error: ValidationError) -> str:
     return "\n".join([f"{path}: invalid configuration", *(f"  {problem}" for problem in describe_errors(error))])
 
@@ -1349,6 +1547,34 @@ def _scenario_vehicle(scenario_path: Path, vehicle: str) -> VehicleConfig:
         return load_vehicle(resolved)
     except ConfigError as error:
         raise ConfigError(f"{scenario_path}: vehicle = {vehicle!r}: {error}") from None
+
+
+def _scenario_trajectory(scenario_path: Path, scenario: ScenarioT) -> ScenarioT:
+    """The scenario with its [target.trajectory] file made absolute (relative paths are relative to the
+    scenario's folder, as `vehicle` is), after reading and checking the track; unchanged without one. The
+    absolute path lets both harnesses, and a copy of the configuration written elsewhere, find the file.
+    ConfigError naming the scenario file and the key besides the trajectory file's own message."""
+    trajectory = scenario.target.trajectory
+    if trajectory is None:
+        return scenario
+    key = "target.trajectory.file"
+    try:
+        resolved = (scenario_path.parent / trajectory.file).resolve()
+    except (OSError, ValueError, RuntimeError) as error:  # a NUL byte, a symlink loop
+        raise ConfigError(f"{scenario_path}: {key}: {trajectory.file!r} is not a usable path ({error})") from None
+    # Imported here: interfaces.trajectory builds on this module (ConfigError, read_regular_file).
+    from interfaces.trajectory import read_trajectory
+
+    try:
+        times, _ = read_trajectory(resolved, trajectory.file_format)
+    except ConfigError as error:
+        raise ConfigError(f"{scenario_path}: {key} = {trajectory.file!r}: {error}") from None
+    length = float(times[-1] - times[0])
+    if trajectory.skip >= length:
+        raise ConfigError(f"{scenario_path}: target.trajectory.skip: {trajectory.skip:g} s leaves nothing of the "
+                          f"{length:g} s track in {resolved}")
+    placed = trajectory.model_copy(update={"file": str(resolved)})
+    return scenario.model_copy(update={"target": scenario.target.model_copy(update={"trajectory": placed})})
 
 
 def load_vehicle(path: str | Path) -> VehicleConfig:
@@ -1377,7 +1603,7 @@ def load_plant_scenario(path: str | Path) -> tuple[PlantScenario, VehicleConfig]
         scenario = PlantScenario.model_validate(document)
     except ValidationError as error:
         raise ConfigError(_format(path, error)) from None
-    return scenario, _scenario_vehicle(path, scenario.vehicle)
+    return _scenario_trajectory(path, scenario), _scenario_vehicle(path, scenario.vehicle)
 
 
 def load_scenario(path: str | Path) -> tuple[Scenario, VehicleConfig]:
@@ -1387,4 +1613,4 @@ def load_scenario(path: str | Path) -> tuple[Scenario, VehicleConfig]:
         scenario = Scenario.model_validate(_read_toml(path))
     except ValidationError as error:
         raise ConfigError(_format(path, error)) from None
-    return scenario, _scenario_vehicle(path, scenario.vehicle)
+    return _scenario_trajectory(path, scenario), _scenario_vehicle(path, scenario.vehicle)

@@ -9,10 +9,16 @@
   acceleration ([target.stop_and_go]).
 - SingerTarget: random acceleration, a first-order Gauss-Markov process (Singer 1970) held
   over short updates, with the speed and the lateral acceleration bounded ([target.singer]).
+- SegmentTarget: a list of hover, accelerate, cruise, turn, climb and brake segments flown in
+  order ([target] segments); after the last one the target holds its final velocity.
+- TrajectoryTarget: a recorded track (CSV or PX4 ULog, interfaces.trajectory) replayed through
+  a C2 cubic spline ([target.trajectory]); it hovers at its first point before the replay
+  starts and flies on at the spline's final velocity after the last sample.
 
 Every model keeps position, velocity and acceleration exactly consistent (closed-form
-propagation between events), and target_from_config builds the one a scenario names, for
-both the in-process simulator and sitl-target.
+propagation between events; the spline and its derivatives for a recorded track), and
+target_from_config builds the one a scenario names, for both the in-process simulator and
+sitl-target. docs/targets.md describes the segment kinds and the trajectory formats.
 """
 
 from __future__ import annotations
@@ -20,11 +26,14 @@ from __future__ import annotations
 import bisect
 import math
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Protocol
 
 import numpy as np
+from scipy.interpolate import CubicSpline
 
 from interfaces.scenario import TargetConfig
+from interfaces.trajectory import read_trajectory
 
 #: The Singer target's random stream is SeedSequence(seed, spawn_key=SINGER_SPAWN_KEY): a key no
 #: other stream of the simulators uses (their streams are the seed's children 0, 1, 2, ...), so
@@ -328,6 +337,195 @@ class SingerTarget:
                 self._applied = self._limited(self.latent_acceleration)
 
 
+@dataclass(frozen=True)
+class _Piece:
+    """One closed-form piece of a segment plan, from `start` (s) to the next piece's start.
+
+    position, velocity: the state at `start` (m, m/s, NED, shape (3,)). turn_rate 0: constant
+    `acceleration` (m/s^2, NED, shape (3,)), position quadratic in time; turn_rate w != 0 (rad/s about
+    down, + right): a horizontal turn at the start's horizontal speed keeping the vertical velocity.
+    """
+
+    start: float
+    position: np.ndarray
+    velocity: np.ndarray
+    acceleration: np.ndarray
+    turn_rate: float = 0.0
+
+    def state(self, time: float) -> tuple[np.ndarray, np.ndarray]:
+        """Position (m) and velocity (m/s) at `time` (s, >= start), NED, shape (3,) each."""
+        tau = time - self.start
+        if self.turn_rate == 0.0:
+            return self.position + self.velocity * tau + 0.5 * self.acceleration * tau * tau, self.velocity + self.acceleration * tau
+        north, east, down = self.velocity
+        speed, heading = math.hypot(north, east), math.atan2(east, north)
+        half_turn = 0.5 * self.turn_rate * tau
+        # The arc as its chord, (2 v / w) sin(w tau / 2) along the mean heading: exact, and free of the
+        # cancellation the difference-of-sines form has for small turns.
+        chord = speed * tau * float(np.sinc(half_turn / math.pi))
+        middle, end = heading + half_turn, heading + 2.0 * half_turn
+        position = self.position + np.array([chord * math.cos(middle), chord * math.sin(middle), down * tau])
+        return position, np.array([speed * math.cos(end), speed * math.sin(end), down])
+
+    def acceleration_at(self, velocity: np.ndarray) -> np.ndarray:
+        """m/s^2, NED, shape (3,), given the velocity (m/s) at that instant: w x v for a turn."""
+        if self.turn_rate == 0.0:
+            return self.acceleration.copy()
+        return self.turn_rate * np.array([-velocity[1], velocity[0], 0.0])
+
+
+def _segment_plan(initial_position: np.ndarray, initial_velocity: np.ndarray, segments: tuple) -> list[_Piece]:
+    """The closed-form pieces of a segment list (interfaces.scenario's HoverSegment ... BrakeSegment), ending with
+    an unbounded piece at the final velocity. Where a segment reaches a commanded velocity the next piece starts
+    from exactly that velocity, so brakes end at rest and hovers hold exactly."""
+    time, position, velocity = 0.0, np.array(initial_position, dtype=float), np.array(initial_velocity, dtype=float)
+    pieces: list[_Piece] = []
+
+    def fly_to(end: float, acceleration: np.ndarray | None = None, turn_rate: float = 0.0) -> None:
+        nonlocal time, position, velocity
+        if end <= time:
+            return
+        piece = _Piece(time, position, velocity, np.zeros(3) if acceleration is None else acceleration, turn_rate)
+        pieces.append(piece)
+        position, velocity = piece.state(end)
+        time = end
+
+    def fly(duration: float, acceleration: np.ndarray | None = None, turn_rate: float = 0.0) -> None:
+        fly_to(time + duration, acceleration, turn_rate)
+
+    def change_to(goal: np.ndarray, max_acceleration: float, duration: float | None) -> None:
+        nonlocal velocity
+        start = time
+        change = goal - velocity
+        size = float(np.linalg.norm(change))
+        if size > 0.0:
+            fly(size / max_acceleration, change * (max_acceleration / size))
+        velocity = goal
+        if duration is not None:
+            # The segment ends exactly duration after it began, whatever the rounding of the change's length.
+            fly_to(start + duration)
+
+    for index, segment in enumerate(segments):
+        if segment.kind == "hover":
+            if np.any(velocity != 0.0):
+                raise ValueError(f"segments[{index}] (hover): the target still moves at "
+                                 f"{np.linalg.norm(velocity):g} m/s when the hover starts")
+            fly(segment.duration)
+        elif segment.kind == "cruise":
+            fly(segment.duration)
+        elif segment.kind == "accelerate":
+            change_to(np.array(segment.velocity, dtype=float), segment.max_acceleration, segment.duration)
+        elif segment.kind == "climb":
+            change_to(np.array([velocity[0], velocity[1], -segment.rate]), segment.max_acceleration, segment.duration)
+        elif segment.kind == "brake":
+            change_to(np.zeros(3), segment.max_acceleration, None)
+        elif segment.kind == "turn":
+            if math.hypot(velocity[0], velocity[1]) == 0.0:
+                raise ValueError(f"segments[{index}] (turn): the target has no horizontal speed to turn")
+            fly(segment.turn_time, turn_rate=segment.rate)
+        else:
+            raise ValueError(f"segments[{index}]: unknown kind {segment.kind!r}")
+    pieces.append(_Piece(time, position, velocity, np.zeros(3)))
+    return pieces
+
+
+class SegmentTarget:
+    """A list of segments flown in order ([target] segments): hover, accelerate, cruise, turn, climb, brake.
+
+    initial_position: m, NED, shape (3,). initial_velocity: m/s, NED, shape (3,), the first segment's start.
+    segments: interfaces.scenario's segment configurations (their docstrings give each kind's motion). Each
+    segment is one or two closed-form pieces (a constant acceleration, or a constant-rate horizontal turn),
+    so the state at any time is evaluated exactly from the start of its piece and does not depend on how
+    time is cut. After the last segment the target holds its final velocity.
+    """
+
+    def __init__(self, initial_position: np.ndarray, initial_velocity: np.ndarray, segments: tuple) -> None:
+        self.pieces = _segment_plan(initial_position, initial_velocity, segments)
+        self._starts = [piece.start for piece in self.pieces]
+        self.time = 0.0
+        self.position = np.array(initial_position, dtype=float)
+        self.velocity = np.array(initial_velocity, dtype=float)
+        self._index = 0
+
+    @property
+    def end_time(self) -> float:
+        """s: when the last segment ends (the final velocity holds from then on)."""
+        return self._starts[-1]
+
+    @property
+    def acceleration(self) -> np.ndarray:
+        """m/s^2, NED, shape (3,): the acceleration of the piece flown from self.time on."""
+        return self.pieces[self._index].acceleration_at(self.velocity)
+
+    def step(self, dt: float) -> None:
+        """Advance by dt seconds, exactly."""
+        self.advance_to(self.time + dt)
+
+    def advance_to(self, time: float) -> None:
+        """Propagate exactly to `time` (s, >= self.time); at a piece boundary the new piece holds."""
+        _check_time(self.time, time)
+        self._index = bisect.bisect_right(self._starts, time) - 1
+        self.position, self.velocity = self.pieces[self._index].state(time)
+        self.time = time
+
+
+class TrajectoryTarget:
+    """A recorded track replayed ([target.trajectory]): a C2 cubic spline through the samples (scipy's
+    CubicSpline, not-a-knot ends); position, velocity and acceleration are the spline and its derivatives.
+
+    times: s, shape (n,), strictly increasing, n >= 4; positions: m, NED, shape (n, 3) (interfaces.trajectory.
+    read_trajectory). The replay plays file time times[0] + skip + (t - start) at scenario time t (s), translated
+    so that its first point (file time times[0] + skip) is at initial_position (m, NED, shape (3,)). Before
+    `start` the target hovers at that point (velocity 0); after the file's last sample it flies on at the
+    spline's final velocity (acceleration 0), so position and velocity stay continuous there.
+    """
+
+    def __init__(self, times: np.ndarray, positions: np.ndarray, initial_position: np.ndarray, *, skip: float = 0.0,
+                 start: float = 0.0) -> None:
+        times = np.asarray(times, dtype=float)
+        relative = times - times[0]
+        if not 0.0 <= skip < relative[-1]:
+            raise ValueError(f"skip {skip!r} s must be within the track's {relative[-1]:g} s")
+        self._spline = CubicSpline(relative, np.asarray(positions, dtype=float), axis=0)
+        self._velocity_spline = self._spline.derivative(1)
+        self._acceleration_spline = self._spline.derivative(2)
+        self.skip, self.start, self.duration = float(skip), float(start), float(relative[-1])
+        self._offset = np.asarray(initial_position, dtype=float) - self._spline(self.skip)
+        self._last_position = self._spline(self.duration) + self._offset
+        self._last_velocity = self._velocity_spline(self.duration)
+        self.time = 0.0
+        self.position, self.velocity, self._acceleration = self._state(0.0)
+
+    @property
+    def end_time(self) -> float:
+        """s: the scenario time of the file's last sample (the final velocity holds from then on)."""
+        return self.start + self.duration - self.skip
+
+    def _state(self, time: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        if time < self.start:
+            return self._offset + self._spline(self.skip), np.zeros(3), np.zeros(3)
+        replayed = self.skip + (time - self.start)
+        if replayed >= self.duration:
+            return self._last_position + self._last_velocity * (replayed - self.duration), self._last_velocity.copy(), np.zeros(3)
+        return (self._spline(replayed) + self._offset, self._velocity_spline(replayed),
+                self._acceleration_spline(replayed))
+
+    @property
+    def acceleration(self) -> np.ndarray:
+        """m/s^2, NED, shape (3,): the spline's second derivative (0 while hovering before start and after the end)."""
+        return self._acceleration.copy()
+
+    def step(self, dt: float) -> None:
+        """Advance by dt seconds, exactly."""
+        self.advance_to(self.time + dt)
+
+    def advance_to(self, time: float) -> None:
+        """Evaluate at `time` (s, >= self.time): the state depends on the time only, not on how it is cut."""
+        _check_time(self.time, time)
+        self.position, self.velocity, self._acceleration = self._state(time)
+        self.time = time
+
+
 def pattern_maneuvers(config: TargetConfig) -> tuple[Maneuver, ...]:
     """The turn schedule of a [target]: its explicit maneuvers, or those of its named pattern.
 
@@ -370,7 +568,14 @@ def target_from_config(config: TargetConfig, seed: int) -> TargetMotion:
     seed: the flight's seed; only the Singer target draws from it, on its own stream
     (SINGER_SPAWN_KEY). The same config and seed give the same trajectory in both harnesses.
     """
+    if config.trajectory is not None:
+        recorded = config.trajectory
+        times, positions = read_trajectory(Path(recorded.file), recorded.file_format)
+        return TrajectoryTarget(times, positions, np.array(config.initial_position), skip=recorded.skip,
+                                start=recorded.start)
     position, velocity = np.array(config.initial_position), np.array(config.initial_velocity)
+    if config.segments is not None:
+        return SegmentTarget(position, velocity, config.segments)
     if config.stop_and_go is not None:
         plan = config.stop_and_go
         return SpeedScheduleTarget(position, velocity, tuple(SpeedChange(c.start, c.speed) for c in plan.schedule),
