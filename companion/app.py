@@ -301,6 +301,8 @@ class CompanionApp:
             "vehicle_status_texts_dropped": self.vehicle.status_texts_dropped if self.vehicle is not None else 0,
             "bad_odometry": self.vehicle.bad_odometry if self.vehicle is not None else 0,
             "health_reasons_at_end": list(control.pipeline.health.episode_reasons) if control.pipeline is not None else [],
+            # how often the safety envelope acted (control ticks and their seconds), None before a pipeline existed
+            "envelope": control.pipeline.envelope_record.as_dict() if control.pipeline is not None else None,
             "stopped_by": self.stopped_by,
             "abort_requested": mission.abort_requested and self.stopped_by is None,
             "pursuer_id": self.pursuer_id,

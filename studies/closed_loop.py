@@ -228,6 +228,7 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
                                      for t, state, reasons in pipeline.health.transitions]
     summary["health_reasons_at_end"] = list(pipeline.health.episode_reasons)
     summary["health_actions"] = health_actions_summary(pipeline)
+    summary["envelope"] = pipeline.envelope_record.as_dict()  # how often the safety envelope acted
     if link.enabled:
         summary["link"] = link.summary()
         summary["fault_events"] = [(round(e.time, 3), e.kind, e.detail) for e in link.faults.events]

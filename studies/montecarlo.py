@@ -94,7 +94,8 @@ TABLE_II = {"a": (1.0, 3.0, 3.0), "b": (3.0, 3.0, 3.0), "c": (3.0, 3.0, 0.0), "d
 PAPER_INITIAL_BOX = (20.0, 120.0, -50.0, 50.0, -50.0, 50.0)
 #: Issue 13's maneuvering targets (config/scenarios/, sitl_plant/world/target.py), flown with the defaults
 MANEUVERING_SCENARIOS = ("circle_5ms", "circle_10ms", "helix_climb", "weave", "turn90_5ms", "stop_and_go", "singer",
-                         "seed003_straight", "seed003_vertical", "seed003_helix")
+                         "seed003_straight", "seed003_vertical", "seed003_helix", "hover_dash", "orbit_tight",
+                         "orbit_tight_05", "replay_csv")
 
 
 @dataclass(frozen=True)

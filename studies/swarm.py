@@ -347,6 +347,7 @@ def _result(scenario: Scenario, pursuers: list[_Pursuer], link: NeighbourLink | 
         summary["law_changes"] = [(round(t, 3), law) for t, law in p.pipeline.law_changes]
         summary["reinitializations"] = p.pipeline.reinitializations
         summary["health_actions"] = health_actions_summary(p.pipeline)
+        summary["envelope"] = p.pipeline.envelope_record.as_dict()
         summary["seed"] = seed
         entries.append(summary)
     top = dict(entries[0])
