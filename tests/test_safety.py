@@ -73,9 +73,8 @@ def test_a_point_mass_closing_on_a_hovering_target_never_passes_min_range(start_
     closest = target - position
     for _ in range(int(40.0 / dt)):
         distance = target - position
-        limit = rule.closing_speed_limit(distance, sigma, 0.0, 0.0, True)
         command = np.array([3.0, 0.0, 0.0])
-        limited = rule.limit_closing(command, los, np.array([velocity, 0.0, 0.0]), limit)
+        limited = rule.limit_closing(command, los, np.array([velocity, 0.0, 0.0]), distance, sigma, 0.0, 0.0, True)
         acceleration = float((command if limited is None else limited)[0])
         assert acceleration >= -6.0 - 1e-12
         position += velocity * dt + 0.5 * acceleration * dt * dt

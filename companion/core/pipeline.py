@@ -724,9 +724,8 @@ class FollowingPipeline:
             los = self._last_bearing  # the measured line of sight while fresh: a measurement, not the estimate
         range_std = math.sqrt(max(float(los @ covariance[:3, :3] @ los), 0.0))
         speed_std = math.sqrt(max(float(los @ covariance[3:, 3:] @ los), 0.0))
-        limit = envelope.closing_speed_limit(range_estimate, range_std, float(estimate.velocity @ los), speed_std,
-                                             trusted)
-        limited = envelope.limit_closing(command, los, np.asarray(pursuer.velocity, dtype=float), limit)
+        limited = envelope.limit_closing(command, los, np.asarray(pursuer.velocity, dtype=float), range_estimate,
+                                         range_std, float(estimate.velocity @ los), speed_std, trusted)
         if limited is not None:
             command = limited
             record.closing_ticks += 1

@@ -111,10 +111,16 @@ class SafetyEnvelope:
         target_speed_away v^_T . lambda and its std, m/s; trust_target_velocity False counts on
         untrusted_range_share of the pessimistic range and leaves out the target's stopping distance (its speed
         counts only when it comes towards us)."""
+        return self._limit_and_target_speed(range_estimate, range_std, target_speed_away, target_speed_std,
+                                            trust_target_velocity)[0]
+
+    def _limit_and_target_speed(self, range_estimate: float, range_std: float, target_speed_away: float,
+                                target_speed_std: float, trusted: bool) -> tuple[float, float]:
+        """(u_max, the target's speed away from us as counted, m/s): `closing_speed_limit`'s arithmetic."""
         k = self.range_sigmas
         pessimistic_range = range_estimate - k * range_std
         away = target_speed_away - k * target_speed_std
-        if not trust_target_velocity:
+        if not trusted:
             pessimistic_range *= self.untrusted_range_share
             away = min(away, 0.0)
         gap = pessimistic_range - self.min_range
@@ -125,34 +131,36 @@ class SafetyEnvelope:
             limit = math.sqrt((braking * lag) ** 2 + 2.0 * braking * gap) - braking * lag
         else:
             limit = self.retreat_gain * gap
-        return limit + min(away, 0.0)
+        return limit + min(away, 0.0), away
 
-    def limit_closing(self, command: np.ndarray, los: np.ndarray, pursuer_velocity: np.ndarray,
-                      speed_limit: float) -> np.ndarray | None:
+    def limit_closing(self, command: np.ndarray, los: np.ndarray, pursuer_velocity: np.ndarray, range_estimate: float,
+                      range_std: float, target_speed_away: float, target_speed_std: float,
+                      trusted: bool) -> np.ndarray | None:
         """The command (m/s^2, (3,)) with its line-of-sight component lowered so the closing speed
-        v_P . lambda stays at or comes down to speed_limit (m/s) (`_limit_tracking`), never below
-        -max_braking_acceleration;
-        None when the command already keeps within the limit (nothing to change). los: unit lambda (3,);
-        pursuer_velocity: v_P, m/s (3,)."""
+        v_P . lambda stays at or comes down to the limit of rule 1 (`closing_speed_limit`, from the estimate's
+        range_estimate, range_std, target_speed_away and target_speed_std, m and m/s, and `trusted`), never
+        below -max_braking_acceleration; None when the command already keeps within it (nothing to change).
+        los: unit lambda (3,); pursuer_velocity: v_P, m/s (3,).
+
+        The line-of-sight acceleration wanted is k_v (u_max - u_P) plus the limit's own rate: the gap shrinks at
+        the closing speed relative to the target, u_P - u_T, and du_max/dgap = a_P / (u_max + a_P t_r), so
+        du_max/dt = -(a_P / (u_max + a_P t_r)) (u_P - u_T). At u_P = u_max on a target at rest, with t_r = 0,
+        that is braking at exactly a_P, the profile u_max was built on."""
+        limit, away = self._limit_and_target_speed(range_estimate, range_std, target_speed_away, target_speed_std,
+                                                   trusted)
         closing_speed = float(pursuer_velocity @ los)
+        relative_closing = closing_speed - max(away, 0.0)
+        braking = self.braking_acceleration
+        if limit > 0.0:
+            feed_forward = braking * max(relative_closing, 0.0) / (limit + braking * self.reaction_time)
+            wanted = self.velocity_gain * (limit - closing_speed) - feed_forward
+        else:
+            wanted = self.velocity_gain * (limit - closing_speed) if closing_speed <= 0.0 else -self.max_braking_acceleration
+        wanted = max(wanted, -self.max_braking_acceleration)
         along = float(command @ los)
-        wanted = max(self._limit_tracking(speed_limit, closing_speed), -self.max_braking_acceleration)
         if along <= wanted:
             return None
         return command + (wanted - along) * los
-
-    def _limit_tracking(self, speed_limit: float, closing_speed: float) -> float:
-        """The line-of-sight acceleration that keeps the closing speed at or below a limit that itself falls as
-        the range does: k_v (u_max - u_P) plus the limit's own rate, du_max/dt = -(a_P / (u_max + a_P t_r)) u_P
-        (the derivative of rule 1's u_max with respect to the gap, the gap shrinking at u_P). At u_P = u_max
-        with t_r = 0 that is braking at exactly a_P, the profile u_max was built on."""
-        braking = self.braking_acceleration
-        feed_forward = 0.0
-        if closing_speed > 0.0 and speed_limit > 0.0:
-            feed_forward = braking * closing_speed / (speed_limit + braking * self.reaction_time)
-        elif closing_speed > 0.0:
-            return -self.max_braking_acceleration
-        return self.velocity_gain * (speed_limit - closing_speed) - feed_forward
 
     def heading(self, los: np.ndarray, previous_forward: np.ndarray | None, interval: float) -> np.ndarray | None:
         """The direction R_d's heading is built from (module docstring, rule 2): None when lambda's horizontal
