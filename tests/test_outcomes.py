@@ -297,3 +297,42 @@ def test_montecarlo_group_counts_a_flight_breaching_both_once(loaded):
     (entry,) = montecarlo.group_table(rows)
     assert (entry["breached_half_rd"], entry["tilt_exceeded"], entry["envelope_breaches"], entry["diverged_rms"]) == (
         2, 2, 3, 1)
+
+
+# --- bof-sitl's exit status and the closing block from summary.json ---------------------------------------------------
+
+def _truth(**flags) -> dict:
+    return {"truth": {"diverged": False, "min_range_breached": False, "tilt_exceeded": False, **flags}}
+
+
+@pytest.mark.parametrize("code, summary, expected", [
+    (0, {"flight": _truth()}, 0),
+    (0, {"flight": _truth(diverged=True)}, 1),
+    (0, {"flight": _truth(min_range_breached=True)}, 1),
+    (0, {"flight": _truth(tilt_exceeded=True)}, 1),
+    (0, {"flight": None}, 0),  # no figures: run() has already made the code 1 in that case
+    (130, {"flight": _truth(diverged=True)}, 130),  # an interrupt keeps 128 + signal
+    (0, {"pursuers": [{"pursuer": 1, **_truth()}, {"pursuer": 2, **_truth(tilt_exceeded=True)}]}, 1),
+    (0, {"pursuers": [{"pursuer": 1, **_truth()}, {"pursuer": 2, "flight_error": "no series"}]}, 0),
+])
+def test_bof_sitl_exit_status_judges_the_truth(code, summary, expected):
+    from studies.full_sitl import judged_exit_code
+
+    assert judged_exit_code(code, summary) == expected
+
+
+def test_the_closing_block_reads_a_summary_json_with_nulls(loaded, tmp_path):
+    from studies.metrics import outcome_lines, write_summary
+
+    scenario, vehicle = loaded
+    range_ = _at_rd(scenario)
+    range_[10:20] = 2.0
+    summary = summarize(_series(range_, np.where(TIME >= 59.0, math.nan, 0.1), tilt=40.0), scenario,
+                        Termination.COMPLETED, vehicle)
+    write_summary(tmp_path / "summary.json", summary)
+    lines = outcome_lines(json.loads((tmp_path / "summary.json").read_text()), "pursuer 2")
+    assert lines[0] == "outcome (truth, pursuer 2): DIVERGED: range estimate wrong by truth; monitor verdict: clean  " \
+                       "(the monitor missed it)"
+    assert lines[1] == "  range-estimation rms n/a over the last 20 s  DIVERGED (limit 2 m)"
+    assert lines[2] == "  closest approach 2.00 m  BREACHED (r_d/2 = 4.0 m, 1.0 s below)"
+    assert lines[3] == "  max tilt 40.0 deg  BREACHED (limit 35 deg, 60.0 s above)"
