@@ -336,3 +336,25 @@ def test_the_closing_block_reads_a_summary_json_with_nulls(loaded, tmp_path):
     assert lines[1] == "  range-estimation rms n/a over the last 20 s  DIVERGED (limit 2 m)"
     assert lines[2] == "  closest approach 2.00 m  BREACHED (r_d/2 = 4.0 m, 1.0 s below)"
     assert lines[3] == "  max tilt 40.0 deg  BREACHED (limit 35 deg, 60.0 s above)"
+
+
+def test_bof_sim_exits_1_when_any_pursuer_of_a_swarm_is_judged_bad(tmp_path, capsys):
+    """swarm_turning with a divergence limit of 1 cm (its pursuers' RMS is 0.15-0.19 m at seed 1): every pursuer
+    diverged by that limit, so the command fails, and each pursuer's closing block says so."""
+    text = (SCENARIOS_DIR / "swarm_turning.toml").read_text()
+    vehicle_file = (SCENARIOS_DIR.parent / "vehicles" / "paper_table1.toml").resolve()
+    for old, new in (('vehicle = "../vehicles/paper_table1.toml"', f'vehicle = "{vehicle_file}"'),
+                     ("[simulation]\n", "[simulation]\ndivergence_rms = 0.01\n")):
+        assert text.count(old) == 1, old
+        text = text.replace(old, new)
+    path = tmp_path / "swarm_strict.toml"
+    path.write_text(text)
+    code = bof_sim([str(path), "--out", str(tmp_path / "runs"), "--no-plots", "--seed", "1"])
+    out = capsys.readouterr().out
+    (folder,) = list((tmp_path / "runs").iterdir())
+    series = np.load(folder / "series.npz")
+    for ident in (1, 2, 3):  # by hand from each pursuer's logged series
+        t, error = series[f"p{ident}_time"], series[f"p{ident}_range_estimate"] - series[f"p{ident}_range"]
+        assert np.sqrt(np.mean(error[t >= t[-1] - 20.0] ** 2)) > 0.01
+        assert f"outcome (truth, pursuer {ident}): DIVERGED" in out
+    assert code == 1 and "DIVERGED (limit 0.01 m)" in out
