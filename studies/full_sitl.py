@@ -539,7 +539,7 @@ def judged_exit_code(code: int, summary: dict) -> int:
     flight (or any pursuer of a swarm) diverged by truth or breached an envelope (studies.metrics.truth_failed)."""
     if code != 0:
         return code
-    flights = [entry for entry in summary["pursuers"]] if "pursuers" in summary else [summary.get("flight") or {}]
+    flights = list(summary["pursuers"]) if "pursuers" in summary else [summary.get("flight") or {}]
     return 1 if any(truth_failed(flight) for flight in flights) else 0
 
 

@@ -6,6 +6,10 @@ bof-sim, bof-sitl, the campaign and the Monte Carlo study report. A figure that 
 apply (no convergence, no observability data) is NaN in memory and `null` in summary.json:
 `write_summary` turns every non-finite number into null and refuses to write NaN, which is
 not JSON.
+
+Two judgements of a flight sit side by side: the filter-health monitor's, which flies without truth
+("monitor_verdict"), and the truth's, which only a simulation knows ("truth": `truth_outcome`). "verdict"
+is the monitor's word made honest: never "clean" or "recovered" for a flight diverged by truth.
 """
 
 from __future__ import annotations
@@ -124,10 +128,6 @@ def _seconds_where(time: np.ndarray, condition: np.ndarray) -> float:
     """Seconds during which `condition` (N,) bool held, each sample of `time` (N,) s holding until the next."""
     held = np.diff(time, append=time[-1])
     return float(np.sum(held[condition]))
-
-
-#: truth "outcome" words, best first: see `truth_outcome`.
-OUTCOMES = ("success", "envelope_breached", "diverged", "no_estimate", "failed")
 
 
 def truth_outcome(time: np.ndarray, range_: np.ndarray, tilt_deg: np.ndarray, estimation_rms: float,

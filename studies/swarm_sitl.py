@@ -255,8 +255,8 @@ def run_swarm(config: Path, scenario: Scenario, vehicle: VehicleConfig, out: Pat
               gcs_port: int = 14550, stop: StopSignals | None = None, secure: bool = False,
               on_progress: Callable[[SwarmGroundStation], None] | None = None) -> tuple[int, Path, dict]:
     """Fly the [swarm] scenario `config` (already loaded and checked as `scenario`) through 2N + 1 processes;
-    returns (exit code, run folder, summary). Arguments as studies.full_sitl.run; budget: wall s for the
-    whole flight. on_progress: called about every 50 ms of wall time with the ground station."""
+    returns (exit code, run folder, summary). Arguments as studies.full_sitl.run; vehicle: the airframe every
+    pursuer flies (its max_tilt_deg is the summaries' tilt envelope); budget: wall s for the whole flight. on_progress: called about every 50 ms of wall time with the ground station."""
     from studies.full_sitl import _read_json, _termination, flight_series, make_signing_key
 
     count = scenario.swarm.count
