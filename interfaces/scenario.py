@@ -741,12 +741,24 @@ MAX_DURATION_S = 86_400.0
 MAX_PHYSICS_RATE_HZ = 10_000.0
 
 
+#: Range-estimation error RMS over the summary window above which a simulated flight has diverged by truth, m
+#: ([simulation] divergence_rms; studies.metrics.summarize's "truth").
+DIVERGENCE_RMS_M = 2.0
+#: The largest [simulation] divergence_rms a scenario may set, m: beyond it no bearing-only estimate is judged at all.
+MAX_DIVERGENCE_RMS_M = 1000.0
+
+
 class SimulationConfig(_Strict):
+    """The simulated flight and how it is judged. duration, summary_window: s; converged_range_error (the
+    convergence threshold) and divergence_rms (range-estimation error RMS over the summary window above which the
+    flight has diverged by truth): m."""
+
     duration: Annotated[float, Field(gt=0.0, le=MAX_DURATION_S)] = 60.0
     seed: Annotated[int, Field(ge=0)] = 0
     physics_rate_hz: Annotated[float, Field(ge=500.0, le=MAX_PHYSICS_RATE_HZ)] = 500.0
     summary_window: Positive = 20.0
     converged_range_error: Positive = 1.0
+    divergence_rms: Annotated[float, Field(gt=0.0, le=MAX_DIVERGENCE_RMS_M)] = DIVERGENCE_RMS_M
 
 
 Port = Annotated[int, Field(ge=1, le=65535)]

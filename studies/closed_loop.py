@@ -219,7 +219,7 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
         autopilot.advance(gap)
 
     series = log.series()
-    summary = summarize(series, scenario, termination)
+    summary = summarize(series, scenario, termination, vehicle)
     summary["bearings_used"] = bearings_used
     summary["bearings_out_of_view"] = bearings_out_of_view
     summary["track_mode_changes"] = [(round(t, 3), mode.value) for t, mode in pipeline.mode_changes]

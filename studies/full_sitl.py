@@ -23,6 +23,10 @@ ground-station telemetry to udp 127.0.0.1:--gcs-port (default 14550), printed at
     link.png                    target link timeline: fixes received/rejected, bearings used, latency
 
 A scenario with [swarm] is flown by studies.swarm_sitl: one plant and one companion per pursuer, one target.
+
+The terminal's closing block states the truth's outcome beside the health monitor's verdict
+(studies.metrics.outcome_lines); the exit status (EXIT_STATUS) is 1 for a flight that diverged by
+truth or breached an envelope, even when every process exited cleanly.
 """
 
 from __future__ import annotations
@@ -48,12 +52,19 @@ from interfaces.pki import make_pki
 from interfaces.records import write_json
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, load_scenario
 from studies.closed_loop import Termination
-from studies.metrics import convergence_text, summarize, suspect_warning, termination_name, write_summary
+from studies.metrics import (convergence_text, outcome_lines, summarize, suspect_warning, termination_name, truth_failed,
+                             write_summary)
 from interfaces.cli import SPEED_FACTOR_BOUNDS, output_folder, scenario_file, seed_argument
 from studies.processes import ChildProcess, Interrupted, StopSignals, free_port, stop_all
 
 DEFAULT_SCENARIO = DEFAULT_SCENARIO
 GROUND_STATION_ID = "ground-station"
+#: bof-sitl --help's epilog
+EXIT_STATUS = """exit status: 0 the companion landed (completed, diverged by the health monitor, or aborted) and the flight's truth
+is within bounds; 1 the companion failed or no flight figures could be made, a --timeout, or the flight diverged by
+truth (range-estimation error RMS over the summary window above [simulation] divergence_rms, default 2 m), came
+closer to the target than r_d / 2 or tilted past the vehicle's max_tilt_deg (a swarm: any pursuer); 2 bad arguments;
+128 + N stopped by signal N."""
 
 
 def _read_csv(path: Path) -> dict[str, np.ndarray]:
@@ -310,7 +321,7 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
     run folder is made.
     secure: Zenoh with mutual TLS and access control: a development PKI is made in <run>/pki
     and every process (this ground station as role gcs) uses its own role's certificate."""
-    scenario, _ = load_scenario(config)
+    scenario, vehicle = load_scenario(config)
     speed = scenario.sitl.speed_factor if speed_factor is None else speed_factor
     seed = scenario.simulation.seed if seed is None else seed
     if seed < 0:
@@ -330,7 +341,7 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
         from studies.swarm_sitl import budget_for, check_swarm_run, run_swarm
 
         check_swarm_run(scenario, abort_after)
-        return run_swarm(config, scenario, out, speed, seed, budget_for(scenario, speed, timeout), plots, quiet,
+        return run_swarm(config, scenario, vehicle, out, speed, seed, budget_for(scenario, speed, timeout), plots, quiet,
                          target_faults, gcs_port, stop, secure)
     folder = out / f"sitl-{scenario.name}-seed{seed}-{time.strftime('%Y%m%d-%H%M%S')}"
     folder.mkdir(parents=True, exist_ok=True)
@@ -440,7 +451,7 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
         if companion_summary is None:
             raise RuntimeError("the companion wrote no summary; see companion.out")
         series, engaged_at = flight_series(folder)
-        summary["flight"] = summarize(series, scenario, termination)
+        summary["flight"] = summarize(series, scenario, termination, vehicle)
         summary["flight"]["engaged_at_sim_time"] = engaged_at
         summary["termination"], summary["termination_reason"] = (summary["flight"]["termination"],
                                                                  summary["flight"]["termination_reason"])
@@ -519,11 +530,21 @@ def format_summary(summary: dict) -> str:
     warning = suspect_warning(flight, companion.get("health_reasons_at_end", ()))
     if warning:
         lines.append(f"  {warning}")
+    lines += outcome_lines(flight)
     return "\n".join(lines)
 
 
+def judged_exit_code(code: int, summary: dict) -> int:
+    """bof-sitl's exit status from `run`'s `code` and the run's summary: `code` when it is not 0, else 1 when the
+    flight (or any pursuer of a swarm) diverged by truth or breached an envelope (studies.metrics.truth_failed)."""
+    if code != 0:
+        return code
+    flights = list(summary["pursuers"]) if "pursuers" in summary else [summary.get("flight") or {}]
+    return 1 if any(truth_failed(flight) for flight in flights) else 0
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="bof-sitl", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="bof-sitl", description=__doc__.split("\n\n")[0], epilog=EXIT_STATUS)
     parser.add_argument("config", nargs="?", type=scenario_file, default=DEFAULT_SCENARIO,
                         help="scenario TOML (default: %(default)s)")
     parser.add_argument("--speed-factor", type=float, default=None,
@@ -580,7 +601,7 @@ def main(argv: list[str] | None = None) -> int:
         print(format_swarm_sitl_summary(summary))
     else:
         print(format_summary(summary))
-    return code
+    return judged_exit_code(code, summary)
 
 
 if __name__ == "__main__":

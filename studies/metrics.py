@@ -6,6 +6,10 @@ bof-sim, bof-sitl, the campaign and the Monte Carlo study report. A figure that 
 apply (no convergence, no observability data) is NaN in memory and `null` in summary.json:
 `write_summary` turns every non-finite number into null and refuses to write NaN, which is
 not JSON.
+
+Two judgements of a flight sit side by side: the filter-health monitor's, which flies without truth
+("monitor_verdict"), and the truth's, which only a simulation knows ("truth": `truth_outcome`). "verdict"
+is the monitor's word made honest: never "clean" or "recovered" for a flight diverged by truth.
 """
 
 from __future__ import annotations
@@ -17,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from interfaces.records import write_json
-from interfaces.scenario import Scenario
+from interfaces.scenario import Scenario, VehicleConfig
 
 
 def rms(values: np.ndarray) -> float:
@@ -94,13 +98,13 @@ def honest_termination(termination: enum.Enum, divergence: dict | None) -> enum.
     return termination
 
 
-def verdict(termination: enum.Enum, divergence: dict | None, estimated: bool = True) -> str:
-    """One word for the flight: "failed" (did not fly as asked: FLOWN lists what did), "no_estimate" (flown, but
-    `estimated` is False: no estimate over the summary window, e.g. no bearing was ever used, so nothing measured
-    the estimate and the monitor had nothing to flag), "suspect" (the health monitor still called the estimate
-    suspect at the end: the flight's range may be wrong), "recovered" (it called it suspect at some time and OK
-    again at the end: the range was doubted during the flight, so not a clean success either), else "clean"
-    (never flagged)."""
+def monitor_verdict(termination: enum.Enum, divergence: dict | None, estimated: bool = True) -> str:
+    """The health monitor's own word for the flight, without truth: "failed" (did not fly as asked: FLOWN lists what
+    did), "no_estimate" (flown, but `estimated` is False: no estimate over the summary window, e.g. no bearing was
+    ever used, so nothing measured the estimate and the monitor had nothing to flag), "suspect" (the health monitor
+    still called the estimate suspect at the end: the flight's range may be wrong), "recovered" (it called it suspect
+    at some time and OK again at the end: the range was doubted during the flight, so not a clean success either),
+    else "clean" (never flagged)."""
     if termination.name not in FLOWN:
         return "failed"
     if not estimated:
@@ -110,6 +114,114 @@ def verdict(termination: enum.Enum, divergence: dict | None, estimated: bool = T
     if divergence is not None and divergence["episodes"] > 0:
         return "recovered"
     return "clean"
+
+
+def verdict(termination: enum.Enum, divergence: dict | None, estimated: bool = True, diverged: bool = False) -> str:
+    """summary.json's "verdict": the monitor's word (`monitor_verdict`), except that a flight `diverged` by truth
+    (its range-estimation error RMS over the summary window above [simulation] divergence_rms, see `truth_outcome`)
+    is never "clean" or "recovered": the monitor missed it, and the verdict is "diverged"."""
+    word = monitor_verdict(termination, divergence, estimated)
+    return "diverged" if diverged and word in ("clean", "recovered") else word
+
+
+def _seconds_where(time: np.ndarray, condition: np.ndarray) -> float:
+    """Seconds during which `condition` (N,) bool held, each sample of `time` (N,) s holding until the next."""
+    held = np.diff(time, append=time[-1])
+    return float(np.sum(held[condition]))
+
+
+def truth_outcome(time: np.ndarray, range_: np.ndarray, tilt_deg: np.ndarray, estimation_rms: float,
+                  estimated: bool, flown: bool, desired_range: float, divergence_rms: float,
+                  tilt_limit_deg: float, suspect_at_end: bool) -> dict:
+    """What the truth says about a simulated flight (summary.json's "truth"), beside the monitor's verdict.
+
+    time (N,) s; range_ (N,) true |p_T - p|, m; tilt_deg (N,) the pursuer's tilt, deg; estimation_rms: the
+    range-estimation error RMS over the summary window, m (NaN when the estimate was missing for part of it);
+    estimated: any estimate over the window; flown: the termination is one of FLOWN; desired_range r_d, m;
+    divergence_rms: threshold, m; tilt_limit_deg: the airframe's max_tilt_deg; suspect_at_end: the health monitor
+    called the estimate suspect at the last sample.
+
+    Returns range_estimation_error_rms (m), divergence_rms (m), diverged (an estimate was there and its RMS is not
+    <= divergence_rms: a NaN RMS counts as diverged), min_range (m, the closest approach over the series),
+    half_desired_range (r_d / 2, m), min_range_breached (min_range < r_d / 2), seconds_below_half_desired_range (s),
+    max_tilt_deg (deg), tilt_limit_deg (deg), tilt_exceeded (max tilt > the limit), seconds_above_tilt_limit (s),
+    monitor_missed (diverged, yet not suspect at the end), monitor_false_alarm (suspect at the end, yet not
+    diverged) and outcome, one word: "failed" (did not fly as asked), "no_estimate" (no estimate over the window),
+    "diverged", "envelope_breached" (closer than r_d / 2 or tilted past the limit), else "success"; the first that
+    applies in that order (the flags say which others apply too).
+    """
+    half = 0.5 * desired_range
+    diverged = bool(estimated and not estimation_rms <= divergence_rms)
+    min_range = float(np.min(range_))
+    max_tilt = float(np.max(tilt_deg))
+    breached = bool(min_range < half)
+    exceeded = bool(max_tilt > tilt_limit_deg)
+    if not flown:
+        outcome = "failed"
+    elif not estimated:
+        outcome = "no_estimate"
+    elif diverged:
+        outcome = "diverged"
+    elif breached or exceeded:
+        outcome = "envelope_breached"
+    else:
+        outcome = "success"
+    return {
+        "outcome": outcome,
+        "range_estimation_error_rms": estimation_rms,
+        "divergence_rms": divergence_rms,
+        "diverged": diverged,
+        "min_range": min_range,
+        "half_desired_range": half,
+        "min_range_breached": breached,
+        "seconds_below_half_desired_range": _seconds_where(time, range_ < half),
+        "max_tilt_deg": max_tilt,
+        "tilt_limit_deg": tilt_limit_deg,
+        "tilt_exceeded": exceeded,
+        "seconds_above_tilt_limit": _seconds_where(time, tilt_deg > tilt_limit_deg),
+        "monitor_missed": bool(diverged and not suspect_at_end),
+        "monitor_false_alarm": bool(suspect_at_end and not diverged),
+    }
+
+
+def truth_failed(flight: dict) -> bool:
+    """True when a `summarize` result (or its JSON) diverged by truth or breached an envelope (closer than r_d / 2,
+    tilted past the airframe's limit): the commands that judge one flight then exit 1."""
+    truth = flight.get("truth") or {}
+    return bool(truth.get("diverged") or truth.get("min_range_breached") or truth.get("tilt_exceeded"))
+
+
+def _figure(value: float | None, spec: str, unit: str) -> str:
+    return "n/a" if value is None or not math.isfinite(value) else f"{format(value, spec)} {unit}"
+
+
+def outcome_lines(flight: dict, who: str = "") -> list[str]:
+    """The closing block for people: the truth's outcome in words beside the monitor's verdict, then each envelope
+    with BREACHED when it was. flight: a `summarize` result (or its JSON, where NaN is null); who: named in the
+    first line (e.g. "pursuer 2"), nothing by default."""
+    truth = flight["truth"]
+    rms_text = _figure(truth["range_estimation_error_rms"], ".2f", "m")
+    words = {"success": "success: estimate within the divergence limit, no envelope breached",
+             "envelope_breached": "ENVELOPE BREACHED",
+             "diverged": "DIVERGED: range estimate wrong by truth",
+             "no_estimate": "NO ESTIMATE over the summary window",
+             "failed": "FAILED: the flight did not fly as asked"}
+    monitor = flight.get("monitor_verdict", flight.get("verdict"))
+    note = ("  (the monitor missed it)" if truth["monitor_missed"] else
+            "  (the monitor's false alarm)" if truth["monitor_false_alarm"] else "")
+    half, limit = truth["half_desired_range"], truth["tilt_limit_deg"]
+    return [
+        f"outcome (truth{', ' + who if who else ''}): {words.get(truth['outcome'], truth['outcome'])}; monitor verdict: {monitor}{note}",
+        f"  range-estimation rms {rms_text} over the last {flight['summary_window']:g} s  "
+        + (f"DIVERGED (limit {truth['divergence_rms']:g} m)" if truth["diverged"]
+           else f"ok (limit {truth['divergence_rms']:g} m)"),
+        f"  closest approach {truth['min_range']:.2f} m  "
+        + (f"BREACHED (r_d/2 = {half:.1f} m, {truth['seconds_below_half_desired_range']:.1f} s below)"
+           if truth["min_range_breached"] else f"ok (r_d/2 = {half:.1f} m)"),
+        f"  max tilt {truth['max_tilt_deg']:.1f} deg  "
+        + (f"BREACHED (limit {limit:g} deg, {truth['seconds_above_tilt_limit']:.1f} s above)"
+           if truth["tilt_exceeded"] else f"ok (limit {limit:g} deg)"),
+    ]
 
 
 def suspect_warning(flight: dict, reasons: list[str] | tuple[str, ...] = ()) -> str | None:
@@ -130,18 +242,25 @@ def suspect_warning(flight: dict, reasons: list[str] | tuple[str, ...] = ()) -> 
             f"{divergence['episodes']} episode(s) — do not trust this flight's range")
 
 
-def summarize(series: dict[str, np.ndarray], scenario: Scenario, termination: enum.Enum) -> dict:
-    """Figures of merit over the last simulation.summary_window seconds, plus whole-flight extremes.
+def summarize(series: dict[str, np.ndarray], scenario: Scenario, termination: enum.Enum,
+              vehicle: VehicleConfig) -> dict:
+    """Figures of merit over the last simulation.summary_window seconds, plus whole-flight extremes and the truth.
 
     series: "time" (N,) s; "range", "range_estimate" (N,) m; "pursuer_tilt", "heading_error" (N,)
     deg; "estimate_position", "target_position" (N, 3) m; "estimate_velocity", "target_velocity",
     "pursuer_velocity" (N, 3) m/s; optional "observability_log_det" (N,) and "health_suspect" (N,)
-    (see `suspected_divergence`; `verdict` says whether the flight is a clean success).
+    (see `suspected_divergence`). vehicle: the airframe flown (its max_tilt_deg is the tilt envelope).
     range_error: |p_T - p| - r_d (m); range_estimation_error: |p^_T - p| - |p_T - p| (m);
     convergence_time: see `convergence_time` (NaN: did not converge). termination: why the flight
     ended (studies.closed_loop.Termination); "termination" is its lower-case name and "termination_reason"
     its sentence, after `honest_termination` (a completed flight whose estimate was suspect at the end is
     "diverged").
+
+    Judgements: "truth" is what the known truth says (`truth_outcome`: "outcome" success / envelope_breached /
+    diverged / no_estimate / failed, "diverged" when the range-estimation error RMS over the window is above
+    [simulation] divergence_rms, the r_d / 2 and tilt envelopes, "monitor_missed", "monitor_false_alarm");
+    "monitor_verdict" is the health monitor's own truth-free word (`monitor_verdict`); "verdict" is that word, except
+    "diverged" where the monitor said clean or recovered of a flight diverged by truth (`verdict`).
     """
     time = series["time"]
     window = time >= time[-1] - scenario.simulation.summary_window
@@ -153,6 +272,12 @@ def summarize(series: dict[str, np.ndarray], scenario: Scenario, termination: en
     heading_error = series["heading_error"][window]
     divergence = suspected_divergence(time, series.get("health_suspect"), window)
     termination = honest_termination(termination, divergence)
+    estimated = bool(np.isfinite(estimation_error[window]).any())
+    estimation_rms = rms(estimation_error[window])
+    truth = truth_outcome(time, series["range"], series["pursuer_tilt"], estimation_rms, estimated,
+                          termination.name in FLOWN, scenario.guidance.desired_range,
+                          scenario.simulation.divergence_rms, vehicle.max_tilt_deg,
+                          divergence is not None and divergence["at_end"])
     return {
         "scenario": scenario.name,
         "termination": termination_name(termination),
@@ -162,19 +287,21 @@ def summarize(series: dict[str, np.ndarray], scenario: Scenario, termination: en
         "desired_range": scenario.guidance.desired_range,
         "range_error_rms": rms(range_error[window]),
         "range_error_max_abs": float(np.max(np.abs(range_error[window]))),
-        "range_estimation_error_rms": rms(estimation_error[window]),
+        "range_estimation_error_rms": estimation_rms,
         "range_estimation_error_max_abs": float(np.max(np.abs(estimation_error[window]))),
         "position_estimation_error_rms": rms(position_error[window]),
         "velocity_estimation_error_rms": rms(velocity_error[window]),
         "convergence_time": convergence_time(time, range_error, estimation_error, threshold),
         "convergence_threshold": threshold,
-        "min_range": float(np.min(series["range"])),
-        "max_tilt_deg": float(np.max(series["pursuer_tilt"])),
+        "min_range": truth["min_range"],
+        "max_tilt_deg": truth["max_tilt_deg"],
         "max_speed": float(np.max(np.linalg.norm(series["pursuer_velocity"], axis=1))),
         "heading_error_rms_deg": rms(heading_error[np.isfinite(heading_error)]),
         "observability_log_det_median": median_finite(series.get("observability_log_det"), window),
         "suspected_divergence": divergence,
-        "verdict": verdict(termination, divergence, bool(np.isfinite(estimation_error[window]).any())),
+        "monitor_verdict": monitor_verdict(termination, divergence, estimated),
+        "verdict": verdict(termination, divergence, estimated, truth["diverged"]),
+        "truth": truth,
     }
 
 

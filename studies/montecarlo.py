@@ -26,7 +26,11 @@ final_error > --divergence-threshold (default 2 m); lost: mean |range - r_d| ove
 5 s > the same threshold (the guidance did not hold the following distance); flagged: the
 companion's truth-free health monitor (companion.core.health) judged the estimate suspect at
 the end of the flight (the group table counts the diverged flights it missed and its false
-alarms); plus convergence time, min range, max tilt, the windowed-FIM observability. Time series at
+alarms); diverged_rms: the range-estimation error RMS over the summary window > [simulation]
+divergence_rms (default 2 m: the truth's "diverged" of studies.metrics.summarize, which bof-sim and
+bof-sitl judge by); breached_half_rd: the closest approach over the flight < r_d / 2; tilt_exceeded:
+the max tilt > the vehicle's max_tilt_deg (the group table counts both, and the flights with either
+as envelope_breaches); plus convergence time, min range, max tilt, the windowed-FIM observability. Time series at
 0.2 s go to series.npz for the figures. Output in runs/montecarlo-<label>-<time>/:
 results.csv, summary.md, summary.json, series.npz, and the figures (error over time per
 group, trajectories and normalised image-plane tracks of the first seed of each group).
@@ -275,6 +279,11 @@ def fly(task: FlightTask) -> dict:
         "flagged": bool(summary["suspected_divergence"]["at_end"]),
         # ... and at any time: "clean" only when never flagged (studies.metrics.verdict)
         "verdict": summary["verdict"],
+        # the truth of studies.metrics.summarize: RMS over the summary window > [simulation] divergence_rms, and the
+        # envelopes (closest approach < r_d / 2 over the whole flight, max tilt > the vehicle's max_tilt_deg)
+        "diverged_rms": summary["truth"]["diverged"],
+        "breached_half_rd": summary["truth"]["min_range_breached"],
+        "tilt_exceeded": summary["truth"]["tilt_exceeded"],
         "final_error": final_error,
         "rms_error": summary["range_estimation_error_rms"],
         "final_range_error": final_range_error,
@@ -329,8 +338,10 @@ def group_key(row: dict) -> tuple[str, str, str, str]:
 
 #: group-table figure -> (results.csv column, statistic over the group's runs; NaN and inf skipped)
 GROUP_FIGURES = {
-    "runs": ("seed", "size"), "diverged": ("diverged", "sum"), "lost": ("lost", "sum"),
+    "runs": ("seed", "size"), "diverged": ("diverged", "sum"), "diverged_rms": ("diverged_rms", "sum"), "lost": ("lost", "sum"),
     "flagged": ("flagged", "sum"), "missed": ("missed", "sum"), "false_alarms": ("false_alarm", "sum"),
+    "breached_half_rd": ("breached_half_rd", "sum"), "tilt_exceeded": ("tilt_exceeded", "sum"),
+    "envelope_breaches": ("envelope_breached", "sum"),
     "final_error_median": ("final_error", "median"), "final_error_p90": ("final_error", lambda values: values.quantile(0.9)),
     "rms_error_median_kept": ("rms_error_kept", "median"), "range_error_rms_median": ("range_error_rms", "median"),
     "converged_runs": ("convergence_time", "count"), "convergence_time_median": ("convergence_time", "median"),
@@ -340,11 +351,13 @@ GROUP_FIGURES = {
 
 
 def group_table(rows: list[dict]) -> list[dict]:
-    """One line per (scenario, estimator, guidance, case): divergence counted, then robust statistics
+    """One line per (scenario, estimator, guidance, case): divergence (both definitions) and envelope breaches
+    counted (envelope_breaches: flights closer than r_d / 2 or above the tilt limit, or both), then robust statistics
     (medians over the runs with a finite figure; the RMS error over the runs that did not diverge)."""
     windows = [key for key in rows[0] if key.startswith("error_")] if rows else []
     rows = [{**row, "rms_error_kept": math.nan if row["diverged"] else row["rms_error"],
-             "missed": row["diverged"] and not row["flagged"], "false_alarm": row["flagged"] and not row["diverged"]}
+             "missed": row["diverged"] and not row["flagged"], "false_alarm": row["flagged"] and not row["diverged"],
+             "envelope_breached": row["breached_half_rd"] or row["tilt_exceeded"]}
             for row in rows]
     figures = {**GROUP_FIGURES, **{f"{key}_median": (key, "median") for key in windows}}
     finite = ["final_error", "rms_error_kept", "range_error_rms", "convergence_time", "min_range", "max_tilt_deg",
@@ -354,15 +367,18 @@ def group_table(rows: list[dict]) -> list[dict]:
 
 def markdown(table: list[dict], title: str, runs: int, threshold: float, executor: str) -> str:
     windows = [key[: -len("_median")] for key in (table[0] if table else {}) if key.startswith("error_")]
-    headers = ["scenario", "estimator", "guidance", "case", "diverged", "lost", "flagged (missed / false)",
+    headers = ["scenario", "estimator", "guidance", "case", "diverged", "diverged (RMS)", "lost", "flagged (missed / false)",
+               "breached r_d/2 / tilt (any)",
                "final error median / p90",
                "RMS error median (kept)", "range error RMS median", "converged runs, median time (s)", "min range (m)",
                "max tilt (deg)", "log10 det FIM median",
                *(f"mean abs error {key[len('error_'):]}, median" for key in windows)]
     f = reporting.cell
     lines = [dict(zip(headers, (
-        e["scenario"], e["estimator"], e["guidance"], e["case"], f"{e['diverged']}/{e['runs']}", f"{e['lost']}/{e['runs']}",
+        e["scenario"], e["estimator"], e["guidance"], e["case"], f"{e['diverged']}/{e['runs']}",
+        f"{e['diverged_rms']}/{e['runs']}", f"{e['lost']}/{e['runs']}",
         f"{e['flagged']}/{e['runs']} ({e['missed']} / {e['false_alarms']})",
+        f"{e['breached_half_rd']} / {e['tilt_exceeded']} ({e['envelope_breaches']})",
         f"{f(e['final_error_median'])} / {f(e['final_error_p90'])}", f(e["rms_error_median_kept"], 3),
         f(e["range_error_rms_median"], 3), f"{e['converged_runs']}, {f(e['convergence_time_median'], 1)}",
         f(e["min_range"]), f(e["max_tilt_deg"], 1), f(e["observability_log_det_median"], 1),
@@ -373,7 +389,10 @@ def markdown(table: list[dict], title: str, runs: int, threshold: float, executo
         f"|range-estimation error| over the last {FINAL_WINDOW:g} s > {threshold:g} m. lost: mean |range - r_d| "
         f"over the last {FINAL_WINDOW:g} s > {threshold:g} m. flagged: the companion's health monitor judged the "
         "estimate suspect at the end of the flight, without truth; missed: diverged but not flagged; false: flagged "
-        "but not diverged. Error statistics in m; final error over all runs, "
+        "but not diverged. diverged (RMS): range-estimation error RMS over the last summary window > the scenario's "
+        "[simulation] divergence_rms (the truth bof-sim judges by). breached: flights whose closest approach came "
+        "under r_d / 2, flights tilted past the vehicle's max_tilt_deg, and (any) flights with either. "
+        "Error statistics in m; final error over all runs, "
         "RMS (last summary window) over the runs that did not diverge.", "",
         reporting.markdown(lines, headers)]) + "\n"
 

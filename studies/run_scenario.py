@@ -4,7 +4,8 @@ The run folder <scenario>-seed<seed>-<time>/, created inside --out (default runs
 series.npz (every logged column), series.csv (the main columns, for spreadsheets),
 summary.json (figures that do not apply are null) and two plots (trajectory.png, errors.png).
 The in-process loop has no MAVLink link: a scenario's [faults.mavlink] applies in bof-sitl only,
-which the summary ("notes") and the terminal say.
+which the summary ("notes") and the terminal say. The terminal's closing block states the truth's
+outcome beside the health monitor's verdict (studies.metrics.outcome_lines).
 """
 
 from __future__ import annotations
@@ -20,12 +21,18 @@ import numpy as np
 from interfaces.cli import output_folder, scenario_file, seed_argument
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, load_scenario
 from studies.closed_loop import SimulationResult, simulate
-from studies.metrics import convergence_text, suspect_warning, write_summary
+from studies.metrics import convergence_text, outcome_lines, suspect_warning, truth_failed, write_summary
 from studies.plots import plot_errors, plot_swarm_tracks, plot_trajectories
 from studies.processes import Interrupted, RaisingStopSignals
 from studies.swarm import SwarmResult, simulate_swarm
 
 DEFAULT_SCENARIO = DEFAULT_SCENARIO
+#: bof-sim --help's epilog
+EXIT_STATUS = """exit status: 0 the flight ran to the end (completed or diverged by the health monitor) with its truth
+within bounds; 1 it did not run to the end, had no estimate over the summary window, diverged by truth
+(range-estimation error RMS over the summary window above [simulation] divergence_rms, default 2 m), came closer
+to the target than r_d / 2 or tilted past the vehicle's max_tilt_deg (a swarm: any pursuer); 2 bad arguments or scenario;
+128 + N stopped by signal N."""
 
 
 def write_run_folder(result: SimulationResult, folder: Path) -> None:
@@ -63,8 +70,8 @@ def in_process_notes(scenario: Scenario) -> list[str]:
     return notes
 
 
-def format_summary(summary: dict) -> str:
-    """A few human lines for the terminal."""
+def format_summary(summary: dict, outcome: bool = True) -> str:
+    """A few human lines for the terminal; with `outcome`, the closing block of studies.metrics.outcome_lines."""
     lines = [
         f"scenario {summary['scenario']}: termination {summary['termination']}, {summary['termination_reason']} "
         f"({summary['duration']:.1f} s, seed {summary['seed']})",
@@ -79,6 +86,8 @@ def format_summary(summary: dict) -> str:
     warning = suspect_warning(summary, summary.get("health_reasons_at_end", ()))
     if warning:
         lines.append(f"  {warning}")
+    if outcome:
+        lines += outcome_lines(summary)
     return "\n".join(lines)
 
 
@@ -95,9 +104,10 @@ def write_swarm_folder(result: SwarmResult, folder: Path, plots: bool = True) ->
         plot_errors(result.series[1], result.scenario.guidance.desired_range, folder / "errors.png", f"{title}: pursuer 1")
 
 
-def format_swarm_summary(summary: dict) -> str:
-    """The flight's lines, then one line per pursuer."""
-    lines = [format_summary(summary).replace("  over the last", "  pursuer 1, over the last", 1)]
+def format_swarm_summary(summary: dict, outcome: bool = True) -> str:
+    """The flight's lines, then one line per pursuer; with `outcome`, each pursuer's closing block (truth and monitor,
+    studies.metrics.outcome_lines)."""
+    lines = [format_summary(summary, outcome=False).replace("  over the last", "  pursuer 1, over the last", 1)]
     spacing = summary["phase_spacing_error_deg_rms"]
     separation = summary["min_pursuer_separation"]
     lines.append(f"  {len(summary['pursuers'])} pursuers: phase spacing error rms "
@@ -108,6 +118,8 @@ def format_swarm_summary(summary: dict) -> str:
         lines.append(f"    pursuer {entry['pursuer']}: {entry['termination']}, range-estimation rms "
                      f"{entry['range_estimation_error_rms']:.3f} m, range error rms {entry['range_error_rms']:.3f} m, "
                      f"min range {entry['min_range']:.2f} m, neighbour bearings used {entry['neighbour_bearings_used']}")
+    for entry in summary["pursuers"] if outcome else ():
+        lines += outcome_lines(entry, f"pursuer {entry['pursuer']}")
     return "\n".join(lines)
 
 
@@ -121,14 +133,18 @@ def _fly_swarm(scenario: Scenario, vehicle, args) -> int:
     elapsed = time.perf_counter() - started
     folder = Path(args.out) / f"{scenario.name}-seed{result.summary['seed']}-{time.strftime('%Y%m%d-%H%M%S')}"
     write_swarm_folder(result, folder, plots=not args.no_plots)
-    print(format_swarm_summary(result.summary))
+    print(format_swarm_summary(result.summary, outcome=False))
     print(f"  simulated {result.summary['duration']:.0f} s of {len(result.series)} pursuers in {elapsed:.2f} s")
     print(f"run folder: {folder}")
-    return 0 if result.termination.name in ("COMPLETED", "INTERRUPTED") else 1
+    for entry in result.summary["pursuers"]:
+        print("\n".join(outcome_lines(entry, f"pursuer {entry['pursuer']}")))
+    judged = [entry["pursuer"] for entry in result.summary["pursuers"] if truth_failed(entry)]
+    return 0 if result.termination.name in ("COMPLETED", "INTERRUPTED") and not judged else 1
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="bof-sim", description="Fly a bearing-only following scenario in the in-process simulator.")
+    parser = argparse.ArgumentParser(prog="bof-sim", description="Fly a bearing-only following scenario in the in-process simulator.",
+                                     epilog=EXIT_STATUS)
     parser.add_argument("scenario", nargs="?", type=scenario_file, default=DEFAULT_SCENARIO,
                         help="scenario TOML (default: the paper's constant-velocity case, %(default)s)")
     parser.add_argument("--out", type=output_folder, default="runs",
@@ -170,11 +186,12 @@ def _fly(scenario: Scenario, vehicle, args) -> int:
         write_summary(folder / "summary.json", result.summary)
     else:
         write_run_folder(result, folder)
-    print(format_summary(result.summary))
+    print(format_summary(result.summary, outcome=False))
     print(f"  simulated {result.summary['duration']:.0f} s in {elapsed:.2f} s ({result.summary['duration'] / elapsed:.0f}x real time)")
     print(f"run folder: {folder}")
+    print("\n".join(outcome_lines(result.summary)))
     flown = result.termination.name in ("COMPLETED", "INTERRUPTED") and result.summary["verdict"] != "no_estimate"
-    return 0 if flown else 1
+    return 0 if flown and not truth_failed(result.summary) else 1
 
 
 if __name__ == "__main__":

@@ -288,7 +288,7 @@ def simulate_swarm(scenario: Scenario, vehicle: VehicleConfig, seed: int | None 
 
     if len(pursuers) > 1:
         separation = _closest_separation(positions[:index + 1], upper)
-    return _result(scenario, pursuers, link, seed, separation, phase_errors)
+    return _result(scenario, vehicle, pursuers, link, seed, separation, phase_errors)
 
 
 def _bearing_time(bearing: BearingMeasurement) -> float:
@@ -321,7 +321,7 @@ def _settled_under(time: np.ndarray, error: np.ndarray, bound: float, after: flo
     return None if last + 1 >= len(time) else float(time[last + 1] - after)
 
 
-def _result(scenario: Scenario, pursuers: list[_Pursuer], link: NeighbourLink | None, seed: int, separation: float,
+def _result(scenario: Scenario, vehicle: VehicleConfig, pursuers: list[_Pursuer], link: NeighbourLink | None, seed: int, separation: float,
             phase_errors: list[tuple[float, np.ndarray]]) -> SwarmResult:
     """phase_errors: (time s, the pursuers' orbit phases about the target then, rad), every tick."""
     all_bearings = _all_bearings_time(pursuers)
@@ -330,7 +330,7 @@ def _result(scenario: Scenario, pursuers: list[_Pursuer], link: NeighbourLink | 
     for p in pursuers:
         data = p.log.series()
         series[p.ident] = data
-        summary = summarize(data, p.scenario, p.termination)
+        summary = summarize(data, p.scenario, p.termination, vehicle)
         summary["pursuer"] = p.ident
         summary["bearings_used"] = p.bearings_used
         summary["neighbour_bearings_used"] = p.neighbour_bearings_used

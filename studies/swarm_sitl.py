@@ -52,9 +52,9 @@ from interfaces import link_schema as link
 from interfaces import zenoh_transport
 from interfaces.pki import make_pki
 from interfaces.records import write_json
-from interfaces.scenario import ConfigError, Scenario, pursuer_starts
+from interfaces.scenario import ConfigError, Scenario, VehicleConfig, pursuer_starts
 from studies.closed_loop import Termination
-from studies.metrics import rms, summarize, termination_name, write_summary
+from studies.metrics import outcome_lines, rms, summarize, termination_name, write_summary
 from studies.processes import ChildProcess, Interrupted, StopSignals, free_port, stop_all
 
 #: Wall s between the start of the first plant and simulated time 0 of every plant, per pursuer (the plants
@@ -250,13 +250,13 @@ def check_swarm_run(scenario: Scenario, abort_after: float | None) -> None:
         raise ConfigError("--abort-after is for one pursuer; with [swarm] stop the run with Ctrl-C")
 
 
-def run_swarm(config: Path, scenario: Scenario, out: Path, speed: float, seed: int, budget: float,
+def run_swarm(config: Path, scenario: Scenario, vehicle: VehicleConfig, out: Path, speed: float, seed: int, budget: float,
               plots: bool = True, quiet: bool = False, target_faults: list[str] | None = None,
               gcs_port: int = 14550, stop: StopSignals | None = None, secure: bool = False,
               on_progress: Callable[[SwarmGroundStation], None] | None = None) -> tuple[int, Path, dict]:
     """Fly the [swarm] scenario `config` (already loaded and checked as `scenario`) through 2N + 1 processes;
-    returns (exit code, run folder, summary). Arguments as studies.full_sitl.run; budget: wall s for the
-    whole flight. on_progress: called about every 50 ms of wall time with the ground station."""
+    returns (exit code, run folder, summary). Arguments as studies.full_sitl.run; vehicle: the airframe every
+    pursuer flies (its max_tilt_deg is the summaries' tilt envelope); budget: wall s for the whole flight. on_progress: called about every 50 ms of wall time with the ground station."""
     from studies.full_sitl import _read_json, _termination, flight_series, make_signing_key
 
     count = scenario.swarm.count
@@ -368,7 +368,7 @@ def run_swarm(config: Path, scenario: Scenario, out: Path, speed: float, seed: i
                 raise RuntimeError(f"pursuer {k}'s companion wrote no summary; see pursuer-{k}/companion.out")
             data, engaged_at = flight_series(where, folder / "target")
             series[k] = data
-            entry.update(summarize(data, own, termination))
+            entry.update(summarize(data, own, termination, vehicle))
             entry["engaged_at_sim_time"] = engaged_at
         except (RuntimeError, FileNotFoundError, KeyError, ValueError, IndexError) as error:
             entry["flight_error"] = str(error)
@@ -422,7 +422,8 @@ def run_swarm(config: Path, scenario: Scenario, out: Path, speed: float, seed: i
 
 
 def format_swarm_sitl_summary(summary: dict) -> str:
-    """The run's lines: the swarm's figures, then one line per pursuer, then CPU per process."""
+    """The run's lines: the swarm's figures, one line per pursuer, CPU per process, then each pursuer's closing
+    block (truth and monitor, studies.metrics.outcome_lines)."""
     spacing, separation = summary.get("phase_spacing_error_deg_rms"), summary.get("min_pursuer_separation")
     lines = [f"run folder: {summary['run_folder']}",
              f"termination: {summary.get('termination')}, {summary.get('termination_reason')}",
@@ -442,6 +443,9 @@ def format_swarm_sitl_summary(summary: dict) -> str:
     if cpu:
         lines.append("  CPU (share of one core): " + ", ".join(
             f"{name} {value['cpu_share']:.2f}" for name, value in sorted(cpu.items()) if value.get("cpu_share") is not None))
+    for entry in summary["pursuers"]:
+        if "truth" in entry:
+            lines += outcome_lines(entry, f"pursuer {entry['pursuer']}")
     return "\n".join(lines)
 
 

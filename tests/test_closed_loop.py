@@ -152,11 +152,11 @@ def test_summary_figures_against_closed_form(constant_velocity, offset, settle):
     """Range r_d + 5 m until sample `settle`, then r_d + offset, with the estimate exact: the range error
     is |offset| (rms and max) over the last 20 s, the estimation error 0, and the flight converged at
     the sample where both fell below 1 m."""
-    scenario, _ = constant_velocity
+    scenario, vehicle = constant_velocity
     time = np.linspace(0.0, 60.0, 200)
     desired = scenario.guidance.desired_range
     range_ = np.where(np.arange(200) < settle, desired + 5.0, desired + offset)
-    summary = summarize(_flat_series(time, range_, range_), scenario, Termination.COMPLETED)
+    summary = summarize(_flat_series(time, range_, range_), scenario, Termination.COMPLETED, vehicle)
     if settle < int(np.argmax(time >= 40.0)):
         assert summary["range_error_rms"] == pytest.approx(abs(offset), abs=1e-12)
         assert summary["range_error_max_abs"] == pytest.approx(abs(offset), abs=1e-12)
@@ -167,10 +167,10 @@ def test_summary_figures_against_closed_form(constant_velocity, offset, settle):
 
 
 def test_a_flight_that_ends_outside_the_threshold_did_not_converge(constant_velocity, tmp_path):
-    scenario, _ = constant_velocity
+    scenario, vehicle = constant_velocity
     time = np.linspace(0.0, 60.0, 200)
     range_ = np.full(200, scenario.guidance.desired_range + 3.0)
-    summary = summarize(_flat_series(time, range_, range_), scenario, Termination.COMPLETED)
+    summary = summarize(_flat_series(time, range_, range_), scenario, Termination.COMPLETED, vehicle)
     assert math.isnan(summary["convergence_time"])
     assert convergence_text(summary).startswith("did not converge") and "nan" not in convergence_text(summary)
     write_summary(tmp_path / "summary.json", summary)
