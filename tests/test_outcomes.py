@@ -211,11 +211,24 @@ def _window_rms(series: dict, window: float) -> float:
     return float(np.sqrt(np.mean((series["range_estimate"][inside] - series["range"][inside]) ** 2)))
 
 
+def _without_envelope(tmp_path, name: str):
+    """A copy of a shipped scenario with [safety] enabled = false (the guidance laws' commands as they are, which
+    on stop_and_go both fly closer than r_d / 2 and tilt past the airframe's limit), the vehicle named absolutely."""
+    vehicle_file = (SCENARIOS_DIR.parent / "vehicles" / "paper_table1.toml").resolve()
+    text = (SCENARIOS_DIR / f"{name}.toml").read_text().replace('vehicle = "../vehicles/paper_table1.toml"',
+                                                                f'vehicle = "{vehicle_file}"')
+    path = tmp_path / f"{name}.toml"
+    path.write_text(text + "\n[safety]\nenabled = false\n")
+    return path
+
+
 def test_bof_sim_exits_1_for_a_diverged_flight_that_breaks_both_envelopes(tmp_path, capsys):
-    code = bof_sim([str(SCENARIOS_DIR / "stop_and_go.toml"), "--out", str(tmp_path), "--seed", "1", "--no-plots"])
+    path = _without_envelope(tmp_path, "stop_and_go")
+    out_folder = tmp_path / "runs"
+    code = bof_sim([str(path), "--out", str(out_folder), "--seed", "1", "--no-plots"])
     out = capsys.readouterr().out
-    summary, series = _flown(tmp_path)
-    scenario, vehicle = load_scenario(SCENARIOS_DIR / "stop_and_go.toml")
+    summary, series = _flown(out_folder)
+    scenario, vehicle = load_scenario(path)
     half = scenario.guidance.desired_range / 2
     # the truth by hand from the logged series
     assert _window_rms(series, scenario.simulation.summary_window) > 2.0
@@ -271,12 +284,13 @@ def test_bof_sim_help_states_the_exit_rule(capsys):
 
 def test_montecarlo_rows_and_table_count_divergence_and_breaches(tmp_path):
     code = montecarlo.main([str(SCENARIOS_DIR / "stop_and_go.toml"), "--runs", "1", "--executor", "serial",
-                            "--no-plots", "--quiet", "--out", str(tmp_path)])
+                            "--case", "unguarded:safety.enabled=false", "--no-plots", "--quiet", "--out", str(tmp_path)])
     assert code == 0
     (folder,) = list(tmp_path.iterdir())
     with (folder / "results.csv").open() as handle:
         (row,) = list(csv.DictReader(handle))
-    # seed 1 of stop_and_go, flown by bof-sim above: diverged by RMS, closer than r_d / 2, above the tilt limit
+    # seed 1 of stop_and_go without the envelope, flown by bof-sim above: diverged by RMS, closer than r_d / 2,
+    # above the tilt limit
     assert (row["diverged_rms"], row["breached_half_rd"], row["tilt_exceeded"]) == ("True", "True", "True")
     (group,) = json.loads((folder / "summary.json").read_text())["groups"]
     assert (group["diverged_rms"], group["breached_half_rd"], group["tilt_exceeded"], group["envelope_breaches"]) == (
