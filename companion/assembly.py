@@ -249,6 +249,7 @@ def safety_envelope(scenario: Scenario, vehicle: VehicleConfig) -> SafetyEnvelop
                               target_max_acceleration=scenario.estimator.target_max_acceleration,
                               braking_acceleration=braking,
                               max_braking_acceleration=max(0.9 * tilt_limited, braking), range_sigmas=settings.range_sigmas,
+                              speed_sigmas=settings.speed_sigmas,
                               reaction_time=settings.reaction_time, velocity_gain=settings.velocity_gain,
                               max_yaw_rate=math.radians(settings.max_yaw_rate_deg),
                               untrusted_range_share=settings.untrusted_range_share,

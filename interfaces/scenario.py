@@ -629,10 +629,11 @@ class EstimatorConfig(_Strict):
     (0, IMM_MAX_TURN_RATE]; an empty list leaves the constant-velocity model alone (the u-PLKF)."""
     imm_turn_process_noise: Positive = 0.04
     """kind 'imm' only: q of the turn models, (m/s^2)^2 per axis (the constant-velocity model uses process_noise)."""
-    imm_manoeuvre_model: bool = True
+    imm_manoeuvre_model: bool = False
     """kind 'imm' only: add the manoeuvre model (white-noise acceleration, q = (target_max_acceleration / 3)^2
-    per axis) for a target that changes speed: hovers, dashes, brakes. False: the constant-velocity and turn
-    models alone."""
+    per axis) for a target that changes speed: hovers, dashes, brakes. False (default): the constant-velocity
+    and turn models alone; with the safety envelope the manoeuvre model lost weaving and tightly circling
+    targets that the default set keeps (docs/safety.md)."""
     target_max_acceleration: Annotated[float, Field(gt=0.0, le=30.0)] = 3.0
     """m/s^2: the largest acceleration (or braking) the followed target is expected to have: the IMM's
     manoeuvre model's noise, and the braking the safety envelope plans for ([safety])."""
@@ -1043,7 +1044,8 @@ class SafetyConfig(_Strict):
 
     enabled: False flies the guidance laws' commands as they are (for studies of the laws alone). The closest
     the pursuer may come is [dropout] min_range (r_d / 2 by default). range_sigmas: k of the pessimistic range
-    r^ - k sigma_r and target speed. braking_acceleration: m/s^2 the pursuer plans to brake with; default half
+    r^ - k sigma_r; speed_sigmas: of the target's speed away from us, v^_T . lambda - k sigma_v.
+    braking_acceleration: m/s^2 the pursuer plans to brake with; default half
     of g tan(max_tilt) of the airframe. reaction_time: s until braking takes effect. velocity_gain: 1/s.
     max_yaw_rate_deg: deg/s, the setpoint heading's largest rate of turn. untrusted_range_share: the share of
     the pessimistic range counted on while the estimate is not trusted (suspect, coasting, degraded).
@@ -1053,6 +1055,7 @@ class SafetyConfig(_Strict):
 
     enabled: bool = True
     range_sigmas: Annotated[float, Field(ge=0.0, le=10.0)] = 2.0
+    speed_sigmas: Annotated[float, Field(ge=0.0, le=10.0)] = 0.0
     braking_acceleration: Annotated[float, Field(gt=0.0, le=30.0)] | None = None
     reaction_time: Annotated[float, Field(ge=0.0, le=5.0)] = 0.3
     velocity_gain: Annotated[float, Field(gt=0.0, le=20.0)] = 2.0

@@ -221,7 +221,19 @@ def outcome_lines(flight: dict, who: str = "") -> list[str]:
         f"  max tilt {truth['max_tilt_deg']:.1f} deg  "
         + (f"BREACHED (limit {limit:g} deg, {truth['seconds_above_tilt_limit']:.1f} s above)"
            if truth["tilt_exceeded"] else f"ok (limit {limit:g} deg)"),
-    ]
+    ] + envelope_lines(flight)
+
+
+def envelope_lines(flight: dict) -> list[str]:
+    """One line on how often the safety envelope acted (companion.core.safety: the closing-speed limit and the
+    heading's rate), from the flight's "envelope" (in process) or its companion's (SITL); none without either."""
+    record = flight.get("envelope") or (flight.get("companion") or {}).get("envelope")
+    if not record:
+        return []
+    if not record["closing_ticks"] and not record["heading_ticks"]:
+        return ["  safety envelope: never acted"]
+    return [f"  safety envelope acted: closing speed limited {record['closing_seconds']:.1f} s, "
+            f"heading rate limited {record['heading_seconds']:.1f} s"]
 
 
 def suspect_warning(flight: dict, reasons: list[str] | tuple[str, ...] = ()) -> str | None:

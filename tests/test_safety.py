@@ -20,7 +20,7 @@ G = 9.81
 
 def envelope(**changes) -> SafetyEnvelope:
     values = dict(min_range=4.0, target_max_acceleration=3.0, braking_acceleration=3.0, max_braking_acceleration=6.0,
-                  range_sigmas=2.0, reaction_time=0.0)
+                  range_sigmas=2.0, speed_sigmas=2.0, reaction_time=0.0)
     values.update(changes)
     return SafetyEnvelope(**values)
 

@@ -7,7 +7,7 @@ command after the law (and before the vehicle's own limits), with two rules:
 
 1. **Closing speed from a pessimistic range.** With r_p = r^ - k sigma_r the range the estimate
    cannot rule out (sigma_r = sqrt(lambda^T P_pp lambda)), and the target's speed away from us
-   u_T = v^_T . lambda - k sigma_v (pessimistic too), the pursuer closes along the line of sight
+   u_T = v^_T . lambda - k_v sigma_v, the pursuer closes along the line of sight
    no faster than it can stop before min_range even if the target starts braking now at the
    largest deceleration a target can have (a_T):
 
@@ -56,7 +56,8 @@ class SafetyEnvelope:
     """The envelope's parameters (module docstring). Distances m, speeds m/s, accelerations m/s^2, times s.
 
     min_range: r_min, the closest the pursuer may come to the target (the default setup takes r_d / 2).
-    range_sigmas: k of the pessimistic range r^ - k sigma_r and target speed u_T - k sigma_v.
+    range_sigmas: k of the pessimistic range r^ - k sigma_r. speed_sigmas: k_v of the target's pessimistic
+    speed away from us, v^_T . lambda - k_v sigma_v.
     target_max_acceleration: a_T, the largest deceleration a target can have (the estimator's stated
     target acceleration bound). braking_acceleration: a_P, the braking the pursuer plans with (well
     inside what its tilt limit allows, since the lateral law needs the rest). reaction_time: t_r, the
@@ -73,6 +74,7 @@ class SafetyEnvelope:
     braking_acceleration: float
     max_braking_acceleration: float
     range_sigmas: float = 2.0
+    speed_sigmas: float = 0.0
     reaction_time: float = 0.3
     velocity_gain: float = 2.0
     retreat_gain: float = 1.0
@@ -87,8 +89,9 @@ class SafetyEnvelope:
             raise ValueError("the safety envelope's min_range, accelerations, gains and max_yaw_rate must be finite and > 0")
         if not (math.isfinite(self.max_braking_acceleration) and self.max_braking_acceleration >= self.braking_acceleration):
             raise ValueError("max_braking_acceleration must be finite and at least braking_acceleration")
-        if not (math.isfinite(self.range_sigmas) and self.range_sigmas >= 0.0):
-            raise ValueError(f"range_sigmas must be finite and >= 0, got {self.range_sigmas!r}")
+        for name in ("range_sigmas", "speed_sigmas"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0.0):
+                raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)!r}")
         if not (math.isfinite(self.reaction_time) and self.reaction_time >= 0.0):
             raise ValueError(f"reaction_time must be finite and >= 0, got {self.reaction_time!r}")
         if not (math.isfinite(self.tilt_margin) and 0.0 <= self.tilt_margin < math.radians(20.0)):
@@ -119,7 +122,7 @@ class SafetyEnvelope:
         """(u_max, the target's speed away from us as counted, m/s): `closing_speed_limit`'s arithmetic."""
         k = self.range_sigmas
         pessimistic_range = range_estimate - k * range_std
-        away = target_speed_away - k * target_speed_std
+        away = target_speed_away - self.speed_sigmas * target_speed_std
         if not trusted:
             pessimistic_range *= self.untrusted_range_share
             away = min(away, 0.0)
