@@ -530,7 +530,7 @@ def format_summary(summary: dict) -> str:
     warning = suspect_warning(flight, companion.get("health_reasons_at_end", ()))
     if warning:
         lines.append(f"  {warning}")
-    lines += outcome_lines(flight)
+    lines += outcome_lines({**flight, "envelope": companion.get("envelope")})
     return "\n".join(lines)
 
 
