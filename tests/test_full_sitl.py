@@ -290,3 +290,27 @@ def test_a_stalled_target_process_costs_no_bearing(tmp_path, scenario_path):
     # six runs. Before the attitude mapping kept PX4's horizontal thrust margin (MPC_THR_XY_MARG) it was 0.95-7.8 m:
     # on re-engagement the vertical demand took all the thrust and the pursuer could not brake.
     assert summary["flight"]["min_range"] > 0.5 * summary["flight"]["desired_range"], summary["flight"]
+
+
+def test_a_stop_and_go_target_is_flown_end_to_end_and_judged_by_the_truth(tmp_path, scenario_path):
+    """The stop-and-go target (it brakes to a hover twice) through the real processes with every default, the
+    safety envelope included. The flight runs to the end, the companion's envelope acts and reports it, the
+    vehicle's own tilt (the plant's attitude loop, not the setpoint) stays within the airframe's 35 deg, and the
+    summary's truth block is consistent: r_d / 2 breached exactly when its closest approach is below 4 m, and a
+    flight that diverged or breached is never called a success, whatever the monitor said. Whether this flight
+    keeps r_d / 2 is not asserted: the envelope trusts the estimate's sigma, and a confident wrong estimate
+    still lets the pursuer arrive too fast (docs/safety.md, 'What it cannot do')."""
+    code, folder, summary = full_sitl.run(scenario_path("stop_and_go"), tmp_path, SPEED, seed=1,
+                                          timeout=240.0, plots=False, quiet=True, gcs_port=free_port())
+    assert code == 0, (folder / "companion.out").read_text()[-3000:]
+    assert summary["companion"]["phase"] == "done"
+    envelope = summary["companion"]["envelope"]
+    assert envelope["closing_ticks"] > 0 and envelope["closing_seconds"] > 0.0
+    flight = summary["flight"]
+    assert flight["max_tilt_deg"] <= 35.0, flight
+    truth = flight["truth"]
+    assert truth["half_desired_range"] == 4.0
+    assert truth["min_range_breached"] == (truth["min_range"] < 4.0)
+    assert truth["tilt_exceeded"] is False
+    if truth["diverged"] or truth["min_range_breached"]:
+        assert truth["outcome"] != "success" and flight["verdict"] not in ("clean", "recovered")
