@@ -1059,7 +1059,7 @@ class SafetyConfig(_Strict):
     braking_acceleration: Annotated[float, Field(gt=0.0, le=30.0)] | None = None
     reaction_time: Annotated[float, Field(ge=0.0, le=5.0)] = 0.3
     velocity_gain: Annotated[float, Field(gt=0.0, le=20.0)] = 2.0
-    max_yaw_rate_deg: Annotated[float, Field(gt=0.0, le=1000.0)] = 90.0
+    max_yaw_rate_deg: Annotated[float, Field(gt=0.0, le=1000.0)] = 45.0
     untrusted_range_share: Annotated[float, Field(gt=0.0, le=1.0)] = 1.0
     tilt_margin_deg: Annotated[float, Field(ge=0.0, lt=20.0)] = 3.0
 

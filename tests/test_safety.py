@@ -83,21 +83,28 @@ def test_a_point_mass_closing_on_a_hovering_target_never_passes_min_range(start_
     assert closest >= 4.0 - 0.05, closest
 
 
-@given(previous=st.floats(-math.pi, math.pi), wanted=st.floats(-math.pi, math.pi), interval=st.floats(0.01, 0.5))
-def test_the_heading_turns_at_most_at_the_yaw_rate(previous: float, wanted: float, interval: float) -> None:
+@given(previous=st.floats(-math.pi, math.pi), wanted=st.floats(-math.pi, math.pi), interval=st.floats(0.01, 0.5),
+       elevation=st.floats(-1.4, 1.4))
+def test_the_heading_is_the_horizontal_line_of_sight_turned_at_most_at_the_yaw_rate(
+        previous: float, wanted: float, interval: float, elevation: float) -> None:
     rule = envelope(max_yaw_rate=math.radians(90.0))
     forward = np.array([math.cos(previous), math.sin(previous), 0.0])
-    los = np.array([math.cos(wanted), math.sin(wanted), -0.3])
-    los /= np.linalg.norm(los)
-    heading = rule.heading(los, forward, interval)
+    los = np.array([math.cos(elevation) * math.cos(wanted), math.cos(elevation) * math.sin(wanted), -math.sin(elevation)])
+    heading, limited = rule.heading(los, forward, interval)
+    assert heading is not None and heading[2] == 0.0 and math.isclose(float(np.linalg.norm(heading)), 1.0)
+    moved = math.remainder(math.atan2(heading[1], heading[0]) - previous, 2 * math.pi)
     turn = math.remainder(wanted - previous, 2 * math.pi)
     step = math.radians(90.0) * interval
-    if abs(turn) <= step:
-        assert heading is None  # lambda itself
-    else:
-        assert heading is not None and heading[2] == 0.0
-        moved = math.remainder(math.atan2(heading[1], heading[0]) - previous, 2 * math.pi)
-        assert moved == pytest.approx(math.copysign(step, turn), abs=1e-9)
+    assert limited == (abs(turn) > step)
+    assert moved == pytest.approx(math.copysign(step, turn) if limited else turn, abs=1e-9)
+
+
+def test_a_vertical_line_of_sight_holds_the_heading() -> None:
+    rule = envelope()
+    forward = np.array([0.0, 1.0, 0.0])
+    heading, limited = rule.heading(np.array([0.03, 0.0, -1.0]) / math.hypot(0.03, 1.0), forward, 0.05)
+    assert not limited and heading == pytest.approx(forward)
+    assert rule.heading(np.array([0.0, 0.0, -1.0]), None, 0.0) == (None, False)
 
 
 def test_the_setpoints_keep_the_tilt_margin() -> None:

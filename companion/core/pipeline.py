@@ -731,9 +731,9 @@ class FollowingPipeline:
             record.closing_ticks += 1
             record.closing_seconds += self.control_period
         previous = self._setpoint
-        heading = None if previous is None else envelope.heading(heading_los, previous.rotation[:, 0],
-                                                                 time - previous.time)
-        if heading is not None:
+        heading, limited = envelope.heading(heading_los, None if previous is None else previous.rotation[:, 0],
+                                            0.0 if previous is None else time - previous.time)
+        if limited:
             record.heading_ticks += 1
             record.heading_seconds += self.control_period
         return command, heading

@@ -27,11 +27,10 @@ command after the law (and before the vehicle's own limits), with two rules:
    by a few sigma. The line of sight is the latest measured bearing while it is fresh (a
    measurement, not the estimate), else the estimate's.
 
-2. **Heading rate.** The setpoint's heading turns towards the line of sight at most max_yaw_rate
-   (rad/s): a geometric attitude controller tracking a yaw step couples the yaw error into roll and
-   pitch, and a pursuer close to a target whose bearing swings fast tilted 10 deg past its tilt
-   limit that way. The returned heading direction replaces lambda in eq. (21)'s R_d only when the
-   line of sight turned further than that since the last setpoint.
+2. **Heading rate.** The setpoint's heading is the line of sight's horizontal direction, turned
+   towards at most max_yaw_rate (rad/s): a geometric attitude controller tracking a yaw step couples
+   the yaw error into roll and pitch, and a pursuer close to a target whose bearing swings fast tilted
+   10 deg past its tilt limit that way. The horizontal heading replaces lambda in eq. (21)'s R_d.
 
 3. **Tilt margin.** The setpoints' tilt is kept tilt_margin below the airframe's limit: the
    attitude loop overshoots a fast-moving tilt setpoint by a few degrees, and the limit is the
@@ -78,7 +77,7 @@ class SafetyEnvelope:
     reaction_time: float = 0.3
     velocity_gain: float = 2.0
     retreat_gain: float = 1.0
-    max_yaw_rate: float = math.radians(90.0)
+    max_yaw_rate: float = math.radians(45.0)
     untrusted_range_share: float = 1.0
     tilt_margin: float = math.radians(3.0)
 
@@ -165,25 +164,36 @@ class SafetyEnvelope:
             return None
         return command + (wanted - along) * los
 
-    def heading(self, los: np.ndarray, previous_forward: np.ndarray | None, interval: float) -> np.ndarray | None:
-        """The direction R_d's heading is built from (module docstring, rule 2): None when lambda's horizontal
-        direction is within max_yaw_rate x interval of the previous setpoint's forward axis (or either is
-        vertical, or there is no previous setpoint): lambda itself then; else the horizontal unit vector turned
-        from the previous heading towards lambda's by that much. los: unit lambda (3,); previous_forward: the
-        last R_d's first column (3,); interval: s since that setpoint."""
-        if previous_forward is None:
-            return None
-        wanted = math.atan2(float(los[1]), float(los[0]))
-        if math.hypot(float(los[0]), float(los[1])) < 1e-6 or math.hypot(float(previous_forward[0]),
-                                                                           float(previous_forward[1])) < 1e-6:
-            return None
+    def heading(self, los: np.ndarray, previous_forward: np.ndarray | None,
+                interval: float) -> tuple[np.ndarray | None, bool]:
+        """The horizontal unit vector R_d's heading is built from (module docstring, rule 2), and whether the rate
+        limit turned it short of the line of sight: lambda's horizontal direction, reached from the previous
+        setpoint's heading at no more than max_yaw_rate x interval. While lambda is within VERTICAL_LOS of the
+        vertical its horizontal direction is noise and the previous heading is held. (None, False) with no
+        previous setpoint: lambda itself then. los: unit lambda (3,); previous_forward: the last R_d's first
+        column (3,); interval: s since that setpoint.
+
+        Horizontal rather than lambda itself: R_d's forward axis is the part of its heading vector across the
+        thrust axis, and a line of sight nearly along the thrust axis (a target above a tilted pursuer) leaves
+        that part to the tilt, so the heading swung with every change of the command and the attitude loop,
+        chasing it, was left 150 deg off in yaw and 25 deg past the tilt it was asked for."""
+        horizontal = math.hypot(float(los[0]), float(los[1]))
+        if previous_forward is None or math.hypot(float(previous_forward[0]), float(previous_forward[1])) < 1e-6:
+            if horizontal < 1e-6:
+                return None, False
+            return np.array([float(los[0]) / horizontal, float(los[1]) / horizontal, 0.0]), False
         current = math.atan2(float(previous_forward[1]), float(previous_forward[0]))
-        turn = math.remainder(wanted - current, 2.0 * math.pi)
+        if horizontal < math.sin(VERTICAL_LOS):
+            return np.array([math.cos(current), math.sin(current), 0.0]), False
+        turn = math.remainder(math.atan2(float(los[1]), float(los[0])) - current, 2.0 * math.pi)
         step = self.max_yaw_rate * max(interval, 0.0)
-        if abs(turn) <= step:
-            return None
-        heading = current + math.copysign(step, turn)
-        return np.array([math.cos(heading), math.sin(heading), 0.0])
+        limited = abs(turn) > step
+        heading = current + (math.copysign(step, turn) if limited else turn)
+        return np.array([math.cos(heading), math.sin(heading), 0.0]), limited
+
+
+#: rad: a line of sight closer than this to the vertical has no heading of its own (`SafetyEnvelope.heading`).
+VERTICAL_LOS = math.radians(6.0)
 
 
 @dataclass

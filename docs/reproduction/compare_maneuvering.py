@@ -1,0 +1,60 @@
+"""The manoeuvring study's two runs side by side (docs/reproduction.md, section 5.7).
+
+    python docs/reproduction/compare_maneuvering.py NOW/results.csv BEFORE/results.csv
+
+NOW: `bof-montecarlo --study maneuvering` (the defaults); BEFORE: the same scenarios, seeds and bearing rates with
+`[safety] enabled = false` (cases named "<rate>-unguarded"). Prints one markdown line per scenario and bearing rate:
+flights diverged by truth (range-estimation RMS over the summary window > 2 m), the median and worst RMS, the
+flights closer than r_d / 2 and the closest approach over r_d, the flights above the tilt limit and the largest
+tilt, and the monitor's misses (diverged, not flagged at the end) and false alarms (flagged, not diverged).
+"""
+
+from __future__ import annotations
+
+import sys
+
+import pandas as pd
+
+
+def figures(path: str) -> pd.DataFrame:
+    rows = pd.read_csv(path)
+    rows["rate"] = rows["case"].str.split("-").str[0]
+    for column in ("diverged_rms", "breached_half_rd", "tilt_exceeded", "flagged"):
+        rows[column] = rows[column].astype(str) == "True"
+    rows["missed"] = rows["diverged_rms"] & ~rows["flagged"]
+    rows["false_alarm"] = rows["flagged"] & ~rows["diverged_rms"]
+    return rows.groupby(["scenario", "rate"]).agg(
+        runs=("seed", "size"), diverged=("diverged_rms", "sum"), rms_median=("rms_error", "median"),
+        rms_worst=("rms_error", "max"), breached=("breached_half_rd", "sum"), closest=("min_range", "min"),
+        tilted=("tilt_exceeded", "sum"), tilt_max=("max_tilt_deg", "max"), missed=("missed", "sum"),
+        false_alarms=("false_alarm", "sum"))
+
+
+def cell(now: float, before: float, digits: int) -> str:
+    return f"{now:.{digits}f} ({before:.{digits}f})"
+
+
+def main(argv: list[str]) -> int:
+    if len(argv) != 2:
+        print(__doc__.strip().splitlines()[2].strip(), file=sys.stderr)
+        return 2
+    now, before = figures(argv[0]), figures(argv[1])
+    desired = 8.0  # every scenario of the study follows at r_d = 8 m
+    print("| scenario | rate | diverged | RMS median | RMS worst | closer than r_d/2 | closest / r_d | tilt over limit | max tilt (deg) | missed / false alarms |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for (scenario, rate), n in now.iterrows():
+        b = before.loc[(scenario, rate)]
+        print(f"| {scenario} | {rate} | {n.diverged}/{n.runs} ({b.diverged}) | {cell(n.rms_median, b.rms_median, 2)} | "
+              f"{cell(n.rms_worst, b.rms_worst, 2)} | {n.breached} ({b.breached}) | "
+              f"{cell(n.closest / desired, b.closest / desired, 2)} | {n.tilted} ({b.tilted}) | "
+              f"{cell(n.tilt_max, b.tilt_max, 1)} | {n.missed} / {n.false_alarms} ({b.missed} / {b.false_alarms}) |")
+    total_now, total_before = now.sum(), before.sum()
+    print(f"\nall: diverged {total_now.diverged} ({total_before.diverged}) of {total_now.runs}; closer than r_d/2 "
+          f"{total_now.breached} ({total_before.breached}); tilt over the limit {total_now.tilted} ({total_before.tilted}); "
+          f"missed {total_now.missed} ({total_before.missed}), false alarms {total_now.false_alarms} "
+          f"({total_before.false_alarms})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
