@@ -138,3 +138,24 @@ def test_a_stop_and_go_flight_keeps_its_tilt_inside_the_airframes_limit_and_coun
     assert on.summary["max_tilt_deg"] <= vehicle.max_tilt_deg
     off = simulate(with_overrides(scenario, {"safety.enabled": False}), vehicle, 101)
     assert off.summary["max_tilt_deg"] > vehicle.max_tilt_deg
+
+
+@given(heading_angle=st.floats(-math.pi, math.pi), north=st.floats(-6.0, 6.0), east=st.floats(-6.0, 6.0),
+       down=st.floats(-3.0, 3.0))
+def test_the_heading_axis_points_exactly_along_the_heading_and_across_the_thrust(heading_angle, north, east, down):
+    """The setpoint's body x axis through eq. (21)'s mapping: horizontally along the heading (no yaw from the tilt),
+    perpendicular to the thrust axis, and R_d a rotation (scipy's Rotation reads its yaw back)."""
+    from scipy.spatial.transform import Rotation
+
+    from companion.core.attitude import desired_rotation
+    from companion.core.safety import heading_axis
+
+    heading = np.array([math.cos(heading_angle), math.sin(heading_angle), 0.0])
+    acceleration = np.array([north, east, down])
+    axis = heading_axis(heading, acceleration, G)
+    thrust = np.array([0.0, 0.0, G]) - acceleration
+    assert abs(float(axis @ thrust)) < 1e-9 * np.linalg.norm(thrust)
+    rotation = desired_rotation(acceleration, axis, G)
+    yaw = Rotation.from_matrix(rotation).as_euler("ZYX")[0]
+    assert math.remainder(yaw - heading_angle, 2 * math.pi) == pytest.approx(0.0, abs=1e-7)
+    assert float(rotation[:, 0] @ heading) > 0.0

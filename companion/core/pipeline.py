@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.core.attitude import VehicleLimits, attitude_setpoint_after
+from companion.core.attitude import VehicleLimits, attitude_setpoint_after, limit_specific_force
 from companion.core.cooperative_guidance import CooperativeContext, SeparationFilter, neighbours_make_range_observable
 from companion.core.estimators import CorrectionReport, InitialGuess, TargetEstimator
 from companion.core._jit import jit, power
@@ -38,7 +38,7 @@ from companion.core.messages import (
     fast_frozen,
 )
 from companion.core.observability import WindowedObservability
-from companion.core.safety import EnvelopeRecord, SafetyEnvelope
+from companion.core.safety import EnvelopeRecord, SafetyEnvelope, heading_axis
 
 _TIME_EPS = 1e-9
 
@@ -707,6 +707,8 @@ class FollowingPipeline:
             self._setpoint = fast_frozen(AttitudeSetpoint, time=time, rotation=rotation,
                                          thrust_normalized=thrust_normalized, thrust=thrust, acceleration=flown)
         else:  # heading fallback: the previous setpoint's r1
+            if heading is not None:  # the envelope's heading, exactly (safety.heading_axis)
+                heading = heading_axis(heading, limit_specific_force(command, self.limits), self.limits.gravity)
             self._setpoint = attitude_setpoint_after(time, command, los if heading is None else heading, self.limits,
                                                      self._setpoint)
         self._guidance = fast_frozen(GuidanceTerms, lateral=lateral, longitudinal=longitudinal, los=los,

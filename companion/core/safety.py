@@ -196,6 +196,19 @@ class SafetyEnvelope:
 VERTICAL_LOS = math.radians(6.0)
 
 
+def heading_axis(heading: np.ndarray, flown_acceleration: np.ndarray, gravity: float) -> np.ndarray:
+    """The body x axis (unit, (3,)) whose horizontal direction is exactly `heading` (a horizontal unit vector) and
+    which is perpendicular to the thrust axis r3 = (g e_Z - a) / |g e_Z - a| of the flown acceleration a (m/s^2,
+    (3,)): x_B = (y_C x r3) / |y_C x r3| with y_C = e_Z x heading, PX4's thrust-and-yaw to attitude. Handed to
+    eq. (21)'s R_d in place of lambda it gives R_d = [x_B, r3 x x_B, r3]: the heading exactly, where lambda's
+    part across r3 would tilt it by up to tan(tilt) x the tilt's share along the heading (16 deg at 32 deg)."""
+    thrust = np.array([-flown_acceleration[0], -flown_acceleration[1], gravity - flown_acceleration[2]])
+    thrust /= math.sqrt(float(thrust @ thrust))
+    across = np.array([-heading[1], heading[0], 0.0])  # e_Z x heading, NED
+    axis = np.cross(across, thrust)
+    return axis / math.sqrt(float(axis @ axis))
+
+
 @dataclass
 class EnvelopeRecord:
     """How often the envelope acted: control ticks whose closing speed it limited, and whose heading it
