@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import sys
 import socket
 import threading
 import time
@@ -105,3 +106,29 @@ def clock_and_fixes() -> Iterator[Callable[[str], ClockAndFixes]]:
     yield _open
     for link in links:
         link.close()
+
+
+@pytest.fixture
+def sitl_target_fixes(clock_and_fixes) -> Callable[..., list]:
+    """(scenario path, output folder, *extra sitl-target arguments) -> the fixes a `sitl-target` process published
+    over a loopback Zenoh link while a test clock ran it for 4 s of scenario time at 10 Hz (NED frame); the child
+    is stopped and its exit code checked (0) before the fixes are returned."""
+    from studies.processes import ChildProcess
+
+    def _run(path, folder, *extra: str) -> list:
+        link = clock_and_fixes("target-1")
+        child = None
+        try:
+            command = [sys.executable, "-m", "sitl_plant.world.target_publisher", "--config", str(path),
+                       "--zenoh-connect", link.endpoint, "--rate", "10", "--frame", "ned", *extra, "--duration", "4.0"]
+            child = ChildProcess(command, folder / "target.out", ready="sitl-target ready").start(timeout=20.0)
+            link.run_clock(until_sim=5.0, step=0.1, period=0.01, timeout=15.0, done=lambda: not child.running)
+            child.process.wait(10.0)
+            exit_code, output = child.process.returncode, child.output()
+        finally:
+            if child is not None:
+                child.stop()
+        assert exit_code == 0, output
+        return link.received()
+
+    return _run

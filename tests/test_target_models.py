@@ -10,7 +10,6 @@ exp(-lag / tau), with Bartlett's sampling error).
 from __future__ import annotations
 
 import math
-import sys
 
 import numpy as np
 import pytest
@@ -23,7 +22,6 @@ from interfaces.link_schema import fix_to_ned
 from interfaces.scenario import SCENARIOS_DIR, TargetConfig, load_scenario
 from sitl_plant.world.target import SingerTarget, SpeedScheduleTarget, TargetModel, target_from_config
 from studies.closed_loop import simulate
-from studies.processes import ChildProcess
 
 START = [10.0, -5.0, -20.0]
 H = 1e-4  # s, finite-difference step
@@ -314,28 +312,14 @@ def test_in_process_simulator_flies_the_configured_model():
         assert np.allclose(series["target_velocity"][index], model.velocity, rtol=0, atol=1e-9)
 
 
-def test_sitl_target_process_flies_the_configured_model(tmp_path, clock_and_fixes):
+def test_sitl_target_process_flies_the_configured_model(tmp_path, sitl_target_fixes):
     """sitl-target with the Singer scenario and --seed: its fixes are the same trajectory as target_from_config's."""
     text = (SCENARIOS_DIR / "singer.toml").read_text().replace(
         'vehicle = "../vehicles/paper_table1.toml"', f'vehicle = "{SCENARIOS_DIR.parent / "vehicles" / "paper_table1.toml"}"')
     path = tmp_path / "singer.toml"
     path.write_text(text)
     scenario, _ = load_scenario(path)
-    link = clock_and_fixes("target-1")
-    child = None
-    try:
-        command = [sys.executable, "-m", "sitl_plant.world.target_publisher", "--config", str(path), "--zenoh-connect",
-                   link.endpoint, "--rate", "10", "--frame", "ned", "--seed", "6", "--duration", "4.0"]
-        child = ChildProcess(command, tmp_path / "target.out", ready="sitl-target ready").start(timeout=20.0)
-        link.run_clock(until_sim=5.0, step=0.1, period=0.01, timeout=15.0, done=lambda: not child.running)
-        child.process.wait(10.0)
-        exit_code, output = child.process.returncode, child.output()
-    finally:
-        if child is not None:
-            child.stop()
-        link.close()
-    assert exit_code == 0, output
-    fixes = link.received()
+    fixes = sitl_target_fixes(path, tmp_path, "--seed", "6")
     assert len(fixes) >= 30 and fixes[-1].stamp == 4.0
     model = target_from_config(scenario.target, 6)
     for fix in fixes:

@@ -11,7 +11,6 @@ from __future__ import annotations
 import math
 import os
 import struct
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +24,6 @@ from interfaces.scenario import SCENARIOS_DIR, ConfigError, TargetConfig, load_p
 from interfaces.trajectory import read_trajectory
 from sitl_plant.world.target import TrajectoryTarget, target_from_config
 from studies.closed_loop import simulate
-from studies.processes import ChildProcess
 from ulog_writer import LOCAL_POSITION_FIELDS, ulog_bytes, write_local_position_ulog
 
 RADIUS, OMEGA = 20.0, 0.25  # m, rad/s: 5 m/s on the circle, 1.25 m/s^2 towards its centre
@@ -338,7 +336,7 @@ def test_the_format_is_given_or_told_by_the_extension():
     assert TargetConfig.model_validate({"initial_position": PLACED, "trajectory": given_format}).trajectory.file_format == "csv"
 
 
-def test_the_sitl_target_process_flies_the_recorded_track(tmp_path, clock_and_fixes):
+def test_the_sitl_target_process_flies_the_recorded_track(tmp_path, sitl_target_fixes):
     """sitl-target reads the scenario itself (from its own working directory, not the scenario's folder): the
     trajectory path, relative to the scenario file, reaches it resolved."""
     (tmp_path / "tracks").mkdir()
@@ -346,21 +344,7 @@ def test_the_sitl_target_process_flies_the_recorded_track(tmp_path, clock_and_fi
     path = tmp_path / "replay.toml"
     path.write_text(_scenario_text('file = "tracks/circle.csv"\n'))
     scenario, _ = load_scenario(path)
-    link = clock_and_fixes("target-1")
-    child = None
-    try:
-        command = [sys.executable, "-m", "sitl_plant.world.target_publisher", "--config", str(path), "--zenoh-connect",
-                   link.endpoint, "--rate", "10", "--frame", "ned", "--duration", "4.0"]
-        child = ChildProcess(command, tmp_path / "target.out", ready="sitl-target ready").start(timeout=20.0)
-        link.run_clock(until_sim=5.0, step=0.1, period=0.01, timeout=15.0, done=lambda: not child.running)
-        child.process.wait(10.0)
-        exit_code, output = child.process.returncode, child.output()
-    finally:
-        if child is not None:
-            child.stop()
-        link.close()
-    assert exit_code == 0, output
-    fixes = link.received()
+    fixes = sitl_target_fixes(path, tmp_path)
     assert len(fixes) >= 30 and fixes[-1].stamp == 4.0
     for fix in fixes:
         position, velocity, _ = _circle(fix.stamp)
