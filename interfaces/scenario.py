@@ -383,7 +383,7 @@ def _check_segments(initial_velocity: tuple[float, float, float], segments: tupl
             goal = segment.velocity if segment.kind == "accelerate" else (north, east, -segment.rate)
             change = math.sqrt(sum((b - a) ** 2 for a, b in zip((north, east, down), goal)))
             takes = change / segment.max_acceleration
-            if segment.duration is not None and segment.duration < takes:
+            if segment.duration is not None and segment.duration < takes * (1.0 - 1e-12):  # rounding is no error
                 raise ValueError(f"{where}: duration {segment.duration:g} s is shorter than the {takes:g} s the "
                                  f"change of {change:g} m/s takes at max_acceleration {segment.max_acceleration:g} m/s^2")
             north, east, down = goal

@@ -694,9 +694,8 @@ class FollowingPipeline:
         heading = None
         if self.envelope is not None:
             # The target's velocity is counted on while bearings keep the estimate tight (tracking, or coasting
-            # through a steady latency) and the monitor does not doubt it.
-            trusted = (self.mode in (TrackMode.TRACKING, TrackMode.COASTING) and not suspect
-                       and self.health_action is not HealthAction.RECOVERING)
+            # through a steady latency), not on a prediction alone (degraded, reacquiring).
+            trusted = self.mode in (TrackMode.TRACKING, TrackMode.COASTING)
             command, heading = self._within_envelope(time, command, los, range_estimate, estimate, pursuer, trusted)
         if separate:
             # Last, so that no mode, law or blend can undo it.
