@@ -1048,7 +1048,7 @@ class SafetyConfig(_Strict):
     braking_acceleration: m/s^2 the pursuer plans to brake with; default half
     of g tan(max_tilt) of the airframe. reaction_time: s until braking takes effect. velocity_gain: 1/s.
     max_yaw_rate_deg: deg/s, the setpoint heading's largest rate of turn. untrusted_range_share: the share of
-    the pessimistic range counted on while the estimate is not trusted (suspect, coasting, degraded).
+    the pessimistic range counted on while the estimate is a prediction without bearings (degraded, reacquiring).
     tilt_margin_deg: deg, the setpoints' tilt limit is the airframe's max_tilt_deg less this. The
     target's largest deceleration is [estimator] target_max_acceleration.
     """

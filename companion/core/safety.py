@@ -21,10 +21,9 @@ command after the law (and before the vehicle's own limits), with two rules:
    airframe flies (a_P < a_max keeps the rest for the lateral law while the envelope only plans).
    It is the longitudinal rule of responsibility-sensitive safety (Shalev-Shwartz et al. 2017)
    applied to a target whose range is known only up to k sigma. When the estimate is not trusted
-   (coasting, degraded, the health monitor judging it suspect) the envelope counts on only
-   untrusted_range_share of the pessimistic range and leaves the target's stopping distance out
-   (u_T taken as at most 0): a suspect bearing-only estimate is most often wrong by a factor, not
-   by a few sigma. The line of sight is the latest measured bearing while it is fresh (a
+   (the pipeline's call: a prediction without bearings, degraded or reacquiring) the envelope counts
+   on only untrusted_range_share of the pessimistic range and leaves the target's stopping distance
+   out (u_T taken as at most 0). The line of sight is the latest measured bearing while it is fresh (a
    measurement, not the estimate), else the estimate's.
 
 2. **Heading rate.** The setpoint's heading is the line of sight's horizontal direction, turned
