@@ -181,6 +181,19 @@ def test_a_swarm_study_stopped_by_sighup_keeps_its_flights(tmp_path):
         command.stop()
 
 
+def _wait_for_stop_handlers(pid: int, timeout: float = 60.0) -> None:
+    """Until the process catches SIGTERM (its SigCgt mask in /proc: bof-sim installs its stop handlers for SIGINT,
+    SIGTERM and SIGHUP together, and Python catches only SIGINT of its own), so a signal sent then meets them
+    however long the imports took on a loaded machine (a fixed 3 s was not always enough)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("SigCgt:") and int(line.split()[1], 16) & (1 << (signal.SIGTERM - 1)):
+                return
+        time.sleep(0.05)
+    raise AssertionError(f"process {pid} never installed its stop handlers in {timeout:g} s")
+
+
 @pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM])
 def test_bof_sim_interrupted_says_so_in_one_line(tmp_path, stop):
     long_flight = (SCENARIOS_DIR / "constant_velocity.toml").read_text()
@@ -191,7 +204,8 @@ def test_bof_sim_interrupted_says_so_in_one_line(tmp_path, stop):
     scenario.write_text(long_flight)
     command = Command(["studies.run_scenario", str(scenario), "--no-plots", "--out", str(tmp_path / "runs")], tmp_path)
     try:
-        time.sleep(3.0)  # imports, then well inside a flight of about 30 s
+        _wait_for_stop_handlers(command.process.pid)  # imports and the scenario done: bof-sim is flying
+        time.sleep(0.5)
         assert command.process.poll() is None
         command.process.send_signal(stop)
         code, _, err = command.finish(timeout=30)

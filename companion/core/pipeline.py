@@ -305,7 +305,6 @@ class FollowingPipeline:
 
     @limits.setter
     def limits(self, airframe: VehicleLimits) -> None:
-        self.airframe_limits = airframe
         self._limits = airframe if self.envelope is None else self.envelope.commanded_limits(airframe)
 
     def set_neighbours(self, neighbours) -> None:
@@ -715,9 +714,10 @@ class FollowingPipeline:
 
     def _within_envelope(self, time: float, command: np.ndarray, los: np.ndarray, range_estimate: float,
                          estimate: TargetEstimate, pursuer: PursuerState, trusted: bool) -> tuple[np.ndarray, np.ndarray | None]:
-        """The command (m/s^2, (3,)) within the safety envelope, and the heading direction for R_d (None: the line
-        of sight): companion.core.safety, its closing-speed rule from this estimate's sigma_r and sigma_v along
-        `los`, the target's velocity counted only when `trusted`. Counts the ticks it acted in envelope_record."""
+        """The command (m/s^2, (3,)) within the safety envelope, and the horizontal heading for R_d (None before the
+        first setpoint with a vertical line of sight: lambda then): companion.core.safety, its closing-speed rule from
+        this estimate's sigma_r and sigma_v along the line of sight, the target's velocity counted only when
+        `trusted`. Counts the ticks it acted in envelope_record."""
         envelope, record = self.envelope, self.envelope_record
         heading_los = los
         covariance = estimate.covariance
