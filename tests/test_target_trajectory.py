@@ -206,8 +206,13 @@ def test_the_first_vehicle_local_position_instance_is_the_one_replayed(tmp_path)
 def test_bad_csv_files_are_refused_in_one_line_naming_the_file(tmp_path, content, message):
     path = tmp_path / "track.csv"
     path.write_text(content)
+    _refused_in_one_line(path, "csv", message)
+
+
+def _refused_in_one_line(path: Path, file_format: str, message: str) -> None:
+    """read_trajectory refuses the file with a ConfigError matching `message`, one line, the file named first."""
     with pytest.raises(ConfigError, match=message) as error:
-        read_trajectory(path, "csv")
+        read_trajectory(path, file_format)
     assert str(error.value).startswith(str(path)) and "\n" not in str(error.value)
 
 
@@ -251,9 +256,7 @@ def _local_position_rows(count: int) -> list[tuple]:
 def test_bad_ulog_files_are_refused_in_one_line_naming_the_file(tmp_path, data, message):
     path = tmp_path / "flight.ulg"
     path.write_bytes(data)
-    with pytest.raises(ConfigError, match=message) as error:
-        read_trajectory(path, "ulog")
-    assert str(error.value).startswith(str(path)) and "\n" not in str(error.value)
+    _refused_in_one_line(path, "ulog", message)
 
 
 @settings(max_examples=60, deadline=None)
