@@ -86,7 +86,14 @@ def test_every_pursuer_uses_its_neighbours_bearings(flown):
         records = [json.loads(line) for line in (folder / f"pursuer-{k}" / "companion" / "swarm_rx.jsonl").read_text().splitlines()]
         heard = {r["sender"] for r in records if r.get("verdict") == "accepted"}
         assert heard == set(range(1, COUNT + 1)) - {k}
-        assert entry["shares_rejected"] == {} or set(entry["shares_rejected"]) <= {"no_clock"}, entry["shares_rejected"]
+        # Each plant keeps its own simulated clock against one shared wall-clock anchor; on a loaded machine a
+        # plant or a companion falls a fraction of a second behind and a neighbour's share then reads as
+        # stamped ahead of the receiver's clock: refused and counted, as a forged stamp would be. That stays
+        # rare; no other reason may appear (no_clock: shares heard before the first odometry).
+        rejected = entry["shares_rejected"] or {}
+        assert set(rejected) <= {"no_clock", "future_stamp"}, rejected
+        received = entry["companion"]["swarm"]["shares_received"]
+        assert rejected.get("future_stamp", 0) <= 0.02 * received, (rejected, received, entry["plant"])
 
 
 def test_pursuers_keep_their_separation_and_their_distance_to_the_target(flown):
