@@ -59,9 +59,13 @@ class CsvLog:
         self._writer = csv.DictWriter(self._handle, fieldnames=self.columns, restval="", lineterminator="\n",
                                       extrasaction="ignore" if ignore_extra else "raise")
         self._writer.writeheader()
+        self.late_rows = 0  # rows offered after close (a callback that outlived the run): counted, not written
 
     def write(self, row: Mapping[str, Any]) -> None:
         """One row: column -> value (str as given, other values through str(); absent or None: empty)."""
+        if self._handle.closed:
+            self.late_rows += 1
+            return
         self._writer.writerow(row)
 
     def close(self) -> None:
@@ -76,10 +80,14 @@ class JsonLinesLog:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._handle = self.path.open("w", buffering=1)
         self._lock = threading.Lock()
+        self.late_records = 0  # records offered after close (a callback that outlived the run): counted, not written
 
     def write(self, record: Mapping[str, Any]) -> None:
         line = json.dumps(record, default=plain)
         with self._lock:
+            if self._handle.closed:
+                self.late_records += 1
+                return
             self._handle.write(line + "\n")
 
     def close(self) -> None:

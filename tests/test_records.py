@@ -44,3 +44,20 @@ def test_json_lines_and_json_files_take_numpy_values(tmp_path):
     write_json(tmp_path / "summary.json", {"b": np.arange(2), "a": 1}, sort_keys=True)
     assert json.loads((tmp_path / "summary.json").read_text()) == {"a": 1, "b": [0, 1]}
     assert not (tmp_path / "summary.json.tmp").exists()
+
+
+def test_a_record_offered_after_close_is_counted_and_the_file_is_left_as_closed(tmp_path):
+    """A subscriber callback that fires after the run closed its logs must not raise into the caller's
+    thread (it would print a traceback from the transport's thread) nor reopen the file."""
+    table = CsvLog(tmp_path / "t.csv", ("time",))
+    table.write({"time": 1})
+    table.close()
+    table.write({"time": 2})
+    events = JsonLinesLog(tmp_path / "e.jsonl")
+    events.write({"n": 1})
+    events.close()
+    events.write({"n": 2})
+    events.write({"n": 3})
+    assert (table.late_rows, events.late_records) == (1, 2)
+    assert list(csv.DictReader((tmp_path / "t.csv").open())) == [{"time": "1"}]
+    assert [json.loads(line) for line in (tmp_path / "e.jsonl").read_text().splitlines()] == [{"n": 1}]
