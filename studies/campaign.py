@@ -461,7 +461,8 @@ def _sitl_attack_figures(run_folder: Path, rate_hz: float, home) -> dict:
             "attack_accepted_far": far}
 
 
-def parse_args(argv: list[str] | None) -> argparse.Namespace:
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of `bof-campaign` (the CLI reference page prints its help)."""
     parser = argparse.ArgumentParser(prog="bof-campaign", description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("config", nargs="?", type=scenario_file, default=DEFAULT_SCENARIO, help="scenario TOML")
@@ -480,6 +481,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--out", type=output_folder, default=Path("runs"),
                         help="parent folder; the run goes to OUT/campaign-<scenario>-<time>/")
     parser.add_argument("--quiet", action="store_true", help="no progress bars (they go to stderr)")
+    return parser
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = build_parser()
     return parser.parse_args(argv)
 
 

@@ -462,7 +462,8 @@ def stack_series(series: list[dict | None]) -> dict[str, np.ndarray]:
     return stacked
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of `bof-montecarlo` (the CLI reference page prints its help)."""
     parser = argparse.ArgumentParser(prog="bof-montecarlo", description=__doc__.split("\n\n")[0])
     parser.add_argument("scenarios", nargs="*", type=scenario_file, help=f"scenario files (default {DEFAULT_SCENARIO.name})")
     parser.add_argument("--study", choices=list(STUDIES), help="a preset grid: the paper's comparisons (estimators, guidance, table2) or issue 13's "
@@ -487,6 +488,11 @@ def main(argv: list[str] | None = None) -> int:
                         help="parent folder: the run folder montecarlo-<study, or grid>-<time>/ is made inside it (default runs/)")
     parser.add_argument("--no-plots", action="store_true", help="write the tables and series only, no PNG figures")
     parser.add_argument("--quiet", action="store_true", help="no progress bar (it goes to stderr)")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
     args = parser.parse_args(argv)
 
     study = STUDIES.get(args.study) if args.study else None

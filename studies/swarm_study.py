@@ -405,7 +405,8 @@ def write_results(folder: Path, rows: list[dict]) -> None:
         writer.writerows(rows)
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of `bof-swarm-study` (the CLI reference page prints its help)."""
     parser = argparse.ArgumentParser(prog="bof-swarm-study", description=__doc__.split("\n\n")[0])
     parser.add_argument("--seeds", type=int, default=20, help="seeds 1..N per case (default 20)")
     parser.add_argument("--parts", nargs="+", choices=PARTS, default=list(PARTS),
@@ -415,6 +416,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--duration", type=float, default=None, help="override the scenarios' duration, s (quick looks)")
     parser.add_argument("--out", type=output_folder, default=Path("runs"), help="parent of the run folder swarm-study-<time>/")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
     args = parser.parse_args(argv)
     if args.seeds < 1 or (args.workers is not None and args.workers < 1) or (args.duration is not None and args.duration <= 0):
         print("bof-swarm-study: --seeds and --workers must be >= 1, --duration > 0", file=sys.stderr)
