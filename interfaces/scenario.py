@@ -593,7 +593,7 @@ class SensorConfig(_Strict):
 
 
 class EstimatorConfig(_Strict):
-    """Target estimator. kind 'imm' (the default since issue 13) is the interacting-multiple-model
+    """Target estimator. kind 'imm' (the default) is the interacting-multiple-model
     estimator over u-PLKF model filters (constant velocity and left/right coordinated turns, options
     imm_*; README "IMM estimator"): as accurate as the u-PLKF on constant-velocity targets and the
     one that follows sustained turns (docs/reproduction.md 5.6). kind 'uplkf' is the paper's
@@ -713,7 +713,7 @@ class GuidanceConfig(_Strict):
     """1/s: seed 003's velocity/course gain lambda_1..3 (the seed's 50 assumes a 100/s autopilot)."""
     seed003_max_approach_speed: Positive = 3.0
     """m/s: bound on seed 003's approach velocity alpha |e| towards the following point (not in the seed)."""
-    # Range excitation (issue 13; companion.core.guidance.RangeExcitation): 'none' is the paper's
+    # Range excitation (companion.core.guidance.RangeExcitation): 'none' is the paper's
     # law unchanged; 'uncertainty' adds a lateral term that makes the pursuer circle the line of
     # sight at excitation_speed (m/s, angular rate excitation_frequency rad/s) while the relative
     # range std sigma_r / r^ is above excitation_low (full above excitation_high) or the health
@@ -1073,7 +1073,7 @@ class HealthSection(_Strict):
     Monitor: nis_window s, nis_probability, nis_scale, min_nis_samples, max_relative_range_std,
     max_range_std m (sigma_r limit once the range has converged; a large value turns it off),
     min_range m (default guidance.desired_range / 4), max_range m, slow_speed m/s,
-    unobservable_time s, flag_after s, clear_after s. Actions while suspect: act (default true since issue 13; false: the
+    unobservable_time s, flag_after s, clear_after s. Actions while suspect: act (default true; false: the
     monitor only reports), process_noise_boost (factor on Q, >= 1) relaxing back to 1 with
     boost_relax_time s once OK, reinitialize_reasons (restart on the bearing at the current range
     with an along-bearing std of reinitialize_relative_std x that range, at most every
@@ -1133,7 +1133,7 @@ def _check_rates(physics_rate_hz: float, **rates_hz: float) -> None:
         if rate > physics_rate_hz or abs(ratio - round(ratio)) > 1e-9:
             raise ValueError(f"{key} = {rate} must divide simulation.physics_rate_hz = {physics_rate_hz} into whole steps")
 
-# --- several pursuers (issue 15) ----------------------------------------------------
+# --- several pursuers ----------------------------------------------------
 
 #: The most pursuers a scenario may fly (ids 1..MAX_PURSUERS).
 MAX_PURSUERS = 32
@@ -1277,7 +1277,7 @@ _SWARM_SUBTABLES = {"circumnavigation": ("guidance", "circumnavigation"), "stand
 
 
 class SwarmConfig(_Strict):
-    """[swarm]: several pursuers around one target (issue 15; README "Several pursuers: configuration").
+    """[swarm]: several pursuers around one target (README "Several pursuers: configuration").
     Absent: one pursuer, as before.
 
     pursuers: [[swarm.pursuers]], the k-th is pursuer k (1..MAX_PURSUERS). guidance: 'hng' (each flies

@@ -100,7 +100,7 @@ PATTERNS: dict[str, tuple[dict, str]] = {
                              "spoof_offset": [10.0, 0.0, 0.0]},
                             "the steady spoof 10 m off (plausible), in the target's own epoch, seq 1 ahead, first"),
 }
-#: The attack patterns (issue 14) and their targets (module docstring).
+#: The attack patterns and their targets (module docstring).
 ATTACK_PATTERNS = ("future_seq", "future_stamp", "replay", "target_restart", "spoof_burst", "spoof_steady",
                    "spoof_burst_sniffed", "spoof_steady_sniffed", "spoof_close_sniffed")
 #: The patterns the issue sets targets for.

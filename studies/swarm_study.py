@@ -1,4 +1,4 @@
-"""Issue 15's goals for several pursuers, measured in process over seeds (bof-swarm-study).
+"""The goals for several pursuers, measured in process over seeds (bof-swarm-study).
 
     bof-swarm-study [--seeds 20] [--workers N] [--executor local|serial|...] [--out runs] [--parts a b c]
 
@@ -60,7 +60,7 @@ BLACKOUT = 10.0
 BLACKOUT_PURSUER = 2
 #: m: a pursuer whose range-estimation RMS over the window exceeds this counts as diverged
 DIVERGED_RMS = 2.0
-#: the goals of issue 15
+#: the goals: the swarm's range-estimation RMS ratio to one pursuer, settling time, phase spacing
 GOAL_RATIO = 1.0 / 3.0
 GOAL_SETTLED_S = 3.0
 GOAL_PHASE_DEG = 5.0
@@ -251,7 +251,7 @@ def case_table(rows: list[dict]) -> dict:
 
 
 def goals(tables: dict[str, dict]) -> list[dict]:
-    """Issue 15's in-process goals against the tables: [{goal, measured, met}]."""
+    """The in-process goals against the tables: [{goal, measured, met}]."""
     out = []
 
     def add(goal: str, measured: str, met: bool) -> None:

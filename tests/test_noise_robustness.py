@@ -1,5 +1,5 @@
 """Every bearing noise the scenario schema accepts flies: the estimators stay finite with a
-symmetric positive semi-definite covariance whatever the bearings (issue 13: noise_std = 1
+symmetric positive semi-definite covariance whatever the bearings (noise_std = 1
 used to end in LinAlgError from the u-PLKF's pseudo-inverse), and the schema refuses, with
 its reason, only noise that no estimator could use."""
 

@@ -316,7 +316,7 @@ _range_command_kernel = jit(_range_command)
 
 @dataclass(frozen=True)
 class RangeExcitation:
-    """Lateral excitation that keeps the range observable while it is poorly known (issue 13).
+    """Lateral excitation that keeps the range observable while it is poorly known.
 
     Why. A bearing-only filter learns the range only from how the line of sight turns in
     response to the pursuer's own motion: with a constant-velocity target model the
