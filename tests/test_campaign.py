@@ -68,7 +68,7 @@ def test_every_attack_leaves_the_flight_kept_and_the_intruder_refused_and_counte
     if name != "target_restart":
         assert row["attack_messages"] > 0
     # A liar in the overheard epoch, plausible and first, gets exactly one fix in before the conflict shows
-    # (README "Link validation": what it cannot defend); every other attack message is refused.
+    # (docs/guide/faults.md, "Link validation": what it cannot defend); every other attack message is refused.
     slipped = 1 if name == "spoof_close_sniffed" else 0
     assert row["attack_refused"] == row["attack_messages"] - slipped and row["attack_accepted_far"] == slipped
     assert row["fixes_rejected"] >= row["attack_messages"] - slipped

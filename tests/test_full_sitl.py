@@ -227,7 +227,7 @@ def test_a_turning_target_is_followed_end_to_end_with_the_default_estimator(tmp_
     at the end is 'diverged', never 'completed'. Whether the monitor calls this one suspect at the end depends
     on the processes' timing: in 8 runs on 2026-11-29 it did in 3 (NIS over its bound; range-estimation RMS
     0.71 m even then): so the verdict is checked for consistency,
-    not required to be clean (README "Manoeuvring targets": circle_5ms is a known weak spot). The range-
+    not required to be clean (docs/safety.md: circle_5ms is a known weak spot). The range-
     estimation RMS over the flight varies with the timing too: 0.56-1.03 m in 10 runs at 5x (seeds 1-4,
     2026-11-29), so a 1 m bound would not reliably hold here; the bound is 1.5 m, above that spread, and
     far below a lost target (tens of metres)."""
