@@ -112,8 +112,9 @@ def _field_notes(source: str) -> dict[str, dict[str, str]]:
             while row >= 0 and lines[row].strip().startswith("#"):
                 comment.insert(0, lines[row].strip().lstrip("#").strip())
                 row -= 1
-            if comment:
-                fields[statement.target.id] = " ".join(comment)
+            text = " ".join(comment)
+            if text and not re.search(r"(?<![\w.])_[a-z]\w*", text):  # a note on the code itself is not for users
+                fields[statement.target.id] = text
         notes[node.name] = fields
     return notes
 
