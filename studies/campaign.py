@@ -103,7 +103,6 @@ PATTERNS: dict[str, tuple[dict, str]] = {
 #: The attack patterns and their targets (module docstring).
 ATTACK_PATTERNS = ("future_seq", "future_stamp", "replay", "target_restart", "spoof_burst", "spoof_steady",
                    "spoof_burst_sniffed", "spoof_steady_sniffed", "spoof_close_sniffed")
-#: The patterns the issue sets targets for.
 #: Attacks from outside the link model, flown only in full SITL with `bof-sitl --secure` (mutual TLS,
 #: access control, MAVLink signing required on the ground-station link) by studies.intruder once the
 #: companion follows: name -> (intruder attack, the intruder's identity, description). Identity: "none"

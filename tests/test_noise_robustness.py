@@ -99,7 +99,7 @@ def test_estimators_stay_finite_and_psd_under_any_accepted_bearing_noise(seed, m
 
 
 def test_short_flight_at_noise_std_one_completes():
-    """The issue's case: noise_std = 1 with the estimator's Sigma left at 1e-4 I. Useless bearings,
+    """The hard case: noise_std = 1 with the estimator's Sigma left at 1e-4 I. Useless bearings,
     a poor estimate, but no exception and a finite estimate throughout a 15 s flight."""
     scenario, vehicle = load_scenario(SCENARIOS_DIR / "constant_velocity.toml")
     data = scenario.model_dump()
