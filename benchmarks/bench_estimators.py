@@ -7,12 +7,12 @@ along [0.8, -0.4, -0.3], bearing noise sigma = 0.01, bearings with a true direct
 (for the noise-free u-PLKF) and a range (for the range/az/el EKF). The IMM rows: its
 predict (every model filter's) and its correct (the model corrections, likelihoods, mixing);
 the pipeline also reads the combined estimate once per tick, which the figures include
-through correct's own use of it only. The last column compares each update with issue 13's
-budget reference, the u-PLKF's 33.3 us per update when the issue was filed (its goal: the
+through correct's own use of it only. The last column compares each update with a fixed
+budget reference, the u-PLKF's 33.3 us per update before the IMM and the kernels (the goal: the
 default estimator within 4x that); on a loaded machine, time the reference side by side instead
 (docs/reproduction.md section 4).
 
-Side by side with the code before a change (issue 16): python benchmarks/bench_estimators.py --against DIR,
+Side by side with the code before a change: python benchmarks/bench_estimators.py --against DIR,
 DIR a checkout of the older code (git worktree add /tmp/old <commit>, or git archive <commit> | tar -x -C DIR).
 In alternating subprocesses (DIR's code, this tree with its kernels compiled by numba when installed, this
 tree with BOF_NO_JIT=1), each round measures the u-PLKF (predicted) and both IMMs as above and one
@@ -46,7 +46,7 @@ MEASUREMENT_NOISE = 1e-4 * np.eye(3)
 LINE_OF_SIGHT = np.array([0.8, -0.4, -0.3]) / np.linalg.norm([0.8, -0.4, -0.3])
 RANGE = 47.0
 ISSUE_13_UPLKF_US = 33.3
-"""us: the u-PLKF's update (predict + correct) when issue 13 was filed, the reference of its cost goal."""
+"""us: the u-PLKF's update (predict + correct) before the IMM and the kernels, the reference of the cost goal."""
 
 
 def _estimators() -> list[tuple[str, object]]:

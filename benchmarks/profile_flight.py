@@ -1,4 +1,4 @@
-"""Where one in-process flight's time goes: the harness, the plant and the pipeline's parts (issue 16).
+"""Where one in-process flight's time goes: the harness, the plant and the pipeline's parts.
 
 Run: python benchmarks/profile_flight.py [SCENARIO ...] [--seed N] [--estimator KIND] [--rate HZ]
 (default constant_velocity, seed 1). Flies the scenario once to warm up (and compile), once plain for the

@@ -350,7 +350,8 @@ def _pursuer_id(text: str) -> int:
     return value
 
 
-def parse_args(argv: list[str] | None) -> argparse.Namespace:
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of `companion` (the CLI reference page prints its help)."""
     parser = argparse.ArgumentParser(prog="companion", description=__doc__.split("\n\n")[0])
     parser.add_argument("--config", type=scenario_file, default=DEFAULT_SCENARIO, help="scenario TOML (default: %(default)s)")
     parser.add_argument("--mavlink", default=None, help="MAVSDK connection URL ([companion] mavlink_url)")
@@ -367,6 +368,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         help="compile the estimator and setpoint kernels into numba's cache (or load them), say where and "
                              "how long it took, and exit without opening any link: run it once on the onboard computer "
                              "after installing, so that the first start before a flight does not wait for the compiler")
+    return parser
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = build_parser()
     return parser.parse_args(argv)
 
 

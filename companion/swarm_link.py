@@ -1,4 +1,4 @@
-"""The companion's share link with the other pursuers of a [swarm] scenario (issue 15), over Zenoh.
+"""The companion's share link with the other pursuers of a [swarm] scenario, over Zenoh.
 
 What studies.swarm does between its in-process pursuers, done by one networked companion (pursuer
 `ident`) for itself, with the same payload and the same fault model:

@@ -78,7 +78,7 @@ Any change of fields is a new schema version.
   matrix): `encode_state` turns NaN and +-inf into null.
 
 * ``bof.pursuer_share/1`` (`PursuerSharePayload`, decoded as `PursuerShare`): what one pursuer of several
-  tells the others (issue 15; README "Several pursuers: configuration"). ``sender`` is the pursuer id, an
+  tells the others (docs/guide/swarm.md). ``sender`` is the pursuer id, an
   integer in [1, `MAX_PURSUER_ID`] (not a name: it is also the key segment), then ``epoch``, ``seq``,
   ``stamp`` (s, the sender's vehicle clock) as for a fix; ``position`` and ``velocity`` (NED m, m/s: the
   sender's own state at ``stamp``); ``bearing``: null (no bearing yet) or {``stamp`` (s, when it was

@@ -214,7 +214,8 @@ def make_pki(folder: Path, roles: Iterable[str] = ROLES, days: int = DEFAULT_DAY
     return issued
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of `bof-certs` (the CLI reference page prints its help)."""
     parser = argparse.ArgumentParser(prog="bof-certs", description=__doc__.split("\n\n")[0])
     parser.add_argument("folder", type=Path, metavar="DIR", help="folder to create for the CA and the certificates")
     parser.add_argument("--roles", nargs="+", default=list(ROLES), metavar="ROLE",
@@ -223,6 +224,11 @@ def main(argv: list[str] | None = None) -> int:
                         help=f"validity of the certificates in days, 1..{MAX_DAYS} (default: %(default)s)")
     parser.add_argument("--force", action="store_true",
                         help="replace the CA and certificates in a folder that is not empty (default: refuse)")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
     args = parser.parse_args(argv)
     try:
         issued = make_pki(args.folder, args.roles, args.days, args.force)

@@ -593,12 +593,12 @@ class SensorConfig(_Strict):
 
 
 class EstimatorConfig(_Strict):
-    """Target estimator. kind 'imm' (the default since issue 13) is the interacting-multiple-model
+    """Target estimator. kind 'imm' (the default) is the interacting-multiple-model
     estimator over u-PLKF model filters (constant velocity and left/right coordinated turns, options
-    imm_*; README "IMM estimator"): as accurate as the u-PLKF on constant-velocity targets and the
+    imm_*; docs/explanation/estimation.md, "IMM estimator"): as accurate as the u-PLKF on constant-velocity targets and the
     one that follows sustained turns (docs/reproduction.md 5.6). kind 'uplkf' is the paper's
     u-PLKF (section IV) alone; gain_projection 'measured' is its exact form, 'predicted' the
-    default (README), 'noise_free' the simulation-only "optimal u-PLKF" of section VIII-B. The
+    default (docs/explanation/estimation.md), 'noise_free' the simulation-only "optimal u-PLKF" of section VIII-B. The
     baselines: 'ekf' (azimuth/elevation, Cartesian state, the paper's classic EKF), 'msc_ekf'
     (modified spherical coordinates), 'ekf_rae' (seed 003: range/azimuth/elevation; needs
     [sensor] range_noise_std). initialize: 'bearing' starts on the
@@ -613,7 +613,7 @@ class EstimatorConfig(_Strict):
     adaptive_process_noise: bool = False
     """u-PLKF only. True: Q = s process_noise I with a scale 1 <= s <= adaptive_max_scale raised while
     the innovations are larger than the filter claims (mean NIS per degree of freedom above
-    adaptive_nis_threshold) and relaxed back to 1 when they are not (README "Estimators";
+    adaptive_nis_threshold) and relaxed back to 1 when they are not (docs/explanation/estimation.md;
     companion.core.estimators.AdaptiveProcessNoise). False (default): the constant Q."""
     adaptive_max_scale: float = Field(25.0, ge=1.0)
     adaptive_nis_time_constant: Positive = 2.0
@@ -624,7 +624,7 @@ class EstimatorConfig(_Strict):
     """s, of its return to 1 while the mean is below 1."""
     adaptive_nis_threshold: float = Field(3.0, gt=1.0)
     imm_turn_rates: Annotated[tuple[float, ...], FROM_ARRAY] = (0.2,)
-    """kind 'imm' only: omega, rad/s, of the coordinated-turn models (README "IMM estimator"); each rate
+    """kind 'imm' only: omega, rad/s, of the coordinated-turn models (docs/explanation/estimation.md, "IMM estimator"); each rate
     gives a right (+omega) and a left (-omega) model beside the constant-velocity one. Each in
     (0, IMM_MAX_TURN_RATE]; an empty list leaves the constant-velocity model alone (the u-PLKF)."""
     imm_turn_process_noise: Positive = 0.04
@@ -713,7 +713,7 @@ class GuidanceConfig(_Strict):
     """1/s: seed 003's velocity/course gain lambda_1..3 (the seed's 50 assumes a 100/s autopilot)."""
     seed003_max_approach_speed: Positive = 3.0
     """m/s: bound on seed 003's approach velocity alpha |e| towards the following point (not in the seed)."""
-    # Range excitation (issue 13; companion.core.guidance.RangeExcitation): 'none' is the paper's
+    # Range excitation (companion.core.guidance.RangeExcitation): 'none' is the paper's
     # law unchanged; 'uncertainty' adds a lateral term that makes the pursuer circle the line of
     # sight at excitation_speed (m/s, angular rate excitation_frequency rad/s) while the relative
     # range std sigma_r / r^ is above excitation_low (full above excitation_high) or the health
@@ -806,7 +806,7 @@ class LinkConfig(_Strict):
     {"transport.link.tls.root_ca_certificate" = '"/path/ca.pem"'}. Multicast scouting is
     off unless an override turns it on. The target publishes at sensor.rate_hz.
 
-    Fix and command validation (companion.core.fix_validator; README "Link validation"):
+    Fix and command validation (companion.core.fix_validator; docs/guide/faults.md, "Link validation"):
     max_future_skew_s: a stamp more than this ahead of the receiver's clock is refused
     (future_stamp). max_fix_age_s: a stamp older than this is refused (too_old).
     max_fix_rate_hz: seq may advance at most this fast (per stamp second, plus 10) within
@@ -1068,12 +1068,12 @@ HealthReasonName = Literal["nis", "range_uncertain", "behind_sensor", "range_imp
 
 
 class HealthSection(_Strict):
-    """The filter-health monitor (companion.core.health: HealthConfig, HealthActionConfig; README "Filter health").
+    """The filter-health monitor (companion.core.health: HealthConfig, HealthActionConfig; docs/explanation/estimation.md, "Filter health").
 
     Monitor: nis_window s, nis_probability, nis_scale, min_nis_samples, max_relative_range_std,
     max_range_std m (sigma_r limit once the range has converged; a large value turns it off),
     min_range m (default guidance.desired_range / 4), max_range m, slow_speed m/s,
-    unobservable_time s, flag_after s, clear_after s. Actions while suspect: act (default true since issue 13; false: the
+    unobservable_time s, flag_after s, clear_after s. Actions while suspect: act (default true; false: the
     monitor only reports), process_noise_boost (factor on Q, >= 1) relaxing back to 1 with
     boost_relax_time s once OK, reinitialize_reasons (restart on the bearing at the current range
     with an along-bearing std of reinitialize_relative_std x that range, at most every
@@ -1133,7 +1133,7 @@ def _check_rates(physics_rate_hz: float, **rates_hz: float) -> None:
         if rate > physics_rate_hz or abs(ratio - round(ratio)) > 1e-9:
             raise ValueError(f"{key} = {rate} must divide simulation.physics_rate_hz = {physics_rate_hz} into whole steps")
 
-# --- several pursuers (issue 15) ----------------------------------------------------
+# --- several pursuers ----------------------------------------------------
 
 #: The most pursuers a scenario may fly (ids 1..MAX_PURSUERS).
 MAX_PURSUERS = 32
@@ -1277,7 +1277,7 @@ _SWARM_SUBTABLES = {"circumnavigation": ("guidance", "circumnavigation"), "stand
 
 
 class SwarmConfig(_Strict):
-    """[swarm]: several pursuers around one target (issue 15; README "Several pursuers: configuration").
+    """[swarm]: several pursuers around one target (docs/guide/swarm.md).
     Absent: one pursuer, as before.
 
     pursuers: [[swarm.pursuers]], the k-th is pursuer k (1..MAX_PURSUERS). guidance: 'hng' (each flies

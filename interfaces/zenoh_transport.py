@@ -80,7 +80,7 @@ TLS_LOOPBACK_ANY_PORT = "tls/127.0.0.1:0"
 PUBLISH_RIGHTS: dict[str, tuple[str, ...]] = {
     "plant": ("bof/sim/clock",),
     "target": ("bof/target/*/fix",),
-    # Shared bearings (issue 15): any companion certificate may put any pursuer's share; per-pursuer
+    # Shared bearings: any companion certificate may put any pursuer's share; per-pursuer
     # identities (one certificate per pursuer id) are not made yet, so one companion could speak for another.
     "companion": ("bof/companion/*/state", "bof/swarm/*/share"),
     "gcs": ("bof/companion/*/command", "bof/target/*/command"),

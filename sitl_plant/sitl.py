@@ -364,7 +364,8 @@ _port = _number(int, 1, 65535, low_open=False, what="a UDP port")
 _positive = _number(float, 0.0)
 
 
-def parse_args(argv: list[str] | None) -> argparse.Namespace:
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of `sitl-plant` (the CLI reference page prints its help)."""
     parser = _Parser(prog="sitl-plant", description=__doc__.split("\n\n")[0])
     parser.add_argument("--config", type=Path, default=DEFAULT_SCENARIO, help="scenario TOML (default: %(default)s)")
     parser.add_argument("--speed-factor", type=_number(float, 0.0, 100.0), default=None,
@@ -404,6 +405,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         help="fault injection: the companion link goes silent both ways from START for DURATION "
                              "simulated seconds (adds to [faults.mavlink] blackouts); repeatable")
     parser.add_argument("--no-faults", action="store_true", help="ignore the scenario's [faults.mavlink] blackouts")
+    return parser
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = build_parser()
     args = parser.parse_args(argv)
     if args.companion_port is not None and args.companion_port == args.gcs_port:
         parser.error(f"--companion-port and --gcs-port are both {args.gcs_port}; the two links need different ports")

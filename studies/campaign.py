@@ -100,10 +100,9 @@ PATTERNS: dict[str, tuple[dict, str]] = {
                              "spoof_offset": [10.0, 0.0, 0.0]},
                             "the steady spoof 10 m off (plausible), in the target's own epoch, seq 1 ahead, first"),
 }
-#: The attack patterns (issue 14) and their targets (module docstring).
+#: The attack patterns and their targets (module docstring).
 ATTACK_PATTERNS = ("future_seq", "future_stamp", "replay", "target_restart", "spoof_burst", "spoof_steady",
                    "spoof_burst_sniffed", "spoof_steady_sniffed", "spoof_close_sniffed")
-#: The patterns the issue sets targets for.
 #: Attacks from outside the link model, flown only in full SITL with `bof-sitl --secure` (mutual TLS,
 #: access control, MAVLink signing required on the ground-station link) by studies.intruder once the
 #: companion follows: name -> (intruder attack, the intruder's identity, description). Identity: "none"
@@ -461,7 +460,8 @@ def _sitl_attack_figures(run_folder: Path, rate_hz: float, home) -> dict:
             "attack_accepted_far": far}
 
 
-def parse_args(argv: list[str] | None) -> argparse.Namespace:
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of `bof-campaign` (the CLI reference page prints its help)."""
     parser = argparse.ArgumentParser(prog="bof-campaign", description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("config", nargs="?", type=scenario_file, default=DEFAULT_SCENARIO, help="scenario TOML")
@@ -480,6 +480,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--out", type=output_folder, default=Path("runs"),
                         help="parent folder; the run goes to OUT/campaign-<scenario>-<time>/")
     parser.add_argument("--quiet", action="store_true", help="no progress bars (they go to stderr)")
+    return parser
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = build_parser()
     return parser.parse_args(argv)
 
 

@@ -543,7 +543,8 @@ def judged_exit_code(code: int, summary: dict) -> int:
     return 1 if any(truth_failed(flight) for flight in flights) else 0
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of `bof-sitl` (the CLI reference page prints its help)."""
     parser = argparse.ArgumentParser(prog="bof-sitl", description=__doc__.split("\n\n")[0], epilog=EXIT_STATUS)
     parser.add_argument("config", nargs="?", type=scenario_file, default=DEFAULT_SCENARIO,
                         help="scenario TOML (default: %(default)s)")
@@ -577,6 +578,11 @@ def main(argv: list[str] | None = None) -> int:
                              "link (key and passphrase in <run>/pki) (default: plain TCP, unauthenticated, unsigned)")
     parser.add_argument("--quiet", action="store_true",
                         help="no progress line every 2 s of wall time, only the final summary (default: print them)")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
     args = parser.parse_args(argv)
     low, high = SPEED_FACTOR_BOUNDS
     if args.speed_factor is not None and not low <= args.speed_factor <= high:

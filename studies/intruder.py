@@ -1009,7 +1009,8 @@ def run_mavlink_attack(args: AttackOptions, endpoints: SitlEndpoints) -> dict:
     return out
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of `bof-intruder` (the CLI reference page prints its help)."""
     parser = argparse.ArgumentParser(prog="bof-intruder", description=__doc__.split("\n\n")[0])
     parser.add_argument("attack", choices=ZENOH_ATTACKS + MAVLINK_ATTACKS, help="which attack (see the module docstring)")
     parser.add_argument("--run", type=Path, default=None,
@@ -1052,6 +1053,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--takeoff", type=float, default=None, metavar="METRES",
                         help="arm: also send NAV_TAKEOFF to this height above home (default: arm only)")
     parser.add_argument("--json", type=Path, default=None, help="also write the result here (default: stdout only)")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
     args = parser.parse_args(argv)
     for name in ("rate", "duration", "observe", "wait", "record"):
         value = getattr(args, name)

@@ -4,7 +4,7 @@
                    [--case NAME:key=value,key=value ...] [--initial-box X0,X1,Y0,Y1,Z0,Z1]
                    [--executor local|serial|dask-local|tcp://host:port] [--workers 2] [--out runs]
     bof-montecarlo --study estimators|guidance|table2 [--runs N] ...   # the paper's section VIII-B/C/D
-    bof-montecarlo --study maneuvering [--runs N] ...   # issue 13: the maneuvering-target scenarios x 5/50 Hz
+    bof-montecarlo --study maneuvering [--runs N] ...   # the maneuvering-target scenarios x 5/50 Hz
 
 Every flight is the in-process simulator (studies.closed_loop.simulate): the same
 pipeline object as the networked companion, only the estimator / guidance / parameters
@@ -12,7 +12,7 @@ named by its case changed. Runs are seeded 1..N; a flight depends only on its sc
 case and seed, so the results are the same whichever executor ran them.
 
 Estimators (names -> [estimator] settings): by default each scenario's own [estimator] (the
-schema's default is the IMM); imm (issue 13's interacting multiple model over u-PLKF model
+schema's default is the IMM); imm (the interacting multiple model over u-PLKF model
 filters), uplkf (gain from the predicted line of sight), uplkf_paper (the paper's exact
 u-PLKF), uplkf_optimal (noise-free projection, simulation only), ekf (azimuth/elevation,
 Cartesian), msc_ekf (modified spherical coordinates), ekf_rae (seed 003's
@@ -76,7 +76,7 @@ ESTIMATORS: dict[str, dict[str, Any]] = {
     "ekf_rae": {"estimator.kind": "ekf_rae", "estimator.gain_projection": "predicted", "sensor.range_noise_std": 1.0},
     "imm": {"estimator.kind": "imm", "estimator.gain_projection": "predicted"},
 }
-#: The paper's estimators (section VIII-B's comparison); "imm" is issue 13's
+#: The paper's estimators (section VIII-B's comparison); "imm" is not one of them
 PAPER_ESTIMATORS = ("uplkf", "uplkf_paper", "uplkf_optimal", "ekf", "msc_ekf", "ekf_rae")
 #: --estimators default outside a study: each scenario's own [estimator] (rows labelled with its kind)
 SCENARIO_ESTIMATOR = "scenario"
@@ -96,7 +96,7 @@ GUIDANCE: dict[str, dict[str, Any]] = {
 TABLE_II = {"a": (1.0, 3.0, 3.0), "b": (3.0, 3.0, 3.0), "c": (3.0, 3.0, 0.0), "d": (3.0, 3.5, 3.5)}
 #: Section VIII-B: the initial estimate drawn uniformly in this box (x0, x1, y0, y1, z0, z1), m
 PAPER_INITIAL_BOX = (20.0, 120.0, -50.0, 50.0, -50.0, 50.0)
-#: Issue 13's maneuvering targets (config/scenarios/, sitl_plant/world/target.py), flown with the defaults
+#: The maneuvering targets (config/scenarios/, sitl_plant/world/target.py), flown with the defaults
 MANEUVERING_SCENARIOS = ("circle_5ms", "circle_10ms", "helix_climb", "weave", "turn90_5ms", "stop_and_go", "singer",
                          "seed003_straight", "seed003_vertical", "seed003_helix", "hover_dash", "orbit_tight",
                          "orbit_tight_05", "replay_csv")
@@ -140,7 +140,7 @@ STUDIES: dict[str, Study] = {
         "maneuvering", MANEUVERING_SCENARIOS, ("imm",), ("hng",),
         (("5Hz", {"sensor.rate_hz": 5.0}), ("50Hz", {"sensor.rate_hz": 50.0})),
         curves_by="case", windows=((10.0, 30.0), (30.0, 60.0)), runs=20,
-        title="Issue 13: maneuvering targets (circles, helices, weave, turn, stop-and-go, Singer, seed 003) "
+        title="Maneuvering targets (circles, helices, weave, turn, stop-and-go, Singer, seed 003) "
               "x bearings at 5 and 50 Hz, the defaults: IMM, acting health monitor, HNG"),
 }
 
@@ -462,10 +462,11 @@ def stack_series(series: list[dict | None]) -> dict[str, np.ndarray]:
     return stacked
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of `bof-montecarlo` (the CLI reference page prints its help)."""
     parser = argparse.ArgumentParser(prog="bof-montecarlo", description=__doc__.split("\n\n")[0])
     parser.add_argument("scenarios", nargs="*", type=scenario_file, help=f"scenario files (default {DEFAULT_SCENARIO.name})")
-    parser.add_argument("--study", choices=list(STUDIES), help="a preset grid: the paper's comparisons (estimators, guidance, table2) or issue 13's "
+    parser.add_argument("--study", choices=list(STUDIES), help="a preset grid: the paper's comparisons (estimators, guidance, table2) or the "
                         "maneuvering targets")
     parser.add_argument("--runs", type=int, default=None, help="seeded flights per grid point (default 10; 100 for --study estimators, "
                         "20 for --study maneuvering)")
@@ -487,6 +488,11 @@ def main(argv: list[str] | None = None) -> int:
                         help="parent folder: the run folder montecarlo-<study, or grid>-<time>/ is made inside it (default runs/)")
     parser.add_argument("--no-plots", action="store_true", help="write the tables and series only, no PNG figures")
     parser.add_argument("--quiet", action="store_true", help="no progress bar (it goes to stderr)")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
     args = parser.parse_args(argv)
 
     study = STUDIES.get(args.study) if args.study else None

@@ -162,7 +162,8 @@ def guidance_comparison(config: Path, path: Path) -> dict:
     return figures
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of `bof-observability` (the CLI reference page prints its help)."""
     parser = argparse.ArgumentParser(prog="bof-observability", description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", type=output_folder, default=Path("runs"),
                         help="parent folder: the run folder observability-<time>/ is created inside it "
@@ -173,6 +174,11 @@ def main(argv: list[str] | None = None) -> int:
                         help="also fly this scenario (without a value: constant_velocity) in process with HNG and with "
                              "PPG and plot the live, windowed FIM of the bearings used (fig_flight_observability.png); "
                              "default: no flight")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
     args = parser.parse_args(argv)
     if args.flight is not None and not args.flight.is_file():
         parser.error(f"--flight {args.flight}: {'is a folder' if args.flight.is_dir() else 'no such file'}; give a scenario file")

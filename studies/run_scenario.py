@@ -142,7 +142,8 @@ def _fly_swarm(scenario: Scenario, vehicle, args) -> int:
     return 0 if result.termination.name in ("COMPLETED", "INTERRUPTED") and not judged else 1
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of `bof-sim` (the CLI reference page prints its help)."""
     parser = argparse.ArgumentParser(prog="bof-sim", description="Fly a bearing-only following scenario in the in-process simulator.",
                                      epilog=EXIT_STATUS)
     parser.add_argument("scenario", nargs="?", type=scenario_file, default=DEFAULT_SCENARIO,
@@ -154,6 +155,11 @@ def main(argv: list[str] | None = None) -> int:
                         help="seed of the flight's noise, an integer >= 0 (default: the scenario's [simulation] seed)")
     parser.add_argument("--no-plots", action="store_true",
                         help="write only series.npz and summary.json, no PNG plots or series.csv (default: write them)")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
     args = parser.parse_args(argv)
 
     try:

@@ -384,7 +384,8 @@ def run(paper: str, seeds: Sequence[int], out: Path, duration: float | None = No
     return folder
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of `bof-seed-repro` (the CLI reference page prints its help)."""
     parser = argparse.ArgumentParser(prog="bof-seed-repro",
                                      description="Fly the seed papers' several-pursuer simulations (seed 002 "
                                                  "circumnavigation, seed 004 standoff) and write a run folder.")
@@ -397,6 +398,11 @@ def main(argv: list[str] | None = None) -> int:
                         help="s, shorten (or lengthen) every flight (default: the scenario files' durations)")
     parser.add_argument("--out", type=output_folder, default="runs", help="parent folder of the run folder (default: %(default)s)")
     parser.add_argument("--no-figures", action="store_true", help="metrics only, no PNGs")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
     args = parser.parse_args(argv)
     if any(seed < 0 for seed in args.seeds):
         parser.error("--seeds: each seed must be >= 0")

@@ -1,4 +1,4 @@
-"""In-process simulator of several pursuers following one target (issue 15; seeds 002 and 004).
+"""In-process simulator of several pursuers following one target (seeds 002 and 004).
 
 Each pursuer is what the single-pursuer simulator flies (studies.closed_loop): its own Table I plant, its
 own bearing sensor and its own FollowingPipeline, built by the same assembly (companion.assembly). What is

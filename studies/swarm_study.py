@@ -1,4 +1,4 @@
-"""Issue 15's goals for several pursuers, measured in process over seeds (bof-swarm-study).
+"""The goals for several pursuers, measured in process over seeds (bof-swarm-study).
 
     bof-swarm-study [--seeds 20] [--workers N] [--executor local|serial|...] [--out runs] [--parts a b c]
 
@@ -60,7 +60,7 @@ BLACKOUT = 10.0
 BLACKOUT_PURSUER = 2
 #: m: a pursuer whose range-estimation RMS over the window exceeds this counts as diverged
 DIVERGED_RMS = 2.0
-#: the goals of issue 15
+#: the goals: the swarm's range-estimation RMS ratio to one pursuer, settling time, phase spacing
 GOAL_RATIO = 1.0 / 3.0
 GOAL_SETTLED_S = 3.0
 GOAL_PHASE_DEG = 5.0
@@ -251,7 +251,7 @@ def case_table(rows: list[dict]) -> dict:
 
 
 def goals(tables: dict[str, dict]) -> list[dict]:
-    """Issue 15's in-process goals against the tables: [{goal, measured, met}]."""
+    """The in-process goals against the tables: [{goal, measured, met}]."""
     out = []
 
     def add(goal: str, measured: str, met: bool) -> None:
@@ -405,7 +405,8 @@ def write_results(folder: Path, rows: list[dict]) -> None:
         writer.writerows(rows)
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of `bof-swarm-study` (the CLI reference page prints its help)."""
     parser = argparse.ArgumentParser(prog="bof-swarm-study", description=__doc__.split("\n\n")[0])
     parser.add_argument("--seeds", type=int, default=20, help="seeds 1..N per case (default 20)")
     parser.add_argument("--parts", nargs="+", choices=PARTS, default=list(PARTS),
@@ -415,6 +416,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--duration", type=float, default=None, help="override the scenarios' duration, s (quick looks)")
     parser.add_argument("--out", type=output_folder, default=Path("runs"), help="parent of the run folder swarm-study-<time>/")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
     args = parser.parse_args(argv)
     if args.seeds < 1 or (args.workers is not None and args.workers < 1) or (args.duration is not None and args.duration <= 0):
         print("bof-swarm-study: --seeds and --workers must be >= 1, --duration > 0", file=sys.stderr)

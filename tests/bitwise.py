@@ -1,6 +1,6 @@
 """Bit-for-bit comparison for the kernel tests (test_*_kernels.py): a helper, not a test module.
 
-The compiled kernels of issue 16 must give the results of the code they replaced to the last bit,
+The compiled kernels must give the results of the code they replaced to the last bit,
 compiled and interpreted; these helpers say what "the same" means there, once.
 """
 

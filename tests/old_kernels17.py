@@ -1,5 +1,5 @@
-"""Verbatim copies of the estimator kernels as they were before issue 16's allocation trims (main a3a0c34:
-companion/core/estimators.py and imm.py), the reference of tests/test_kernel_temporaries.py: a helper, not a test
+"""Verbatim copies of the estimator kernels as they were before the allocation trims (companion/core/estimators.py
+and imm.py), the reference of tests/test_kernel_temporaries.py: a helper, not a test
 module. Only the kernels that changed are copied; the ones they call that did not change (the projector, the
 range limit, the Joseph form, the LAPACK bindings, the mixing's `_mix_kernel`, the Markov matrix, the NIS) are
 the package's own. Compiled with the package's `jit` (plain Python without numba or with BOF_NO_JIT=1)."""

@@ -1,4 +1,4 @@
-"""The bearing path's trims of issue 16 (one flight cheaper) compute what the code they replaced computed, bit
+"""The bearing path's trims (one flight cheaper) compute what the code they replaced computed, bit
 for bit: each new kernel compiled against its own Python function (`kernel.py_func`) and against the numpy
 expressions it replaced, and each object built without its dataclass constructor equal to the constructor's.
 
@@ -48,7 +48,7 @@ special = st.sampled_from([math.nan, math.inf, -math.inf, 0.0, -0.0, 1e-13, 1e30
 
 
 def old_prior(state, lead, pursuer_position, direction):
-    """UPLKF.correct's prior line of sight before the kernel (505f6f6), with its guard (restart_when_behind)."""
+    """UPLKF.correct's prior line of sight before the kernel, with its guard (restart_when_behind)."""
     relative = state[:3] + lead * state[3:] - pursuer_position
     predicted_range = math.sqrt(float(relative.dot(relative)))
     cos_angle = min(max(float(direction @ relative / max(predicted_range, 1e-12)), -1.0), 1.0)
@@ -273,7 +273,7 @@ def test_warm_up_compiles_the_new_kernels():
 # ----- the own-position tracker ------------------------------------------------------------------------------------
 
 class OldOwnPositionTracker:
-    """estimators.OwnPositionTracker as it was (505f6f6), verbatim: tuples of Python floats."""
+    """estimators.OwnPositionTracker as it was before the kernels, verbatim: tuples of Python floats."""
 
     def __init__(self, position_std: float, acceleration_psd: float = OWN_ACCELERATION_PSD,
                  max_gap: float = OWN_TRACK_MAX_GAP) -> None:

@@ -57,7 +57,7 @@ def test_the_campaign_command_writes_its_tables(tmp_path, scenario_path):
 
 @pytest.mark.parametrize("name", campaign.ATTACK_PATTERNS)
 def test_every_attack_leaves_the_flight_kept_and_the_intruder_refused_and_counted(name, scenario_path):
-    """Issue 14's targets, per attack, in the in-process loop (same fault model and validator as SITL):
+    """The attack targets, per attack, in the in-process loop (same fault model and validator as SITL):
     the target kept, never closer than r_d / 2, the genuine fixes accepted again within 1 s, and every
     message the attacker sent (the fault model's own count) refused and in the reject counters."""
     scenario, vehicle = load_scenario(scenario_path("constant_velocity"))
@@ -68,7 +68,7 @@ def test_every_attack_leaves_the_flight_kept_and_the_intruder_refused_and_counte
     if name != "target_restart":
         assert row["attack_messages"] > 0
     # A liar in the overheard epoch, plausible and first, gets exactly one fix in before the conflict shows
-    # (README "Link validation": what it cannot defend); every other attack message is refused.
+    # (docs/guide/faults.md, "Link validation": what it cannot defend); every other attack message is refused.
     slipped = 1 if name == "spoof_close_sniffed" else 0
     assert row["attack_refused"] == row["attack_messages"] - slipped and row["attack_accepted_far"] == slipped
     assert row["fixes_rejected"] >= row["attack_messages"] - slipped

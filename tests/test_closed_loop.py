@@ -85,7 +85,7 @@ def test_s_maneuver_keeps_following(scenario_path):
 
 
 def test_paper_filter_fails_at_50hz_where_default_does_not(constant_velocity):
-    """The known weakness (issue #2): the noisy bearing inside H biases the paper's u-PLKF.
+    """The known weakness: the noisy bearing inside H biases the paper's u-PLKF.
 
     At 50 Hz bearings the paper's exact form loses the range in closed loop on some
     seeds (which ones depends on the noise draw); the default instrumental-gain form

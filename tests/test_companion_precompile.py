@@ -1,4 +1,4 @@
-"""`companion --precompile`: the deployment step that fills numba's cache before a flight (README "Speed")."""
+"""`companion --precompile`: the deployment step that fills numba's cache before a flight (docs/guide/in-process.md, "Speed")."""
 
 from __future__ import annotations
 

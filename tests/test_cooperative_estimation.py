@@ -468,7 +468,7 @@ def test_fusing_target_estimates_carries_neighbours_to_the_own_time():
 
 
 def test_comparison_script_orders_the_estimators():
-    """The measurement script of the README on two seeds: cooperation beats one static sensor,
+    """The measurement script (tests/cooperative_estimation_comparison.py) on two seeds: cooperation beats one static sensor,
     whose range is unobservable against a constant-velocity target."""
     from tests.cooperative_estimation_comparison import compare
 

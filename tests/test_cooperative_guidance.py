@@ -1,4 +1,4 @@
-"""Cooperative guidance (issue 15): seed 002 circumnavigation, seed 004 TOGVF, separation, weaving switch.
+"""Cooperative guidance: seed 002 circumnavigation, seed 004 TOGVF, separation, weaving switch.
 
 References are independent of the code under test: closed forms of circle geometry and kinematics,
 and trajectories integrated with scipy's solve_ivp (single integrator, the seeds' own model) or with
@@ -312,7 +312,7 @@ def _issue_case(law, guard, duration=60.0, dt=0.01):
 
 
 def test_default_circumnavigation_fits_a_6_ms2_multirotor():
-    """Issue 15 goal geometry with the defaults (D* = 8 m, 6 m/s^2): spacing RMS < 5 deg, radius converged,
+    """The swarm goals' geometry with the defaults (D* = 8 m, 6 m/s^2): spacing RMS < 5 deg, radius converged,
     separation kept by the filter, never closer than r_d / 2 to the target. With g2 = 0.5 the orbit needs
     6.75 m/s^2: without the turn cap a pursuer saturates and circles outside the orbit; with it the radius
     converges (the spacing then cannot, as the docstring says: the cap binds on the orbit)."""

@@ -1,4 +1,4 @@
-"""The cooperative laws' kernels (issue 16) against the code they replaced, bit for bit.
+"""The cooperative laws' kernels against the code they replaced, bit for bit.
 
 The references below are VERBATIM COPIES, as they were at 1c852b6, of CircumnavigationGuidance.desired_velocity and
 of the feed-forward it was flown with (_tracking_acceleration over CooperativeContext.advanced, the helpers phase,
@@ -32,7 +32,7 @@ TWO_PI = 2.0 * math.pi
 _EPS = 1e-9
 
 
-# --- the reference: verbatim copy of the replaced code (1c852b6) ---------------------------------------------
+# --- the reference: verbatim copy of the replaced code -----------------------------------------------------
 
 def _ref_norm(vector):
     vector = np.asarray(vector, dtype=float)

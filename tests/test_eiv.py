@@ -1,4 +1,4 @@
-"""Errors in variables: own-position noise in the PREDICTED u-PLKF's gain (issue 13 item 5).
+"""Errors in variables: own-position noise in the PREDICTED u-PLKF's gain.
 
 The bearing is taken from the true pursuer position, the filter is given p = p_true + e. If the
 gain's line of sight p^-_T - p uses that same e, the gain is correlated with the -P_lambda~ e of

@@ -1,4 +1,4 @@
-"""README's "Paper equations in the code" table points at objects that exist and cite the equation.
+"""The docs' "Paper equations in the code" table (docs/architecture.md) points at objects that exist and cite the equation.
 
 For each row, every named object (a module, class, function or method) is imported and its own
 docstring must cite the row's equation: "eq. (N)" or a range "eq. (A)-(B)" / "(A)-(B)" that
@@ -9,13 +9,15 @@ docstring that lost its citation, fails here.
 from __future__ import annotations
 
 import importlib
+import importlib.util
 import inspect
 import re
 from pathlib import Path
 
 import pytest
 
-README = (Path(__file__).resolve().parent.parent / "README.md").read_text()
+ROOT = Path(__file__).resolve().parent.parent
+README = (ROOT / "docs" / "architecture.md").read_text()
 ROW = re.compile(r"^\| (?P<equation>(?:seed \d{3} )?eq\. \(\d+\)(?:-\(\d+\))?) \| [^|]+ \| (?P<where>[^|]+) \|$", re.M)
 NUMBERS = re.compile(r"\((\d+)[a-d]?\)(?:\s?-\s?\((\d+)[a-d]?\))?")
 
@@ -62,3 +64,14 @@ def test_each_named_object_cites_its_equation(equation, name):
     target = _resolve(name)
     docstring = inspect.getdoc(target) or ""
     assert _cited(docstring, equation), f"{name} does not cite {equation}"
+
+
+def test_the_generated_index_lists_every_object_of_the_table():
+    """The generated reference page (docs/gen_reference.py) finds each citation the curated table relies on."""
+    spec = importlib.util.spec_from_file_location("gen_reference", ROOT / "docs" / "gen_reference.py")
+    generator = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(generator)
+    cited = {(row["file"][:-3].replace("/", ".").removesuffix(".__init__")
+              + (f".{row['object']}" if row["object"] else "")) for row in generator.equation_citations(ROOT)}
+    missing = [name for _, name in _rows() if name not in cited]
+    assert not missing, f"not in the generated equation index: {missing}"

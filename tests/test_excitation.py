@@ -1,4 +1,4 @@
-"""Range excitation (issue 13 item 4): the lateral term that keeps the range observable while it is
+"""Range excitation: the lateral term that keeps the range observable while it is
 poorly known (companion.core.guidance.RangeExcitation), its wiring ([guidance] excitation) and one
 in-process flight. References: the geometry of the line of sight, the closed form of the lateral
 velocity loop (integrated by scipy), and the paper's HNG left untouched by excitation = "none"."""

@@ -215,21 +215,21 @@ def test_seed003_range_sensor_and_ekf_fly_through_the_companion(tmp_path, scenar
     assert abs(np.mean(residual)) < 0.2 and 0.8 < np.std(residual) < 1.3  # N(0, 1 m^2) plus own-position noise
 
 
-#: The turning-target scenario flown end to end with the scenario defaults (issue 13).
+#: The turning-target scenario flown end to end with the scenario defaults.
 TURNING_SCENARIO = "circle_5ms"
 
 
 def test_a_turning_target_is_followed_end_to_end_with_the_default_estimator(tmp_path, scenario_path):
-    """Issue 13: a target that turns, flown through the real processes with every default. The flight must
+    """A target that turns, flown through the real processes with every default. The flight must
     run to the end, the range estimate must be good, the pursuer must keep at least r_d / 2 from the target and
     within the airframe's tilt limit (the plant's attitude loop may overshoot the commanded tilt by a little:
     1 deg is allowed), and the report must be honest: a flight whose estimate the health monitor calls suspect
     at the end is 'diverged', never 'completed'. Whether the monitor calls this one suspect at the end depends
     on the processes' timing: in 8 runs on 2026-11-29 it did in 3 (NIS over its bound; range-estimation RMS
-    0.71 m even then), on the code before issue 14 as well (1 of 4): so the verdict is checked for consistency,
-    not required to be clean (README "Manoeuvring targets": circle_5ms is a known weak spot). The range-
+    0.71 m even then): so the verdict is checked for consistency,
+    not required to be clean (docs/safety.md: circle_5ms is a known weak spot). The range-
     estimation RMS over the flight varies with the timing too: 0.56-1.03 m in 10 runs at 5x (seeds 1-4,
-    2026-11-29), so issue 13's 1 m goal is not reliably met here; the bound is 1.5 m, above that spread, and
+    2026-11-29), so a 1 m bound would not reliably hold here; the bound is 1.5 m, above that spread, and
     far below a lost target (tens of metres)."""
     code, folder, summary = full_sitl.run(scenario_path(TURNING_SCENARIO), tmp_path, SPEED, seed=2,
                                           timeout=240.0, plots=False, quiet=True, gcs_port=free_port())

@@ -20,7 +20,7 @@ from studies import full_sitl
 from studies.processes import free_port
 
 #: Simulated s per wall s. At 1x the 60 s scenario takes about 2 min of wall time on this 2-core machine
-#: (measured: README "Several pursuers in SITL"); the test flies it faster to stay near 1 min.
+#: (measured: docs/guide/swarm.md, "Several pursuers in SITL"); the test flies it faster to stay near 1 min.
 SPEED = 2.0
 CONFIG = Path(__file__).resolve().parent.parent / "config" / "scenarios" / "swarm_circumnavigation.toml"
 SCENARIO, _ = load_scenario(CONFIG)

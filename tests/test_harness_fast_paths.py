@@ -1,4 +1,4 @@
-"""The in-process harness's per-step shortcuts (issue 16) against what they replace.
+"""The in-process harness's per-step shortcuts against what they replace.
 
 References: PursuerState's own constructor; numpy's `position + velocity * dt` (the expression
 TargetModel.step used for straight flight, copied verbatim); a flight log row written by numpy's

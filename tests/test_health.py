@@ -151,7 +151,7 @@ def test_the_payload_reasons_are_the_monitors():
 
 def _circling(scenario_path, speed: float, lateral_acceleration: float, old_defaults: bool = True):
     """The constant-velocity scenario with its target circling at `speed` m/s (radius v^2 / a), flown with the
-    defaults before issue 13 (the u-PLKF alone, the monitor only reporting), which lose such a target; with
+    former defaults (the u-PLKF alone, the monitor only reporting), which lose such a target; with
     old_defaults False, today's defaults (the IMM, the monitor acting)."""
     scenario, vehicle = load_scenario(scenario_path("constant_velocity"))
     document = scenario.model_dump()
@@ -205,7 +205,7 @@ def test_a_flight_that_never_sees_its_target_is_no_success(scenario_path):
 
 
 def test_the_default_follows_the_circle_the_old_default_lost(scenario_path):
-    """The same 25 m circle with today's defaults (issue 13: the IMM's turn models): followed, and not flagged."""
+    """The same 25 m circle with today's defaults (the IMM's turn models): followed, and not flagged."""
     summary = simulate(*_circling(scenario_path, 5.0, 1.0, old_defaults=False), seed=2).summary
     assert summary["range_estimation_error_rms"] < 1.0, summary
     assert summary["min_range"] > 0.5 * summary["desired_range"]

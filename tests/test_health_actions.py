@@ -194,7 +194,7 @@ def test_the_pipeline_acts_on_the_estimator_only_while_suspect(scenario_path):
 
 def _circling(scenario_path, **health):
     """The constant-velocity scenario with its target on a 25 m circle at 5 m/s, flown with the u-PLKF alone (the
-    pre-issue-13 default, which loses it: a flight for the monitor to act on); `health` overrides [health]."""
+    former default, which loses it: a flight for the monitor to act on); `health` overrides [health]."""
     scenario, vehicle = _scenario(scenario_path, **health)
     document = scenario.model_dump()
     document["estimator"]["kind"] = "uplkf"

@@ -1,4 +1,4 @@
-"""The IMM's model filters share one own-position tracker (issue 16): the same results as a tracker per model filter.
+"""The IMM's model filters share one own-position tracker: the same results as a tracker per model filter.
 
 Every model filter of an IMM with PREDICTED gains and pursuer_position_std > 0 keeps an OwnPositionTracker fed the
 same samples, so IMMEstimator shares one (fed once per correction) until a correction that may leave some model

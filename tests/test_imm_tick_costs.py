@@ -1,4 +1,4 @@
-"""The IMM's per-tick steps (issue 16): its combined estimate and its prediction, cheaper, the same results.
+"""The IMM's per-tick steps: its combined estimate and its prediction, cheaper, the same results.
 
 - `_combined_estimate` (the estimate's kernel: `_combine_kernel` written into fresh arrays, with the position std)
   is `_combine_kernel` and TargetEstimate.position_std bit for bit, compiled and interpreted;

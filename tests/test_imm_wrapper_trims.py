@@ -1,4 +1,4 @@
-"""The IMM's correction in one kernel call, and the process-noise change records (issue 16).
+"""The IMM's correction in one kernel call, and the process-noise change records.
 
 - `imm._imm_correction` (the prior lines of sight, the shared own-position tracker's usual step and the whole IMM
   cycle in one call) gives, compiled and interpreted, what the calls it replaced give (`_prior_lines_of_sight`, then

@@ -1,7 +1,7 @@
-"""The estimator kernels that write into scratch arrays (issue 16: no array per step) give the bits of the kernels
+"""The estimator kernels that write into scratch arrays (no array per step) give the bits of the kernels
 they replaced, compiled and interpreted.
 
-The reference is a verbatim copy of the kernels before the change (tests/old_kernels17.py, from main a3a0c34),
+The reference is a verbatim copy of the kernels before the change (tests/old_kernels17.py),
 run the same way as the kernel under test (compiled when numba is installed, plain Python otherwise or with
 BOF_NO_JIT=1); each new kernel is also run as its own Python function (`python_function`: its arithmetic
 interpreted, the kernels it calls compiled). Random priors, geometries and model sets (hypothesis), the rare

@@ -1,5 +1,5 @@
 """Every bearing noise the scenario schema accepts flies: the estimators stay finite with a
-symmetric positive semi-definite covariance whatever the bearings (issue 13: noise_std = 1
+symmetric positive semi-definite covariance whatever the bearings (noise_std = 1
 used to end in LinAlgError from the u-PLKF's pseudo-inverse), and the schema refuses, with
 its reason, only noise that no estimator could use."""
 
@@ -99,7 +99,7 @@ def test_estimators_stay_finite_and_psd_under_any_accepted_bearing_noise(seed, m
 
 
 def test_short_flight_at_noise_std_one_completes():
-    """The issue's case: noise_std = 1 with the estimator's Sigma left at 1e-4 I. Useless bearings,
+    """The hard case: noise_std = 1 with the estimator's Sigma left at 1e-4 I. Useless bearings,
     a poor estimate, but no exception and a finite estimate throughout a 15 s flight."""
     scenario, vehicle = load_scenario(SCENARIOS_DIR / "constant_velocity.toml")
     data = scenario.model_dump()

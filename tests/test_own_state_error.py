@@ -1,5 +1,5 @@
 """Own-state (position/velocity feedback) error model: white by default, first-order
-Gauss-Markov when the vehicle file gives a time constant (issue 13, item 5)."""
+Gauss-Markov when the vehicle file gives a time constant."""
 
 import math
 from dataclasses import replace

@@ -1,4 +1,4 @@
-"""FollowingPipeline with neighbours (issue 15): which law flies when, the separation filter last, neighbours
+"""FollowingPipeline with neighbours: which law flies when, the separation filter last, neighbours
 carried to the control time, and a neighbour's bearing never taken as our own line of sight.
 
 References: HNG with c_Z = c_Y = 0 is PPG, a = -N P_lambda v (eq. (14), section VIII-C1), written out here;

@@ -164,7 +164,7 @@ def test_schema_refuses_coloured_noise_on_other_models():
 
 
 def test_seed003_scenario_flies_with_a_finite_estimate():
-    """seed003_ekf_rae, seed 1: the law follows the helix on the EKF's estimate (figures in the README)."""
+    """seed003_ekf_rae, seed 1: the law follows the helix on the EKF's estimate (figures in docs/guide/studies.md)."""
     scenario, vehicle = load_scenario(SCENARIOS_DIR / "seed003_ekf_rae.toml")
     assert scenario.guidance.law == "seed003" and scenario.estimator.kind == "ekf_rae"
     summary = simulate(scenario, vehicle, seed=1).summary
@@ -175,7 +175,7 @@ def test_seed003_scenario_flies_with_a_finite_estimate():
 
 @pytest.mark.parametrize("noise", [{"noise_time_constant": 0.5}, {"range_dependent_noise": {}}])
 def test_seed003_noise_options_fly_through_the_simulator(noise):
-    """The coloured and the range-dependent sensor reach the estimator in a flight (figures in the README)."""
+    """The coloured and the range-dependent sensor reach the estimator in a flight (figures in docs/guide/studies.md)."""
     scenario, vehicle = load_scenario(SCENARIOS_DIR / "seed003_ekf_rae.toml")
     sensor = SensorConfig(**{**scenario.sensor.model_dump(), **noise})
     summary = simulate(scenario.model_copy(update={"sensor": sensor}), vehicle, seed=1).summary

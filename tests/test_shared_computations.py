@@ -1,4 +1,4 @@
-"""Values computed once and shared within a step (issue 16) are the values each reader computed for itself.
+"""Values computed once and shared within a step are the values each reader computed for itself.
 
 - BearingMeasurement.unit_direction: the estimator, the health monitor, the windowed FIM and the track read
   one unit bearing per bearing; it is geometry.unit's, bit for bit, and a bad direction still raises;

@@ -1,4 +1,4 @@
-"""The in-process swarm harness's bookkeeping (studies/swarm.py) against the per-tick code it replaced (issue 16).
+"""The in-process swarm harness's bookkeeping (studies/swarm.py) against the per-tick code it replaced.
 
 _closest_separation computes the separation figure of all ticks at once; the reference is a VERBATIM COPY of the
 per-tick lines of simulate_swarm at 1c852b6 (np.linalg.norm of the tick's pair offsets, np.min over the pairs,

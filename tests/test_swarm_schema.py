@@ -1,4 +1,4 @@
-"""Several pursuers (issue 15): the bof.pursuer_share/1 payload, the [swarm] scenario schema, the scenario files."""
+"""Several pursuers: the bof.pursuer_share/1 payload, the [swarm] scenario schema, the scenario files."""
 
 from __future__ import annotations
 

@@ -42,7 +42,7 @@ directions = st.sampled_from(["right", "left"])
 
 @st.composite
 def target_configs(draw) -> TargetConfig:
-    """A [target] of any model, with parameters across the issue's envelope (0-10 m/s, up to 2 m/s^2)."""
+    """A [target] of any model, with parameters across the supported envelope (0-10 m/s, up to 2 m/s^2)."""
     kind = draw(st.sampled_from(["maneuvers", "circle", "weave", "turn", "stop_and_go", "singer"]))
     speed, heading = draw(speeds), draw(headings)
     climb = draw(st.floats(-2.0, 2.0))

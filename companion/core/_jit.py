@@ -79,8 +79,8 @@ def warm_up() -> None:
     so that no estimator update or control tick waits for the compiler: the companion's first bearing in flight, a study's first flight.
 
     numba compiles a kernel on its first call and caches the machine code next to the sources (or in
-    NUMBA_CACHE_DIR): on a fresh install the first process pays the compilation, about 66 s of one core on the
-    machine of issue 16 for every kernel here, and later processes load the cache and run this in about 0.6 s. This runs the u-PLKF and IMM
+    NUMBA_CACHE_DIR): on a fresh install the first process pays the compilation, about 66 s of one core on a
+    2-core development machine for every kernel here, and later processes load the cache and run this in about 0.6 s. This runs the u-PLKF and IMM
     updates once on made-up bearings (at and off the estimator's ticks, with adaptive process noise, both gain
     forms) and reads their estimates (the IMM's `_combined_estimate`), on throwaway estimators, then the baseline estimators' (_warm_up_baselines), the control tick's
     setpoint kernels (_warm_up_setpoint) and the bearing path's diagnostics (_warm_up_diagnostics). Nothing to do

@@ -1,4 +1,4 @@
-"""Cooperative guidance for several pursuers around one target (issue 15).
+"""Cooperative guidance for several pursuers around one target.
 
 Laws:
 - `CircumnavigationGuidance`: seed 002 eq. (10) (with the target-velocity feed-forward of its

@@ -966,7 +966,7 @@ class UPLKF:
     The paper's form puts the noisy bearing inside H_k, so the gain is correlated
     with the noise it corrects; the bias this leaves accumulates with every update
     and in closed loop at 20-50 Hz bearing rates the range estimate runs away (see
-    the README's estimator section for the measurements). PREDICTED (the default of
+    docs/explanation/estimation.md for the measurements). PREDICTED (the default of
     the scenarios) builds the projection of the gain and covariance from the
     predicted line of sight lambda^- = (p^-_T - p)/|p^-_T - p|, an instrumental
     variable that does not depend on the current noise, while the innovation stays

@@ -316,7 +316,7 @@ _range_command_kernel = jit(_range_command)
 
 @dataclass(frozen=True)
 class RangeExcitation:
-    """Lateral excitation that keeps the range observable while it is poorly known (issue 13).
+    """Lateral excitation that keeps the range observable while it is poorly known.
 
     Why. A bearing-only filter learns the range only from how the line of sight turns in
     response to the pursuer's own motion: with a constant-velocity target model the
@@ -353,7 +353,7 @@ class RangeExcitation:
     because a diverged filter can be confident and wrong (small sigma_r), which the monitor
     detects from its innovations. Section V's windowed FIM is not used: it treats the target
     as static, so a target circling a stopped pursuer sweeps the bearings and keeps it large
-    (README "Filter health"). With the range well observed (rho <= rho_0, not
+    (docs/explanation/estimation.md, "Filter health"). With the range well observed (rho <= rho_0, not
     suspect) a_X = 0 and the guidance is the paper's HNG.
 
     speed: V_X, m/s. damping_gain: N of the lateral law it is added to, 1/s.

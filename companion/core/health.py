@@ -26,7 +26,7 @@ Indicators, evaluated at every estimator correction k (a bearing used):
   `max_relative_range_std` times the estimated range r^ = |p^_T - p|; or, once the estimate
   has converged (sigma_r at or below `max_range_std` at some correction since the last
   (re)start), sigma_r above `max_range_std` m again. The absolute bound is the filter's own
-  admission that it no longer knows the range to the divergence line (issue 13: RMS > 2 m):
+  admission that it no longer knows the range to the divergence line (RMS > 2 m):
   measured, a weakly observed target (the flight experiment's turn, section IX-B2, with
   HNG's N = 1 and Q = 1.5 I) drifts 2-4 m off with innovations that stay consistent (NIS
   ratio 0.2-0.35), so only the covariance shows it (sigma_r 1.8-2.6 m, against 0.1-0.9 m on
@@ -465,7 +465,7 @@ RANGE_WRONG_REASONS = ("behind_sensor", "range_implausible")
 
 @dataclass(frozen=True)
 class HealthActionConfig:
-    """What to do while the monitor says SUSPECT (issue 13 item 3). Times s, ratios dimensionless.
+    """What to do while the monitor says SUSPECT. Times s, ratios dimensionless.
 
     act: False keeps the monitor a pure observer (the flight is the reporting-only pipeline,
     bit for bit). process_noise_boost: factor (>= 1) on the estimator's discrete process noise

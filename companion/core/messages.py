@@ -155,7 +155,7 @@ class TargetEstimate:
 
 @dataclass(frozen=True)
 class NeighbourState:
-    """Another pursuer as cooperative guidance and estimation see it (issue 15).
+    """Another pursuer as cooperative guidance and estimation see it.
 
     ident: pursuer id >= 1. time: s, stamp of position/velocity. position: m, shape (3,),
     NED. velocity: m/s, shape (3,), NED. Construction rejects a bad id, a non-finite time

@@ -164,7 +164,7 @@ def _output(time, setpoint, new_setpoint, estimate, guidance, correction, mode, 
 
 @dataclass(frozen=True)
 class Cooperation:
-    """What the pipeline does with its neighbours, other pursuers following the same target (issue 15).
+    """What the pipeline does with its neighbours, other pursuers following the same target.
 
     law: a complete cooperative law (companion.core.cooperative_guidance: CircumnavigationGuidance, seed 002
     eq. (10); StandoffTrackingGuidance, seed 004 TOGVF) flown while at least one neighbour is fresh; with

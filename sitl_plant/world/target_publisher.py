@@ -293,7 +293,8 @@ class TargetPublisher:
         self.seq += 1
 
 
-def parse_args(argv: list[str] | None) -> argparse.Namespace:
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of `sitl-target` (the CLI reference page prints its help)."""
     parser = argparse.ArgumentParser(prog="sitl-target", description=__doc__.split("\n\n")[0])
     parser.add_argument("--config", type=Path, default=DEFAULT_SCENARIO, help="scenario TOML (default: %(default)s)")
     parser.add_argument("--zenoh-connect", action="append", default=[], metavar="ENDPOINT",
@@ -322,6 +323,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                              "'blackouts=[{start=20,duration=5}]' or burst.mean_burst_s=2; repeatable")
     parser.add_argument("--home", type=float, nargs=3, default=None, metavar=("LAT", "LON", "ALT"),
                         help="geodetic origin of the NED frame, deg deg m AMSL (default: the scenario's [sitl] home)")
+    return parser
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = build_parser()
     return parser.parse_args(argv)
 
 
