@@ -29,6 +29,7 @@ from bitwise import assert_same, seeds
 from paper_reference import floats, symmetric_with_eigenvalues, unit_vectors
 
 from companion.core import _jit
+from companion import warmup
 from companion.core import baseline_estimators as be
 from companion.core.baseline_estimators import MAX_ELEVATION, MAX_INVERSE_RANGE, MIN_INVERSE_RANGE, MIN_RANGE
 from companion.core.estimators import limit_range, transition_matrices
@@ -806,8 +807,8 @@ _WARM_UP_THEN_FLY = _FLIGHTS.replace('if __name__ == "__main__":', '''def compil
             if hasattr(getattr(baseline_estimators, name), "signatures")}
 
 if __name__ == "__main__":
-    from companion.core import _jit
-    _jit.warm_up()
+    from companion import warmup
+    warmup.warm_up()
     before = compiled_signatures()
     for estimator in ("ekf", "msc_ekf", "ekf_rae"):
         flight(estimator)
@@ -816,7 +817,7 @@ if __name__ == "__main__":
 
 
 def test_warm_up_compiles_every_kernel_a_baseline_flight_calls():
-    """In a fresh interpreter, after _jit.warm_up(), flights of the three baselines compile nothing more. (Without
+    """In a fresh interpreter, after warmup.warm_up(), flights of the three baselines compile nothing more. (Without
     numba the kernels are their Python functions, and warm_up has nothing to do.)"""
     if not _jit.ENABLED:
         for kernel in (be._linear_predict, be._az_el_correct, be._msc_propagate, be._msc_correct, be._msc_to_absolute,

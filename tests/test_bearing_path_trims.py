@@ -18,7 +18,7 @@ expressions it replaced, and each object built without its dataclass constructor
 - the own-position tracker's step in one kernel (estimators._own_position_step, _carried_position): every
   reference of random sample sequences (repeated stamps, late samples, gaps) is the old tracker's;
 - measure's spectrum written into the window's buffer (observability._spectrum_into) is _spectrum's;
-- after _jit.warm_up every new kernel is compiled.
+- after warmup.warm_up every new kernel is compiled.
 """
 
 from __future__ import annotations
@@ -38,6 +38,7 @@ from test_diagnostic_kernels import covariances, families, old_health_geometry, 
 from test_estimator_kernels import correction_arguments
 
 from companion.core import _jit
+from companion import warmup
 from companion.core import estimators, health, observability
 from companion.core.estimators import OWN_ACCELERATION_PSD, OWN_TRACK_MAX_GAP, CorrectionReport, OwnPositionTracker
 from companion.core.health import HealthConfig, HealthMonitor, HealthReport, HealthState
@@ -261,7 +262,7 @@ def test_spectrum_into_is_spectrum(seed, family, exponent):
 
 
 def test_warm_up_compiles_the_new_kernels():
-    _jit.warm_up()
+    warmup.warm_up()
     for kernel in (estimators._prior_line_of_sight, estimators._correct_into, estimators._own_position_step, estimators._carried_position,
                    health._bearing_evidence, observability._add_plain_sample, observability._spectrum_into):
         if _jit.ENABLED:

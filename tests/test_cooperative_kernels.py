@@ -20,6 +20,7 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from companion.core import _jit
+from companion import warmup
 from companion.core.cooperative_guidance import (CircumnavigationGuidance, CooperativeContext, SeparationFilter,
                                                  StandoffTrackingGuidance, _braking_margin,
                                                  _circumnavigation_acceleration_kernel,
@@ -327,8 +328,8 @@ def test_advanced_is_what_the_constructors_build(context, horizon):
 
 
 def test_warm_up_compiles_the_kernel_a_cooperative_tick_calls():
-    """After _jit.warm_up, a control tick of the law compiles nothing more (the same argument types)."""
-    _jit.warm_up()
+    """After warmup.warm_up, a control tick of the law compiles nothing more (the same argument types)."""
+    warmup.warm_up()
     kernels = (_circumnavigation_velocity_kernel, _circumnavigation_acceleration_kernel, _tracking_kernel,
                _separation_kernel)
     if not _jit.ENABLED:

@@ -36,6 +36,7 @@ from bitwise import assert_same, seeds
 from paper_reference import floats, symmetric_with_eigenvalues, unit_vectors
 
 from companion.core import _jit, geometry, health, observability, pipeline
+from companion import warmup
 from companion.core.geometry import unit
 from companion.core.observability import WindowedObservability, _check_bearings, _check_ranges, _check_sigma
 
@@ -408,7 +409,7 @@ def test_gate_is_the_old_one(relative, offset, seed, exponent, log_noise, negati
 # ----- warm-up and a whole flight ----------------------------------------------------------------------------------
 
 def test_warm_up_compiles_the_diagnostic_kernels():
-    _jit.warm_up()
+    warmup.warm_up()
     # The kernels Python calls: one that only other kernels call (health._evidence, observability._spectrum...) has
     # no signature of its own when its callers load from numba's cache, so it would say nothing (and the test
     # failed when run alone, with a warm cache).

@@ -9,7 +9,7 @@
   states, with the position std its once_property would compute;
 - on the same sequences, each prediction uses every model filter's current process-noise factors (adaptive scale
   and boost), however they were changed: through the IMM, on a model filter directly, on its adaptive noise;
-- after _jit.warm_up the new kernel is compiled.
+- after warmup.warm_up the new kernel is compiled.
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ from hypothesis import strategies as st
 from bitwise import assert_same, seeds
 
 from companion.core import _jit
+from companion import warmup
 from companion.core import imm
 from companion.core.estimators import AdaptiveNoiseSettings, AdaptiveProcessNoise, GainProjection, InitialGuess, _predict_kernel
 from companion.core.imm import IMMEstimator, combine, standard_models
@@ -159,8 +160,8 @@ def test_estimates_stay_snapshots_and_predictions_take_every_noise_factor(steps,
 
 
 def test_warm_up_compiles_the_combined_estimate():
-    """_jit.warm_up reads the IMMs' estimates: no flight waits for `_combined_estimate` (and `_position_std` in it)."""
-    _jit.warm_up()
+    """warmup.warm_up reads the IMMs' estimates: no flight waits for `_combined_estimate` (and `_position_std` in it)."""
+    warmup.warm_up()
     if _jit.ENABLED:
         assert imm._combined_estimate.signatures
     else:

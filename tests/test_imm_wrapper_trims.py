@@ -25,6 +25,7 @@ from hypothesis import strategies as st
 from bitwise import assert_same, seeds
 
 from companion.core import _jit
+from companion import warmup
 from companion.core import estimators
 from companion.core import imm
 from companion.core.estimators import (AdaptiveNoiseSettings, AdaptiveProcessNoise, CorrectionReport, GainProjection,
@@ -355,9 +356,9 @@ def test_an_adaptive_noise_serving_two_imms_counts_in_both_and_a_copy_in_its_own
 
 
 def test_warm_up_compiles_the_one_kernel_correction():
-    """_jit.warm_up runs IMM corrections on and off the tracker's step: no flight waits for `_imm_correction`, and
+    """warmup.warm_up runs IMM corrections on and off the tracker's step: no flight waits for `_imm_correction`, and
     the corrections of a flight's kinds take the signature it compiled."""
-    _jit.warm_up()
+    warmup.warm_up()
     if not _jit.ENABLED:
         assert python(imm._imm_correction) is imm._imm_correction
         return

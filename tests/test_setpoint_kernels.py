@@ -23,6 +23,7 @@ from hypothesis.extra.numpy import arrays
 from bitwise import assert_same, seeds
 
 from companion.core import _jit, attitude, geometry, guidance
+from companion import warmup
 from companion.core.attitude import VehicleLimits
 from companion.core.guidance import HelicalNavigationGuidance, RangeController, RangeErrorState, RangeExcitation
 
@@ -708,7 +709,7 @@ def test_the_compiled_tick_needs_exactly_the_range_controller():
 
 
 def test_warm_up_compiles_the_setpoint_kernels():
-    _jit.warm_up()
+    warmup.warm_up()
     from companion.core.pipeline import _relative_terms
     kernels = (attitude._setpoint_kernel, attitude._rotation_kernel, attitude._thrust_kernel,
                attitude._limited_acceleration_kernel, guidance._helical_acceleration_kernel,
