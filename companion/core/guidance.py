@@ -12,7 +12,7 @@ from typing import Protocol
 
 import numpy as np
 
-from companion.core._jit import jit, power
+from companion.core._jit import jit
 from companion.core.attitude import _IDENTITY, _setpoint_after_into_kernel
 from companion.core.geometry import (E_X, clip_kernel, cross, cross_kernel, relative_range_std_kernel,
                                      relative_terms_kernel, rotation_about_y_kernel, rotation_about_z_kernel,
@@ -171,8 +171,8 @@ def saturation(x: float, limit: float = 3.0) -> float:
 
 
 def saturation_slope(x: float, limit: float = 3.0) -> float:
-    """sigma'(x) = 1 / (1 + (x/3)^2) (Python's ** as _jit.power, so that the compiled kernel computes the same)."""
-    return 1.0 / (1.0 + power(x / limit, 2.0))
+    """sigma'(x) = 1 / (1 + (x/3)^2)."""
+    return 1.0 / (1.0 + (x / limit) ** 2)
 
 
 _saturation_slope_kernel = jit(saturation_slope)
@@ -302,7 +302,7 @@ def _range_command(distance, range_rate, speed_squared, lateral_work, projection
     u_star = (
         -distance * _virtual_control_terms_kernel(sigma, range_error, range_rate, gain, saturation_limit)
         + speed_squared
-        - power(range_rate, 2.0)
+        - range_rate ** 2
         - lateral_work
     )
     if projection <= 1e-6 * (1.0 if 1.0 > distance else distance):
