@@ -135,11 +135,15 @@ def test_one_call_correction_is_the_model_by_model_correction(adaptive, monkeypa
             def counting(*arguments):
                 result = kernel(*arguments)
                 if result[2] == imm._CORRECTED:
-                    calls.append(arguments[15])
+                    calls.append(bool(arguments[-1][imm._TRACK_STEP]))
                 return result
             monkeypatch.setattr(imm, "_imm_correction", counting)
         else:  # the same kernel told the gains are not PREDICTED: every correction model filter by model filter
-            monkeypatch.setattr(imm, "_imm_correction", lambda *arguments: kernel(*arguments[:7], False, *arguments[8:]))
+            def model_by_model(*arguments):
+                switches = arguments[-1].copy()
+                switches[imm._PREDICTED_GAIN] = False
+                return kernel(*arguments[:-1], switches)
+            monkeypatch.setattr(imm, "_imm_correction", model_by_model)
         ticks = late_and_shared_bearings(11)
         estimator.initialize_on_bearing(ticks[0][0], InitialGuess(15.0, 10.0, np.zeros(3), 5.0))
         rows = []

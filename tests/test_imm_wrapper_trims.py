@@ -36,7 +36,7 @@ python = _jit.python_function
 
 
 def correction_arguments(seed: int, count: int, lead: float, behind: str, reference: str) -> dict:
-    """Random inputs of `_imm_correction` (by name): a turning target's models near the bearing; behind: "none",
+    """Random inputs of `_imm_correction` (by name; `correct` packs them): a turning target's models near the bearing; behind: "none",
     "one" (the first model behind the sensor) or "all" (the combined prior behind it); reference: "none" (no
     tracker), "step" (the tracker's step in the kernel), "given" ((1, 3) references) or "missing"."""
     rng = np.random.default_rng(seed)
@@ -69,6 +69,27 @@ def correction_arguments(seed: int, count: int, lead: float, behind: str, refere
         probabilities=np.full(count, np.nan), innovation=np.full(3, np.nan), innovation_covariance=np.full((3, 3), np.nan))
 
 
+def correct(a: dict) -> tuple:
+    """`_imm_correction` on the arguments of `correction_arguments`, packed as it takes them."""
+    scalars = np.zeros(imm._CORRECTION_SCALARS)
+    for index, name in ((imm._LEAD, "lead"), (imm._TRACK_DT, "track_dt"), (imm._ACCELERATION_PSD, "acceleration_psd"),
+                        (imm._TRACK_STD, "track_std"), (imm._POSITION_VARIANCE, "position_variance"),
+                        (imm._STAY_PROBABILITY, "stay_probability"), (imm._STAY_TIME, "stay_time"),
+                        (imm._INTERVAL, "interval")):
+        scalars[index] = a[name]
+    switches = np.zeros(imm._CORRECTION_SWITCHES, dtype=bool)
+    for index, name in ((imm._RESTART_WHEN_BEHIND, "restart_when_behind"), (imm._PREDICTED_GAIN, "predicted_gain"),
+                        (imm._HAVE_REFERENCES, "have_references"), (imm._USE_REFERENCE, "use_reference"),
+                        (imm._TRACK_STEP, "track_step"), (imm._LATE, "late"),
+                        (imm._ADD_POSITION_NOISE, "add_position_noise"), (imm._WITH_NIS, "with_nis")):
+        switches[index] = a[name]
+    return imm._imm_correction(a["states"], a["covariances"], a["weights"], a["pursuer_position"], a["direction"],
+                               (a["measurement_noises"], a["lead_noises"]), (a["references"], a["track"], a["prediction"]),
+                               (a["model_relative"], a["ranges"], a["model_ranges"], a["relative"]),
+                               (a["nis"], a["probabilities"], a["innovation"], a["innovation_covariance"]), scalars,
+                               switches)
+
+
 @settings(max_examples=150, deadline=None)
 @given(seeds, st.sampled_from([3, 5]), st.sampled_from([0.0, -0.01, 0.12]), st.sampled_from(["none", "one", "all"]),
        st.sampled_from(["none", "step", "given", "missing"]))
@@ -77,7 +98,7 @@ def test_one_kernel_takes_each_outcome_where_it_should(seed, count, lead, behind
     tracker-less call without references asks for them; otherwise it corrects: the models' probabilities a
     distribution, their NIS finite, the states moved. Told the gains are not PREDICTED, it writes no state."""
     arguments = correction_arguments(seed, count, lead, behind, reference)
-    result = imm._imm_correction(*arguments.values())
+    result = correct(arguments)
     expected = {"all": imm._RESTART, "one": imm._MODEL_BY_MODEL}.get(
         behind, imm._NEEDS_REFERENCES if reference == "missing" else imm._CORRECTED)
     assert result[2] == expected
@@ -95,7 +116,7 @@ def test_one_kernel_takes_each_outcome_where_it_should(seed, count, lead, behind
         assert_same(arguments["states"], original)
     arguments = correction_arguments(seed, count, lead, behind, reference)
     arguments["predicted_gain"] = False
-    result = imm._imm_correction(*arguments.values())
+    result = correct(arguments)
     assert result[2] == (imm._RESTART if behind == "all" else imm._MODEL_BY_MODEL)
     assert_same(arguments["states"], original)
 
