@@ -126,12 +126,12 @@ def _warm_up_setpoint() -> None:
     for excite, with_setpoint in ((False, True), (True, False)):  # the control tick's two kernels (FollowingPipeline)
         los_out, lateral_out, longitudinal, command, rotation, flown = (np.empty(3), np.empty(3), np.empty(3),
                                                                         np.empty(3), np.empty((3, 3)), np.empty(3))
-        terms = _tracking_terms_kernel(20.0 * los, velocity, np.zeros(3), 0.5 * velocity, 1.0, *guidance.kernel_terms,
-                                       excite, np.eye(6), excite, *(excitation.kernel_terms if excite else _NO_EXCITATION),
-                                       desired_range, los_out, lateral_out)
-        _tracking_command_kernel(*terms[2:], saturation(terms[-1], limit), gain, limit, los_out, lateral_out,
-                                 longitudinal, command, with_setpoint, previous.rotation, *limits.setpoint_terms,
-                                 rotation, flown)
+        terms = _tracking_terms_kernel(20.0 * los, velocity, np.zeros(3), 0.5 * velocity, 1.0, guidance.kernel_terms,
+                                       excite, np.eye(6), excite, excitation.kernel_terms if excite else _NO_EXCITATION,
+                                       desired_range, (los_out, lateral_out))
+        _tracking_command_kernel(terms[2:], saturation(terms[-1], limit), gain, limit, los_out, lateral_out,
+                                 (longitudinal, command, rotation, flown), with_setpoint, previous.rotation,
+                                 limits.setpoint_terms)
 
 
 def _warm_up_cooperative() -> None:

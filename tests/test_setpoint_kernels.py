@@ -41,7 +41,7 @@ def _count_compiled_ticks(monkeypatch) -> dict[bool, int]:
     command_kernel = guidance._tracking_command_kernel
 
     def counted(*args):
-        calls[args[13]] += 1
+        calls[args[7]] += 1  # with_setpoint
         return command_kernel(*args)
 
     monkeypatch.setattr(guidance, "_tracking_command_kernel", counted)
