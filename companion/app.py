@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from companion.core._jit import ENABLED as kernels_compiled, warm_up as warm_up_kernels
+from companion.core._jit import ENABLED as kernels_compiled
 from companion.adapters.mavsdk_vehicle import MavsdkVehicle, VehicleError
 from companion.adapters.recorder import RunRecorder, TlogWriter
 from companion.assembly import build_pipeline, build_sensor, pursuer_scenario
@@ -51,6 +51,7 @@ from companion.mission import MissionSequencer, Phase
 from companion.state_publisher import StatePublisher
 from companion.swarm_link import SwarmLink, swarm_companion_id
 from companion.target_link import TargetLink
+from companion.warmup import warm_up as warm_up_kernels
 from interfaces import link_schema as link
 from interfaces import zenoh_transport
 from interfaces.cli import add_zenoh_security_arguments, output_folder, scenario_file, seed_argument

@@ -55,7 +55,7 @@ def compile_kernels() -> float:
     that the worker or child processes started next load the cache instead of each compiling them: on a fresh
     install that is about 30 s of one core per process. Returns the seconds it took; nothing to do without numba
     (plain Python) or when already done in this process."""
-    from companion.core import _jit as estimator_kernels
+    from companion import warmup as estimator_kernels
     from sitl_plant.vehicle import kernels as plant_kernels
 
     started = time.perf_counter()

@@ -1,7 +1,8 @@
-"""Bit-for-bit comparison for the kernel tests (test_*_kernels.py): a helper, not a test module.
+"""Comparisons for the kernel tests (test_*_kernels.py): a helper, not a test module.
 
-The compiled kernels must give the results of the code they replaced to the last bit,
-compiled and interpreted; these helpers say what "the same" means there, once.
+`assert_same` is bit for bit, for results that must be identical (the same code on the same input: a copy of an
+estimator, a path that must not change a flight); `assert_close_series` is what compiled and plain-Python flights
+must agree to: within 1e-9 of each series' scale (the two round some operations differently in the last bit).
 """
 
 from __future__ import annotations
@@ -31,3 +32,17 @@ def assert_same(actual, expected, path: str = "result") -> None:
         assert np.array_equal(a, e, equal_nan=True) and np.array_equal(np.signbit(a), np.signbit(e)), f"{path}: {a} != {e}"
     else:
         assert np.array_equal(a, e), f"{path}: {a} != {e}"
+
+
+def assert_close_series(actual, expected, name: str) -> None:
+    """Within 1e-9 of the series' own scale (NaN where NaN); non-float series equal."""
+    actual, expected = np.asarray(actual), np.asarray(expected)
+    assert actual.shape == expected.shape, name
+    if expected.dtype.kind != "f":
+        assert np.array_equal(actual, expected), name
+        return
+    assert np.array_equal(np.isnan(actual), np.isnan(expected)), name
+    finite = np.isfinite(expected)
+    assert np.array_equal(actual[~finite & ~np.isnan(expected)], expected[~finite & ~np.isnan(expected)]), name
+    scale = float(np.abs(expected[finite]).max()) if finite.any() else 0.0
+    np.testing.assert_allclose(actual[finite], expected[finite], rtol=1e-9, atol=1e-9 * scale, err_msg=name)

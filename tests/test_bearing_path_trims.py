@@ -1,24 +1,7 @@
-"""The bearing path's trims (one flight cheaper) compute what the code they replaced computed, bit
-for bit: each new kernel compiled against its own Python function (`kernel.py_func`) and against the numpy
-expressions it replaced, and each object built without its dataclass constructor equal to the constructor's.
-
-- the u-PLKF's prior line of sight (estimators._prior_line_of_sight): p^-_T + tau v^-_T - p, its length, the
-  clipped cosine (Python's min and max: a NaN stays NaN) and remark 3's guard, as UPLKF.correct formed them;
-- the u-PLKF's correction report (estimators._correction_report) is CorrectionReport(...);
-- the u-PLKF's one kernel call (estimators._correct_into) is _correct_kernel's update, innovation and S, and the
-  NIS _normalized_innovation_squared gave from S^+ when called after it (adaptive process noise);
-- the health monitor's numbers in one call (health._bearing_evidence): normalized_innovation_squared's NIS and
-  the old geometry (test_diagnostic_kernels.old_health_geometry), its report (health._health_report) is
-  HealthReport(...), and its chi^2 bounds cached across monitors (health._nis_bound) are scipy's each time;
-- a monitor's whole update: the NIS of an empty innovation is 0 and enters the window, a mismatched innovation
-  still raises before anything changes, a restart computes no NIS;
-- the windowed FIM's usual sample in one call (observability._add_plain_sample): _plain_sample's decision, then
-  _add_contribution's term added and the oldest term subtracted, in that order, as add and _drop_older_than did
-  (test_diagnostic_kernels.test_windowed_fim_is_the_old_one compares whole windows with the old class);
-- the own-position tracker's step in one kernel (estimators._own_position_step, _carried_position): every
-  reference of random sample sequences (repeated stamps, late samples, gaps) is the old tracker's;
-- measure's spectrum written into the window's buffer (observability._spectrum_into) is _spectrum's;
-- after _jit.warm_up every new kernel is compiled.
+"""The bearing path's one-call kernels against independent references: the clipped cosine of the prior line of
+sight, the reports against their dataclasses' constructors, the health monitor's numbers against their closed
+forms and scipy's chi^2 quantiles, the windowed FIM's one-call sample against its steps, the own-position tracker
+against the textbook constant-velocity Kalman filter in matrix form, and the warm-up compiling these kernels.
 """
 
 from __future__ import annotations
@@ -34,48 +17,15 @@ from hypothesis import strategies as st
 from paper_reference import floats
 
 from scipy.stats import chi2
-from test_diagnostic_kernels import covariances, families, old_health_geometry, old_normalized_innovation_squared
-from test_estimator_kernels import correction_arguments
+from test_diagnostic_kernels import covariances, families
 
+from companion import warmup
 from companion.core import _jit
 from companion.core import estimators, health, observability
-from companion.core.estimators import OWN_ACCELERATION_PSD, OWN_TRACK_MAX_GAP, CorrectionReport, OwnPositionTracker
+from companion.core.estimators import OWN_TRACK_MAX_GAP, CorrectionReport, OwnPositionTracker
 from companion.core.health import HealthConfig, HealthMonitor, HealthReport, HealthState
 
 python = _jit.python_function
-
-special = st.sampled_from([math.nan, math.inf, -math.inf, 0.0, -0.0, 1e-13, 1e300])
-
-
-def old_prior(state, lead, pursuer_position, direction):
-    """UPLKF.correct's prior line of sight before the kernel, with its guard (restart_when_behind)."""
-    relative = state[:3] + lead * state[3:] - pursuer_position
-    predicted_range = math.sqrt(float(relative.dot(relative)))
-    cos_angle = min(max(float(direction @ relative / max(predicted_range, 1e-12)), -1.0), 1.0)
-    return relative, predicted_range, cos_angle, cos_angle <= 0.0 or predicted_range < 1e-6
-
-
-@settings(max_examples=300, deadline=None)
-@given(seeds, st.integers(-8, 8), floats(-0.5, 0.5), st.sampled_from(["ahead", "behind", "on", "special"]), special)
-def test_prior_line_of_sight(seed, exponent, lead, where, value):
-    rng = np.random.default_rng(seed)
-    state = rng.normal(size=6) * 10.0**exponent
-    pursuer = rng.normal(size=3) * 10.0**exponent
-    direction = rng.normal(size=3)
-    direction /= math.sqrt(float(direction @ direction))
-    if where == "behind":
-        state[:3] = pursuer - 10.0**exponent * direction - lead * state[3:]
-    elif where == "on":
-        state[:3] = pursuer - lead * state[3:]
-    elif where == "special":
-        state[rng.integers(6)] = value
-    expected = old_prior(state, lead, pursuer, direction)
-    for function in (estimators._prior_line_of_sight, python(estimators._prior_line_of_sight)):
-        relative = np.full(3, 7.0)
-        predicted_range, cos_angle, behind = function(state, lead, pursuer, direction, relative)
-        assert_same((relative, predicted_range, cos_angle), expected[:3])
-        assert behind == expected[3]
-        assert isinstance(cos_angle, float) and isinstance(predicted_range, float)
 
 
 def test_prior_line_of_sight_clips_as_pythons_min_and_max():
@@ -109,32 +59,13 @@ def test_correction_report_is_the_dataclasses(angle, used_predicted, seed, dof):
         report.innovation_dof = 5
 
 
-@settings(max_examples=300, deadline=None)
-@given(seeds, st.integers(-3, 6), floats(-0.3, 0.3), st.booleans(), st.booleans(), st.booleans(),
-       st.sampled_from([0.0, 0.01, 1.0]), st.sampled_from([None, 0.0, 0.1, 1e3]), st.booleans())
-def test_correct_into_is_correct_kernel_then_nis(seed, exponent, lead, late, use_predicted, position_noise,
-                                                 noise_scale, reference_offset, with_nis):
-    """Noisy bearings reach the general pseudo-inverse and the Joseph form, as in test_estimator_kernels.test_correct."""
-    arguments = correction_arguments(seed, exponent, lead if late else 0.0, late, use_predicted, position_noise,
-                                     noise_scale, reference_offset)
-    copies = [np.array(a) if isinstance(a, np.ndarray) else a for a in arguments]
-    innovation, innovation_covariance, innovation_inverse = estimators._correct_kernel(*copies)
-    expected_nis = estimators._normalized_innovation_squared(innovation, innovation_inverse) if with_nis else math.nan
-    for function in (estimators._correct_into, python(estimators._correct_into)):
-        mine = [np.array(a) if isinstance(a, np.ndarray) else a for a in arguments]
-        y, s = np.full(3, 7.0), np.full((3, 3), 7.0)
-        nis = function(*mine, with_nis, y, s)
-        assert_same((y, s, nis), (innovation, innovation_covariance, expected_nis))
-        assert_same(tuple(mine[:2]), tuple(copies[:2]))  # the same state and covariance, updated in place
-        assert type(nis) is float
-
-
 # ----- the health monitor ------------------------------------------------------------------------------------------
 
 @settings(max_examples=300, deadline=None)
 @given(seeds, families, st.integers(-8, 6), st.booleans(), floats(-10.0, 3.5), st.integers(-4, 2))
-def test_bearing_evidence_is_the_old_nis_and_geometry(seed, family, exponent, with_innovation, log_range,
+def test_bearing_evidence_is_the_nis_and_the_geometry(seed, family, exponent, with_innovation, log_range,
                                                       covariance_exponent):
+    """(NIS, |p_T - p|, sigma_r / r = sqrt(l^T P l) / r, bearing . (p_T - p), |v|), as floats."""
     rng = np.random.default_rng(seed)
     innovation_covariance, innovation = covariances(seed, family, exponent)
     bearing, direction = rng.normal(size=3), rng.normal(size=3)
@@ -143,13 +74,24 @@ def test_bearing_evidence_is_the_old_nis_and_geometry(seed, family, exponent, wi
     estimate = pursuer + direction * 10.0**log_range
     factor = rng.normal(size=(6, 6)) * 10.0**covariance_exponent
     covariance = factor @ factor.T
-    expected = ((old_normalized_innovation_squared(innovation, innovation_covariance) if with_innovation else math.nan,)
-                + old_health_geometry(bearing, pursuer, velocity, estimate, covariance))
-    for function in (health._bearing_evidence, python(health._bearing_evidence)):
-        result = function(innovation, innovation_covariance, with_innovation, bearing, estimate, pursuer, covariance,
-                          velocity)
-        assert_same(result, expected)
-        assert all(type(value) is float for value in result)
+    relative = estimate - pursuer
+    distance = float(np.linalg.norm(relative))
+    los = relative / distance
+    result = health._bearing_evidence(innovation, innovation_covariance, with_innovation, bearing, estimate, pursuer,
+                                      covariance, velocity)
+    assert all(type(value) is float for value in result)
+    nis, range_estimate, relative_std, cosine, speed = result
+    if with_innovation:
+        assert_same(nis, health.normalized_innovation_squared(innovation, innovation_covariance))
+    else:
+        assert math.isnan(nis)
+    scale = float(np.linalg.norm(pursuer)) + float(np.linalg.norm(estimate))
+    assert range_estimate == pytest.approx(distance, rel=1e-12, abs=1e-15 * scale)
+    if distance > 1e-9:
+        along = math.sqrt(max(float(los @ covariance[:3, :3] @ los), 0.0))
+        assert relative_std * range_estimate == pytest.approx(along, rel=1e-6, abs=1e-12 * math.sqrt(float(np.trace(covariance))))
+    assert cosine == pytest.approx(float(bearing @ relative), rel=1e-9, abs=1e-13 * scale * float(np.linalg.norm(bearing)))
+    assert speed == pytest.approx(float(np.linalg.norm(velocity)), rel=1e-14)
 
 
 @given(floats(0.0, 100.0), st.sampled_from(list(HealthState)), st.lists(st.sampled_from(health.REASONS), max_size=3),
@@ -261,7 +203,7 @@ def test_spectrum_into_is_spectrum(seed, family, exponent):
 
 
 def test_warm_up_compiles_the_new_kernels():
-    _jit.warm_up()
+    warmup.warm_up()
     for kernel in (estimators._prior_line_of_sight, estimators._correct_into, estimators._own_position_step, estimators._carried_position,
                    health._bearing_evidence, observability._add_plain_sample, observability._spectrum_into):
         if _jit.ENABLED:
@@ -272,91 +214,43 @@ def test_warm_up_compiles_the_new_kernels():
 
 # ----- the own-position tracker ------------------------------------------------------------------------------------
 
-class OldOwnPositionTracker:
-    """estimators.OwnPositionTracker as it was before the kernels, verbatim: tuples of Python floats."""
-
-    def __init__(self, position_std: float, acceleration_psd: float = OWN_ACCELERATION_PSD,
-                 max_gap: float = OWN_TRACK_MAX_GAP) -> None:
-        if not position_std > 0.0:
-            raise ValueError("the own-position tracker needs a positive position_std")
-        self.position_std = float(position_std)
-        self.acceleration_psd = float(acceleration_psd)
-        self.max_gap = float(max_gap)
-        self._time: float | None = None
-        # Per-axis floats rather than numpy arrays: at three elements the arithmetic is cheaper
-        # than numpy's per-call overhead, and this runs at every correction.
-        self._position = (0.0, 0.0, 0.0)
-        self._velocity = (0.0, 0.0, 0.0)
-        self._last_prediction = np.zeros(3)
-        self._p00 = self._p01 = self._p11 = 0.0
-
-    def reference(self, time: float, position: np.ndarray) -> np.ndarray:
-        """The own position (m, shape (3,)) at `time` (s) predicted from the samples before
-        this one; then folds this sample (the reported position, m, shape (3,)) in.
-        Special cases (first, repeated, late, after a gap): see the class docstring."""
-        dt = None if self._time is None else time - self._time
-        if dt is None or abs(dt) > self.max_gap:
-            position = np.array(position, dtype=float)
-            if dt is None or dt > 0.0:
-                self._restart(float(time), position)
-            return position
-        if dt == 0.0:
-            # A second bearing at the same stamp: the state already holds that sample's error,
-            # the prediction made before it does not.
-            return self._last_prediction
-        x0, x1, x2 = self._position
-        v0, v1, v2 = self._velocity
-        if dt < 0.0:
-            # A late sample: carried back from later ones, it is not folded in (the tracker
-            # runs forward in time only).
-            return np.array((x0 + dt * v0, x1 + dt * v1, x2 + dt * v2))
-        q = self.acceleration_psd
-        # Time update of the shared 2x2 covariance [[p00, p01], [p01, p11]] and of the state.
-        p00 = self._p00 + dt * (2.0 * self._p01 + dt * self._p11) + q * dt**3 / 3.0
-        p01 = self._p01 + dt * self._p11 + q * dt**2 / 2.0
-        p11 = self._p11 + q * dt
-        a0, a1, a2 = x0 + dt * v0, x1 + dt * v1, x2 + dt * v2
-        # Measurement update with the sample: gains k0 (position), k1 (velocity).
-        innovation_variance = p00 + self.position_std**2
-        k0, k1 = p00 / innovation_variance, p01 / innovation_variance
-        z0, z1, z2 = np.asarray(position, dtype=float).tolist()
-        e0, e1, e2 = z0 - a0, z1 - a1, z2 - a2
-        self._position = (a0 + k0 * e0, a1 + k0 * e1, a2 + k0 * e2)
-        self._velocity = (v0 + k1 * e0, v1 + k1 * e1, v2 + k1 * e2)
-        self._p00, self._p01, self._p11 = (1.0 - k0) * p00, (1.0 - k0) * p01, p11 - k1 * p01
-        self._time = time
-        self._last_prediction = np.array((a0, a1, a2))
-        return self._last_prediction
-
-    def _restart(self, time: float, position: np.ndarray) -> None:
-        self._time = time
-        self._position = tuple(position.tolist())
-        self._velocity = (0.0, 0.0, 0.0)
-        self._last_prediction = position
-        # Unknown velocity: a prior std of 10 m/s, far beyond a following drone's speed changes.
-        self._p00, self._p01, self._p11 = self.position_std**2, 0.0, 100.0
-
+# ----- the own-position tracker ------------------------------------------------------------------------------------
 
 @settings(max_examples=200, deadline=None)
 @given(seeds, floats(-3.0, 0.0), floats(0.1, 10.0), st.sampled_from([5.0, 50.0, 100.0]), st.booleans())
-def test_own_position_tracker_is_the_old_one(seed, log_std, psd, rate, python_kernels):
-    """References of a random own-position series (noisy, with repeated stamps, late samples and gaps beyond
-    max_gap) equal the old tracker's, bit for bit; the kernels compiled or as Python functions."""
+def test_own_position_tracker_is_the_constant_velocity_kalman_filter(seed, log_std, psd, rate, python_kernels):
+    """Forward samples within max_gap: the reference is the prediction F x of the textbook per-axis Kalman filter
+    (state [position, velocity], F = [[1, dt], [0, 1]], Q = q [[dt^3/3, dt^2/2], [dt^2/2, dt]], H = [1, 0],
+    R = std^2), started on the first sample with a velocity std of 10 m/s; the kernels compiled or as Python."""
     rng = np.random.default_rng(seed)
     std = 10.0**log_std
-    new, old = OwnPositionTracker(std, psd), OldOwnPositionTracker(std, psd)
+    tracker = OwnPositionTracker(std, psd)
     if python_kernels:
         import companion.core.estimators as module
         step, carried = module._own_position_step, module._carried_position
         module._own_position_step, module._carried_position = python(step), python(carried)
     try:
-        time = 0.0
         velocity = rng.normal(size=3) * 5.0
+        time = 0.0
+        first = velocity * time + rng.normal(size=3) * std
+        assert_same(tracker.reference(time, first), first)
+        state = np.stack([first, np.zeros(3)])  # rows: position, velocity (3 axes as columns)
+        covariance = np.diag([std**2, 100.0])
         for _ in range(int(rng.integers(1, 120))):
-            time += rng.choice([1.0 / rate, 0.0, -0.5 / rate, 2.0 * OWN_TRACK_MAX_GAP, 3.0 / rate],
-                               p=[0.7, 0.08, 0.08, 0.04, 0.1])
-            position = velocity * time + rng.normal(size=3) * std
-            assert_same(new.reference(time, position), old.reference(time, position))
+            dt = float(rng.choice([1.0 / rate, 3.0 / rate]))
+            assert dt <= OWN_TRACK_MAX_GAP
+            time += dt
+            sample = velocity * time + rng.normal(size=3) * std
+            transition = np.array([[1.0, dt], [0.0, 1.0]])
+            noise = psd * np.array([[dt**3 / 3.0, dt**2 / 2.0], [dt**2 / 2.0, dt]])
+            state = transition @ state
+            covariance = transition @ covariance @ transition.T + noise
+            prediction = state[0].copy()
+            gain = covariance[:, 0] / (covariance[0, 0] + std**2)
+            state = state + np.outer(gain, sample - state[0])
+            covariance = covariance - np.outer(gain, covariance[0])
+            reference = tracker.reference(time, sample)
+            np.testing.assert_allclose(reference, prediction, rtol=1e-9, atol=1e-9 * (std + float(np.abs(prediction).max())))
     finally:
         if python_kernels:
             module._own_position_step, module._carried_position = step, carried

@@ -19,7 +19,6 @@ from companion.core.messages import PursuerState, pursuer_state
 from sitl_plant.world.target import Maneuver, TargetModel
 from studies.closed_loop import FlightLog, _log_row
 from tests.bitwise import assert_same
-from tests.test_setpoint_kernels import old_rotation_to_quaternion
 
 floats = st.floats(allow_nan=True, allow_infinity=True, width=64)
 finite = st.floats(-1e6, 1e6, allow_nan=False)
@@ -233,30 +232,6 @@ def test_decode_then_check_decoded_is_check(data):
             whole.validator.accepted, dict(whole.validator.rejected), whole.validator.reanchors)
 
 
-def _old_setpoint_in(rotation_desired):
-    """sitl_plant.vehicle.quadrotor's checked_rotation_rows + quaternion_from_rows as of 1c852b6 (what
-    AttitudeThrustVehicle.set_attitude_target ran), verbatim: the quaternion, or ValueError. The quaternion half is
-    test_setpoint_kernels' copy of the same old code (old_rotation_to_quaternion)."""
-    name = "rotation_desired"
-    r = np.asarray(rotation_desired, dtype=float)
-    if r.shape != (3, 3):
-        raise ValueError(f"{name} must be a (3, 3) array, got {r!r}")
-    rows = r.tolist()
-    (a0, b0, c0), (a1, b1, c1), (a2, b2, c2) = rows
-    tolerance = 1e-6
-    if not (abs(a0 * a0 + a1 * a1 + a2 * a2 - 1.0) <= tolerance
-            and abs(b0 * b0 + b1 * b1 + b2 * b2 - 1.0) <= tolerance
-            and abs(c0 * c0 + c1 * c1 + c2 * c2 - 1.0) <= tolerance
-            and abs(a0 * b0 + a1 * b1 + a2 * b2) <= tolerance
-            and abs(a0 * c0 + a1 * c1 + a2 * c2) <= tolerance
-            and abs(b0 * c0 + b1 * c1 + b2 * c2) <= tolerance
-            and abs(a1 * b2 - a2 * b1 - c0) <= tolerance
-            and abs(a2 * b0 - a0 * b2 - c1) <= tolerance
-            and abs(a0 * b1 - a1 * b0 - c2) <= tolerance):
-        raise ValueError(f"{name} is not a proper rotation matrix: {r!r}")
-    return old_rotation_to_quaternion(rows)  # quaternion_from_rows as of 1c852b6: the same verbatim code
-
-
 def _setpoint_matrices():
     """Rotations (every Shepperd branch: small angles, half turns about each axis), perturbed ones near the 1e-6
     tolerance, NaN, infinity, reflections, and wrong shapes."""
@@ -294,31 +269,39 @@ def _outcome_of(function, *args):
 
 @settings(max_examples=300, deadline=None)
 @given(_setpoint_matrices())
-def test_the_vehicle_takes_a_setpoint_as_it_did(matrix):
-    """AttitudeThrustVehicle.set_attitude_target (kernels.setpoint_quaternion, compiled when numba is there): the
-    quaternion it holds and the errors it raises, with their messages, are the old code's (verbatim copy); the
-    compiled kernel and its plain-Python twin give the same bits."""
+def test_the_vehicle_takes_a_proper_rotation_and_refuses_the_rest(matrix):
+    """AttitudeThrustVehicle.set_attitude_target (kernels.setpoint_quaternion, compiled when numba is there): a
+    (3, 3) rotation (R^T R = I and det R = +1 within 1e-6) is held as a unit quaternion of that rotation (scipy's
+    Rotation of it is the matrix); another shape, a non-finite entry or a matrix off by more than 3e-6 is refused
+    with a ValueError that says why; the compiled kernel and its plain-Python function decide alike."""
+    from scipy.spatial.transform import Rotation
+
     from sitl_plant.vehicle import kernels
     from sitl_plant.vehicle.attitude_control import AttitudeThrustVehicle
     from sitl_plant.vehicle.params import table1_params
 
     vehicle = AttitudeThrustVehicle(table1_params(), rng=0)
-
-    def held(rotation):
-        vehicle.set_attitude_target(rotation, 10.0)
-        return vehicle._qd
-
-    expected = _outcome_of(_old_setpoint_in, matrix)
-    actual = _outcome_of(held, matrix)
-    if isinstance(expected[0], type):
-        assert actual == expected
-    else:
-        assert [x.hex() for x in actual] == [x.hex() for x in expected] and vehicle._thrust == 10.0
-    if matrix.shape == (3, 3):
-        entries = matrix.ravel().tolist()
-        compiled, plain = kernels.setpoint_quaternion(*entries), kernels.setpoint_quaternion.py_func(*entries)
-        assert compiled[0] is plain[0] is (not isinstance(expected[0], type))
-        assert [x.hex() for x in compiled[1:]] == [x.hex() for x in plain[1:]]
+    if matrix.shape != (3, 3):
+        with pytest.raises(ValueError, match="must be a \\(3, 3\\) array"):
+            vehicle.set_attitude_target(matrix, 10.0)
+        return
+    finite = bool(np.isfinite(matrix).all())
+    deviation = (max(float(np.abs(matrix.T @ matrix - np.eye(3)).max()), abs(float(np.linalg.det(matrix)) - 1.0))
+                 if finite else math.inf)
+    entries = matrix.ravel().tolist()
+    compiled, plain = kernels.setpoint_quaternion(*entries), kernels.setpoint_quaternion.py_func(*entries)
+    assert compiled[0] is plain[0]
+    np.testing.assert_allclose(compiled[1:], plain[1:], rtol=0.0, atol=1e-15)
+    if deviation > 3e-6:
+        with pytest.raises(ValueError, match="is not a proper rotation matrix"):
+            vehicle.set_attitude_target(matrix, 10.0)
+        return
+    if deviation > 1e-7:  # near the tolerance: either decision is the check's own
+        return
+    vehicle.set_attitude_target(matrix, 10.0)
+    w, x, y, z = vehicle._qd
+    assert vehicle._thrust == 10.0 and math.isclose(w * w + x * x + y * y + z * z, 1.0, rel_tol=1e-6)
+    np.testing.assert_allclose(Rotation.from_quat([x, y, z, w]).as_matrix(), matrix, rtol=0.0, atol=1e-6)
 
 
 _NUMBERS = st.floats(-1e7, 1e7, allow_nan=False)

@@ -2,14 +2,14 @@
 
 - `_combined_estimate` (the estimate's kernel: `_combine_kernel` written into fresh arrays, with the position std)
   is `_combine_kernel` and TargetEstimate.position_std bit for bit, compiled and interpreted;
-- `position_std_of` (TargetEstimate.position_std's function, compiled into that kernel) is the formula it
-  replaced, NaN and signed zeros included;
+- `position_std_of` (TargetEstimate.position_std's function, compiled into that kernel) is sqrt(tr P_pp / 3),
+  NaN and signed zeros included;
 - on random sequences of IMM steps, every estimate handed out stays what it was when handed out (a snapshot:
   later steps never write its arrays), and every new one is the combination of the model filters' current
   states, with the position std its once_property would compute;
 - on the same sequences, each prediction uses every model filter's current process-noise factors (adaptive scale
   and boost), however they were changed: through the IMM, on a model filter directly, on its adaptive noise;
-- after _jit.warm_up the new kernel is compiled.
+- after warmup.warm_up the new kernel is compiled.
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ from hypothesis import strategies as st
 from bitwise import assert_same, seeds
 
 from companion.core import _jit
+from companion import warmup
 from companion.core import imm
 from companion.core.estimators import AdaptiveNoiseSettings, AdaptiveProcessNoise, GainProjection, InitialGuess, _predict_kernel
 from companion.core.imm import IMMEstimator, combine, standard_models
@@ -38,20 +39,21 @@ def stacked_models(seed: int, count: int, exponent: int) -> tuple[np.ndarray, np
     return rng.dirichlet(np.ones(count)), rng.normal(size=(count, 6)) * 10.0, covariances
 
 
-def old_position_std(covariance: np.ndarray) -> float:
-    """TargetEstimate.position_std before it called `position_std_of`."""
-    c = covariance
-    return math.sqrt(max(float(c[0, 0] + c[1, 1] + c[2, 2]), 0.0) / 3.0)
+def rms_position_std(covariance: np.ndarray) -> float:
+    """The definition of a position std: sqrt(tr P_pp / 3), the RMS of the three axes' stds (a negative trace of a
+    broken filter clipped to 0, Python's max: a NaN trace first stays NaN)."""
+    trace = float(covariance[0, 0] + covariance[1, 1] + covariance[2, 2])
+    return math.sqrt(max(trace, 0.0) / 3.0)
 
 
 @settings(max_examples=200, deadline=None)
 @given(st.lists(st.one_of(st.floats(allow_nan=True, allow_infinity=True, width=64), st.sampled_from([0.0, -0.0])),
                 min_size=3, max_size=3))
-def test_position_std_of_is_the_old_formula(diagonal):
+def test_position_std_of_is_the_rms_of_the_axes(diagonal):
     covariance = np.zeros((6, 6))
     covariance[range(3), range(3)] = diagonal
     with np.errstate(all="ignore"):
-        expected = old_position_std(covariance)
+        expected = rms_position_std(covariance)
         assert_same(position_std_of(covariance), expected)
         assert_same(imm._position_std(covariance), expected)  # compiled (when numba is there)
         assert_same(TargetEstimate(0.0, np.zeros(3), np.zeros(3), covariance).position_std, expected)
@@ -66,7 +68,7 @@ def test_combined_estimate_is_the_combination_and_its_std(seed, count, exponent)
         position, velocity, covariance = np.full(3, np.nan), np.full(3, np.nan), np.full((6, 6), np.nan)
         std = kernel(probabilities, states, covariances, position, velocity, covariance)
         assert_same((position, velocity, covariance), (expected_state[:3], expected_state[3:], expected_covariance))
-        assert_same(std, old_position_std(expected_covariance))
+        assert_same(std, rms_position_std(expected_covariance))
 
 
 # --- whole IMMs on random sequences of steps -----------------------------------------------------------
@@ -159,8 +161,8 @@ def test_estimates_stay_snapshots_and_predictions_take_every_noise_factor(steps,
 
 
 def test_warm_up_compiles_the_combined_estimate():
-    """_jit.warm_up reads the IMMs' estimates: no flight waits for `_combined_estimate` (and `_position_std` in it)."""
-    _jit.warm_up()
+    """warmup.warm_up reads the IMMs' estimates: no flight waits for `_combined_estimate` (and `_position_std` in it)."""
+    warmup.warm_up()
     if _jit.ENABLED:
         assert imm._combined_estimate.signatures
     else:

@@ -4,27 +4,22 @@ One implementation. A kernel is an ordinary module-level Python function over fl
 floats (the u-PLKF's update, the IMM's mixing and combination, the baseline estimators' updates); `jit` hands
 back that same function compiled by numba.njit(cache=True) when numba is installed (`pip install
 bearing-follow[fast]`), and the function itself otherwise or when the environment sets
-BOF_NO_JIT=1. The compiled kernel keeps `kernel.py_func`, the Python original, which the tests run
-side by side with it. No fastmath, no parallel: the compiled arithmetic is the Python function's
-IEEE arithmetic in the same order, and the matrix products go to the same BLAS (numba calls scipy's,
-numpy its own: OpenBLAS both) so the two agree to the last bit (tests/test_estimator_kernels.py).
+BOF_NO_JIT=1. The compiled kernel keeps `kernel.py_func`, the Python original. No fastmath, no parallel.
 
-companion.core imports numba only through this module (the import rules), and never needs it.
+The contract: a compiled kernel computes what its Python function computes, to rounding. numba compiles
+math.hypot to the C library's hypot, x ** 2 to x * x, np.linalg to its own LAPACK bindings; CPython and numpy
+round those differently in the last bit, and nothing here copies their bits. The tests check each kernel's
+behaviour against independent references, and a whole flight compiled against the same flight in plain
+Python (tests/test_estimator_kernels.py, figures within 1e-9 relative).
 
-Two LAPACK calls have a compiled twin here, `lapack_dgesv` and `lapack_dpotrf`: in Python they are
-scipy.linalg.lapack's wrappers (what the u-PLKF called before it had kernels); compiled, numba's
-binding of the very same routine (scipy's cython_lapack). `objmode` runs a block in the interpreter
-from a compiled kernel (the rare general branches that call scipy or numpy routines numba lacks);
-without numba it is an empty context manager, so the block simply runs.
+companion.core imports numba only through this module (the import rules), and never needs it; this module
+imports no other companion module (the kernels' warm-up is companion.warmup, outside the core).
 
-`symmetric_eigen` and `symmetric_eigenvalues` are numpy's eigh and eigvalsh as kernels: numba's versions call
-the same LAPACK routine (dsyevd, lower triangle) through scipy's binding and give numpy's bits (checked in
-tests/test_diagnostic_kernels.py); a matrix with a NaN or an infinity, which numba refuses, goes to numpy's in
-object mode.
-
-Three scalar functions have a compiled twin that computes what Python computes where numba would not: `power`
-(numba folds x ** 2 into x * x), `hypot` (numba calls the C library's hypot, CPython has its own algorithm) and
-`remainder` (numba has no math.remainder).
+`objmode` runs a block in the interpreter from a compiled kernel (the rare general branches that call scipy or
+numpy routines numba lacks); without numba it is an empty context manager, so the block simply runs.
+`symmetric_eigen` and `symmetric_eigenvalues` are numpy's eigh and eigvalsh as kernels (numba's own compiled,
+numpy's in object mode for a matrix with a NaN or an infinity, which numba refuses). `remainder` is
+math.remainder, which numba lacks, as a kernel.
 """
 
 from __future__ import annotations
@@ -33,15 +28,11 @@ import math
 import os
 
 import numpy as np
-from scipy.linalg.lapack import dgesv as _scipy_dgesv, dpotrf as _scipy_dpotrf
 
 try:
     if os.environ.get("BOF_NO_JIT", "").strip() not in ("", "0"):
         raise ImportError("BOF_NO_JIT is set: the plain-Python kernels")
     import numba
-    from numba import errors as _numba_errors, types as _numba_types
-    from numba.extending import overload as _numba_overload
-    from numba.np.linalg import _LAPACK as _NUMBA_LAPACK
 except ImportError:
     numba = None
 
@@ -71,154 +62,24 @@ def python_function(kernel):
     return getattr(kernel, "py_func", kernel)
 
 
-_warmed_up = False
-
-
-def warm_up() -> None:
-    """Compile every estimator and setpoint kernel now (or load it from numba's cache on disk), once per process,
-    so that no estimator update or control tick waits for the compiler: the companion's first bearing in flight, a study's first flight.
-
-    numba compiles a kernel on its first call and caches the machine code next to the sources (or in
-    NUMBA_CACHE_DIR): on a fresh install the first process pays the compilation, about 66 s of one core on a
-    2-core development machine for every kernel here, and later processes load the cache and run this in about 0.6 s. This runs the u-PLKF and IMM
-    updates once on made-up bearings (at and off the estimator's ticks, with adaptive process noise, both gain
-    forms) and reads their estimates (the IMM's `_combined_estimate`), on throwaway estimators, then the baseline estimators' (_warm_up_baselines), the control tick's
-    setpoint kernels (_warm_up_setpoint) and the bearing path's diagnostics (_warm_up_diagnostics). Nothing to do
-    without numba or after the first call in a process. No clock here (the core has none): callers time it
-    (studies.executors.compile_kernels)."""
-    global _warmed_up
-    if numba is None or _warmed_up:
-        return
-    from companion.core.estimators import AdaptiveNoiseSettings, GainProjection, InitialGuess, UPLKF, limit_range
-    from companion.core.imm import IMMEstimator, standard_models
-    from companion.core.messages import BearingMeasurement
-
-    sigma = 1e-4 * np.eye(3)
-    estimators = [UPLKF(0.02, 0.04 * np.eye(3), sigma, GainProjection.PREDICTED, pursuer_position_std=0.1,
-                        adaptive_noise=AdaptiveNoiseSettings())]
-    for projection in (GainProjection.PREDICTED, GainProjection.MEASURED):
-        estimators.append(IMMEstimator(0.02, standard_models([0.2], 0.04, 0.04), sigma, projection, pursuer_position_std=0.1))
-    for estimator in estimators:
-        estimator.initialize_on_bearing(BearingMeasurement(0.0, np.array([1.0, 0.0, 0.0]), np.zeros(3)),
-                                        InitialGuess(20.0, 10.0, np.zeros(3), 5.0))
-        for k in range(1, 4):
-            estimator.predict()
-            for lead in (0.0, -0.01):  # a bearing on the tick and a late one
-                estimator.correct(BearingMeasurement(estimator.time + lead, np.array([1.0, 0.01 * k, 0.0]),
-                                                     np.array([0.0, 0.01 * k, 0.0])))
-            estimator.estimate
-        getattr(estimator, "acceleration", None)  # the IMM's turn feed-forward (the cooperative laws')
-    limit_range(np.array([2.0e6, 0.0, 0.0]), np.zeros(3))
-    _warm_up_baselines()
-    _warm_up_setpoint()
-    _warm_up_diagnostics()
-    _warm_up_cooperative()
-    _warmed_up = True
-
-
-def power(base: float, exponent: float) -> float:
-    """base ** exponent of two floats, as Python computes it: the C library's pow (CPython's float power).
-
-    Compiled, numba would turn `x ** 2` into x * x, which differs from pow(x, 2.0) in the last bit for about
-    one argument in a thousand; this calls the C library's pow under its glibc alias `powf64` instead, a
-    symbol LLVM does not know, so it cannot fold it into a multiplication (the same routine CPython calls).
-    Where the C library has no `powf64` (not glibc), the compiled kernel calls `pow`, which LLVM may fold."""
-    return base ** exponent
-
-
-def hypot(x: float, y: float) -> float:
-    """sqrt(x^2 + y^2) of two floats, as Python computes it: math.hypot.
-
-    CPython's math.hypot is its own algorithm, not the C library's hypot (which numba compiles `math.hypot`
-    to, and which differs from it in the last bit for about one argument in 500). Compiled, this is a
-    transcription of the CPython 3.11 algorithm (_cpython_hypot: lossless scaling by a power of two, exact
-    squares, compensated sums and one Newton correction of the square root; subnormal arguments by the plain
-    scaled sum), equal to math.hypot bit for bit (tests/test_baseline_kernels.py, on millions of arguments)."""
-    return math.hypot(x, y)
-
-
+@jit
 def remainder(x: float, y: float) -> float:
-    """The IEEE 754 remainder x - n y, n the integer nearest x / y (ties to even), as Python computes it:
-    math.remainder, which raises ValueError ("math domain error") for an infinite x or a zero y.
-
-    numba has no math.remainder. Compiled, the CPython algorithm in exact arithmetic (_cpython_remainder:
-    fmod, a comparison with the complement, copysign): every step is exact, so it equals math.remainder."""
-    return math.remainder(x, y)
-
-
-def _split_square(x: float) -> tuple[float, float]:
-    """(x * x rounded, its rounding error), exactly (Veltkamp-Dekker splitting, no fma)."""
-    square = x * x
-    t = x * 134217729.0  # 2^27 + 1
-    high = t - (t - x)
-    low = x - high
-    return square, ((high * high - square) + 2.0 * high * low) + low * low
-
-
-_split_square = jit(_split_square)
-
-
-def _cpython_hypot(x: float, y: float) -> float:
-    """math.hypot(x, y) of CPython 3.11 (Modules/mathmodule.c, vector_norm for two coordinates), in float
-    arithmetic numba compiles as written (no fast-math: no contraction, no reassociation)."""
-    x = abs(x)
-    y = abs(y)
-    largest = y if y > x else x
-    if math.isinf(x) or math.isinf(y):
-        return math.inf
-    if math.isnan(x) or math.isnan(y):
-        return math.nan
-    if largest == 0.0:
-        return largest
-    exponent = math.frexp(largest)[1]
-    if exponent < -1023:  # subnormal: 2^-exponent would overflow; the scaled sum of the older algorithm
-        total = 1.0
-        fraction = 0.0
-        for value in (x, y):
-            value = value / largest
-            value = value * value
-            previous = total
-            total += value
-            fraction += (previous - total) + value
-        return largest * math.sqrt(total - 1.0 + fraction)
-    scale = math.ldexp(1.0, -exponent)
-    total = 1.0
-    fraction_products = 0.0
-    fraction_sums = 0.0
-    for value in (x, y):
-        square, square_error = _split_square(value * scale)
-        summed = total + square
-        sum_error = (total - summed) + square
-        total = summed
-        fraction_products += square_error
-        fraction_sums += sum_error
-    root = math.sqrt(total - 1.0 + (fraction_products + fraction_sums))
-    square, square_error = _split_square(root)
-    summed = total - square
-    sum_error = (total - summed) - square
-    total = summed
-    fraction_products -= square_error
-    fraction_sums += sum_error
-    correction = total - 1.0 + (fraction_products + fraction_sums)
-    root += correction / (2.0 * root)
-    return root / scale
-
-
-def _cpython_remainder(x: float, y: float) -> float:
-    """math.remainder(x, y) of CPython (m_remainder and math_2's domain check), exact at every step."""
+    """The IEEE 754 remainder x - n y, n the integer nearest x / y (ties to even): math.remainder, which numba
+    lacks, in exact arithmetic (fmod, a comparison with the complement, copysign; CPython's algorithm), so it
+    equals math.remainder; ValueError ("math domain error") for an infinite x or a zero y."""
     if math.isfinite(x) and math.isfinite(y):
         if y == 0.0:
             raise ValueError("math domain error")
         absolute_x = abs(x)
         absolute_y = abs(y)
-        modulus = np.fmod(absolute_x, absolute_y)
+        modulus = float(np.fmod(absolute_x, absolute_y))
         complement = absolute_y - modulus
         if modulus < complement:
             result = modulus
         elif modulus > complement:
             result = -complement
         else:  # halfway between two multiples of y: the even one
-            result = modulus - 2.0 * np.fmod(0.5 * (absolute_x - modulus), absolute_y)
+            result = modulus - 2.0 * float(np.fmod(0.5 * (absolute_x - modulus), absolute_y))
         return math.copysign(1.0, x) * result
     if math.isnan(x):
         return x
@@ -227,124 +88,6 @@ def _cpython_remainder(x: float, y: float) -> float:
     if math.isinf(x):
         raise ValueError("math domain error")
     return x
-
-
-def _warm_up_baselines() -> None:
-    """The baseline estimators' kernels (companion.core.baseline_estimators: az/el EKF, MSC-EKF with and without a
-    reference, range/az/el EKF) on made-up bearings at and off the ticks, a restart behind the sensor, and their
-    estimates, so that none compiles in flight."""
-    from companion.core.baseline_estimators import MSCEKF, AzElEKF, RangeAzElEKF
-    from companion.core.estimators import InitialGuess
-    from companion.core.messages import BearingMeasurement
-
-    sigma = 1e-4 * np.eye(3)
-    estimators = [AzElEKF(0.02, 0.04 * np.eye(3), sigma, pursuer_position_std=0.1),
-                  MSCEKF(0.02, 0.04 * np.eye(3), sigma, pursuer_position_std=0.1),
-                  RangeAzElEKF(0.02, sigma, range_noise_std=1.0, pursuer_position_std=0.1)]
-    guess = InitialGuess(20.0, 10.0, np.array([-1.0, 0.0, 0.0]), 5.0)
-    for estimator in estimators:
-        estimator.initialize_on_bearing(BearingMeasurement(0.0, np.array([1.0, 0.0, 0.0]), np.zeros(3), range=20.0), guess)
-        for k in range(1, 4):
-            estimator.predict()
-            for lead in (0.0, -0.01):  # a bearing on the tick and a late one
-                estimator.correct(BearingMeasurement(estimator.time + lead, np.array([1.0, 0.01 * k, 0.0]),
-                                                     np.array([0.0, 0.01 * k, 0.0]), range=20.0))
-            estimator.estimate
-        if not isinstance(estimator, RangeAzElEKF):  # a prior behind the sensor restarts
-            estimator.correct(BearingMeasurement(estimator.time, np.array([-1.0, 0.0, 0.0]), np.zeros(3)))
-    cartesian = MSCEKF(0.02, 0.04 * np.eye(3), sigma)  # Cartesian until its first correction
-    cartesian.initialize(0.0, np.array([20.0, 0.0, 0.0]), np.zeros(3), np.eye(6))
-    cartesian.predict()
-    cartesian.estimate
-    cartesian.correct(BearingMeasurement(cartesian.time, np.array([1.0, 0.0, 0.0]), np.zeros(3)))
-
-
-def _warm_up_setpoint() -> None:
-    """The control tick's kernels (companion.core.attitude, guidance, geometry) on made-up commands, with and
-    without a heading fallback, so that no setpoint in flight waits for the compiler."""
-    from companion.core.attitude import (VehicleLimits, attitude_setpoint, attitude_setpoint_after, collective_thrust,
-                                         desired_rotation, limit_specific_force)
-    from companion.core.geometry import rotation_from_x_axis_to
-    from companion.core.guidance import (_NO_EXCITATION, HelicalNavigationGuidance, RangeController, RangeExcitation,
-                                         _excitation_terms_kernel, _tracking_command_kernel, _tracking_terms_kernel,
-                                         saturation)
-    from companion.core.pipeline import _relative_terms
-
-    limits = VehicleLimits(2.0 / 3.0, max_tilt=0.6, gravity=9.81, mass=1.0)
-    los = np.array([0.8, -0.36, -0.48])
-    velocity = np.array([2.0, 0.5, 0.0])
-    guidance = HelicalNavigationGuidance(3.0, 1.0, 1.0)
-    lateral = guidance.acceleration(1.0, velocity, los, 20.0)
-    guidance.virtual_los(1.0, los, 20.0)
-    lateral = lateral + RangeExcitation().acceleration(1.0, los, 0.5)
-    controller = RangeController(8.0)
-    controller.acceleration(20.0 * los, velocity, los, lateral)
-    controller.error_state(20.0 * los, velocity)
-    setpoint = attitude_setpoint(1.0, lateral, los, limits)
-    attitude_setpoint(1.02, lateral, los, limits, setpoint.rotation[:, 0])
-    flown = limit_specific_force(lateral, limits)
-    collective_thrust(flown, desired_rotation(flown, los, limits.gravity), limits.mass, limits.gravity)
-    rotation_from_x_axis_to(los)
-    previous = attitude_setpoint_after(1.04, lateral, los, limits, None)
-    attitude_setpoint_after(1.06, lateral, los, limits, previous)
-    relative_position, relative_velocity, _, _ = _relative_terms(20.0 * los, velocity, np.zeros(3), velocity)
-    excitation = RangeExcitation()
-    for suspect in (False, True):
-        _excitation_terms_kernel(1.0, lateral, relative_position, np.eye(6), los, suspect, excitation.low,
-                                 excitation.high, excitation.speed, excitation.damping_gain, excitation.frequency)
-    excitation.level(0.1)
-    controller.virtual_control(controller.error_state(20.0 * los, velocity))
-    desired_range, gain, limit = controller.kernel_terms
-    for excite, with_setpoint in ((False, True), (True, False)):  # the control tick's two kernels (FollowingPipeline)
-        los_out, lateral_out, longitudinal, command, rotation, flown = (np.empty(3), np.empty(3), np.empty(3),
-                                                                        np.empty(3), np.empty((3, 3)), np.empty(3))
-        terms = _tracking_terms_kernel(20.0 * los, velocity, np.zeros(3), 0.5 * velocity, 1.0, *guidance.kernel_terms,
-                                       excite, np.eye(6), excite, *(excitation.kernel_terms if excite else _NO_EXCITATION),
-                                       desired_range, los_out, lateral_out)
-        _tracking_command_kernel(*terms[2:], saturation(terms[-1], limit), gain, limit, los_out, lateral_out,
-                                 longitudinal, command, with_setpoint, previous.rotation, *limits.setpoint_terms,
-                                 rotation, flown)
-
-
-def _warm_up_cooperative() -> None:
-    """The cooperative laws' kernels (companion.core.cooperative_guidance: the circumnavigation law's, the tracking
-    command the standoff law uses, the separation filter's) on a made-up context with a neighbour, so that no
-    cooperative control tick waits for the compiler."""
-    from companion.core.cooperative_guidance import (CircumnavigationGuidance, CooperativeContext, SeparationFilter,
-                                                     StandoffTrackingGuidance)
-    from companion.core.messages import NeighbourState
-
-    neighbour = NeighbourState(2, 0.0, np.array([10.0, 5.0, -20.0]), np.array([0.0, 1.0, 0.0]))
-    context = CooperativeContext(0.0, np.array([0.0, 0.0, -20.0]), np.array([1.0, 0.0, 0.0]), np.array([20.0, 0.0, -20.0]),
-                                 np.array([3.0, 4.0, 0.0]), (neighbour,), np.zeros(3))
-    CircumnavigationGuidance().acceleration(context)
-    CircumnavigationGuidance().desired_velocity(context)
-    StandoffTrackingGuidance().acceleration(context)
-    SeparationFilter(2.0).filter(context.own_position, context.own_velocity, np.ones(3), (neighbour,))
-
-
-def _warm_up_diagnostics() -> None:
-    """The bearing path's diagnostic kernels (companion.core.health, observability, pipeline): the NIS of a 3-D
-    rank-2 and a 2-D innovation, the windowed FIM's add and measure, the health monitor's update and the
-    re-acquisition gate, on made-up numbers, so that no bearing in flight waits for the compiler."""
-    from companion.core.geometry import relative_range_std
-    from companion.core.health import HealthMonitor, normalized_innovation_squared
-    from companion.core.observability import WindowedObservability
-    from companion.core.pipeline import _gate_terms
-
-    los = np.array([0.8, -0.36, -0.48])
-    across = np.eye(3) - np.outer(los, los)
-    normalized_innovation_squared(across @ np.array([0.1, 0.2, 0.3]), 1e-4 * across)
-    normalized_innovation_squared(np.array([0.01, -0.02]), np.array([[2e-4, 1e-5], [1e-5, 3e-4]]))
-    observability = WindowedObservability(1.0, 0.01)
-    for k in range(3):
-        observability.add(0.6 * k, np.array([0.6, 0.8, 0.0]) if k % 2 else los, 20.0)
-        observability.measure()
-        observability.add_and_measure(0.6 * k + 0.3, los, 20.0)
-    HealthMonitor().update(0.0, los, np.zeros(3), np.ones(3), 20.0 * los, np.eye(6), across @ np.ones(3),
-                           1e-4 * across, 2, False, 100.0)
-    relative_range_std(20.0 * los, np.eye(3))
-    _gate_terms(20.0 * los, 20.0, los, np.eye(3), 0.01)
 
 
 class _Interpreted:
@@ -376,8 +119,7 @@ def _all_finite(matrix: np.ndarray) -> bool:
 @jit
 def symmetric_eigen(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """numpy.linalg.eigh(matrix) of a symmetric float64 matrix (n, n): (eigenvalues ascending (n,), orthonormal
-    eigenvectors as columns (n, n)), LAPACK dsyevd on the lower triangle. Compiled, numba's np.linalg.eigh: the
-    same routine (jobz V, uplo L) through scipy's LAPACK, numpy's bits (tests/test_diagnostic_kernels.py). A
+    eigenvectors as columns (n, n)), LAPACK dsyevd on the lower triangle. Compiled, numba's np.linalg.eigh. A
     matrix with a NaN or an infinity, which numba refuses, goes to numpy's eigh in object mode."""
     if _all_finite(matrix):
         return np.linalg.eigh(matrix)
@@ -388,151 +130,10 @@ def symmetric_eigen(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 @jit
 def symmetric_eigenvalues(matrix: np.ndarray) -> np.ndarray:
-    """numpy.linalg.eigvalsh(matrix) of a symmetric float64 matrix (n, n): the eigenvalues ascending (n,), LAPACK
-    dsyevd without vectors on the lower triangle; compiled, numba's np.linalg.eigvalsh (the same routine, jobz N,
-    uplo L, through scipy's LAPACK), and numpy's in object mode for a matrix with a NaN or an infinity."""
+    """numpy.linalg.eigvalsh(matrix) of a symmetric float64 matrix (n, n): the eigenvalues ascending (n,); compiled,
+    numba's np.linalg.eigvalsh, and numpy's in object mode for a matrix with a NaN or an infinity."""
     if _all_finite(matrix):
         return np.linalg.eigvalsh(matrix)
     with objmode(values="float64[:]"):
         values = np.linalg.eigvalsh(matrix)
     return values
-
-
-def lapack_dgesv(matrix: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-    """LAPACK dgesv on a square matrix A (n, n) and right-hand sides B (n, m): (LU factors (n, n), the
-    0-based pivots (n,), X = A^-1 B (n, m), info), as scipy.linalg.lapack.dgesv returns them. Compiled,
-    the same LAPACK routine through numba's binding of scipy's cython_lapack (pivots shifted to 0-based)."""
-    return _scipy_dgesv(matrix, rhs)
-
-
-def lapack_dpotrf(matrix: np.ndarray) -> tuple[np.ndarray, int]:
-    """LAPACK dpotrf, lower triangle, of a symmetric matrix (n, n): (factor (n, n) whose lower triangle is
-    the Cholesky factor and whose strict upper triangle is undefined, info), scipy's dpotrf(lower=1, clean=0).
-    Compiled, the same LAPACK routine through numba's binding."""
-    return _scipy_dpotrf(matrix, lower=1, clean=0)
-
-
-def lapack_dgesv_into(matrix: np.ndarray, rhs: np.ndarray, factors: np.ndarray, pivots: np.ndarray,
-                      solution: np.ndarray) -> int:
-    """`lapack_dgesv` with its results written into the caller's arrays (no new ones: numba would allocate each):
-    the LU factors into factors (n, n), the 0-based pivots into pivots (n,) int32, X = A^-1 B into solution (n, m);
-    returns info. Compiled, factors and solution must be Fortran-ordered (e.g. the .T of a C-ordered buffer): LAPACK
-    works in them in place, on the same column-major copies of A and B that `lapack_dgesv` makes."""
-    lu, piv, x, info = _scipy_dgesv(matrix, rhs)
-    factors[:, :] = lu
-    pivots[:] = piv
-    solution[:, :] = x
-    return int(info)
-
-
-def lapack_dpotrf_into(matrix: np.ndarray, factor: np.ndarray) -> int:
-    """`lapack_dpotrf` with the factor written into the caller's factor (n, n) (Fortran-ordered when compiled, e.g.
-    the .T of a C-ordered buffer: LAPACK works in it in place, on the same column-major copy `lapack_dpotrf` makes);
-    returns info."""
-    result, info = _scipy_dpotrf(matrix, lower=1, clean=0)
-    factor[:, :] = result
-    return int(info)
-
-
-if numba is not None:
-
-    def _libm_has(symbol: str) -> bool:
-        try:
-            import ctypes
-            import ctypes.util
-
-            return hasattr(ctypes.CDLL(ctypes.util.find_library("m") or "libm.so.6"), symbol)
-        except OSError:
-            return False
-
-    _C_POW = _numba_types.ExternalFunction("powf64" if _libm_has("powf64") else "pow",
-                                          _numba_types.float64(_numba_types.float64, _numba_types.float64))
-
-    @_numba_overload(power, jit_options={"cache": True})
-    def _power_compiled(base, exponent):
-        def implementation(base, exponent):
-            return _C_POW(float(base), float(exponent))
-
-        return implementation
-
-    _compiled_hypot = numba.njit(cache=True)(_cpython_hypot)
-    _compiled_remainder = numba.njit(cache=True)(_cpython_remainder)
-
-    @_numba_overload(hypot, jit_options={"cache": True})
-    def _hypot_compiled(x, y):
-        def implementation(x, y):
-            return _compiled_hypot(float(x), float(y))
-
-        return implementation
-
-    @_numba_overload(remainder, jit_options={"cache": True})
-    def _remainder_compiled(x, y):
-        def implementation(x, y):
-            return _compiled_remainder(float(x), float(y))
-
-        return implementation
-
-    @_numba_overload(lapack_dgesv, jit_options={"cache": True})
-    def _lapack_dgesv_compiled(matrix, rhs):
-        gesv = _NUMBA_LAPACK().numba_xgesv(_numba_types.float64)
-        kind = ord("d")
-
-        def implementation(matrix, rhs):
-            n = matrix.shape[0]
-            count = rhs.shape[1]
-            factors = np.ascontiguousarray(matrix.T)  # its memory is A in column-major order, as LAPACK reads it
-            solution = np.ascontiguousarray(rhs.T)
-            pivots = np.empty(n, dtype=np.int32)
-            info = gesv(kind, n, count, factors.ctypes, n, pivots.ctypes, solution.ctypes, n)
-            return factors.T, (pivots - 1).astype(np.int64), solution.T, int(info)
-
-        return implementation
-
-    @_numba_overload(lapack_dpotrf, jit_options={"cache": True})
-    def _lapack_dpotrf_compiled(matrix):
-        potrf = _NUMBA_LAPACK().numba_xxpotrf(_numba_types.float64)
-        kind = ord("d")
-        lower = ord("L")
-
-        def implementation(matrix):
-            n = matrix.shape[0]
-            factor = np.ascontiguousarray(matrix.T)
-            info = potrf(kind, lower, n, factor.ctypes, n)
-            return factor.T, int(info)
-
-        return implementation
-
-    @_numba_overload(lapack_dgesv_into, jit_options={"cache": True})
-    def _lapack_dgesv_into_compiled(matrix, rhs, factors, pivots, solution):
-        gesv = _NUMBA_LAPACK().numba_xgesv(_numba_types.float64)
-        kind = ord("d")
-        if factors.layout != "F" or solution.layout != "F" or pivots.dtype != _numba_types.int32:
-            raise _numba_errors.TypingError("lapack_dgesv_into: Fortran-ordered factors and solution, int32 pivots")
-
-        def implementation(matrix, rhs, factors, pivots, solution):
-            n = matrix.shape[0]
-            count = rhs.shape[1]
-            factors[:, :] = matrix  # column-major: the memory `lapack_dgesv` hands LAPACK
-            solution[:, :] = rhs
-            info = gesv(kind, n, count, factors.ctypes, n, pivots.ctypes, solution.ctypes, n)
-            for i in range(n):
-                pivots[i] -= 1
-            return int(info)
-
-        return implementation
-
-    @_numba_overload(lapack_dpotrf_into, jit_options={"cache": True})
-    def _lapack_dpotrf_into_compiled(matrix, factor):
-        potrf = _NUMBA_LAPACK().numba_xxpotrf(_numba_types.float64)
-        kind = ord("d")
-        lower = ord("L")
-        if factor.layout != "F":
-            raise _numba_errors.TypingError("lapack_dpotrf_into: a Fortran-ordered factor")
-
-        def implementation(matrix, factor):
-            n = matrix.shape[0]
-            factor[:, :] = matrix  # column-major: the memory `lapack_dpotrf` hands LAPACK
-            info = potrf(kind, lower, n, factor.ctypes, n)
-            return int(info)
-
-        return implementation

@@ -14,7 +14,7 @@ from functools import cached_property
 
 import numpy as np
 
-from companion.core._jit import jit, power
+from companion.core._jit import jit
 from companion.core.geometry import E_Z, clip_kernel, cross_kernel, unit_kernel
 from companion.core.messages import AttitudeSetpoint, fast_frozen
 
@@ -102,10 +102,10 @@ def _limited_acceleration(acceleration, gravity, max_specific_force, max_specifi
     horizontal = force[:2]
     horizontal_norm = float(np.hypot(horizontal[0], horizontal[1]))
     reserved = min(horizontal_norm, horizontal_margin)
-    vertical_max = max(float(np.sqrt(max(max_specific_force_squared - power(reserved, 2.0), 0.0))), min_vertical)
+    vertical_max = max(float(np.sqrt(max(max_specific_force_squared - reserved ** 2, 0.0))), min_vertical)
     vertical = clip_kernel(float(force[2]), min_vertical, vertical_max)
     horizontal_limit = min(vertical * tan_max_tilt,
-                           float(np.sqrt(max(max_specific_force_squared - power(vertical, 2.0), 0.0))))
+                           float(np.sqrt(max(max_specific_force_squared - vertical ** 2, 0.0))))
     if horizontal_norm > horizontal_limit:
         horizontal = horizontal * (horizontal_limit / horizontal_norm)
     limited_force = np.array([horizontal[0], horizontal[1], vertical])

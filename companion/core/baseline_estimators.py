@@ -40,7 +40,7 @@ import math
 
 import numpy as np
 
-from companion.core._jit import hypot, jit, power, remainder
+from companion.core._jit import jit, remainder
 from companion.core.estimators import (MAX_RANGE, CorrectionReport, InitialGuess, explicit_start, limit_range,
                                        on_bearing_covariance, restart_guess, transition_matrices)
 from companion.core.geometry import unit
@@ -61,10 +61,8 @@ MAX_INVERSE_RANGE = 1e3
 #
 # The arithmetic of every update is in module-level kernels (`@jit`) over float64 arrays and floats, compiled by
 # numba when it is installed (companion.core._jit), the plain Python functions otherwise (BOF_NO_JIT=1): the same
-# operations in the same order either way, the matrix products in BLAS and the linear algebra in LAPACK, Python's
-# own math.hypot, math.remainder and float power (_jit.hypot, _jit.remainder, _jit.power), so the compiled and
-# the interpreted filters agree to the last bit (tests/test_baseline_kernels.py). The classes keep the clock,
-# the snapshots and the restarts.
+# operations in the same order either way (math.remainder, which numba lacks, as _jit.remainder), agreeing to
+# rounding. The classes keep the clock, the snapshots and the restarts.
 
 
 @jit
@@ -87,14 +85,13 @@ def _symmetric_psd(matrix: np.ndarray) -> np.ndarray:
     Why: the MSC-EKF moves its covariance through congruences J P J^T whose Jacobians are badly
     scaled far out (at the inverse-range floor, entries of 1e6 beside 1e-6), and their rounding
     can leave eigenvalues of -1e-6 beside 0.1, which the next steps amplify. A symmetric
-    PSD input comes back unchanged (the same bits). (Compiled, np.linalg.eigh is numba's binding of
-    the same LAPACK routine, dsyevd, as numpy's: the same eigenvalues and vectors, tests/test_baseline_kernels.py.)
+    PSD input comes back unchanged.
     """
     symmetric = _symmetrize(matrix)
     eigenvalues, vectors = np.linalg.eigh(symmetric)
     if eigenvalues[0] >= 0.0:
         return symmetric
-    vectors = np.ascontiguousarray(vectors)  # C-ordered as numpy's (numba's come Fortran-ordered): the same BLAS path
+    vectors = np.ascontiguousarray(vectors)  # C-ordered as numpy's (numba's come Fortran-ordered)
     return _symmetrize((vectors * np.maximum(eigenvalues, 0.0)) @ vectors.T)
 
 
@@ -102,7 +99,7 @@ def _symmetric_psd(matrix: np.ndarray) -> np.ndarray:
 def _horizontal_and_range(relative: np.ndarray) -> tuple[float, float]:
     """(rho, r) of a relative position, m, guarded: r >= MIN_RANGE and rho >= r cos(MAX_ELEVATION)."""
     dx, dy, dz = float(relative[0]), float(relative[1]), float(relative[2])
-    rho = hypot(dx, dy)
+    rho = math.hypot(dx, dy)
     r = max(math.sqrt(rho * rho + dz * dz), MIN_RANGE)
     return max(rho, r * math.cos(MAX_ELEVATION)), r
 
@@ -121,7 +118,7 @@ def azimuth_elevation(relative: np.ndarray) -> np.ndarray:
     azimuth/elevation measurement, elevation positive up). atan2 is finite everywhere.
     """
     dx, dy, dz = float(relative[0]), float(relative[1]), float(relative[2])
-    return np.array([math.atan2(dy, dx), math.atan2(-dz, hypot(dx, dy))])
+    return np.array([math.atan2(dy, dx), math.atan2(-dz, math.hypot(dx, dy))])
 
 
 @jit
@@ -177,7 +174,7 @@ def angle_noise_covariance(bearing_variance: float, relative: np.ndarray, pursue
     cos_eps = rho / r
     r_matrix = np.diag(np.array([bearing_variance / (cos_eps * cos_eps), bearing_variance]))
     if pursuer_position_std > 0.0:
-        s2 = power(pursuer_position_std, 2.0)
+        s2 = pursuer_position_std ** 2
         r_matrix = r_matrix + np.diag(np.array([s2 / (rho * rho), s2 / (r * r)]))
     return r_matrix
 
@@ -215,8 +212,7 @@ def _kalman_update(
 
     K = P H^T (H P H^T + R)^-1, x+ = x + K nu, P+ = (I - K H) P (I - K H)^T + K R K^T
     (the Joseph form keeps P+ symmetric PSD for any gain). Shapes: state (n,),
-    covariance (n, n), residual (m,), h (m, n), r (m, m). (Compiled, np.linalg.solve is numba's
-    binding of LAPACK dgesv, numpy's routine: the same gain.)
+    covariance (n, n), residual (m,), h (m, n), r (m, m).
     """
     ph_t = covariance @ h.T
     innovation_covariance = _symmetrize(h @ ph_t + r)
@@ -447,7 +443,7 @@ def msc_from_cartesian(relative_state: np.ndarray) -> np.ndarray:
     return np.array(
         [
             math.atan2(dy, dx),
-            math.atan2(-dz, hypot(dx, dy)),
+            math.atan2(-dz, math.hypot(dx, dy)),
             min(1.0 / r, MAX_INVERSE_RANGE),
             (dx * vy - dy * vx) / (rho * rho),
             (-rho * vz + dz * rho_dot) / r2,
@@ -839,9 +835,9 @@ def _range_az_el_correct(state: np.ndarray, covariance: np.ndarray, lead: float,
     h = np.hstack((h_d, lead * (h_d @ flight_path_velocity_jacobian(state[3], state[4], state[5]))))
     rho, r = _horizontal_and_range(relative)
     cos_eps = rho / r
-    r_matrix = np.diag(np.array([power(range_noise_std, 2.0), bearing_variance / power(cos_eps, 2.0), bearing_variance]))
+    r_matrix = np.diag(np.array([range_noise_std ** 2, bearing_variance / cos_eps ** 2, bearing_variance]))
     if pursuer_position_std > 0.0:
-        r_matrix = r_matrix + power(pursuer_position_std, 2.0) * (h_d @ h_d.T)
+        r_matrix = r_matrix + pursuer_position_std ** 2 * (h_d @ h_d.T)
     innovation_covariance = _innovation_covariance(covariance, h, r_matrix)
     updated, updated_covariance = _kalman_update(state, covariance, residual, h, r_matrix)
     updated, updated_covariance = _fold_flight_path(updated, updated_covariance)

@@ -36,7 +36,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from companion.core._jit import jit, power, python_function
+from companion.core._jit import jit, python_function
 from companion.core.geometry import all_finite, norm
 from companion.core.messages import NeighbourState, fast_frozen, once_property
 
@@ -844,7 +844,7 @@ def _separation_kernel(position: np.ndarray, velocity: np.ndarray, command: np.n
     for g in range(kept):  # 1. the smooth repulsion: -k ((d_inf - d) / (d_inf - d_min))^2 n
         if distances[g] < influence:
             depth = (influence - distances[g]) / (influence - min_separation)
-            push = repulsion_gain * power(1.0 if 1.0 < depth else depth, 2.0)  # k min(depth, 1)^2
+            push = repulsion_gain * (1.0 if 1.0 < depth else depth) ** 2  # k min(depth, 1)^2
             for k in range(3):
                 command[k] = command[k] - push * units[g, k]
     threatening = 0

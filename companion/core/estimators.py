@@ -22,7 +22,7 @@ from typing import Protocol
 import numpy as np
 from scipy.linalg import null_space
 
-from companion.core._jit import jit, jit_inline, lapack_dgesv_into, lapack_dpotrf_into, objmode, power
+from companion.core._jit import jit, jit_inline, objmode
 from companion.core.geometry import orthogonal_projection, unit
 from companion.core.messages import BearingMeasurement, TargetEstimate, fast_frozen
 
@@ -237,31 +237,30 @@ def _unit_vector(vector: np.ndarray) -> np.ndarray:
 
 @jit
 def _solve_identity(matrix: np.ndarray) -> tuple[np.ndarray, float, bool]:
-    """(M^-1, det M, ok) for a 3x3 M by one LAPACK LU solve (dgesv) against the identity.
-
-    np.linalg.inv is this same dgesv solve (M^-1 equal to the last bit: tests/test_estimator_cost_paths.py),
-    at a third of its cost on a 3x3 without numpy's wrapper. The determinant is the product of
-    the LU pivots with the permutation's sign (np.linalg.det forms it through logarithms, so the
-    two agree to rounding). M^-1 comes Fortran-ordered. ok is False when M is exactly singular
-    (det 0, no inverse)."""
-    inverse = np.empty((3, 3)).T
-    determinant, regular = _solve_identity_into(matrix, np.empty((3, 3)).T, np.empty(3, dtype=np.int32), inverse)
+    """(M^-1, det M, ok) for a 3x3 M, by the adjugate: M^-1 = adj(M) / det M, det M by cofactors along the first
+    row. Accurate for the well-conditioned matrices it is used on (`_projector_pseudo_inverse`'s shortcut, whose
+    eigenvalues lie in SHORTCUT_EIGENVALUE_BAND). ok is False when det M is 0 or not finite (no inverse)."""
+    inverse = np.empty((3, 3))
+    determinant, regular = _solve_identity_into(matrix, inverse)
     return inverse, determinant, regular
 
 
 @jit_inline
-def _solve_identity_into(matrix: np.ndarray, factors: np.ndarray, pivots: np.ndarray,
-                         inverse: np.ndarray) -> tuple[float, bool]:
-    """`_solve_identity` with M^-1 written into inverse (3, 3) and the LU factors and pivots into factors (3, 3) and
-    pivots (3,) int32 (inverse and factors Fortran-ordered, as LAPACK leaves them: e.g. the .T of C-ordered
-    buffers); returns (det M, ok)."""
-    info = lapack_dgesv_into(matrix, _EYE3, factors, pivots, inverse)
-    if info != 0:
+def _solve_identity_into(matrix: np.ndarray, inverse: np.ndarray) -> tuple[float, bool]:
+    """`_solve_identity` with M^-1 written into inverse (3, 3); returns (det M, ok). inverse may be matrix itself."""
+    a, b, c = matrix[0, 0], matrix[0, 1], matrix[0, 2]
+    d, e, f = matrix[1, 0], matrix[1, 1], matrix[1, 2]
+    g, h, k = matrix[2, 0], matrix[2, 1], matrix[2, 2]
+    c00, c01, c02 = e * k - f * h, c * h - b * k, b * f - c * e
+    c10, c11, c12 = f * g - d * k, a * k - c * g, c * d - a * f
+    c20, c21, c22 = d * h - e * g, b * g - a * h, a * e - b * d
+    determinant = a * c00 + b * c10 + c * c20
+    if determinant == 0.0 or not math.isfinite(determinant):
         return 0.0, False
-    determinant = float(factors[0, 0] * factors[1, 1] * factors[2, 2])
-    # row interchanges (the pivots are 0-based; the last row is always itself)
-    swaps = (1 if pivots[0] != 0 else 0) + (1 if pivots[1] != 1 else 0)
-    return -determinant if swaps % 2 else determinant, True
+    inverse[0, 0], inverse[0, 1], inverse[0, 2] = c00 / determinant, c01 / determinant, c02 / determinant
+    inverse[1, 0], inverse[1, 1], inverse[1, 2] = c10 / determinant, c11 / determinant, c12 / determinant
+    inverse[2, 0], inverse[2, 1], inverse[2, 2] = c20 / determinant, c21 / determinant, c22 / determinant
+    return determinant, True
 
 
 def _eigenvalues_not_negative(covariance: np.ndarray) -> bool:
@@ -274,29 +273,28 @@ def _eigenvalues_not_negative(covariance: np.ndarray) -> bool:
 def _is_positive_semidefinite(covariance: np.ndarray) -> bool:
     """Whether the symmetric covariance (n, n) is PSD, i.e. not np.linalg.eigvalsh(covariance)[0] < 0, cheaply.
 
-    A Cholesky factorisation (LAPACK dpotrf, lower triangle as eigvalsh reads it) succeeds for a
-    positive definite matrix at a sixth of the cost of np.linalg.eigvalsh on a 6x6; when it fails
-    (or meets a non-finite entry, which dpotrf lets through) the decision is eigvalsh's exactly,
-    so a positive semi-definite singular matrix is still accepted and a NaN gets eigvalsh's answer (or error) as before.
-    The two can disagree only when Cholesky succeeds while eigvalsh's smallest eigenvalue is
-    negative at rounding level (|lambda_min| ~ 1e-16 ||P||, where its sign is rounding noise):
-    then the short form is kept, a matrix Cholesky-factorisable to working precision."""
-    size = covariance.shape[0]
-    return _is_positive_semidefinite_with(covariance, np.empty((size, size)).T)
-
-
-@jit_inline
-def _is_positive_semidefinite_with(covariance: np.ndarray, factor: np.ndarray) -> bool:
-    """`_is_positive_semidefinite` with the Cholesky factorisation done in the caller's factor (n, n), Fortran-ordered
-    (e.g. the .T of a C-ordered buffer; its contents are overwritten)."""
-    info = lapack_dpotrf_into(covariance, factor)
-    if info == 0:
-        trace = 0.0  # finite or not: the order of the sum does not matter (each term is at most ~1e154)
-        for i in range(factor.shape[0]):
-            trace += factor[i, i]
-        if math.isfinite(trace):
-            return True
+    A Cholesky factorisation (np.linalg.cholesky, lower triangle as eigvalsh reads it) succeeds for a positive
+    definite matrix at a sixth of the cost of np.linalg.eigvalsh on a 6x6; when it fails (or its factor is not
+    finite) the decision is eigvalsh's, so a positive semi-definite singular matrix is still accepted and a NaN
+    gets eigvalsh's answer (or error). The two can disagree only when Cholesky succeeds while eigvalsh's smallest
+    eigenvalue is negative at rounding level (|lambda_min| ~ 1e-16 ||P||, where its sign is rounding noise): then
+    the short form is kept, a matrix Cholesky-factorisable to working precision."""
+    if _cholesky_succeeds(covariance):
+        return True
     return _eigenvalues_not_negative_compiled(covariance)  # rare (a singular or non-finite covariance)
+
+
+@jit
+def _cholesky_succeeds(covariance: np.ndarray) -> bool:
+    """Whether np.linalg.cholesky factors the symmetric covariance (n, n) into a finite factor."""
+    try:
+        factor = np.linalg.cholesky(covariance)
+    except Exception:  # LinAlgError: not positive definite
+        return False
+    trace = 0.0  # finite or not: the order of the sum does not matter (each term is at most ~1e154)
+    for i in range(factor.shape[0]):
+        trace += factor[i, i]
+    return math.isfinite(trace)
 
 
 @jit
@@ -344,27 +342,23 @@ def _projector_pseudo_inverse(matrix: np.ndarray, null_direction: np.ndarray) ->
     unit g (a rank-deficient block gives the pseudo-inverse, never an error).
     """
     result = np.empty((3, 3))
-    work = np.empty((3, 3, 3))
-    _projector_pseudo_inverse_into(matrix, null_direction, result, work[0], work[1], work[2].T, work[1].T,
-                                   np.empty(3, dtype=np.int32))
+    work = np.empty((2, 3, 3))
+    _projector_pseudo_inverse_into(matrix, null_direction, result, work[0], work[1])
     return result
 
 
 @jit_inline
 def _projector_pseudo_inverse_into(matrix: np.ndarray, null_direction: np.ndarray, out: np.ndarray, outer: np.ndarray,
-                                   shifted: np.ndarray, factors: np.ndarray, inverse: np.ndarray,
-                                   pivots: np.ndarray) -> None:
-    """`_projector_pseudo_inverse` written into out (3, 3), C-ordered; outer, shifted (3, 3) C-ordered, factors and
-    inverse (3, 3) Fortran-ordered and pivots (3,) int32 its scratch (inverse may share shifted's memory: shifted
-    is read only before it is written)."""
+                                   shifted: np.ndarray) -> None:
+    """`_projector_pseudo_inverse` written into out (3, 3), C-ordered; outer and shifted (3, 3) its scratch."""
     np.multiply(null_direction[:, None], null_direction, outer)  # np.outer's arithmetic without its argument handling
     low, high = SHORTCUT_EIGENVALUE_BAND
     trace = float(matrix[0, 0] + matrix[1, 1] + matrix[2, 2])
     if low <= trace <= high:
         np.add(matrix, outer, shifted)
-        determinant, regular = _solve_identity_into(shifted, factors, pivots, inverse)  # np.linalg.inv's solve, cheaper
+        determinant, regular = _solve_identity_into(shifted, shifted)
         if regular and determinant >= low * trace:  # smallest eigenvalue >= det / trace >= low
-            np.subtract(inverse, outer, out)
+            np.subtract(shifted, outer, out)
             return
     _general_pseudo_inverse_into(matrix, null_direction, out)  # rare (a diverging filter)
 
@@ -516,18 +510,18 @@ def _measured_projection_into(direction: np.ndarray, out: np.ndarray, unit: np.n
 _GAIN_RELATIVE, _GAIN_DIRECTION, _LIMIT, _UNIT = 0, 1, 2, 3  # (3,)
 _CORRECTION, _UPDATED = 0, 1  # (6,)
 _MEASURED_PROJECTION, _GAIN_PROJECTION, _NOISE_TRANSITION, _PRODUCT, _MEASUREMENT_COVARIANCE, _TERM = 0, 1, 2, 3, 4, 5
-_PRIOR_ROWS, _INVERSE, _OUTER, _SHIFTED, _FACTORS, _SOLUTION = 6, 7, 8, 9, 10, 11  # (3, 3)
+_PRIOR_ROWS, _INVERSE, _OUTER, _SHIFTED = 6, 7, 8, 9  # (3, 3)
 _POSITION_ROWS, _CROSS_COVARIANCE, _GAIN = 0, 1, 2  # (6, 3)
 _PROJECTED_ROWS, _MEASURED_ROWS = 0, 1  # (3, 6)
-_REDUCTION, _POSTERIOR, _CHOLESKY = 0, 1, 2  # (6, 6)
+_REDUCTION, _POSTERIOR = 0, 1  # (6, 6)
 
 
 @jit
-def _correction_work() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _correction_work() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """`_correct_with`'s scratch: stacks of (3,), (6,), (3, 3), (6, 3), (3, 6) and (6, 6) float64 arrays (indexed by
-    the constants above; a stack's element is a C-ordered array without a reshape) and LAPACK's (3,) int32 pivots."""
-    return (np.empty((4, 3)), np.empty((2, 6)), np.empty((12, 3, 3)), np.empty((3, 6, 3)), np.empty((2, 3, 6)),
-            np.empty((3, 6, 6)), np.empty(3, dtype=np.int32))
+    the constants above; a stack's element is a C-ordered array without a reshape)."""
+    return (np.empty((4, 3)), np.empty((2, 6)), np.empty((10, 3, 3)), np.empty((3, 6, 3)), np.empty((2, 3, 6)),
+            np.empty((2, 6, 6)))
 
 
 @jit_inline
@@ -536,12 +530,11 @@ def _correct_with(state: np.ndarray, covariance: np.ndarray, relative: np.ndarra
                   use_predicted: bool, lead: float, late: bool, measurement_noise: np.ndarray, add_position_noise: bool,
                   position_variance: float, lead_noise: np.ndarray, pursuer_position: np.ndarray, innovation: np.ndarray,
                   innovation_covariance: np.ndarray, work: tuple) -> np.ndarray:
-    """`_correct_kernel`'s update (the same BLAS and LAPACK calls on the same operands in the same order, the same
-    elementwise operations) without an array per step: measured_projection P_lambda~ (3, 3) given (the same for
+    """`_correct_kernel`'s update (the same operations on the same operands in the same order) without an array per step: measured_projection P_lambda~ (3, 3) given (the same for
     every model of an IMM: `_measured_projection_into`), the innovation y (3,) and its covariance S (3, 3) written
     into the caller's `innovation` and `innovation_covariance`, every intermediate in `work` (`_correction_work`).
     Returns S^+ (3, 3), a view into `work` (valid until its next use)."""
-    vectors, rows, small, tall, wide, square, pivots = work
+    vectors, rows, small, tall, wide, square = work
     gain_relative, gain_range = relative, predicted_range
     if use_reference:
         # Errors in variables: the gain's line of sight from an own position that does not
@@ -594,7 +587,7 @@ def _correct_with(state: np.ndarray, covariance: np.ndarray, relative: np.ndarra
     np.add(innovation_covariance, measurement_covariance, innovation_covariance)
     innovation_inverse = small[_INVERSE]
     _projector_pseudo_inverse_into(innovation_covariance, gain_direction, innovation_inverse, small[_OUTER],
-                                   small[_SHIFTED], small[_FACTORS].T, small[_SOLUTION].T, pivots)
+                                   small[_SHIFTED])
     gain = tall[_GAIN]
     np.dot(cross_covariance, innovation_inverse, gain)
     # x_k = x^-_k - K_k H_k x^-_k, with H_k x^-_k = P_lambda~ (p^-_T - p)
@@ -617,7 +610,7 @@ def _correct_with(state: np.ndarray, covariance: np.ndarray, relative: np.ndarra
     np.subtract(covariance, reduction, posterior)  # (I - K H) P^-
     np.add(posterior, posterior.T, reduction)  # 0.5 (P + P^T)
     np.multiply(0.5, reduction, reduction)
-    if _is_positive_semidefinite_with(reduction, square[_CHOLESKY].T):
+    if _is_positive_semidefinite(reduction):
         covariance[:, :] = reduction
     else:
         covariance[:, :] = _joseph_update(covariance, gain, gain_projection, measurement_covariance,
@@ -932,19 +925,18 @@ def _own_position_step(track: np.ndarray, dt: float, acceleration_psd: float, po
     p01, p11] (m, m/s and the shared 2x2 covariance [[p00, p01], [p01, p11]]): the time update over dt > 0 s with
     white acceleration of density q = acceleration_psd, (m/s^2)^2 s, then the measurement update with the sample
     `position` (3,), m, of noise std position_std, m. Writes the prediction x + dt v into `prediction` (3,), m (an
-    argument rather than a result: numba boxes every array it returns). Scalar arithmetic
-    in Python's order, powers by the C library's pow as Python's ** computes them (companion.core._jit.power)."""
+    argument rather than a result: numba boxes every array it returns)."""
     x0, x1, x2 = float(track[0]), float(track[1]), float(track[2])
     v0, v1, v2 = float(track[3]), float(track[4]), float(track[5])
     old_p00, old_p01, old_p11 = float(track[6]), float(track[7]), float(track[8])
     q = acceleration_psd
     # Time update of the shared 2x2 covariance [[p00, p01], [p01, p11]] and of the state.
-    p00 = old_p00 + dt * (2.0 * old_p01 + dt * old_p11) + q * power(dt, 3.0) / 3.0
-    p01 = old_p01 + dt * old_p11 + q * power(dt, 2.0) / 2.0
+    p00 = old_p00 + dt * (2.0 * old_p01 + dt * old_p11) + q * dt ** 3 / 3.0
+    p01 = old_p01 + dt * old_p11 + q * dt ** 2 / 2.0
     p11 = old_p11 + q * dt
     a0, a1, a2 = x0 + dt * v0, x1 + dt * v1, x2 + dt * v2
     # Measurement update with the sample: gains k0 (position), k1 (velocity).
-    innovation_variance = p00 + power(position_std, 2.0)
+    innovation_variance = p00 + position_std ** 2
     k0, k1 = p00 / innovation_variance, p01 / innovation_variance
     z0, z1, z2 = float(position[0]), float(position[1]), float(position[2])
     e0, e1, e2 = z0 - a0, z1 - a1, z2 - a2

@@ -12,7 +12,7 @@ from typing import Protocol
 
 import numpy as np
 
-from companion.core._jit import jit, power
+from companion.core._jit import jit
 from companion.core.attitude import _IDENTITY, _setpoint_after_into_kernel
 from companion.core.geometry import (E_X, clip_kernel, cross, cross_kernel, relative_range_std_kernel,
                                      relative_terms_kernel, rotation_about_y_kernel, rotation_about_z_kernel,
@@ -125,20 +125,18 @@ class HelicalNavigationGuidance:
         desired_range, gain, limit = controller.kernel_terms
         los = np.empty(3)
         lateral = np.empty(3)
-        range_estimate, level, distance, range_rate, speed_squared, lateral_work, projection, range_error = (
-            _tracking_terms_kernel(
-                target_position, target_velocity, position, velocity, engaged_time, *self.kernel_terms,
-                excitation is not None, covariance, suspect,
-                *(_NO_EXCITATION if excitation is None else excitation.kernel_terms), desired_range, los, lateral))
+        terms = _tracking_terms_kernel(
+            target_position, target_velocity, position, velocity, engaged_time, self.kernel_terms, excitation is not None,
+            covariance, suspect, _NO_EXCITATION if excitation is None else excitation.kernel_terms, desired_range,
+            (los, lateral))
+        range_estimate, level, range_error = terms[0], terms[1], terms[7]
         longitudinal = np.empty(3)
         command = np.empty(3)
         rotation = np.empty((3, 3))
         flown = np.empty(3)
         thrust, thrust_normalized = _tracking_command_kernel(
-            distance, range_rate, speed_squared, lateral_work, projection, range_error,
-            saturation(range_error, limit), gain, limit, los, lateral, longitudinal, command, with_setpoint,
-            _IDENTITY if previous_rotation is None else previous_rotation,
-            *setpoint_terms, rotation, flown)
+            terms[2:], saturation(range_error, limit), gain, limit, los, lateral, (longitudinal, command, rotation, flown),
+            with_setpoint, _IDENTITY if previous_rotation is None else previous_rotation, setpoint_terms)
         return (range_estimate, None if excitation is None else level, los, lateral, longitudinal, command,
                 (rotation, flown, float(thrust), float(thrust_normalized)) if with_setpoint else None)
 
@@ -171,8 +169,8 @@ def saturation(x: float, limit: float = 3.0) -> float:
 
 
 def saturation_slope(x: float, limit: float = 3.0) -> float:
-    """sigma'(x) = 1 / (1 + (x/3)^2) (Python's ** as _jit.power, so that the compiled kernel computes the same)."""
-    return 1.0 / (1.0 + power(x / limit, 2.0))
+    """sigma'(x) = 1 / (1 + (x/3)^2)."""
+    return 1.0 / (1.0 + (x / limit) ** 2)
 
 
 _saturation_slope_kernel = jit(saturation_slope)
@@ -302,7 +300,7 @@ def _range_command(distance, range_rate, speed_squared, lateral_work, projection
     u_star = (
         -distance * _virtual_control_terms_kernel(sigma, range_error, range_rate, gain, saturation_limit)
         + speed_squared
-        - power(range_rate, 2.0)
+        - range_rate ** 2
         - lateral_work
     )
     if projection <= 1e-6 * (1.0 if 1.0 > distance else distance):
@@ -439,17 +437,20 @@ _excitation_terms_kernel = jit(_excitation_terms)
 _NO_EXCITATION = (0.0, 1.0, 1.0, 0.0, 1.0)  # RangeExcitation.kernel_terms' place when no excitation is flown
 
 
-def _tracking_terms(target_position, target_velocity, position, velocity, engaged_time, navigation_gain, c_z, c_y,
-                    weave_frequency, scale_with_range, excite, covariance, suspect, low, high, speed, damping_gain,
-                    frequency, desired_range, los_out, lateral_out):
+def _tracking_terms(target_position, target_velocity, position, velocity, engaged_time, law_terms, excite, covariance,
+                    suspect, excitation_terms, desired_range, outputs):
     """The control tick's guidance up to the range controller's arctan, in one call (FollowingPipeline's usual
     tick: HNG, the excitation when `excite`, the range controller), calling the kernels the objects call:
     geometry.relative_terms (dp, dv, r^, lambda), HNG's a_HN, eq. (14) (_helical_acceleration, on the pursuer's
     velocity), when `excite` the excitation's level and a_lat + a_X (_excitation_terms on the estimate's covariance
-    (6, 6) and the health verdict `suspect`), and the range controller's terms (_range_ratio_terms).
-    Writes lambda into los_out and a_lat into lateral_out (float64 (3,)); returns (r^, the excitation level s (0
+    (6, 6) and the health verdict `suspect`), and the range controller's terms (_range_ratio_terms). law_terms:
+    HelicalNavigationGuidance.kernel_terms; excitation_terms: RangeExcitation.kernel_terms (_NO_EXCITATION when
+    not excited). Writes lambda and a_lat into outputs = (los_out, lateral_out) (float64 (3,)); returns (r^, the excitation level s (0
     when not excited), |dp|, xi_2, dv^T dv, dp^T a_lat, lambda^T dp, xi_1): _range_command's terms follow r^ and s,
     the last one the argument of sigma (saturation: numpy's arctan), taken between this kernel and the next."""
+    navigation_gain, c_z, c_y, weave_frequency, scale_with_range = law_terms
+    low, high, speed, damping_gain, frequency = excitation_terms
+    los_out, lateral_out = outputs
     relative_position, relative_velocity, range_estimate, los = relative_terms_kernel(
         target_position, target_velocity, position, velocity)
     lateral = _helical_acceleration_kernel(engaged_time, velocity, los, range_estimate, navigation_gain, c_z, c_y,
@@ -465,24 +466,24 @@ def _tracking_terms(target_position, target_velocity, position, velocity, engage
     return range_estimate, level, distance, range_rate, speed_squared, lateral_work, projection, range_error
 
 
-def _tracking_command(distance, range_rate, speed_squared, lateral_work, projection, range_error, sigma, gain,
-                      saturation_limit, los, lateral, longitudinal_out, command_out, with_setpoint, previous_rotation,
-                      gravity, max_specific_force, max_specific_force_squared, horizontal_margin, min_vertical,
-                      tan_max_tilt, mass, hover_thrust_normalized, rotation_out, flown_out):
-    """The rest of _tracking_terms's tick after sigma(xi1) (saturation, numpy's arctan): a_RC of eq. (18)-(19)
-    (_range_command) into longitudinal_out and the command a_d = a_lat + a_RC, eq. (13), into command_out; with
-    `with_setpoint` also the setpoint of eq. (21)-(22) for that command (attitude._setpoint_after_into, the previous R_d (3, 3) giving the
-    heading fallback): R_d into rotation_out (3, 3), the flown a_d into flown_out, and returns (T N, normalised
+def _tracking_command(range_terms, sigma, gain, saturation_limit, los, lateral, outputs, with_setpoint,
+                      previous_rotation, setpoint_terms):
+    """The rest of _tracking_terms's tick after sigma(xi1) (saturation, numpy's arctan), on range_terms, the last six
+    of _tracking_terms's results (|dp|, xi_2, dv^T dv, dp^T a_lat, lambda^T dp, xi_1): a_RC of eq. (18)-(19)
+    (_range_command) and the command a_d = a_lat + a_RC, eq. (13), written into outputs = (longitudinal_out,
+    command_out, rotation_out, flown_out); with `with_setpoint` also the setpoint of eq. (21)-(22) for that command
+    (attitude._setpoint_after_into under setpoint_terms, VehicleLimits.setpoint_terms; the previous R_d (3, 3) giving
+    the heading fallback): R_d into rotation_out (3, 3), the flown a_d into flown_out, and returns (T N, normalised
     thrust); without, (nan, nan)."""
+    distance, range_rate, speed_squared, lateral_work, projection, range_error = range_terms
+    longitudinal_out, command_out, rotation_out, flown_out = outputs
     longitudinal = _range_command_kernel(distance, range_rate, speed_squared, lateral_work, projection, range_error,
                                          sigma, gain, saturation_limit, los)
     longitudinal_out[:] = longitudinal
     command_out[:] = lateral + longitudinal
     if not with_setpoint:
         return math.nan, math.nan
-    return _setpoint_after_into_kernel(command_out, los, previous_rotation, gravity, max_specific_force,
-                                       max_specific_force_squared, horizontal_margin, min_vertical, tan_max_tilt,
-                                       mass, hover_thrust_normalized, rotation_out, flown_out)
+    return _setpoint_after_into_kernel(command_out, los, previous_rotation, *setpoint_terms, rotation_out, flown_out)
 
 
 _tracking_terms_kernel = jit(_tracking_terms)

@@ -566,46 +566,64 @@ model restarts); nothing, some model filter correcting on its own (one restarts,
 IMMEstimator._correct_each); nothing, the own positions the gains start from to be given (`have_references`)."""
 
 
+# `_imm_correction`'s packed arguments: its scalars (float64 (8,)) and its switches (bool (8,)), by index
+_LEAD, _TRACK_DT, _ACCELERATION_PSD, _TRACK_STD, _POSITION_VARIANCE, _STAY_PROBABILITY, _STAY_TIME, _INTERVAL = range(8)
+_CORRECTION_SCALARS = 8
+(_RESTART_WHEN_BEHIND, _PREDICTED_GAIN, _HAVE_REFERENCES, _USE_REFERENCE, _TRACK_STEP, _LATE, _ADD_POSITION_NOISE,
+ _WITH_NIS) = range(8)
+_CORRECTION_SWITCHES = 8
+
+
 @jit
-def _imm_correction(states: np.ndarray, covariances: np.ndarray, weights: np.ndarray, lead: float,
-                    pursuer_position: np.ndarray, direction: np.ndarray, restart_when_behind: bool, predicted_gain: bool,
-                    model_relative: np.ndarray, ranges: np.ndarray, model_ranges: np.ndarray, relative: np.ndarray,
-                    have_references: bool, references: np.ndarray, use_reference: bool, track_step: bool,
-                    track: np.ndarray, track_dt: float, acceleration_psd: float, track_std: float, prediction: np.ndarray,
-                    late: bool, measurement_noises: np.ndarray, add_position_noise: bool, position_variance: float,
-                    lead_noises: np.ndarray, stay_probability: float, stay_time: float, interval: float, with_nis: bool,
-                    nis: np.ndarray, probabilities: np.ndarray, innovation: np.ndarray,
-                    innovation_covariance: np.ndarray) -> tuple[float, float, int]:
+def _imm_correction(states: np.ndarray, covariances: np.ndarray, weights: np.ndarray, pursuer_position: np.ndarray,
+                    direction: np.ndarray, noises: tuple, own_positions: tuple, lines_of_sight: tuple, outputs: tuple,
+                    scalars: np.ndarray, switches: np.ndarray) -> tuple[float, float, int]:
     """IMMEstimator.correct's kernel: one call for the whole usual correction (a kernel: companion.core._jit).
 
-    First the prior lines of sight (`_prior_lines_of_sight`, into model_relative, ranges, model_ranges, relative);
-    then, unless the combined prior is behind the sensor (remark 3's guard, when restart_when_behind: `_RESTART`),
-    some model filter must correct on its own (a model restarting, or not predicted_gain: `_MODEL_BY_MODEL`) or the
-    own positions are not given (not have_references: `_NEEDS_REFERENCES`), which leave the states alone: the own
-    position the gains start from (the model filters' shared OwnPositionTracker's usual step, `_own_position_step`
-    on `track` over track_dt s with its acceleration_psd and track_std, its prediction written into `prediction`
-    and taken as every model's reference, when track_step; else `references` as `_imm_correct_kernel` takes them)
-    and every step of the IMM cycle (`_imm_correct_kernel`: the models' u-PLKF corrections, eq. (6), their
-    likelihoods, seed 004 eq. (20), the model probabilities, eq. (21), the mixing, eqs. (17)-(19)), the combined
-    innovation and its covariance written into innovation (3,) and innovation_covariance (3, 3) (`_CORRECTED`).
-    The other arguments are `_prior_lines_of_sight`'s and `_imm_correct_kernel`'s. Returns the combined prior's
-    range, its clipped cosine to the bearing and what it did."""
+    states (n, 6), covariances (n, 6, 6) and weights (n,) (the predicted model probabilities c, then the next
+    cycle's) are updated in place; pursuer_position and the unit bearing direction (3,). The rest packed:
+    noises = (measurement_noises (n, 3, 3), lead_noises (n, 3, 3)); own_positions = (references (1 or n, 3), track
+    (9,), prediction (3,)); lines_of_sight = (model_relative (n, 3), ranges (n,), model_ranges (n,), relative (3,)),
+    written; outputs = (nis (n,), probabilities (n,), innovation (3,), innovation_covariance (3, 3)), written;
+    scalars (float64, indexed by _LEAD, _TRACK_DT, _ACCELERATION_PSD, _TRACK_STD, _POSITION_VARIANCE,
+    _STAY_PROBABILITY, _STAY_TIME, _INTERVAL) and switches (bool, indexed by _RESTART_WHEN_BEHIND, _PREDICTED_GAIN,
+    _HAVE_REFERENCES, _USE_REFERENCE, _TRACK_STEP, _LATE, _ADD_POSITION_NOISE, _WITH_NIS).
+
+    First the prior lines of sight (`_prior_lines_of_sight`, into lines_of_sight); then, unless the combined prior is
+    behind the sensor (remark 3's guard, with the restart_when_behind switch: `_RESTART`), some model filter must
+    correct on its own (a model restarting, or not predicted_gain: `_MODEL_BY_MODEL`) or the own positions are not
+    given (not have_references: `_NEEDS_REFERENCES`), which leave the states alone: the own position the gains start
+    from (the model filters' shared OwnPositionTracker's usual step, `_own_position_step` on `track` over track_dt s
+    with its acceleration_psd and track_std, its prediction written into `prediction` and taken as every model's
+    reference, with the track_step switch; else `references` as `_imm_correct_kernel` takes them) and every step of
+    the IMM cycle (`_imm_correct_kernel`: the models' u-PLKF corrections, eq. (6), their likelihoods, seed 004 eq.
+    (20), the model probabilities, eq. (21), the mixing, eqs. (17)-(19)), the combined innovation and its covariance
+    written into outputs (`_CORRECTED`). Returns the combined prior's range, its clipped cosine to the bearing and
+    what it did."""
+    model_relative, ranges, model_ranges, relative = lines_of_sight
+    references, track, prediction = own_positions
+    lead = scalars[_LEAD]
+    restart_when_behind = switches[_RESTART_WHEN_BEHIND]
     predicted_range, cos_angle, every_model_corrects = _prior_lines_of_sight(
         states, weights, lead, pursuer_position, direction, restart_when_behind, model_relative, ranges, model_ranges,
         relative)
     if restart_when_behind and _behind_sensor(cos_angle, predicted_range):
         return predicted_range, cos_angle, _RESTART
-    if not (every_model_corrects and predicted_gain):
+    if not (every_model_corrects and switches[_PREDICTED_GAIN]):
         return predicted_range, cos_angle, _MODEL_BY_MODEL
-    if not have_references:
+    if not switches[_HAVE_REFERENCES]:
         return predicted_range, cos_angle, _NEEDS_REFERENCES
-    if track_step:  # OwnPositionTracker.reference's usual step, its prediction every model's reference
-        _own_position_step(track, track_dt, acceleration_psd, track_std, pursuer_position, prediction)
+    if switches[_TRACK_STEP]:  # OwnPositionTracker.reference's usual step, its prediction every model's reference
+        _own_position_step(track, scalars[_TRACK_DT], scalars[_ACCELERATION_PSD], scalars[_TRACK_STD],
+                           pursuer_position, prediction)
         references = prediction.reshape(1, 3)
-    _imm_correct_into(states, covariances, model_relative, ranges, model_ranges, direction, references, use_reference,
-                      lead, late, measurement_noises, add_position_noise, position_variance, lead_noises,
-                      pursuer_position, weights, relative, predicted_range, stay_probability, stay_time, interval,
-                      with_nis, nis, probabilities, innovation, innovation_covariance)
+    measurement_noises, lead_noises = noises
+    nis, probabilities, innovation, innovation_covariance = outputs
+    _imm_correct_into(states, covariances, model_relative, ranges, model_ranges, direction, references,
+                      switches[_USE_REFERENCE], lead, switches[_LATE], measurement_noises, switches[_ADD_POSITION_NOISE],
+                      scalars[_POSITION_VARIANCE], lead_noises, pursuer_position, weights, relative, predicted_range,
+                      scalars[_STAY_PROBABILITY], scalars[_STAY_TIME], scalars[_INTERVAL], switches[_WITH_NIS], nis,
+                      probabilities, innovation, innovation_covariance)
     return predicted_range, cos_angle, _CORRECTED
 
 
@@ -896,21 +914,25 @@ class IMMEstimator:
                         references, have_references = reference[None, :], True
         model_relative, ranges, model_ranges, relative = self._lines_of_sight
         position_std = first.pursuer_position_std
-        arguments = (self._states, self._covariances, self._weights, lead, pursuer_position, direction,
-                     self.restart_when_behind, first.gain_projection is GainProjection.PREDICTED, model_relative, ranges,
-                     model_ranges, relative)
-        settings = (late, self._measurement_noises, position_std > 0.0, position_std**2, lead_noises,
-                    self.stay_probability, self.stay_time, interval, self._any_adaptive, self._nis, self._probabilities)
+        scalars = np.array([lead, 0.0 if track_dt is None else track_dt,
+                            0.0 if tracker is None else tracker.acceleration_psd,
+                            0.0 if tracker is None else tracker.position_std, position_std**2, self.stay_probability,
+                            self.stay_time, interval], dtype=float)
+        switches = np.array([self.restart_when_behind, first.gain_projection is GainProjection.PREDICTED,
+                             have_references, own_track is not None, tracker is not None, late, position_std > 0.0,
+                             self._any_adaptive], dtype=bool)
         innovation, innovation_covariance = np.empty(3), np.empty((3, 3))
-        predicted_range, cos_angle, outcome = _imm_correction(
-            *arguments, have_references, references, own_track is not None,
-            tracker is not None, track, 0.0 if track_dt is None else track_dt,
-            0.0 if tracker is None else tracker.acceleration_psd, 0.0 if tracker is None else tracker.position_std,
-            prediction, *settings, innovation, innovation_covariance)
+        arguments = (self._states, self._covariances, self._weights, pursuer_position, direction,
+                     (self._measurement_noises, lead_noises))
+        records = (self._lines_of_sight, (self._nis, self._probabilities, innovation, innovation_covariance))
+        predicted_range, cos_angle, outcome = _imm_correction(*arguments, (references, track, prediction), *records,
+                                                              scalars, switches)
         if outcome == _NEEDS_REFERENCES:
+            scalars[_TRACK_DT] = scalars[_ACCELERATION_PSD] = scalars[_TRACK_STD] = 0.0
+            switches[_HAVE_REFERENCES], switches[_USE_REFERENCE], switches[_TRACK_STEP] = True, True, False
             predicted_range, cos_angle, outcome = _imm_correction(
-                *arguments, True, self._references(bearing, lead, direction), True, False, track, 0.0, 0.0, 0.0,
-                prediction, *settings, innovation, innovation_covariance)
+                *arguments, (self._references(bearing, lead, direction), track, prediction), *records, scalars,
+                switches)
         if outcome == _RESTART:
             guess = restart_guess(self._initial_guess, predicted_range, self._weights @ self._states[:, 3:])
             for model_filter in filters:

@@ -22,7 +22,7 @@ from typing import Sequence
 
 import numpy as np
 
-from companion.core._jit import jit, power, symmetric_eigenvalues
+from companion.core._jit import jit, symmetric_eigenvalues
 
 _UNIT_TOLERANCE = 1e-6
 # Eigenvalues below this fraction of the largest one are reported as exactly zero.
@@ -496,7 +496,7 @@ def _plain_sample(bearing: np.ndarray, range_estimate: float, sigma: float) -> b
             return False
         squared += bearing[k] * bearing[k]
     return (abs(math.sqrt(squared) - 1.0) <= 0.5 * _UNIT_TOLERANCE and math.isfinite(range_estimate)
-            and range_estimate > 0.0 and math.isfinite(power(sigma, 2.0)) and math.isfinite(power(range_estimate, 2.0)))
+            and range_estimate > 0.0 and math.isfinite(sigma ** 2) and math.isfinite(range_estimate ** 2))
 
 
 _NO_CONTRIBUTION = np.zeros((3, 3))  # the term _add_plain_sample takes out when none leaves the window (never read)
@@ -513,7 +513,7 @@ def _add_plain_sample(information: np.ndarray, bearing: np.ndarray, range_estima
     range_estimate: m; sigma: rad."""
     if not _plain_sample(bearing, range_estimate, sigma):
         return False
-    term[:] = _add_contribution(information, bearing, power(sigma, 2.0) * power(range_estimate, 2.0))
+    term[:] = _add_contribution(information, bearing, sigma ** 2 * range_estimate ** 2)
     if drop_oldest:
         information -= oldest
     return True
@@ -561,7 +561,7 @@ def _spectrum(information: np.ndarray) -> tuple[np.ndarray, float, float]:
     if mean > 0.0:
         deviations = eigenvalues - mean
         squares = deviations * deviations
-        spread = (squares[0] + squares[1] + squares[2]) / power(mean, 2.0)
+        spread = (squares[0] + squares[1] + squares[2]) / mean ** 2
     return eigenvalues, eigenvalues[0], spread
 
 

@@ -17,7 +17,7 @@ import numpy as np
 from companion.core.attitude import VehicleLimits, attitude_setpoint_after, limit_specific_force
 from companion.core.cooperative_guidance import CooperativeContext, SeparationFilter, neighbours_make_range_observable
 from companion.core.estimators import CorrectionReport, InitialGuess, TargetEstimator
-from companion.core._jit import jit, power
+from companion.core._jit import jit
 from companion.core.geometry import E_X, all_finite, clip_kernel, norm, relative_terms_kernel as _relative_terms
 from companion.core.guidance import LateralGuidance, RangeController, RangeExcitation, _excitation_terms_kernel
 from companion.core.health import (
@@ -753,5 +753,5 @@ def _gate_terms(relative: np.ndarray, distance: float, measured: np.ndarray, pos
     across = np.eye(3) - np.outer(predicted, predicted)
     spread = across @ position_covariance @ across
     lateral_variance = (spread[0, 0] + spread[1, 1] + spread[2, 2]) / 2.0
-    variance = lateral_variance / power(distance, 2.0) + power(bearing_noise_std, 2.0)
+    variance = lateral_variance / distance ** 2 + bearing_noise_std ** 2
     return cosine, (math.sqrt(variance) if variance >= 0.0 else math.nan)  # np.sqrt: NaN below 0
