@@ -27,10 +27,21 @@ SCENARIO, _ = load_scenario(CONFIG)
 COUNT = SCENARIO.swarm.count
 
 
+#: [swarm.link] blackout of pursuer 2 in the module's flight, s of the shared simulated clock (stamps count from
+#: the plants' start, take-off included: following starts near 19 s, the summary window is its last 20 s).
+BLACKOUT = (35.0, 45.0)
+
+
 @pytest.fixture(scope="module")
 def flown(tmp_path_factory):
+    """One flight for the module: --secure (mutual TLS, access control, MAVLink signing) with a share-link
+    blackout of pursuer 2, so the checks of a whole flight and of the blackout's survival share one flight."""
     out = tmp_path_factory.mktemp("swarm-sitl")
-    code, folder, summary = full_sitl.run(CONFIG, out, SPEED, seed=1, timeout=170.0, plots=True, quiet=True,
+    vehicle = CONFIG.parent.parent / "vehicles" / "paper_table1.toml"
+    text = CONFIG.read_text().replace('vehicle = "../vehicles/paper_table1.toml"', f'vehicle = "{vehicle}"')
+    path = out / "swarm_blackout.toml"
+    path.write_text(text + f"blackouts = [{{pursuer = 2, start = {BLACKOUT[0]}, end = {BLACKOUT[1]}}}]\n")
+    code, folder, summary = full_sitl.run(path, out / "runs", SPEED, seed=1, timeout=200.0, plots=True, quiet=True,
                                           gcs_port=free_port(), secure=True)
     return code, folder, summary
 
@@ -201,22 +212,14 @@ def test_sigterm_mid_flight_stops_all_seven_children_and_writes_every_summary(tm
         log.close()
 
 
-def test_a_share_link_blackout_of_one_pursuer_in_sitl_is_survived_and_recovered(tmp_path):
-    """[swarm.link] blackout of pursuer 2 for 10 s of the shared simulated clock (stamps count from the plants'
-    start, take-off included), the link model drops every share to and from pursuer 2 inside the
-    window (5 Hz x 10 s x 2 neighbours), pursuer 2 flies its lone layer (the law on an orbit of its own) and
-    returns to the cooperative law, and every pursuer completes with its estimate converged. Flown at 2x. The pursuers
-    keep their separation throughout: the silent one's layer keeps it off the others' circle (when it flew
-    HNG on the common circle instead they came 1.29 m apart here, in process 0.5-1.6 m)."""
-    vehicle = CONFIG.parent.parent / "vehicles" / "paper_table1.toml"
-    text = CONFIG.read_text().replace('vehicle = "../vehicles/paper_table1.toml"', f'vehicle = "{vehicle}"')
-    path = tmp_path / "swarm_blackout.toml"
-    start, end = 35.0, 45.0
-    path.write_text(text + f"blackouts = [{{pursuer = 2, start = {start}, end = {end}}}]\n")
-    # At SPEED (2x) like the module's other flights: at 4x the seven processes on two cores fell 3.5 s of simulated
-    # time behind and a plant's offboard-loss failsafe took pursuer 1 (a load failure, not the link's).
-    code, folder, summary = full_sitl.run(path, tmp_path / "runs", SPEED, seed=2, timeout=200.0, plots=False,
-                                          quiet=True, gcs_port=free_port())
+def test_a_share_link_blackout_of_one_pursuer_is_survived_and_recovered(flown):
+    """The link model drops every share to and from pursuer 2 inside the blackout (5 Hz x 10 s x 2 neighbours),
+    pursuer 2 flies its lone layer (the law on an orbit of its own) and returns to the cooperative law, and every
+    pursuer completes with its estimate converged. The pursuers keep their separation throughout: the silent
+    one's layer keeps it off the others' circle (flying HNG on the common circle instead, they came 1.29 m
+    apart in SITL, 0.5-1.6 m in process)."""
+    code, folder, summary = flown
+    start, end = BLACKOUT
     assert code == 0 and summary["termination"] == "completed", summary.get("termination_reason")
     rate = SCENARIO.sensor.rate_hz
     dropped = {entry["pursuer"]: entry["companion"]["swarm"]["shares_dropped_by_link"] for entry in summary["pursuers"]}
@@ -228,8 +231,6 @@ def test_a_share_link_blackout_of_one_pursuer_in_sitl_is_survived_and_recovered(
     fallback = [t for t, law in laws if law == "lone" and start < t < end]
     back = [t for t, law in laws if law == "cooperative" and t >= end]
     assert fallback and back, laws
-    for entry in summary["pursuers"]:
-        assert entry["range_estimation_error_rms"] < 0.5, entry
     tracks = [_track(folder, k) for k in range(1, COUNT + 1)]
     grid = np.arange(max(t[0] for t, _ in tracks), min(t[-1] for t, _ in tracks), 0.02)
     at = [np.column_stack([np.interp(grid, t, p[:, i]) for i in range(3)]) for t, p in tracks]
