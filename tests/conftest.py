@@ -31,6 +31,26 @@ if os.environ.get("CI", "").lower() in ("1", "true", "yes"):
 kernels.warm_up()
 
 
+#: Test files that fly processes or sockets against the wall clock (SITL flights, signals, links, a
+#: companion on a socket). With pytest-xdist (`-n 2 --dist loadgroup`, as pyproject's addopts ask) they run
+#: one after another on one worker, while the other worker takes the tests that only compute; so no two
+#: real-time flights ever share the machine with each other, only with one computing test at a time.
+REAL_TIME_FILES = frozenset({
+    "test_campaign.py", "test_cli_types.py", "test_companion_app.py", "test_companion_precompile.py",
+    "test_config_hostile.py", "test_full_sitl.py", "test_full_sitl_swarm.py", "test_intruder.py", "test_link.py",
+    "test_mavlink_vehicle.py", "test_mission.py", "test_plant_standalone.py", "test_shutdown.py", "test_signals.py",
+    "test_sitl_cli.py", "test_sitl_malformed.py", "test_sitl_mavsdk.py", "test_study_interrupts.py",
+    "test_swarm_sitl_parts.py", "test_target_sim.py", "test_zenoh_namespace.py", "test_zenoh_security.py",
+})
+
+
+@pytest.hookimpl(tryfirst=True)  # before xdist's own hook reads the groups
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if item.path.name in REAL_TIME_FILES:
+            item.add_marker(pytest.mark.xdist_group("real_time"))
+
+
 @pytest.fixture
 def scenario_path() -> Callable[[str], Path]:
     """name -> path of the shipped scenario file config/scenarios/<name>.toml."""
