@@ -20,6 +20,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Literal, TypeVar, get_args
 
+from interfaces.derived_defaults import (DROPOUT_MIN_RANGE_FACTOR, DROPOUT_SAFE_RANGE_FACTOR,
+                                         HEALTH_MIN_RANGE_FACTOR, dropout_min_range, dropout_safe_range,
+                                         health_min_range)
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, Strict, ValidationError, field_validator, model_validator
 
 
@@ -1427,23 +1430,18 @@ def _run_folder_name(value: str) -> str:
 
 ScenarioName = Annotated[str, AfterValidator(_run_folder_name)]
 
-#: Defaults companion.assembly derives from guidance.desired_range r_d when a key is left out: health.min_range =
-#: r_d / 4 (health_config), dropout.safe_range = 1.5 r_d and dropout.min_range = r_d / 2 (dropout_policy).
-HEALTH_MIN_RANGE_FACTOR, DROPOUT_SAFE_RANGE_FACTOR, DROPOUT_MIN_RANGE_FACTOR = 0.25, 1.5, 0.5
-
-
 def _check_ranges(scenario: "Scenario") -> None:
     """The companion's health monitor needs min_range < max_range and its dropout policy min_range < safe_range,
     with the defaults derived from guidance.desired_range: refused here, naming the keys, not at take-off."""
     desired = scenario.guidance.desired_range
     health = scenario.health
-    if health.min_range is None and HEALTH_MIN_RANGE_FACTOR * desired >= health.max_range:
+    if health.min_range is None and health_min_range(desired) >= health.max_range:
         raise ValueError(f"health.max_range ({health.max_range:g} m) must exceed health.min_range, whose default is "
-                         f"guidance.desired_range / 4 = {HEALTH_MIN_RANGE_FACTOR * desired:g} m: raise max_range or "
+                         f"guidance.desired_range / 4 = {health_min_range(desired):g} m: raise max_range or "
                          "set health.min_range")
     dropout = scenario.dropout
-    safe = dropout.safe_range if dropout.safe_range is not None else DROPOUT_SAFE_RANGE_FACTOR * desired
-    low = dropout.min_range if dropout.min_range is not None else DROPOUT_MIN_RANGE_FACTOR * desired
+    safe = dropout.safe_range if dropout.safe_range is not None else dropout_safe_range(desired)
+    low = dropout.min_range if dropout.min_range is not None else dropout_min_range(desired)
     if low >= safe:
         def said(key: str, value: float, factor: float) -> str:
             given = getattr(dropout, key) is not None
