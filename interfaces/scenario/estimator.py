@@ -11,7 +11,7 @@ from interfaces.scenario.common import FROM_ARRAY, NonNegative, Positive, Vector
 
 
 class EstimatorConfig(_Strict):
-    """Target estimator. kind 'imm' (the default since issue 13) is the interacting-multiple-model
+    """Target estimator. kind 'imm' (the default) is the interacting-multiple-model
     estimator over u-PLKF model filters (constant velocity and left/right coordinated turns, options
     imm_*; README "IMM estimator"): as accurate as the u-PLKF on constant-velocity targets and the
     one that follows sustained turns (docs/reproduction.md 5.6). kind 'uplkf' is the paper's

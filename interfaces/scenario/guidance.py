@@ -42,7 +42,7 @@ class GuidanceConfig(_Strict):
     """1/s: seed 003's velocity/course gain lambda_1..3 (the seed's 50 assumes a 100/s autopilot)."""
     seed003_max_approach_speed: Positive = 3.0
     """m/s: bound on seed 003's approach velocity alpha |e| towards the following point (not in the seed)."""
-    # Range excitation (issue 13; companion.core.guidance.RangeExcitation): 'none' is the paper's
+    # Range excitation (companion.core.guidance.RangeExcitation): 'none' is the paper's
     # law unchanged; 'uncertainty' adds a lateral term that makes the pursuer circle the line of
     # sight at excitation_speed (m/s, angular rate excitation_frequency rad/s) while the relative
     # range std sigma_r / r^ is above excitation_low (full above excitation_high) or the health

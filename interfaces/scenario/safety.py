@@ -73,7 +73,7 @@ class HealthSection(_Strict):
     Monitor: nis_window s, nis_probability, nis_scale, min_nis_samples, max_relative_range_std,
     max_range_std m (sigma_r limit once the range has converged; a large value turns it off),
     min_range m (default guidance.desired_range / 4), max_range m, slow_speed m/s,
-    unobservable_time s, flag_after s, clear_after s. Actions while suspect: act (default true since issue 13; false: the
+    unobservable_time s, flag_after s, clear_after s. Actions while suspect: act (default true; false: the
     monitor only reports), process_noise_boost (factor on Q, >= 1) relaxing back to 1 with
     boost_relax_time s once OK, reinitialize_reasons (restart on the bearing at the current range
     with an along-bearing std of reinitialize_relative_std x that range, at most every

@@ -158,7 +158,7 @@ _SWARM_SUBTABLES = {"circumnavigation": ("guidance", "circumnavigation"), "stand
 
 
 class SwarmConfig(_Strict):
-    """[swarm]: several pursuers around one target (issue 15; README "Several pursuers: configuration").
+    """[swarm]: several pursuers around one target (README "Several pursuers: configuration").
     Absent: one pursuer, as before.
 
     pursuers: [[swarm.pursuers]], the k-th is pursuer k (1..MAX_PURSUERS). guidance: 'hng' (each flies
