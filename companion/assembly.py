@@ -15,6 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from companion.core.attitude import VehicleLimits
+from interfaces.derived_defaults import (SAFETY_BRAKING_SHARE, SAFETY_MAX_BRAKING_SHARE, dropout_min_range,
+                                         dropout_safe_range, health_min_range)
 from interfaces.scenario import (ConfigError, EstimatorConfig, GuidanceConfig, PursuerStart, Scenario, SensorConfig,
                                  VehicleConfig)
 from companion.core.bearing_sensor import BearingSensor, CameraModel, RangeDependentVariance
@@ -243,12 +245,12 @@ def safety_envelope(scenario: Scenario, vehicle: VehicleConfig) -> SafetyEnvelop
     if not settings.enabled:
         return None
     tilt_limited = vehicle.gravity * math.tan(math.radians(vehicle.max_tilt_deg))
-    braking = settings.braking_acceleration if settings.braking_acceleration is not None else 0.5 * tilt_limited
+    braking = settings.braking_acceleration if settings.braking_acceleration is not None else SAFETY_BRAKING_SHARE * tilt_limited
     try:
         return SafetyEnvelope(min_range=dropout_policy(scenario).min_range,
                               target_max_acceleration=scenario.estimator.target_max_acceleration,
                               braking_acceleration=braking,
-                              max_braking_acceleration=max(0.9 * tilt_limited, braking), range_sigmas=settings.range_sigmas,
+                              max_braking_acceleration=max(SAFETY_MAX_BRAKING_SHARE * tilt_limited, braking), range_sigmas=settings.range_sigmas,
                               speed_sigmas=settings.speed_sigmas,
                               reaction_time=settings.reaction_time, velocity_gain=settings.velocity_gain,
                               max_yaw_rate=math.radians(settings.max_yaw_rate_deg),
@@ -351,7 +353,7 @@ def build_swarm_estimator(scenario: Scenario) -> TargetEstimator:
 def health_config(scenario: Scenario) -> HealthConfig:
     """The [health] section's monitor thresholds; the plausible range starts at guidance.desired_range / 4 by default."""
     h = scenario.health
-    min_range = h.min_range if h.min_range is not None else 0.25 * scenario.guidance.desired_range
+    min_range = h.min_range if h.min_range is not None else health_min_range(scenario.guidance.desired_range)
     try:
         return HealthConfig(nis_window=h.nis_window, nis_probability=h.nis_probability, nis_scale=h.nis_scale,
                             min_nis_samples=h.min_nis_samples, max_relative_range_std=h.max_relative_range_std,
@@ -392,8 +394,8 @@ def dropout_policy(scenario: Scenario) -> DropoutPolicy:
     try:
         return DropoutPolicy(
             coast_after=settings.coast_after, coast_limit=settings.coast_limit, max_position_std=settings.max_position_std,
-            safe_range=settings.safe_range if settings.safe_range is not None else 1.5 * desired,
-            min_range=settings.min_range if settings.min_range is not None else 0.5 * desired,
+            safe_range=settings.safe_range if settings.safe_range is not None else dropout_safe_range(desired),
+            min_range=settings.min_range if settings.min_range is not None else dropout_min_range(desired),
             gate_sigma=settings.gate_sigma, bearing_noise_std=max(scenario.sensor.noise_std, 1e-3),
             reacquire_bearings=settings.reacquire_bearings, restart_range_std=settings.restart_range_std,
             max_jerk=settings.max_jerk, blend_time=settings.blend_time)

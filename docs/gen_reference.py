@@ -7,7 +7,7 @@ time (``mkdocs build`` regenerates them every time, nothing is written into the 
 * CLI: every console script of ``pyproject.toml`` ``[project.scripts]`` names ``module:main``; the
   module's ``build_parser()`` is the parser that ``main`` uses, and its ``format_help()`` is the page's
   text, as ``--help`` prints it.
-* Scenario schema: the strict pydantic models of ``interfaces/scenario.py``, walked from ``Scenario``
+* Scenario schema: the strict pydantic models of ``interfaces/scenario/``, walked from ``Scenario``
   (and ``VehicleConfig`` for a vehicle file): per TOML table, the class docstring, then each key's
   type with its bounds, its default and its description (the attribute docstring under the field, or
   the comment just above it).
@@ -240,7 +240,7 @@ def schema_page() -> str:
     scenario = importlib.import_module("interfaces.scenario")
     notes = _field_notes(Path(scenario.__file__).read_text())
     out = ["# Scenario schema", "",
-           "Generated at build time from the pydantic models in `interfaces/scenario.py`, which every "
+           "Generated at build time from the pydantic models in `interfaces/scenario/`, which every "
            "command uses to read a scenario file. Every table is strict: an unknown key, a wrong type "
            "(the string `\"12\"` is not the number 12; an integer is accepted for a float), NaN or inf is "
            "refused with a message that names the file and the key. Units are SI (m, s, rad unless a key "

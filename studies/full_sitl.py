@@ -32,13 +32,8 @@ truth or breached an envelope, even when every process exited cleanly.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import math
-import os
-import secrets
-import signal
-import socket
 import sys
 import time
 from collections.abc import Callable
@@ -48,14 +43,17 @@ import numpy as np
 
 from interfaces import link_schema as link
 from interfaces import zenoh_transport
-from interfaces.pki import make_pki
 from interfaces.records import write_json
-from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, load_scenario
+from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, VehicleConfig, load_scenario
 from studies.closed_loop import Termination
 from studies.metrics import (convergence_text, outcome_lines, summarize, suspect_warning, termination_name, truth_failed,
                              write_summary)
 from interfaces.cli import SPEED_FACTOR_BOUNDS, output_folder, scenario_file, seed_argument
 from studies.processes import ChildProcess, Interrupted, StopSignals, free_port, stop_all
+# The run folder's reading and the set-up both runs share (flight_series is used from here too: bof-campaign).
+from studies.sitl_runs import (DEFAULT_GCS_PORT, SitlOptions, Stopped, ZenohNetwork, bearing_only_check,
+                               fail_on_early_exit, flight_series, make_run_folder, read_csv, read_json,
+                               run_termination, watch)
 
 DEFAULT_SCENARIO = DEFAULT_SCENARIO
 GROUND_STATION_ID = "ground-station"
@@ -67,101 +65,6 @@ closer to the target than r_d / 2 or tilted past the vehicle's max_tilt_deg (a s
 128 + N stopped by signal N."""
 
 
-def _read_csv(path: Path) -> dict[str, np.ndarray]:
-    lines = path.read_text().splitlines()
-    header = lines[0].split(",")
-    columns: dict[str, list] = {name: [] for name in header}
-    for line in lines[1:]:
-        values = line.split(",")
-        if len(values) != len(header):
-            continue  # a line cut by an interruption
-        for name, value in zip(header, values):
-            columns[name].append(value)
-    out = {}
-    for name, values in columns.items():
-        try:
-            out[name] = np.array([float(v) if v != "" else math.nan for v in values])
-        except ValueError:
-            out[name] = np.array(values)
-    return out
-
-
-def _interp(times: np.ndarray, source_times: np.ndarray, values: np.ndarray) -> np.ndarray:
-    return np.column_stack([np.interp(times, source_times, values[:, i]) for i in range(values.shape[1])])
-
-
-def flight_series(run: Path, target_folder: Path | None = None) -> tuple[dict[str, np.ndarray], float]:
-    """The engaged part of the flight as a bof-sim style series (time since engagement),
-    truth interpolated from the plant's and target's logs at the companion's sample times.
-    Returns (series, engagement time in simulated seconds). target_folder: where target.csv is
-    (default: run / "target"; a swarm run has one target for every pursuer's folder)."""
-    companion = _read_csv(run / "companion" / "series.csv")
-    plant = _read_csv(run / "plant" / "vehicle.csv")
-    target = _read_csv((run / "target" if target_folder is None else target_folder) / "target.csv")
-    engaged = np.isfinite(companion["est_x"]) & (companion["phase"] == "following")
-    if not engaged.any():
-        raise RuntimeError("the companion never engaged; see companion/events.jsonl")
-    t = companion["time"][engaged]
-    t0 = float(t[0])
-    stack = lambda source, keys: np.column_stack([source[k] for k in keys])  # noqa: E731
-    pursuer = _interp(t, plant["time"], stack(plant, ("x", "y", "z")))
-    pursuer_velocity = _interp(t, plant["time"], stack(plant, ("vx", "vy", "vz")))
-    q = _interp(t, plant["time"], stack(plant, ("qw", "qx", "qy", "qz")))
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    w, x, y, z = q.T
-    forward = np.column_stack([1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)])
-    down_z = 1 - 2 * (x * x + y * y)
-    target_time = target["stamp"]
-    target_position = _interp(t, target_time, stack(target, ("true_n", "true_e", "true_d")))
-    target_velocity = _interp(t, target_time, stack(target, ("true_vn", "true_ve", "true_vd")))
-    estimate_position = np.column_stack([companion[k][engaged] for k in ("est_x", "est_y", "est_z")])
-    estimate_velocity = np.column_stack([companion[k][engaged] for k in ("est_vx", "est_vy", "est_vz")])
-    relative = target_position - pursuer
-    series = {
-        "time": t - t0,
-        "pursuer_position": pursuer,
-        "pursuer_velocity": pursuer_velocity,
-        "pursuer_forward": forward,
-        "pursuer_down_z": down_z,
-        "target_position": target_position,
-        "target_velocity": target_velocity,
-        "estimate_position": estimate_position,
-        "estimate_velocity": estimate_velocity,
-        "range": np.linalg.norm(relative, axis=1),
-        "range_estimate": np.linalg.norm(estimate_position - pursuer, axis=1),
-        "pursuer_tilt": np.degrees(np.arccos(np.clip(down_z, -1.0, 1.0))),
-    }
-    # The companion's windowed FIM (section V), -inf while singular, as bof-sim logs it.
-    # ... and its filter-health verdict (1 suspect, 0 ok, NaN before the first correction).
-    for key in ("observability_log_det", "observability_min_eigenvalue", "health_suspect"):
-        if key in companion:
-            series[key] = companion[key][engaged]
-    horizontal = forward[:, :2]
-    los = relative[:, :2]
-    norms = np.linalg.norm(horizontal, axis=1) * np.linalg.norm(los, axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        series["heading_error"] = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", horizontal, los) / norms, -1.0, 1.0)))
-    return series, t0
-
-
-def bearing_only_check(run: Path) -> dict:
-    """What the estimator was given: every bearing in the companion's estimator-input log is a
-    direction (norm ~1, the noise of eq. (4) aside). range_inputs_logged counts the bearings that
-    carried a measured range (only with a [sensor] range_noise_std) plus any range input column
-    in the series log; a bearing-only flight has 0."""
-    companion = _read_csv(run / "companion" / "series.csv")
-    inputs = _read_csv(run / "companion" / "bearings.csv")
-    bearings = np.column_stack([inputs[k] for k in ("direction_x", "direction_y", "direction_z")])
-    norms = np.linalg.norm(bearings, axis=1)
-    return {
-        "bearings_logged": int(len(norms)),
-        "bearing_norm_min": float(norms.min()) if norms.size else math.nan,
-        "bearing_norm_max": float(norms.max()) if norms.size else math.nan,
-        "range_inputs_logged": (int(np.count_nonzero(np.isfinite(inputs["range"]))) if "range" in inputs else 0)
-        + sum(1 for key in companion if "range" in key and key != "range_estimate"),
-    }
-
-
 def plot_link(run: Path, engaged_at: float, path: Path) -> None:
     import matplotlib
 
@@ -171,7 +74,7 @@ def plot_link(run: Path, engaged_at: float, path: Path) -> None:
     records = [json.loads(line) for line in (run / "companion" / "zenoh_rx.jsonl").read_text().splitlines() if line.strip()]
     accepted = [r for r in records if r.get("verdict") == "accepted" and r.get("stamp") is not None]
     rejected = [r for r in records if r.get("verdict") == "rejected" and r.get("sim_time") is not None]
-    latency = _read_csv(run / "companion" / "latency.csv")
+    latency = read_csv(run / "companion" / "latency.csv")
     figure, axes = plt.subplots(2, 1, figsize=(8.0, 5.5), sharex=True)
     stamps = np.array([r["stamp"] for r in accepted]) - engaged_at
     if stamps.size > 1:
@@ -254,8 +157,6 @@ def _progress(state: link.CompanionState | None) -> str:
 #: Wall-clock seconds the children need to start and the companion to connect, arm and take off at any speed;
 #: --timeout must leave at least this plus the flight's own duration / speed factor.
 STARTUP_ALLOWANCE = 20.0
-#: The ground-station port the plant streams to by default (QGroundControl and MAVProxy listen there).
-DEFAULT_GCS_PORT = 14550
 
 
 def check_faults(scenario: Scenario, target_faults: list[str] | None) -> None:
@@ -277,31 +178,7 @@ def minimum_timeout(scenario: Scenario, speed: float) -> float:
     return STARTUP_ALLOWANCE + duration / speed
 
 
-def _termination(folder: Path, companion_summary: dict | None, interrupted: str | None) -> Termination:
-    """What ended the flight, from bof-sitl's own view and the companion's phase log (before the estimate's
-    verdict, which studies.metrics.summarize adds: a completed flight suspect at the end is DIVERGED)."""
-    if interrupted is not None:
-        return Termination.INTERRUPTED
-    events_path = folder / "companion" / "events.jsonl"
-    phases, gave_up = [], False
-    if events_path.exists():
-        for line in events_path.read_text().splitlines():
-            try:
-                event = json.loads(line)
-            except json.JSONDecodeError:
-                continue  # a line cut by an interruption
-            if event.get("kind") == "phase":
-                phases.append(event.get("phase"))
-            # The autopilot took over (link loss, left offboard) and the companion did not resume.
-            gave_up |= event.get("kind") == "vehicle_link" and str(event.get("detail", "")).startswith("not resuming")
-    if "aborting" in phases or (companion_summary or {}).get("abort_requested"):
-        return Termination.ABORTED
-    if companion_summary is None or companion_summary.get("phase") != "done" or gave_up or "following" not in phases:
-        return Termination.FAILSAFE
-    return Termination.COMPLETED
-
-
-def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, timeout: float | None,
+def run(config: Path, out: Path, speed_factor: float | None, seed: int | None = None, timeout: float | None = None, *,
         plots: bool = True, quiet: bool = False, abort_after: float | None = None,
         target_faults: list[str] | None = None,
         on_state: Callable[[link.CompanionState | None, float | None], None] | None = None,
@@ -309,6 +186,8 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
         secure: bool = False) -> tuple[int, Path, dict]:
     """Fly `config` through the three processes; returns (exit code, run folder, summary).
 
+    speed_factor, seed: None takes the scenario's [sitl] speed_factor and [simulation] seed. timeout: wall s
+    for the whole flight (at least minimum_timeout; None: (follow duration + 90 s) / speed + 60 s).
     abort_after: send the companion an abort this many simulated seconds after it engaged (> 0).
     target_faults: KEY=VALUE overrides of [faults] for sitl-target (its --fault option).
     on_state: called about every 50 ms of wall time with the companion's latest state payload
@@ -320,20 +199,14 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
     plots) and the exit code is 128 + the signal. Arguments are checked (ConfigError) before the
     run folder is made.
     secure: Zenoh with mutual TLS and access control: a development PKI is made in <run>/pki
-    and every process (this ground station as role gcs) uses its own role's certificate."""
+    and every process (this ground station as role gcs) uses its own role's certificate.
+    A scenario with [swarm] is flown by studies.swarm_sitl.run_swarm (on_state is not called)."""
+    options = SitlOptions(plots=plots, quiet=quiet, abort_after=abort_after, target_faults=target_faults,
+                          on_state=on_state, gcs_port=gcs_port, stop=stop, secure=secure)
     scenario, vehicle = load_scenario(config)
     speed = scenario.sitl.speed_factor if speed_factor is None else speed_factor
     seed = scenario.simulation.seed if seed is None else seed
-    if seed < 0:
-        raise ConfigError(f"--seed {seed} is negative (seeds are integers >= 0)")
-    if abort_after is not None and not (math.isfinite(abort_after) and abort_after > 0):
-        raise ConfigError(f"--abort-after {abort_after:g}: must be > 0 simulated seconds after engagement")
-    if not 1 <= gcs_port <= 65535:
-        raise ConfigError(f"--gcs-port {gcs_port} is not a UDP port")
-    if timeout is not None and not timeout >= minimum_timeout(scenario, speed):
-        raise ConfigError(f"--timeout {timeout:g} s is too short: this flight needs at least "
-                          f"{minimum_timeout(scenario, speed):.0f} s of wall time at x{speed:g}")
-    check_faults(scenario, target_faults)
+    check_run(scenario, speed, seed, timeout, options)
     from studies.executors import compile_kernels
 
     compile_kernels()  # here, once: the children then load numba's cache instead of compiling while the clock runs
@@ -341,157 +214,166 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None, t
         from studies.swarm_sitl import budget_for, check_swarm_run, run_swarm
 
         check_swarm_run(scenario, abort_after)
-        return run_swarm(config, scenario, vehicle, out, speed, seed, budget_for(scenario, speed, timeout), plots, quiet,
-                         target_faults, gcs_port, stop, secure)
-    folder = out / f"sitl-{scenario.name}-seed{seed}-{time.strftime('%Y%m%d-%H%M%S')}"
-    folder.mkdir(parents=True, exist_ok=True)
-    companion_port = free_port()
-    endpoint = f"{'tls' if secure else 'tcp'}/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
-    pki_folder = folder / "pki"
-    tls_args = ["--zenoh-tls", str(pki_folder)] if secure else []
-    # A plain run gets a namespace of its own, so that it never hears another run on this machine
-    # (zenoh_transport.check_namespace says why); a secure run is isolated by its own CA already.
-    namespace = None if secure else f"bof-sitl-{secrets.token_hex(4)}"
-    if namespace is not None:
-        tls_args = ["--zenoh-namespace", namespace]
-    signing_args: list[str] = []
-    if secure:
-        make_pki(pki_folder)
-        signing_args = ["--signing-key", str(make_signing_key(pki_folder)), "--mav-sign-cfg", "1"]
-    # Where a ground station or a tester joins this run while it flies (the summary comes only at the end).
-    write_json(folder / "links.json", {"zenoh": {"endpoint": endpoint, "namespace": namespace, "secure": secure,
-                                                 "pki": str(pki_folder) if secure else None},
-                                       "mavlink": {"gcs_port": gcs_port, "companion_port": companion_port,
-                                                   "signing_required": secure}}, indent=2)
-    python = sys.executable
-    plant = ChildProcess([python, "-m", "sitl_plant.sitl", "--config", str(config), "--speed-factor", str(speed),
-                          "--companion-port", str(companion_port), "--gcs-port", str(gcs_port), "--seed", str(seed),
-                          "--log-dir", str(folder / "plant"), "--zenoh-listen", endpoint, "--quiet", *tls_args,
-                          *signing_args],
-                         folder / "plant.out", ready="sitl-plant ready")
-    target = ChildProcess([python, "-m", "sitl_plant.world.target_publisher", "--config", str(config), "--zenoh-connect", endpoint,
-                           "--seed", str(seed), "--log-dir", str(folder / "target"), "--wait-for-start", *tls_args,
-                           *[arg for fault in (target_faults or []) for arg in ("--fault", fault)]],
-                          folder / "target.out", ready="sitl-target ready")
-    companion = ChildProcess([python, "-m", "companion", "--config", str(config), "--mavlink",
-                              f"udpin://127.0.0.1:{companion_port}", "--zenoh-connect", endpoint, "--seed", str(seed),
-                              "--log-dir", str(folder / "companion"), *tls_args],
-                             folder / "companion.out", ready="companion ready")
+        return run_swarm(config, scenario, vehicle, out, speed, seed, budget_for(scenario, speed, timeout), options)
     duration = scenario.companion.follow_duration or scenario.simulation.duration
     budget = timeout if timeout is not None else (duration + 90.0) / speed + 60.0
-    print(f"bof-sitl: ground station: udp 127.0.0.1:{gcs_port} (the plant streams its telemetry there)", flush=True)
-    print(f"bof-sitl: zenoh {endpoint}, " + ("mutual TLS and access control (pki in the run folder)" if secure else
-          f"plain TCP, unauthenticated, namespace {namespace} (other processes join with --zenoh-namespace)"), flush=True)
-    station = None
-    code = 1
-    interrupted: str | None = None
-    interrupted_at: float | None = None
-    try:
-        plant.start(stop=stop)
-        target.start(stop=stop)
-        station = GroundStation(endpoint, scenario, zenoh_transport.tls_identity(pki_folder, "gcs") if secure else None,
-                                namespace=namespace)
-        companion.start(stop=stop)
-        deadline = time.monotonic() + budget
-        next_print = 0.0
-        while companion.running:
-            if stop is not None:
-                stop.check()
-            if time.monotonic() > deadline:
-                interrupted, interrupted_at = f"timeout after {budget:.0f} s of wall time", time.monotonic()
-                break
-            state = station.latest
-            if state and state.phase == "following" and not station.target_started:
-                station.engaged_stamp = state.stamp
-                station.start_target(station.engaged_stamp)
-            if (abort_after is not None and state and station.engaged_stamp is not None and not station.abort_sent
-                    and state.stamp >= station.engaged_stamp + abort_after):
-                station.abort_companion(state.stamp)
-            if on_state is not None:
-                on_state(state, station.engaged_stamp)
-            if not quiet and time.monotonic() >= next_print:
-                next_print = time.monotonic() + 2.0
-                print(f"bof-sitl: {_progress(state)}", flush=True)
-            for child in (plant, target):
-                if not child.running:
-                    raise RuntimeError(f"{child.command[2]} exited early:\n{child.output()[-2000:]}")
-            time.sleep(0.05)
-        code = companion.process.returncode if interrupted is None else 1
-    except Interrupted as signal_stop:
-        interrupted = signal.Signals(signal_stop.signum).name
-        interrupted_at = stop.received_at if stop is not None else time.monotonic()
-        code = 128 + signal_stop.signum
-    finally:
-        # The companion first, while the plant still answers (it hands the vehicle to the autopilot),
-        # then the target and the plant together; each wave bounded by GRACE_PERIOD.
-        companion_code, = stop_all((companion,))
-        target_code, plant_code = stop_all((target, plant))
-        if station is not None:
-            station.close()
-    stopped_after = None if interrupted_at is None else round(time.monotonic() - interrupted_at, 3)
-    summary: dict = {"companion_exit_code": companion_code, "target_exit_code": target_code, "plant_exit_code": plant_code,
-                     "speed_factor": speed, "seed": seed, "run_folder": str(folder), "gcs_port": gcs_port,
-                     "abort_sent": station.abort_sent if station is not None else False,
-                     "interrupted": interrupted, "stopped_after_s": stopped_after,
-                     # Refused TLS handshakes as each child's Zenoh logged them (secure mode only; ACL
-                     # denials are silent at the receiver, see interfaces.zenoh_transport).
-                     "zenoh": {"secure": secure, "endpoint": endpoint, "namespace": namespace, "tls_refused": {child.log_path.stem: zenoh_transport.count_tls_refusals(
-                         child.output()) for child in (plant, target, companion)} if secure else None}}
-    companion_summary = _read_json(folder / "companion" / "summary.json")
-    summary["companion"] = companion_summary
-    plant_stats = _read_json(folder / "plant" / "stats.json")
-    if plant_stats is not None:
-        summary["plant"] = {k: plant_stats.get(k) for k in ("speed_factor_achieved", "late_ticks", "ticks", "slips")}
-        summary["plant"]["mavlink_rejected"] = plant_stats.get("mavlink", {}).get("rejected")
-    else:
-        summary["plant"] = None
-    termination = _termination(folder, companion_summary, interrupted)
-    summary["termination"], summary["termination_reason"] = termination_name(termination), termination.value
-    try:
-        if companion_summary is None:
-            raise RuntimeError("the companion wrote no summary; see companion.out")
-        series, engaged_at = flight_series(folder)
-        summary["flight"] = summarize(series, scenario, termination, vehicle)
-        summary["flight"]["engaged_at_sim_time"] = engaged_at
-        summary["termination"], summary["termination_reason"] = (summary["flight"]["termination"],
-                                                                 summary["flight"]["termination_reason"])
-        summary["bearing_only"] = bearing_only_check(folder)
-        if plots and interrupted is None:
-            from studies.plots import plot_errors, plot_trajectories
-
-            plot_trajectories(series, folder / "trajectory.png", f"{scenario.name} (SITL)")
-            plot_errors(series, scenario.guidance.desired_range, folder / "errors.png", f"{scenario.name} (SITL)")
-            plot_link(folder, engaged_at, folder / "link.png")
-    except (RuntimeError, FileNotFoundError, KeyError, ValueError, IndexError) as error:
-        summary["flight"] = None
-        summary["flight_error"] = str(error)
-        code = code or 1
-    write_summary(folder / "summary.json", summary, sort_keys=True)
-    return code, folder, summary
+    return SingleRun(config, scenario, vehicle, out, speed, seed, options).fly(budget)
 
 
-def make_signing_key(folder: Path) -> Path:
-    """A MAVLink 2 signing key for the plant's ground-station link, in `folder` (mode 0600).
+def check_run(scenario: Scenario, speed: float, seed: int, timeout: float | None, options: SitlOptions) -> None:
+    """ConfigError (one line) for a bad seed, --abort-after, --gcs-port, --timeout or --fault, before any process
+    or folder exists."""
+    if seed < 0:
+        raise ConfigError(f"--seed {seed} is negative (seeds are integers >= 0)")
+    abort_after = options.abort_after
+    if abort_after is not None and not (math.isfinite(abort_after) and abort_after > 0):
+        raise ConfigError(f"--abort-after {abort_after:g}: must be > 0 simulated seconds after engagement")
+    if not 1 <= options.gcs_port <= 65535:
+        raise ConfigError(f"--gcs-port {options.gcs_port} is not a UDP port")
+    if timeout is not None and not timeout >= minimum_timeout(scenario, speed):
+        raise ConfigError(f"--timeout {timeout:g} s is too short: this flight needs at least "
+                          f"{minimum_timeout(scenario, speed):.0f} s of wall time at x{speed:g}")
+    check_faults(scenario, options.target_faults)
 
-    The key is the SHA-256 of a random passphrase, which is how MAVProxy derives its key from
-    `signing key <passphrase>`, so the passphrase (mavlink_signing_passphrase.txt, also 0600) is
-    all a ground station needs. Returns the key file (64 hex characters, sitl-plant --signing-key).
-    """
-    passphrase = secrets.token_urlsafe(24)
-    for name, text in (("mavlink_signing_passphrase.txt", passphrase),
-                       ("mavlink_signing.key", hashlib.sha256(passphrase.encode()).hexdigest())):
-        descriptor = os.open(folder / name, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-        with os.fdopen(descriptor, "w") as handle:
-            handle.write(text + "\n")
-    return folder / "mavlink_signing.key"
 
+class SingleRun:
+    """One pursuer's SITL run, step by step: the run folder and its network (made on construction), the three
+    children, the flight watched as the ground station, then the summary read from the run folder (`fly`)."""
 
-def _read_json(path: Path) -> dict | None:
-    """A child's JSON summary, or None when it is missing or cut (a child killed before writing it)."""
-    try:
-        return json.loads(path.read_text())
-    except (FileNotFoundError, json.JSONDecodeError):
-        return None
+    def __init__(self, config: Path, scenario: Scenario, vehicle: VehicleConfig, out: Path, speed: float, seed: int,
+                 options: SitlOptions) -> None:
+        self.config, self.scenario, self.vehicle = config, scenario, vehicle
+        self.speed, self.seed, self.options = speed, seed, options
+        self.folder = make_run_folder(out, scenario, seed)
+        self.companion_port = free_port()
+        self.network = ZenohNetwork.create(self.folder, options.secure)
+        write_json(self.folder / "links.json", {"zenoh": self.network.links(),
+                                                "mavlink": {"gcs_port": options.gcs_port,
+                                                            "companion_port": self.companion_port,
+                                                            "signing_required": options.secure}}, indent=2)
+        self.plant, self.target, self.companion = self._children()
+        self.station: GroundStation | None = None
+        self.termination = Termination.INTERRUPTED  # until the summary reads it from the run folder
+        self._next_print = 0.0
+
+    def _children(self) -> tuple[ChildProcess, ChildProcess, ChildProcess]:
+        """The plant, the target and the companion, not started yet."""
+        python, config, folder, seed = sys.executable, str(self.config), self.folder, str(self.seed)
+        network, zenoh_args = self.network, list(self.network.zenoh_args)
+        plant = ChildProcess([python, "-m", "sitl_plant.sitl", "--config", config, "--speed-factor", str(self.speed),
+                              "--companion-port", str(self.companion_port), "--gcs-port", str(self.options.gcs_port),
+                              "--seed", seed, "--log-dir", str(folder / "plant"), "--zenoh-listen", network.endpoint,
+                              "--quiet", *zenoh_args, *network.signing_args],
+                             folder / "plant.out", ready="sitl-plant ready")
+        target = ChildProcess([python, "-m", "sitl_plant.world.target_publisher", "--config", config, "--zenoh-connect",
+                               network.endpoint, "--seed", seed, "--log-dir", str(folder / "target"), "--wait-for-start",
+                               *zenoh_args, *self.options.fault_args()],
+                              folder / "target.out", ready="sitl-target ready")
+        companion = ChildProcess([python, "-m", "companion", "--config", config, "--mavlink",
+                                  f"udpin://127.0.0.1:{self.companion_port}", "--zenoh-connect", network.endpoint,
+                                  "--seed", seed, "--log-dir", str(folder / "companion"), *zenoh_args],
+                                 folder / "companion.out", ready="companion ready")
+        return plant, target, companion
+
+    def fly(self, budget: float) -> tuple[int, Path, dict]:
+        """Start the children, watch the flight for at most `budget` wall s, stop them all and write the summary;
+        returns (exit code, run folder, summary)."""
+        options, network = self.options, self.network
+        print(f"bof-sitl: ground station: udp 127.0.0.1:{options.gcs_port} (the plant streams its telemetry there)",
+              flush=True)
+        print(f"bof-sitl: zenoh {network.endpoint}, " + ("mutual TLS and access control (pki in the run folder)"
+              if options.secure else f"plain TCP, unauthenticated, namespace {network.namespace} (other processes "
+                                     "join with --zenoh-namespace)"), flush=True)
+        code = 1
+        stopped: Stopped | None = None
+        try:
+            self.plant.start(stop=options.stop)
+            self.target.start(stop=options.stop)
+            self.station = GroundStation(network.endpoint, self.scenario, network.ground_station_tls(),
+                                         namespace=network.namespace)
+            self.companion.start(stop=options.stop)
+            stopped = watch(lambda: self.companion.running, self._tick, budget, options.stop)
+            code = self.companion.process.returncode if stopped is None else 1
+        except Interrupted as signal_stop:
+            stopped = Stopped.by_signal(signal_stop, options.stop)
+            code = 128 + signal_stop.signum
+        finally:
+            # The companion first, while the plant still answers (it hands the vehicle to the autopilot),
+            # then the target and the plant together; each wave bounded by GRACE_PERIOD.
+            self.exit_codes = (*stop_all((self.companion,)), *stop_all((self.target, self.plant)))
+            if self.station is not None:
+                self.station.close()
+        summary = self._summary(stopped)
+        code = self._judge_flight(summary, stopped is None, code)
+        write_summary(self.folder / "summary.json", summary, sort_keys=True)
+        return code, self.folder, summary
+
+    def _tick(self) -> None:
+        """One look as the ground station: start the target once the companion follows, send the abort when due,
+        report progress; RuntimeError when the plant or the target has exited."""
+        station, options = self.station, self.options
+        state = station.latest
+        if state and state.phase == "following" and not station.target_started:
+            station.engaged_stamp = state.stamp
+            station.start_target(station.engaged_stamp)
+        if (options.abort_after is not None and state and station.engaged_stamp is not None and not station.abort_sent
+                and state.stamp >= station.engaged_stamp + options.abort_after):
+            station.abort_companion(state.stamp)
+        if options.on_state is not None:
+            options.on_state(state, station.engaged_stamp)
+        if not options.quiet and time.monotonic() >= self._next_print:
+            self._next_print = time.monotonic() + 2.0
+            print(f"bof-sitl: {_progress(state)}", flush=True)
+        fail_on_early_exit((child.command[2], child) for child in (self.plant, self.target))
+
+    def _summary(self, stopped: Stopped | None) -> dict:
+        """summary.json before the flight's figures: the children's exit codes and summaries, the run's settings,
+        and the termination as bof-sitl and the companion saw it."""
+        companion_code, target_code, plant_code = self.exit_codes
+        children = {child.log_path.stem: child for child in (self.plant, self.target, self.companion)}
+        summary: dict = {"companion_exit_code": companion_code, "target_exit_code": target_code,
+                         "plant_exit_code": plant_code, "speed_factor": self.speed, "seed": self.seed,
+                         "run_folder": str(self.folder), "gcs_port": self.options.gcs_port,
+                         "abort_sent": self.station.abort_sent if self.station is not None else False,
+                         "interrupted": None if stopped is None else stopped.interrupted,
+                         "stopped_after_s": None if stopped is None else stopped.stopped_after(),
+                         "zenoh": self.network.summary(children)}
+        summary["companion"] = read_json(self.folder / "companion" / "summary.json")
+        plant_stats = read_json(self.folder / "plant" / "stats.json")
+        if plant_stats is not None:
+            summary["plant"] = {k: plant_stats.get(k) for k in ("speed_factor_achieved", "late_ticks", "ticks", "slips")}
+            summary["plant"]["mavlink_rejected"] = plant_stats.get("mavlink", {}).get("rejected")
+        else:
+            summary["plant"] = None
+        self.termination = run_termination(self.folder, summary["companion"], summary["interrupted"])
+        summary["termination"], summary["termination_reason"] = (termination_name(self.termination),
+                                                                 self.termination.value)
+        return summary
+
+    def _judge_flight(self, summary: dict, plots: bool, code: int) -> int:
+        """The flight's figures from the truth logs into `summary` (and its plots, with `plots` and the options'),
+        or why there are none; returns the exit code (`code`, 1 when it was 0 and there are no figures)."""
+        folder, scenario = self.folder, self.scenario
+        try:
+            if summary["companion"] is None:
+                raise RuntimeError("the companion wrote no summary; see companion.out")
+            series, engaged_at = flight_series(folder)
+            summary["flight"] = summarize(series, scenario, self.termination, self.vehicle)
+            summary["flight"]["engaged_at_sim_time"] = engaged_at
+            summary["termination"], summary["termination_reason"] = (summary["flight"]["termination"],
+                                                                     summary["flight"]["termination_reason"])
+            summary["bearing_only"] = bearing_only_check(folder)
+            if self.options.plots and plots:
+                from studies.plots import plot_errors, plot_trajectories
+
+                plot_trajectories(series, folder / "trajectory.png", f"{scenario.name} (SITL)")
+                plot_errors(series, scenario.guidance.desired_range, folder / "errors.png", f"{scenario.name} (SITL)")
+                plot_link(folder, engaged_at, folder / "link.png")
+        except (RuntimeError, FileNotFoundError, KeyError, ValueError, IndexError) as error:
+            summary["flight"] = None
+            summary["flight_error"] = str(error)
+            code = code or 1
+        return code
 
 
 def format_summary(summary: dict) -> str:
@@ -594,8 +476,9 @@ def main(argv: list[str] | None = None) -> int:
     with StopSignals() as stop:
         try:
             code, folder, summary = run(args.config, args.out, args.speed_factor, args.seed, args.timeout,
-                                        not args.no_plots, args.quiet, args.abort_after, args.fault,
-                                        gcs_port=args.gcs_port, stop=stop, secure=args.secure)
+                                        plots=not args.no_plots, quiet=args.quiet, abort_after=args.abort_after,
+                                        target_faults=args.fault, gcs_port=args.gcs_port, stop=stop,
+                                        secure=args.secure)
         except ConfigError as error:
             parser.error(str(error))
     if summary.get("interrupted"):

@@ -1,7 +1,7 @@
 """Figures of merit of one flight, the same for both harnesses, and the run folder's summary.json.
 
 `summarize` takes a flight series (the in-process simulator's FlightLog.series(), or the
-SITL run's studies.full_sitl.flight_series(): the same keys) and returns the figures
+SITL run's studies.sitl_runs.flight_series(): the same keys) and returns the figures
 bof-sim, bof-sitl, the campaign and the Monte Carlo study report. A figure that does not
 apply (no convergence, no observability data) is NaN in memory and `null` in summary.json:
 `write_summary` turns every non-finite number into null and refuses to write NaN, which is

@@ -35,9 +35,6 @@ The run folder sitl-<scenario>-seed<seed>-<time>/::
 
 from __future__ import annotations
 
-import secrets
-import signal
-import socket
 import sys
 import time
 from collections.abc import Callable
@@ -50,12 +47,12 @@ from companion.assembly import pursuer_scenario
 from companion.core.cooperative_guidance import phase_spacing_errors
 from interfaces import link_schema as link
 from interfaces import zenoh_transport
-from interfaces.pki import make_pki
 from interfaces.records import write_json
 from interfaces.scenario import ConfigError, Scenario, VehicleConfig, pursuer_starts
-from studies.closed_loop import Termination
 from studies.metrics import outcome_lines, rms, summarize, termination_name, write_summary
 from studies.processes import ChildProcess, Interrupted, StopSignals, free_port, stop_all
+from studies.sitl_runs import (SitlOptions, Stopped, ZenohNetwork, fail_on_early_exit, flight_series, interp,
+                               make_run_folder, read_csv, read_json, run_termination, watch)
 
 #: Wall s between the start of the first plant and simulated time 0 of every plant, per pursuer (the plants
 #: start one after the other; one that starts late catches up on the ground, before anyone connects).
@@ -169,12 +166,10 @@ class CpuMeter:
 
 def _engaged_spans(folder: Path, count: int) -> list[tuple[float, float] | None]:
     """Per pursuer, (first, last) simulated time it was following with an estimate (None: never)."""
-    from studies.full_sitl import _read_csv
-
     spans = []
     for ident in range(1, count + 1):
         try:
-            series = _read_csv(folder / f"pursuer-{ident}" / "companion" / "series.csv")
+            series = read_csv(folder / f"pursuer-{ident}" / "companion" / "series.csv")
         except (FileNotFoundError, IndexError):
             spans.append(None)
             continue
@@ -190,10 +185,8 @@ def swarm_geometry(folder: Path, count: int, summary_window: float, rate_hz: flo
     follows (None with one pursuer or no overlap). phase_spacing_error_deg_rms: RMS of
     companion.core.cooperative_guidance.phase_spacing_errors (horizontal phases about the target, deg) over
     the last `summary_window` s of the span where every pursuer follows (None if there is none)."""
-    from studies.full_sitl import _interp, _read_csv
-
-    plants = [_read_csv(folder / f"pursuer-{k}" / "plant" / "vehicle.csv") for k in range(1, count + 1)]
-    target = _read_csv(folder / "target" / "target.csv")
+    plants = [read_csv(folder / f"pursuer-{k}" / "plant" / "vehicle.csv") for k in range(1, count + 1)]
+    target = read_csv(folder / "target" / "target.csv")
     spans = _engaged_spans(folder, count)
     out = {"min_pursuer_separation": None, "phase_spacing_error_deg_rms": None, "all_following_span": None}
     known = [s for s in spans if s is not None]
@@ -204,7 +197,7 @@ def swarm_geometry(folder: Path, count: int, summary_window: float, rate_hz: flo
     if end <= start:
         return out
     grid = np.arange(start, end, 1.0 / rate_hz)
-    positions = np.stack([_interp(grid, p["time"], np.column_stack([p["x"], p["y"], p["z"]])) for p in plants])
+    positions = np.stack([interp(grid, p["time"], np.column_stack([p["x"], p["y"], p["z"]])) for p in plants])
     gaps = np.linalg.norm(positions[:, None, :, :] - positions[None, :, :, :], axis=3)
     pairs = np.triu_indices(count, 1)
     out["min_pursuer_separation"] = float(np.min(gaps[pairs[0], pairs[1], :]))
@@ -217,10 +210,10 @@ def swarm_geometry(folder: Path, count: int, summary_window: float, rate_hz: flo
     window = grid[(grid >= max(all_start, all_end - summary_window)) & (grid <= all_end)]
     if window.size == 0:
         return out
-    target_position = _interp(window, target["stamp"], np.column_stack([target["true_n"], target["true_e"], target["true_d"]]))
+    target_position = interp(window, target["stamp"], np.column_stack([target["true_n"], target["true_e"], target["true_d"]]))
     errors = []
     for index, moment in enumerate(window):
-        where = np.stack([_interp(np.array([moment]), p["time"], np.column_stack([p["x"], p["y"]]))[0] for p in plants])
+        where = np.stack([interp(np.array([moment]), p["time"], np.column_stack([p["x"], p["y"]]))[0] for p in plants])
         relative = where - target_position[index, :2]
         errors.append(phase_spacing_errors(np.arctan2(relative[:, 1], relative[:, 0])))
     out["phase_spacing_error_deg_rms"] = float(np.degrees(rms(np.concatenate(errors))))
@@ -251,124 +244,163 @@ def check_swarm_run(scenario: Scenario, abort_after: float | None) -> None:
 
 
 def run_swarm(config: Path, scenario: Scenario, vehicle: VehicleConfig, out: Path, speed: float, seed: int, budget: float,
-              plots: bool = True, quiet: bool = False, target_faults: list[str] | None = None,
-              gcs_port: int = 14550, stop: StopSignals | None = None, secure: bool = False,
+              options: SitlOptions = SitlOptions(), *,
               on_progress: Callable[[SwarmGroundStation], None] | None = None) -> tuple[int, Path, dict]:
     """Fly the [swarm] scenario `config` (already loaded and checked as `scenario`) through 2N + 1 processes;
-    returns (exit code, run folder, summary). Arguments as studies.full_sitl.run; vehicle: the airframe every
-    pursuer flies (its max_tilt_deg is the summaries' tilt envelope); budget: wall s for the whole flight. on_progress: called about every 50 ms of wall time with the ground station."""
-    from studies.full_sitl import _read_json, _termination, flight_series, make_signing_key
+    returns (exit code, run folder, summary). options: as studies.full_sitl.run's keywords (its on_state and
+    abort_after are for one pursuer: not used); vehicle: the airframe every pursuer flies (its max_tilt_deg is
+    the summaries' tilt envelope); budget: wall s for the whole flight. on_progress: called about every 50 ms
+    of wall time with the ground station."""
+    return SwarmRun(config, scenario, vehicle, out, speed, seed, options).fly(budget, on_progress)
 
-    count = scenario.swarm.count
-    folder = out / f"sitl-{scenario.name}-seed{seed}-{time.strftime('%Y%m%d-%H%M%S')}"
-    folder.mkdir(parents=True, exist_ok=True)
-    endpoint = f"{'tls' if secure else 'tcp'}/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
-    pki_folder = folder / "pki"
-    namespace = None if secure else f"bof-sitl-{secrets.token_hex(4)}"
-    zenoh_args = ["--zenoh-tls", str(pki_folder)] if secure else ["--zenoh-namespace", namespace]
-    signing_args: list[str] = []
-    if secure:
-        make_pki(pki_folder)
-        signing_args = ["--signing-key", str(make_signing_key(pki_folder)), "--mav-sign-cfg", "1"]
-    companion_ports = {k: free_port() for k in range(1, count + 1)}
-    write_json(folder / "links.json", {"zenoh": {"endpoint": endpoint, "namespace": namespace, "secure": secure,
-                                                 "pki": str(pki_folder) if secure else None},
-                                       "mavlink": {"gcs_port": gcs_port, "signing_required": secure,
-                                                   "pursuers": {str(k): {"system_id": k, "companion_port": port}
-                                                                for k, port in companion_ports.items()}}}, indent=2)
-    python = sys.executable
-    plants, companions = {}, {}
-    for k in range(1, count + 1):
-        where = folder / f"pursuer-{k}"
-        zenoh = ["--zenoh-listen", endpoint, *zenoh_args] if k == 1 else []
-        plants[k] = ChildProcess([python, "-m", "sitl_plant.sitl", "--config", str(config), "--speed-factor", str(speed),
-                                  "--pursuer-id", str(k), "--system-id", str(k), "--companion-port",
-                                  str(companion_ports[k]), "--gcs-port", str(gcs_port), "--seed", str(plant_seed(seed, k)),
-                                  "--log-dir", str(where / "plant"), "--quiet", *zenoh, *signing_args],
-                                 where / "plant.out", ready="sitl-plant ready")
-        companions[k] = ChildProcess([python, "-m", "companion", "--config", str(config), "--pursuer-id", str(k),
-                                      "--mavlink", f"udpin://127.0.0.1:{companion_ports[k]}", "--zenoh-connect", endpoint,
-                                      "--seed", str(seed), "--log-dir", str(where / "companion"), *zenoh_args],
-                                     where / "companion.out", ready="companion ready")
-    target = ChildProcess([python, "-m", "sitl_plant.world.target_publisher", "--config", str(config), "--zenoh-connect",
-                           endpoint, "--seed", str(seed), "--log-dir", str(folder / "target"), "--wait-for-start",
-                           *zenoh_args, *[arg for fault in (target_faults or []) for arg in ("--fault", fault)]],
-                          folder / "target.out", ready="sitl-target ready")
-    children = {**{f"plant-{k}": c for k, c in plants.items()}, "target": target,
-                **{f"companion-{k}": c for k, c in companions.items()}}
-    print(f"bof-sitl: {count} pursuers; ground station: udp 127.0.0.1:{gcs_port} (system ids 1..{count})", flush=True)
-    print(f"bof-sitl: zenoh {endpoint}, " + ("mutual TLS and access control (pki in the run folder)" if secure else
-          f"plain TCP, unauthenticated, namespace {namespace}"), flush=True)
-    cpu = CpuMeter()
-    station = None
-    code = 1
-    interrupted: str | None = None
-    interrupted_at: float | None = None
-    anchor = None
-    try:
-        anchor = time.monotonic() + ANCHOR_LEAD_PER_PURSUER * count
+
+class SwarmRun:
+    """A swarm's SITL run, step by step: the run folder and its network (made on construction), a plant and a
+    companion per pursuer and the one target, the flight watched as the ground station, then one summary entry
+    per pursuer and the swarm's figures, read from the run folder (`fly`)."""
+
+    def __init__(self, config: Path, scenario: Scenario, vehicle: VehicleConfig, out: Path, speed: float, seed: int,
+                 options: SitlOptions) -> None:
+        self.config, self.scenario, self.vehicle = config, scenario, vehicle
+        self.speed, self.seed, self.options = speed, seed, options
+        self.count = scenario.swarm.count
+        self.folder = make_run_folder(out, scenario, seed)
+        self.network = ZenohNetwork.create(self.folder, options.secure)
+        self.companion_ports = {k: free_port() for k in range(1, self.count + 1)}
+        write_json(self.folder / "links.json", {
+            "zenoh": self.network.links(),
+            "mavlink": {"gcs_port": options.gcs_port, "signing_required": options.secure,
+                        "pursuers": {str(k): {"system_id": k, "companion_port": port}
+                                     for k, port in self.companion_ports.items()}}}, indent=2)
+        self.plants, self.companions, self.target = self._children()
+        self.children = {**{f"plant-{k}": c for k, c in self.plants.items()}, "target": self.target,
+                         **{f"companion-{k}": c for k, c in self.companions.items()}}
+        self.cpu = CpuMeter()
+        self.station: SwarmGroundStation | None = None
+        self.anchor: float | None = None
+        self._next_print = 0.0
+
+    def _children(self) -> tuple[dict[int, ChildProcess], dict[int, ChildProcess], ChildProcess]:
+        """Pursuer K's plant and companion (by K), and the target, not started yet."""
+        python, config, seed, network = sys.executable, str(self.config), self.seed, self.network
+        zenoh_args, gcs_port = list(network.zenoh_args), self.options.gcs_port
+        plants, companions = {}, {}
+        for k in range(1, self.count + 1):
+            where = self.folder / f"pursuer-{k}"
+            zenoh = ["--zenoh-listen", network.endpoint, *zenoh_args] if k == 1 else []
+            plants[k] = ChildProcess([python, "-m", "sitl_plant.sitl", "--config", config, "--speed-factor",
+                                      str(self.speed), "--pursuer-id", str(k), "--system-id", str(k),
+                                      "--companion-port", str(self.companion_ports[k]), "--gcs-port", str(gcs_port),
+                                      "--seed", str(plant_seed(seed, k)), "--log-dir", str(where / "plant"), "--quiet",
+                                      *zenoh, *network.signing_args],
+                                     where / "plant.out", ready="sitl-plant ready")
+            companions[k] = ChildProcess([python, "-m", "companion", "--config", config, "--pursuer-id", str(k),
+                                          "--mavlink", f"udpin://127.0.0.1:{self.companion_ports[k]}",
+                                          "--zenoh-connect", network.endpoint, "--seed", str(seed), "--log-dir",
+                                          str(where / "companion"), *zenoh_args],
+                                         where / "companion.out", ready="companion ready")
+        target = ChildProcess([python, "-m", "sitl_plant.world.target_publisher", "--config", config, "--zenoh-connect",
+                               network.endpoint, "--seed", str(seed), "--log-dir", str(self.folder / "target"),
+                               "--wait-for-start", *zenoh_args, *self.options.fault_args()],
+                              self.folder / "target.out", ready="sitl-target ready")
+        return plants, companions, target
+
+    def fly(self, budget: float, on_progress: Callable[[SwarmGroundStation], None] | None) -> tuple[int, Path, dict]:
+        """Start the children, watch the flight for at most `budget` wall s, stop them all and write the summary;
+        returns (exit code, run folder, summary)."""
+        options, network, count = self.options, self.network, self.count
+        print(f"bof-sitl: {count} pursuers; ground station: udp 127.0.0.1:{options.gcs_port} (system ids 1..{count})",
+              flush=True)
+        print(f"bof-sitl: zenoh {network.endpoint}, " + ("mutual TLS and access control (pki in the run folder)"
+              if options.secure else f"plain TCP, unauthenticated, namespace {network.namespace}"), flush=True)
+        self._on_progress = on_progress
+        code = 1
+        stopped: Stopped | None = None
+        try:
+            self._start()
+            stopped = watch(lambda: any(c.running for c in self.companions.values()), self._tick, budget, options.stop)
+            self.cpu.sample(self.children, force=True)
+            codes = [c.process.returncode for c in self.companions.values()]
+            code = (0 if all(c == 0 for c in codes) else 1) if stopped is None else 1
+        except Interrupted as signal_stop:
+            stopped = Stopped.by_signal(signal_stop, options.stop)
+            code = 128 + signal_stop.signum
+        finally:
+            self.cpu.sample(self.children, force=True)
+            # Companions first, while the plants still answer (each hands its vehicle to its autopilot).
+            companion_codes = stop_all(self.companions.values())
+            other_codes = stop_all([self.target, *self.plants.values()])
+            if self.station is not None:
+                self.station.close()
+        stopped_after = None if stopped is None else stopped.stopped_after()
+        interrupted = None if stopped is None else stopped.interrupted
+        exit_codes = {"target": other_codes[0], **{f"plant-{k}": c for k, c in zip(self.plants, other_codes[1:])},
+                      **{f"companion-{k}": c for k, c in zip(self.companions, companion_codes)}}
+        entries, series = [], {}
+        for k in range(1, count + 1):
+            entry, data = self._pursuer_entry(k, interrupted, exit_codes)
+            entries.append(entry)
+            if data is not None:
+                series[k] = data
+        top, code = self._swarm_summary(entries, code)
+        top.update(speed_factor=self.speed, seed=self.seed, run_folder=str(self.folder), gcs_port=options.gcs_port,
+                   interrupted=interrupted, stopped_after_s=stopped_after, exit_codes=exit_codes, cpu=self.cpu.report(),
+                   clock_anchor=self.anchor,
+                   target_started_at=None if self.station is None else self.station.started_stamp,
+                   zenoh=network.summary(self.children))
+        if options.plots and interrupted is None and series:
+            from studies.plots import plot_swarm_tracks
+
+            plot_swarm_tracks(series, self.folder / "tracks.png",
+                              f"{self.scenario.name} (SITL, {count} pursuers, seed {self.seed})")
+        write_summary(self.folder / "summary.json", top, sort_keys=True)
+        return code, self.folder, top
+
+    def _start(self) -> None:
+        """The plants on one clock anchor, then the target and the ground station, then the companions."""
+        stop = self.options.stop
+        self.anchor = time.monotonic() + ANCHOR_LEAD_PER_PURSUER * self.count
         # Each wave starts together, then waits for every ready line: the pursuers take off and engage within
         # about a second of one another, as the in-process pursuers all start at once.
-        for plant in plants.values():
-            plant.command += ["--clock-anchor", f"{anchor:.6f}"]
-        _start_together(plants.values(), stop)
-        target.start(stop=stop)
-        station = SwarmGroundStation(endpoint, scenario, zenoh_transport.tls_identity(pki_folder, "gcs") if secure else None,
-                                     namespace)
-        _start_together(companions.values(), stop)
-        deadline = time.monotonic() + budget
-        next_print = 0.0
-        while any(c.running for c in companions.values()):
-            if stop is not None:
-                stop.check()
-            cpu.sample(children)
-            if time.monotonic() > deadline:
-                interrupted, interrupted_at = f"timeout after {budget:.0f} s of wall time", time.monotonic()
-                break
-            gone = frozenset(station.ids[k - 1] for k, c in companions.items() if not c.running)
-            if not station.target_started and station.all_following(gone):
-                station.start_target()
-            if on_progress is not None:
-                on_progress(station)
-            if not quiet and time.monotonic() >= next_print:
-                next_print = time.monotonic() + 2.0
-                print(f"bof-sitl: {station.progress()}", flush=True)
-            for name, child in children.items():
-                if not name.startswith("companion") and not child.running:
-                    raise RuntimeError(f"{name} exited early:\n{child.output()[-2000:]}")
-            time.sleep(0.05)
-        cpu.sample(children, force=True)
-        codes = [c.process.returncode for c in companions.values()]
-        code = (0 if all(c == 0 for c in codes) else 1) if interrupted is None else 1
-    except Interrupted as signal_stop:
-        interrupted = signal.Signals(signal_stop.signum).name
-        interrupted_at = stop.received_at if stop is not None else time.monotonic()
-        code = 128 + signal_stop.signum
-    finally:
-        cpu.sample(children, force=True)
-        # Companions first, while the plants still answer (each hands its vehicle to its autopilot).
-        companion_codes = stop_all(companions.values())
-        other_codes = stop_all([target, *plants.values()])
-        if station is not None:
-            station.close()
-    stopped_after = None if interrupted_at is None else round(time.monotonic() - interrupted_at, 3)
-    exit_codes = {"target": other_codes[0], **{f"plant-{k}": c for k, c in zip(plants, other_codes[1:])},
-                  **{f"companion-{k}": c for k, c in zip(companions, companion_codes)}}
-    entries, series = [], {}
-    for k in range(1, count + 1):
-        where = folder / f"pursuer-{k}"
-        own = pursuer_scenario(scenario, pursuer_starts(scenario)[k - 1])
-        companion_summary = _read_json(where / "companion" / "summary.json")
-        plant_stats = _read_json(where / "plant" / "stats.json") or {}
-        termination = _termination(where, companion_summary, interrupted)
+        for plant in self.plants.values():
+            plant.command += ["--clock-anchor", f"{self.anchor:.6f}"]
+        _start_together(self.plants.values(), stop)
+        self.target.start(stop=stop)
+        self.station = SwarmGroundStation(self.network.endpoint, self.scenario, self.network.ground_station_tls(),
+                                          self.network.namespace)
+        _start_together(self.companions.values(), stop)
+
+    def _tick(self) -> None:
+        """One look as the ground station: sample the children's CPU, start the target once every companion still
+        flying follows, report progress; RuntimeError when a plant or the target has exited."""
+        station = self.station
+        self.cpu.sample(self.children)
+        gone = frozenset(station.ids[k - 1] for k, c in self.companions.items() if not c.running)
+        if not station.target_started and station.all_following(gone):
+            station.start_target()
+        if self._on_progress is not None:
+            self._on_progress(station)
+        if not self.options.quiet and time.monotonic() >= self._next_print:
+            self._next_print = time.monotonic() + 2.0
+            print(f"bof-sitl: {station.progress()}", flush=True)
+        fail_on_early_exit((name, child) for name, child in self.children.items() if not name.startswith("companion"))
+
+    def _pursuer_entry(self, k: int, interrupted: str | None, exit_codes: dict) -> tuple[dict, dict | None]:
+        """Pursuer `k`'s summary entry (its figures from the truth logs, or why there are none; its companion's
+        summary and its plant's pacing) and its flight series (None without figures)."""
+        where = self.folder / f"pursuer-{k}"
+        own = pursuer_scenario(self.scenario, pursuer_starts(self.scenario)[k - 1])
+        companion_summary = read_json(where / "companion" / "summary.json")
+        plant_stats = read_json(where / "plant" / "stats.json") or {}
+        termination = run_termination(where, companion_summary, interrupted)
         entry: dict = {"pursuer": k, "termination": termination_name(termination),
                        "termination_reason": termination.value}
+        data = None
         try:
             if companion_summary is None:
                 raise RuntimeError(f"pursuer {k}'s companion wrote no summary; see pursuer-{k}/companion.out")
-            data, engaged_at = flight_series(where, folder / "target")
-            series[k] = data
-            entry.update(summarize(data, own, termination, vehicle))
+            data, engaged_at = flight_series(where, self.folder / "target")
+            entry.update(summarize(data, own, termination, self.vehicle))
             entry["engaged_at_sim_time"] = engaged_at
         except (RuntimeError, FileNotFoundError, KeyError, ValueError, IndexError) as error:
             entry["flight_error"] = str(error)
@@ -382,43 +414,43 @@ def run_swarm(config: Path, scenario: Scenario, vehicle: VehicleConfig, out: Pat
                                                                   "ticks", "slips", "catch_ups", "max_lag_sim_s")},
                      companion_exit_code=exit_codes[f"companion-{k}"], plant_exit_code=exit_codes[f"plant-{k}"])
         entry["plant"]["mavlink_rejected"] = plant_stats.get("mavlink", {}).get("rejected")
-        entries.append(entry)
-    top = {key: value for key, value in entries[0].items() if key not in ("companion", "plant")}
-    top["pursuers"] = entries
-    try:
-        geometry = swarm_geometry(folder, count, scenario.simulation.summary_window)
-    except (FileNotFoundError, KeyError, ValueError, IndexError) as error:
-        geometry = {"min_pursuer_separation": None, "phase_spacing_error_deg_rms": None, "geometry_error": str(error)}
-    top.update(geometry)
-    top["min_separation"] = scenario.swarm.min_separation
-    # The [swarm.link] model's counts over every receiver, as bof-sim's share_link: each share a companion
-    # accepted was offered to the model once.
+        return entry, data
+
+    def _swarm_summary(self, entries: list[dict], code: int) -> tuple[dict, int]:
+        """The summary's top level: pursuer 1's single-pursuer keys, `pursuers`, the swarm's geometry and share
+        link, the first failed pursuer's termination; returns it and the exit code (`code`, 1 when it was 0 and a
+        pursuer failed or has no figures)."""
+        scenario = self.scenario
+        top = {key: value for key, value in entries[0].items() if key not in ("companion", "plant")}
+        top["pursuers"] = entries
+        try:
+            geometry = swarm_geometry(self.folder, self.count, scenario.simulation.summary_window)
+        except (FileNotFoundError, KeyError, ValueError, IndexError) as error:
+            geometry = {"min_pursuer_separation": None, "phase_spacing_error_deg_rms": None,
+                        "geometry_error": str(error)}
+        top.update(geometry)
+        top["min_separation"] = scenario.swarm.min_separation
+        top["share_link"] = share_link_counts(entries)
+        failed = next((e for e in entries if e["termination"] != "completed"), None)
+        if failed is not None:
+            top["termination"] = failed["termination"]
+            top["termination_reason"] = f"pursuer {failed['pursuer']}: {failed['termination_reason']}"
+            code = code or 1
+        if any("flight_error" in e for e in entries):
+            code = code or 1
+        return top, code
+
+
+def share_link_counts(entries: list[dict]) -> dict:
+    """The [swarm.link] model's counts over every receiver, as bof-sim's share_link: each share a companion
+    accepted was offered to the model once (offered, delivered, and the drops by reason)."""
     links = [((e.get("companion") or {}).get("swarm") or {}) for e in entries]
     offered = sum(l.get("shares_accepted", 0) for l in links)
     dropped: dict[str, int] = {}
     for l in links:
         for reason, n in (l.get("shares_dropped_by_link") or {}).items():
             dropped[reason] = dropped.get(reason, 0) + n
-    top["share_link"] = {"offered": offered, "delivered": offered - sum(dropped.values()), **dropped}
-    failed = next((e for e in entries if e["termination"] != "completed"), None)
-    if failed is not None:
-        top["termination"] = failed["termination"]
-        top["termination_reason"] = f"pursuer {failed['pursuer']}: {failed['termination_reason']}"
-        code = code or 1
-    if any("flight_error" in e for e in entries):
-        code = code or 1
-    top.update(speed_factor=speed, seed=seed, run_folder=str(folder), gcs_port=gcs_port, interrupted=interrupted,
-               stopped_after_s=stopped_after, exit_codes=exit_codes, cpu=cpu.report(), clock_anchor=anchor,
-               target_started_at=None if station is None else station.started_stamp,
-               zenoh={"secure": secure, "endpoint": endpoint, "namespace": namespace,
-                      "tls_refused": {name: zenoh_transport.count_tls_refusals(child.output())
-                                      for name, child in children.items()} if secure else None})
-    if plots and interrupted is None and series:
-        from studies.plots import plot_swarm_tracks
-
-        plot_swarm_tracks(series, folder / "tracks.png", f"{scenario.name} (SITL, {count} pursuers, seed {seed})")
-    write_summary(folder / "summary.json", top, sort_keys=True)
-    return code, folder, top
+    return {"offered": offered, "delivered": offered - sum(dropped.values()), **dropped}
 
 
 def format_swarm_sitl_summary(summary: dict) -> str:

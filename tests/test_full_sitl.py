@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from studies import full_sitl
+from studies import full_sitl, sitl_runs
 from studies.processes import free_port
 
 SPEED = 5.0
@@ -47,7 +47,7 @@ def test_every_process_ends_cleanly_and_the_companion_lands(flown):
     phases = [e["phase"] for e in events
               if e["kind"] == "phase" and e["phase"] in ("arming", "taking_off", "ready", "following", "landing", "done")]
     assert phases == ["arming", "taking_off", "ready", "following", "landing", "done"]
-    truth = full_sitl._read_csv(folder / "plant" / "vehicle.csv")
+    truth = sitl_runs.read_csv(folder / "plant" / "vehicle.csv")
     assert truth["armed"][-1] == 0 and abs(truth["z"][-1]) < 0.05  # landed and disarmed
     assert summary["plant"]["mavlink_rejected"] == {}
 
@@ -97,9 +97,9 @@ def test_the_estimator_only_ever_got_bearings(flown):
     # Fixes heard before the first odometry cannot be checked for freshness: refused as no_clock, nothing else.
     assert set(link["rejected"]) <= {"no_clock"} and sum(link["bearings_dropped"].values()) == 0
     # The bearings match the true line of sight at the fix time within the sensor noise (sigma 0.01 per axis).
-    inputs = full_sitl._read_csv(folder / "companion" / "bearings.csv")
-    target = full_sitl._read_csv(folder / "target" / "target.csv")
-    plant = full_sitl._read_csv(folder / "plant" / "vehicle.csv")
+    inputs = sitl_runs.read_csv(folder / "companion" / "bearings.csv")
+    target = sitl_runs.read_csv(folder / "target" / "target.csv")
+    plant = sitl_runs.read_csv(folder / "plant" / "vehicle.csv")
     stamps = inputs["time"]
     bearing = np.column_stack([inputs[k] for k in ("direction_x", "direction_y", "direction_z")])
     target_position = np.column_stack([np.interp(stamps, target["stamp"], target[k]) for k in ("true_n", "true_e", "true_d")])
@@ -146,7 +146,7 @@ def test_abort_command_holds_then_lands(tmp_path, scenario_path):
     aborted_at = next(e["time"] for e in events if e["kind"] == "phase" and e["phase"] == "aborting")
     engaged_at = next(e["time"] for e in events if e["kind"] == "phase" and e["phase"] == "following")
     assert 8.0 <= aborted_at - engaged_at < 8.0 + 2.0
-    truth = full_sitl._read_csv(folder / "plant" / "vehicle.csv")
+    truth = sitl_runs.read_csv(folder / "plant" / "vehicle.csv")
     holding = (truth["time"] > aborted_at + 1.0) & (truth["time"] < aborted_at + 3.0)
     assert set(truth["mode"][holding]) == {"Hold"}
     assert truth["armed"][-1] == 0 and abs(truth["z"][-1]) < 0.05
@@ -203,9 +203,9 @@ def test_seed003_range_sensor_and_ekf_fly_through_the_companion(tmp_path, scenar
     flight = summary["flight"]
     assert flight["range_estimation_error_rms"] < 1.0 and flight["range_error_rms"] < 1.0, flight
     assert flight["min_range"] > 0.5 * flight["desired_range"]
-    inputs = full_sitl._read_csv(folder / "companion" / "bearings.csv")
-    target = full_sitl._read_csv(folder / "target" / "target.csv")
-    plant = full_sitl._read_csv(folder / "plant" / "vehicle.csv")
+    inputs = sitl_runs.read_csv(folder / "companion" / "bearings.csv")
+    target = sitl_runs.read_csv(folder / "target" / "target.csv")
+    plant = sitl_runs.read_csv(folder / "plant" / "vehicle.csv")
     stamps = inputs["time"]
     true_range = np.linalg.norm(
         np.column_stack([np.interp(stamps, target["stamp"], target[k]) for k in ("true_n", "true_e", "true_d")])

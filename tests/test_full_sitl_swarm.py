@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from interfaces.scenario import load_scenario
-from studies import full_sitl
+from studies import full_sitl, sitl_runs
 from studies.processes import free_port
 
 #: Simulated s per wall s. At 1x the 60 s scenario takes about 2 min of wall time on this 2-core machine
@@ -47,7 +47,7 @@ def flown(tmp_path_factory):
 
 
 def _csv(path: Path) -> dict[str, np.ndarray]:
-    return full_sitl._read_csv(path)
+    return sitl_runs.read_csv(path)
 
 
 def _track(folder: Path, ident: int) -> tuple[np.ndarray, np.ndarray]:

@@ -39,6 +39,7 @@ from companion.core.messages import (
 )
 from companion.core.observability import WindowedObservability
 from companion.core.safety import EnvelopeRecord, SafetyEnvelope, heading_axis
+from interfaces.derived_defaults import dropout_min_range, dropout_safe_range, health_min_range
 
 _TIME_EPS = 1e-9
 
@@ -267,7 +268,8 @@ class FollowingPipeline:
         self._setpoint: AttitudeSetpoint | None = None
         self._guidance: GuidanceTerms | None = None
         self.dropout = dropout if dropout is not None else DropoutPolicy(
-            safe_range=1.5 * range_controller.desired_range, min_range=0.5 * range_controller.desired_range)
+            safe_range=dropout_safe_range(range_controller.desired_range),
+            min_range=dropout_min_range(range_controller.desired_range))
         self._safe_controller = dataclasses.replace(range_controller, desired_range=self.dropout.safe_range)
         self.mode = TrackMode.TRACKING
         self._last_bearing_time: float | None = None
@@ -281,7 +283,7 @@ class FollowingPipeline:
         self._observed_until = -np.inf  # s, the newest bearing in the windowed FIM
         self._extrapolation: tuple[TargetEstimate, float, TargetEstimate] | None = None  # _estimate_at's last
         self.health = health if health is not None else HealthMonitor(
-            HealthConfig(min_range=0.25 * range_controller.desired_range))
+            HealthConfig(min_range=health_min_range(range_controller.desired_range)))
         self._health_report: HealthReport | None = None
         self.excitation = excitation
         self.excitation_level = 0.0

@@ -1,0 +1,63 @@
+"""[guidance]: the lateral law, the range controller and the excitation."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import model_validator
+
+from interfaces.scenario.common import NonNegative, Positive, _Strict
+
+
+GUIDANCE_LAWS = ("hng", "ppg", "png", "pd", "retro_png", "zem", "seed003")
+
+
+class GuidanceConfig(_Strict):
+    """Guidance law (section VI; baselines of section VIII-C). 'hng' helical navigation (eq. 14;
+    c_y = 0 is planar weaving), 'ppg' pure pursuit, 'png' 3-D proportional navigation, 'pd' the
+    PD controller (k_p, k_d; replaces the range controller), 'retro_png' retro-PNG of refs
+    [14]/[16] per horizontal/vertical plane (retro_gain), 'zem' the ZEM-based law of ref. [43]
+    (zem_k_w, zem_max_gain), 'seed003' seed 003's backstepping speed / flight-path / course law
+    (eq. (5)-(8), sign erratum fixed; seed003_alpha, seed003_gain, seed003_max_approach_speed), holding
+    desired_range behind the target. All but 'pd' and 'seed003' add the range controller of eq. (18)."""
+
+    law: Literal["hng", "ppg", "png", "pd", "retro_png", "zem", "seed003"] = "hng"
+    navigation_gain: Positive = 3.0
+    c_z: NonNegative = 3.5
+    c_y: NonNegative = 3.5
+    weave_frequency: Positive = 1.0
+    scale_with_range: bool = True
+    desired_range: Positive = 8.0
+    range_gain: Positive = 3.0
+    rate_hz: Positive = 20.0
+    los_source: Literal["estimate", "measurement"] = "estimate"
+    pd_kp: Positive = 0.5
+    pd_kd: Positive = 0.2
+    retro_gain: Positive = 2.0
+    zem_k_w: Positive = 0.007
+    zem_max_gain: Positive = 10.0
+    seed003_alpha: Positive = 0.5
+    """1/s: seed 003's position gain alpha_1 = alpha_2 = alpha_3 (the seed flies 1)."""
+    seed003_gain: Positive = 1.0
+    """1/s: seed 003's velocity/course gain lambda_1..3 (the seed's 50 assumes a 100/s autopilot)."""
+    seed003_max_approach_speed: Positive = 3.0
+    """m/s: bound on seed 003's approach velocity alpha |e| towards the following point (not in the seed)."""
+    # Range excitation (companion.core.guidance.RangeExcitation): 'none' is the paper's
+    # law unchanged; 'uncertainty' adds a lateral term that makes the pursuer circle the line of
+    # sight at excitation_speed (m/s, angular rate excitation_frequency rad/s) while the relative
+    # range std sigma_r / r^ is above excitation_low (full above excitation_high) or the health
+    # monitor says suspect. Only for 'hng' and 'ppg' (its design cancels their N P v damping).
+    excitation: Literal["none", "uncertainty"] = "none"
+    excitation_speed: Positive = 1.0
+    excitation_frequency: Positive = 0.5
+    excitation_low: NonNegative = 0.05
+    excitation_high: Positive = 0.15
+
+    @model_validator(mode="after")
+    def _excitation_consistent(self) -> "GuidanceConfig":
+        if self.excitation != "none":
+            if self.law not in ("hng", "ppg"):
+                raise ValueError(f"excitation = {self.excitation!r} needs law 'hng' or 'ppg', not {self.law!r}")
+            if self.excitation_low >= self.excitation_high:
+                raise ValueError("excitation_low must be below excitation_high")
+        return self
