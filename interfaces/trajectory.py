@@ -84,13 +84,30 @@ def _csv_samples(path: Path, data: bytes) -> tuple[np.ndarray, np.ndarray]:
     return values[:, 0], values[:, 1:]
 
 
+class _ReadBudget(io.BytesIO):
+    """The file's bytes for pyulog, with a budget of reads: a well-formed ULog is read about twice over (pyulog
+    seeks back to re-read the first data message), while a corrupt message size can send its definitions loop back
+    before its own header, for ever. Each read costs its length, and at least 1; past the budget it raises."""
+
+    def __init__(self, data: bytes) -> None:
+        super().__init__(data)
+        self._budget = 4 * len(data) + 4096
+
+    def read(self, size: int | None = -1) -> bytes:
+        chunk = super().read(size)
+        self._budget -= max(len(chunk), 1)
+        if self._budget < 0:
+            raise ValueError("the parser kept re-reading the file (a corrupt message size)")
+        return chunk
+
+
 def _ulog_samples(path: Path, data: bytes) -> tuple[np.ndarray, np.ndarray]:
     from pyulog import ULog  # only a ULog replay needs it
 
     try:
         # pyulog prints its parse warnings; the refusal below says what matters, in one line.
         with contextlib.redirect_stdout(io.StringIO()):
-            log = ULog(io.BytesIO(data), message_name_filter_list=[ULOG_TOPIC])
+            log = ULog(_ReadBudget(data), message_name_filter_list=[ULOG_TOPIC])
     # A parser of untrusted binary input: whatever it raises on a corrupt file means "not a readable ULog".
     except Exception as error:  # noqa: BLE001
         raise ConfigError(f"{path}: not a readable ULog file ({type(error).__name__}: {error})") from None

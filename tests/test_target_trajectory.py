@@ -371,3 +371,17 @@ def test_the_shipped_replay_flies_its_csv_samples_in_the_in_process_simulator():
             assert np.allclose(position, samples[index, 1:] + offset, rtol=0, atol=1e-6)
             matched += 1
     assert matched >= 100
+
+
+#: A corrupt ULog (a cut and a few flipped bytes of this file's own 20-sample log) on which pyulog's definitions
+#: loop seeks back before its own header and reads the same messages for ever.
+LOOPING_ULOG = "eNoL9clPZxQyZWSAAg0GJyB5kIGhjIEQsGVwK0vNyEzOSY3PyU9OzIkvyC/OLMnMz7MqzcwrMTOJL1EoycxNLS5JzC2wTsvJTyxRqIDSlVC6ylqSwRFoFHZzxBhcGBgWtDGi2bvgAFjCgZcZKtBgjyLxYDILTKkDikSDFBtMHFVCYSE7zChUiQPqnDBLUSUS1nFBJQ6gSjCY8gAJAOSxPc0="
+
+
+def test_a_ulog_that_sends_the_parser_round_in_circles_is_refused_in_one_line(tmp_path):
+    import base64
+    import zlib
+
+    path = tmp_path / "looping.ulg"
+    path.write_bytes(zlib.decompress(base64.b64decode(LOOPING_ULOG)))
+    _refused_in_one_line(path, "ulog", "not a readable ULog file")
