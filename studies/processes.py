@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import ctypes
 import os
+import random
 import signal
 import socket
 import subprocess
@@ -142,11 +143,48 @@ def _trampoline(argv: list[str]) -> int:
     return 1  # not reached
 
 
+#: The lowest port free_port hands out; it draws below the kernel's ephemeral range (ip_local_port_range).
+FREE_PORT_FLOOR = 20000
+_handed_out: set[int] = set()
+
+
+def _ephemeral_floor() -> int:
+    try:
+        return int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return 32768  # Linux's default
+
+
 def free_port(kind: int = socket.SOCK_DGRAM, host: str = "127.0.0.1") -> int:
-    """A port the kernel just gave out on loopback (free now; tiny race until it is bound again)."""
+    """A loopback port that is free now, drawn at random below the kernel's ephemeral range.
+
+    Between this call and the moment its user binds it, the port is open to anyone: a port the kernel gave
+    out for bind(0) could meanwhile go to any other socket that binds port 0 (a test's client beside a SITL
+    flight, a MAVSDK connection), which then receives the flight's datagrams. Ports below the ephemeral range
+    are never given out for bind(0); each is handed out once per process, and checked bindable, for UDP and
+    TCP alike. Falls back to bind(0) when the range below is empty or full."""
+    floor = _ephemeral_floor()
+    if floor - 1 > FREE_PORT_FLOOR:
+        draw = random.Random()
+        for _ in range(200):
+            port = draw.randrange(FREE_PORT_FLOOR, floor)
+            if port in _handed_out:
+                continue
+            if all(_bindable(host, port, each) for each in (socket.SOCK_DGRAM, socket.SOCK_STREAM)):
+                _handed_out.add(port)
+                return port
     with socket.socket(socket.AF_INET, kind) as probe:
         probe.bind((host, 0))
         return probe.getsockname()[1]
+
+
+def _bindable(host: str, port: int, kind: int) -> bool:
+    with socket.socket(socket.AF_INET, kind) as probe:
+        try:
+            probe.bind((host, port))
+        except OSError:
+            return False
+    return True
 
 
 class ChildProcess:

@@ -50,3 +50,21 @@ def test_a_hanging_stop_is_ended_by_the_deadline():
 
 def test_an_orderly_stop_keeps_its_own_exit_code():
     assert _run(STOPS) == 0
+
+
+def test_free_ports_come_from_below_the_ephemeral_range_once_each_and_bindable():
+    """A port handed out for a child to bind later must not be one the kernel can give any other socket that
+    binds port 0 meanwhile: it lies below /proc/sys/net/ipv4/ip_local_port_range's start."""
+    import socket as sockets
+    from pathlib import Path as P
+
+    from studies.processes import FREE_PORT_FLOOR, free_port
+
+    floor = int(P("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
+    ports = [free_port() for _ in range(50)] + [free_port(sockets.SOCK_STREAM) for _ in range(10)]
+    assert len(set(ports)) == len(ports)
+    assert all(FREE_PORT_FLOOR <= port < floor for port in ports), (floor, ports)
+    for port in ports[:5]:
+        for kind in (sockets.SOCK_DGRAM, sockets.SOCK_STREAM):
+            with sockets.socket(sockets.AF_INET, kind) as probe:
+                probe.bind(("127.0.0.1", port))
