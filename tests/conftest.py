@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import os
 import sys
@@ -60,32 +61,32 @@ def _machine_lock(factory) -> Path | None:
     return factory.getbasetemp().parent / "machine.lock"
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _machine_to_itself(request, tmp_path_factory):
-    path = _machine_lock(tmp_path_factory)
-    if path is None or request.path.name not in EXCLUSIVE_FILES:
+@contextlib.contextmanager
+def _holding(path: Path | None, mode: int) -> Iterator[None]:
+    """The session's machine lock held in `mode` (fcntl.LOCK_EX or LOCK_SH) meanwhile; nothing when path is None."""
+    if path is None:
         yield
         return
     with path.open("a") as handle:
-        fcntl.flock(handle, fcntl.LOCK_EX)
+        fcntl.flock(handle, mode)
         try:
             yield
         finally:
             fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _machine_to_itself(request, tmp_path_factory):
+    exclusive = request.path.name in EXCLUSIVE_FILES
+    with _holding(_machine_lock(tmp_path_factory) if exclusive else None, fcntl.LOCK_EX):
+        yield
 
 
 @pytest.fixture(autouse=True)
 def _machine_shared(request, tmp_path_factory):
-    path = _machine_lock(tmp_path_factory)
-    if path is None or request.path.name in REAL_TIME_FILES:
+    computing = request.path.name not in REAL_TIME_FILES
+    with _holding(_machine_lock(tmp_path_factory) if computing else None, fcntl.LOCK_SH):
         yield
-        return
-    with path.open("a") as handle:
-        fcntl.flock(handle, fcntl.LOCK_SH)
-        try:
-            yield
-        finally:
-            fcntl.flock(handle, fcntl.LOCK_UN)
 
 
 @pytest.hookimpl(tryfirst=True)  # before xdist's own hook reads the groups
