@@ -73,6 +73,9 @@ class FlightLog:
         "health_suspect": 1, "health_reasons": 1, "health_nis_ratio": 1, "health_relative_range_std": 1,
         "health_action": 1, "process_noise_boost": 1, "health_reinitialized": 1,
         "model_probabilities": 3,  # IMM estimator only: (straight, right turn, left turn), IMMEstimator.motion_probabilities
+        "pursuer_rotation": 9,  # body FRD -> NED, row by row
+        "estimate_position_covariance": 6,  # the estimate's position covariance, upper triangle (xx, xy, xz, yy, yz, zz), m^2
+        "bearing_direction": 3,  # the last own bearing given to the estimator at this tick (NaN: none)
     }
 
     _WIDTH = sum(_WIDTHS.values())
@@ -211,7 +214,7 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
         down_z = rotation[8]
         if down_z < 0.0 or vx * vx + vy * vy + vz * vz > max_speed_squared:
             termination = Termination.OUT_OF_CONTROL
-        _log_row(log, time, position, velocity, rotation[0::3], down_z, target, output, pipeline.estimator, estimate_values)
+        _log_row(log, time, position, velocity, rotation, target, output, pipeline.estimator, estimate_values, bearings)
         if termination is not Termination.COMPLETED or index == last_index:
             break
         gap = (event_steps[index + 1] - step) * dt
@@ -442,22 +445,22 @@ class GenuineRecord:
 def _log_tick(log: FlightLog, time: float, truth: RigidBodyState, target: TargetMotion, output,
               estimator: object = None) -> None:
     """One row of the flight log from the true state `truth` (`_log_row`)."""
-    rotation = truth.rotation
-    _log_row(log, time, truth.position, truth.velocity, rotation[:, 0], rotation[2, 2], target, output, estimator)
+    _log_row(log, time, truth.position, truth.velocity, truth.rotation.ravel().tolist(), target, output, estimator)
 
 
-_NAN2, _NAN3, _NAN4, _NAN7 = ((math.nan,) * n for n in (2, 3, 4, 7))
+_NAN2, _NAN3, _NAN4, _NAN6, _NAN7 = ((math.nan,) * n for n in (2, 3, 4, 6, 7))
 
 
-def _log_row(log: FlightLog, time: float, position, velocity, forward, down_z: float, target: TargetMotion, output,
-             estimator: object = None, estimate_values: list[float] | None = None) -> None:
+def _log_row(log: FlightLog, time: float, position, velocity, rotation, target: TargetMotion, output,
+             estimator: object = None, estimate_values: list[float] | None = None, bearings=()) -> None:
     """One row of the flight log, the columns in FlightLog._WIDTHS's order, written into its preallocated
     table in one assignment (a column at a time costs a numpy call each, a keyword append a dict as well).
-    position, velocity: the true ones (3 numbers each); forward: R's first column (3); down_z: R[2, 2];
-    estimate_values: output.estimate's position and velocity as six floats when the caller has them already."""
+    position, velocity: the true ones (3 numbers each); rotation: the true body FRD -> NED rotation, its 9
+    entries row by row; estimate_values: output.estimate's position and velocity as six floats when the caller
+    has them already; bearings: those given to the estimator at this tick (the last own one is logged)."""
     estimate, setpoint = output.estimate, output.setpoint
     # Arrays go in as lists (ndarray.tolist: the same floats, without a numpy scalar per element).
-    values = [time, *position, *velocity, *forward, down_z, *target.position.tolist(), *target.velocity.tolist()]
+    values = [time, *position, *velocity, *rotation[0::3], rotation[8], *target.position.tolist(), *target.velocity.tolist()]
     if estimate is not None:
         values += estimate.position.tolist() + estimate.velocity.tolist() if estimate_values is None else estimate_values
         values.append(estimate.position_std)
@@ -481,6 +484,14 @@ def _log_row(log: FlightLog, time: float, position, velocity, forward, down_z: f
         values += _NAN7
     motion = getattr(estimator, "motion_probabilities", None) if estimate is not None else None
     values += _NAN3 if motion is None else motion
+    values += rotation
+    if estimate is not None:
+        c = estimate.covariance
+        values += (c[0, 0], c[0, 1], c[0, 2], c[1, 1], c[1, 2], c[2, 2])
+    else:
+        values += _NAN6
+    own = [bearing for bearing in bearings if bearing.source == 0]
+    values += own[-1].direction.tolist() if own else _NAN3
     row = log.rows
     size = log._ROW.size
     try:

@@ -1,6 +1,7 @@
 """`bof-sim`: fly a scenario in the in-process simulator and write a run folder.
 
 The run folder <scenario>-seed<seed>-<time>/, created inside --out (default runs/), holds
+flight.mcap (the flight in Foxglove's schemas, studies.flight_mcap; a swarm: flight-p<k>.mcap per pursuer),
 series.npz (every logged column), series.csv (the main columns, for spreadsheets),
 summary.json (figures that do not apply are null) and two plots (trajectory.png, errors.png).
 The in-process loop has no MAVLink link: a scenario's [faults.mavlink] applies in bof-sitl only,
@@ -21,6 +22,7 @@ import numpy as np
 from interfaces.cli import output_folder, scenario_file, seed_argument
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, load_scenario
 from studies.closed_loop import SimulationResult, simulate
+from studies.flight_mcap import in_process_record, write_flight_mcap
 from studies.metrics import convergence_text, outcome_lines, suspect_warning, truth_failed, write_summary
 from studies.plots import plot_errors, plot_swarm_tracks, plot_trajectories
 from studies.processes import Interrupted, RaisingStopSignals
@@ -35,11 +37,16 @@ to the target than r_d / 2 or tilted past the vehicle's max_tilt_deg (a swarm: a
 128 + N stopped by signal N."""
 
 
-def write_run_folder(result: SimulationResult, folder: Path) -> None:
-    """Write series, summary and plots of one flight into `folder` (created if needed)."""
+def write_run_folder(result: SimulationResult, folder: Path, plots: bool = True) -> None:
+    """Write flight.mcap, series, summary and (with `plots`) series.csv and the plots of one flight into `folder`
+    (created if needed)."""
     folder.mkdir(parents=True, exist_ok=True)
     series = result.series
+    write_flight_mcap(folder / "flight.mcap", in_process_record(series, result.summary, result.scenario.guidance.desired_range))
     np.savez_compressed(folder / "series.npz", **series)
+    if not plots:
+        write_summary(folder / "summary.json", result.summary)
+        return
     with (folder / "series.csv").open("w", newline="") as handle:
         writer = csv.writer(handle)
         vectors = ("pursuer_position", "pursuer_velocity", "target_position", "estimate_position", "estimate_velocity", "command_acceleration")
@@ -92,9 +99,14 @@ def format_summary(summary: dict, outcome: bool = True) -> str:
 
 
 def write_swarm_folder(result: SwarmResult, folder: Path, plots: bool = True) -> None:
-    """summary.json, series.npz (every FlightLog column of pursuer k as p<k>_<column>) and, with plots, the
+    """flight-p<k>.mcap for each pursuer k, summary.json, series.npz (every FlightLog column of pursuer k as
+    p<k>_<column>) and, with plots, the
     tracks of every pursuer (tracks.png) and pursuer 1's error curves (errors.png)."""
     folder.mkdir(parents=True, exist_ok=True)
+    for ident, data in result.series.items():
+        entry = next((e for e in result.summary["pursuers"] if e["pursuer"] == ident), result.summary)
+        write_flight_mcap(folder / f"flight-p{ident}.mcap",
+                          in_process_record(data, entry, result.scenario.guidance.desired_range))
     np.savez_compressed(folder / "series.npz", **{f"p{ident}_{key}": values for ident, data in result.series.items()
                                                    for key, values in data.items()})
     write_summary(folder / "summary.json", result.summary)
@@ -154,7 +166,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--seed", type=seed_argument, default=None,
                         help="seed of the flight's noise, an integer >= 0 (default: the scenario's [simulation] seed)")
     parser.add_argument("--no-plots", action="store_true",
-                        help="write only series.npz and summary.json, no PNG plots or series.csv (default: write them)")
+                        help="write only flight.mcap, series.npz and summary.json, no PNG plots or series.csv "
+                             "(default: write them)")
     return parser
 
 
@@ -186,12 +199,7 @@ def _fly(scenario: Scenario, vehicle, args) -> int:
     if notes:
         result.summary["notes"] = notes
     folder = Path(args.out) / f"{scenario.name}-seed{result.summary['seed']}-{time.strftime('%Y%m%d-%H%M%S')}"
-    if args.no_plots:
-        folder.mkdir(parents=True, exist_ok=True)
-        np.savez_compressed(folder / "series.npz", **result.series)
-        write_summary(folder / "summary.json", result.summary)
-    else:
-        write_run_folder(result, folder)
+    write_run_folder(result, folder, plots=not args.no_plots)
     print(format_summary(result.summary, outcome=False))
     print(f"  simulated {result.summary['duration']:.0f} s in {elapsed:.2f} s ({result.summary['duration'] / elapsed:.0f}x real time)")
     print(f"run folder: {folder}")

@@ -271,7 +271,7 @@ def simulate_swarm(scenario: Scenario, vehicle: VehicleConfig, seed: int | None 
             vx, vy, vz = velocity  # |v|^2 summed left to right (as studies.closed_loop)
             if rotation[8] < 0.0 or vx * vx + vy * vy + vz * vz > max_speed_squared:
                 p.termination = Termination.OUT_OF_CONTROL
-            _log_row(p.log, time, position, velocity, rotation[0::3], rotation[8], target, output, p.pipeline.estimator)
+            _log_row(p.log, time, position, velocity, rotation, target, output, p.pipeline.estimator, bearings=bearings)
             positions[index, k] = position
 
         if len(pursuers) > 1:

@@ -2,7 +2,7 @@
 
 References: PursuerState's own constructor; numpy's `position + velocity * dt` (the expression
 TargetModel.step used for straight flight, copied verbatim); a flight log row written by numpy's
-conversion of the same list (`table[row] = values`, what _log_row did before it packed bytes).
+each flight-log column's own definition (its source value's float64 bits).
 """
 
 from __future__ import annotations
@@ -76,81 +76,84 @@ def _flight_output():
     return output, pipeline.estimator
 
 
-def _old_log_row(table, row, time, position, velocity, forward, down_z, target, output, estimator=None):
-    """studies.closed_loop._log_row as of 1c852b6, verbatim but for writing into `table` (numpy's conversion)."""
-    from studies.closed_loop import (
-        _NAN3,
-        HEALTH_ACTION_CODES,
-        HEALTH_REASON_BITS,
-        TRACK_MODE_CODES,
-        HealthState,
-    )
+def _expected_columns(time, position, velocity, rotation, target, output, estimator, bearings=()):
+    """What each FlightLog column of one row must hold, by its definition (FlightLog._WIDTHS's comments)."""
+    from studies.closed_loop import HEALTH_ACTION_CODES, HEALTH_REASON_BITS, TRACK_MODE_CODES, HealthState
 
-    estimate, setpoint = output.estimate, output.setpoint
     nan = math.nan
-    values = [time, *position, *velocity, *forward, down_z, *target.position.tolist(), *target.velocity.tolist()]
+    estimate, setpoint, health = output.estimate, output.setpoint, output.health
+    matrix = np.array(rotation, dtype=object).reshape(3, 3)
+    columns = {"time": [time], "pursuer_position": list(position), "pursuer_velocity": list(velocity),
+               "pursuer_forward": list(matrix[:, 0]), "pursuer_down_z": [matrix[2, 2]],
+               "target_position": list(target.position), "target_velocity": list(target.velocity),
+               "pursuer_rotation": list(rotation)}
     if estimate is not None:
-        values += [*estimate.position.tolist(), *estimate.velocity.tolist(), estimate.position_std]
-    else:
-        values += [nan] * 7
-    if setpoint is not None:
-        values += [*setpoint.acceleration.tolist(), setpoint.thrust_normalized]
-    else:
-        values += [nan] * 4
-    if estimate is not None:
-        values += [TRACK_MODE_CODES[output.mode], output.bearing_age]
-    else:
-        values += [nan, nan]
-    observability = output.observability
-    if observability is not None:
-        values += [observability["log_det"], observability["min_eigenvalue"]]
-    else:
-        values += [nan, nan]
-    health = output.health
+        c = estimate.covariance
+        columns |= {"estimate_position": list(estimate.position), "estimate_velocity": list(estimate.velocity),
+                    "estimate_position_std": [estimate.position_std], "track_mode": [TRACK_MODE_CODES[output.mode]],
+                    "bearing_age": [output.bearing_age],
+                    "estimate_position_covariance": [c[0, 0], c[0, 1], c[0, 2], c[1, 1], c[1, 2], c[2, 2]],
+                    "model_probabilities": list(getattr(estimator, "motion_probabilities", None) or [nan] * 3)}
+    columns["command_acceleration"] = list(setpoint.acceleration) if setpoint is not None else [nan] * 3
+    columns["thrust_normalized"] = [setpoint.thrust_normalized if setpoint is not None else nan]
+    if output.observability is not None:
+        columns["observability_log_det"] = [output.observability["log_det"]]
+        columns["observability_min_eigenvalue"] = [output.observability["min_eigenvalue"]]
     if health is not None:
-        reasons = health.reasons
-        values += [float(health.state is HealthState.SUSPECT), sum(HEALTH_REASON_BITS[reason] for reason in reasons) if reasons else 0,
-                   health.nis_ratio, health.relative_range_std, HEALTH_ACTION_CODES[output.health_action],
-                   output.process_noise_boost, float(output.health_reinitialized)]
-    else:
-        values += [nan] * 7
-    motion = getattr(estimator, "motion_probabilities", None) if estimate is not None else None
-    values += _NAN3 if motion is None else motion
-    table[row] = values
+        columns |= {"health_suspect": [float(health.state is HealthState.SUSPECT)],
+                    "health_reasons": [sum(HEALTH_REASON_BITS[r] for r in health.reasons)],
+                    "health_nis_ratio": [health.nis_ratio], "health_relative_range_std": [health.relative_range_std],
+                    "health_action": [HEALTH_ACTION_CODES[output.health_action]],
+                    "process_noise_boost": [output.process_noise_boost],
+                    "health_reinitialized": [float(output.health_reinitialized)]}
+    own = [b for b in bearings if b.source == 0]
+    if own:
+        columns["bearing_direction"] = list(own[-1].direction)
+    return {key: np.array(columns.get(key, [nan] * width), dtype=np.float64) for key, width in FlightLog._WIDTHS.items()}
 
 
-@given(st.lists(floats, min_size=10, max_size=10), st.sampled_from(["full", "no estimate", "nothing yet"]))
-def test_a_log_row_holds_the_bits_the_old_row_held(numbers, outputs):
-    """_log_row packs a row's floats as bytes: the table must hold what numpy's conversion of the old row held
-    (NaN payloads, signed zeros, infinities), with or without the estimate's numbers handed in."""
+def _bearing(direction, source=0):
+    from companion.core.messages import BearingMeasurement
+
+    return dataclasses.replace(BearingMeasurement(0.0, np.array([1.0, 0.0, 0.0]), np.zeros(3)),
+                               direction=np.array(direction, dtype=float), source=source)
+
+
+@given(st.lists(floats, min_size=19, max_size=19), st.sampled_from(["full", "no estimate", "nothing yet"]),
+       st.sampled_from([(), ("own",), ("own", "neighbour"), ("neighbour",)]))
+def test_a_log_row_holds_each_column_by_its_definition(numbers, outputs, sources):
+    """_log_row packs a row's floats as bytes: each column must hold its source's float64 bits (NaN payloads,
+    signed zeros, infinities), with or without the estimate's numbers handed in, the last own bearing only."""
     output, estimator = _OUTPUT
     if outputs != "full":
         output = dataclasses.replace(output, estimate=None)
     if outputs == "nothing yet":
         output = dataclasses.replace(output, setpoint=None, observability=None, health=None)
     target = TargetModel(np.array(numbers[7:10]), np.array(numbers[4:7]))
-    arguments = (numbers[9], numbers[0:3], tuple(numbers[3:6]), numbers[6:9], numbers[0], target, output, estimator)
+    bearings = [_bearing(numbers[k:k + 3], 0 if kind == "own" else 2) for k, kind in zip((1, 13), sources)]
+    arguments = (numbers[9], numbers[0:3], tuple(numbers[3:6]), tuple(numbers[10:19]), target, output, estimator)
     log = FlightLog(3)
-    _log_row(log, *arguments)
+    _log_row(log, *arguments, None, bearings)
     values = None if output.estimate is None else output.estimate.position.tolist() + output.estimate.velocity.tolist()
-    _log_row(log, *arguments, values)
-    reference = np.full((1, FlightLog._WIDTH), 7.0)
-    _old_log_row(reference, 0, *arguments)
-    assert log.rows == 2 and log._table[0].tobytes() == log._table[1].tobytes() == reference[0].tobytes()
+    _log_row(log, *arguments, values, bearings)
+    expected = _expected_columns(*arguments, bearings)
+    assert log.rows == 2 and log._table[0].tobytes() == log._table[1].tobytes()
+    for key, column in log._data.items():
+        assert column[0].tobytes() == expected[key].tobytes(), key
     assert np.isnan(log._table[2]).all()
 
 
 def test_a_log_value_struct_refuses_goes_through_numpys_conversion():
     """A value that is not a float or int (here a string numpy reads as a number, and None, which numpy writes as
-    NaN) takes numpy's conversion, as every row did before; what numpy refuses raises as before."""
+    NaN) takes numpy's conversion; what numpy refuses raises and leaves the row unwritten."""
     output, estimator = _OUTPUT
     target = TargetModel(np.zeros(3), np.ones(3))
-    log, reference = FlightLog(2), np.full((1, FlightLog._WIDTH), 7.0)
-    arguments = ("1.5", (1.0, 2.0, 3.0), (4.0, 5.0, 6.0), (1.0, 0.0, 0.0), None, target, output, estimator)
+    log = FlightLog(2)
+    rotation = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, None)
+    arguments = ("1.5", (1.0, 2.0, 3.0), (4.0, 5.0, 6.0), rotation, target, output, estimator)
     _log_row(log, *arguments)
-    _old_log_row(reference, 0, *arguments)
-    assert log._table[0, 0] == 1.5 and math.isnan(log._table[0, 10])
-    assert log._table[0].tobytes() == reference[0].tobytes()
+    assert log._table[0, 0] == 1.5 and math.isnan(log._data["pursuer_down_z"][0, 0])
+    assert log._data["pursuer_forward"][0].tolist() == [1.0, 0.0, 0.0]
     with pytest.raises(ValueError):
         _log_row(log, "not a number", *arguments[1:])
     assert log.rows == 1 and np.isnan(log._table[1]).all()
