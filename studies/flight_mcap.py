@@ -218,6 +218,10 @@ def _figures_metadata(summary: dict, engaged_at: float | None, harness: str) -> 
     metadata = {"harness": harness, "time_base": "simulated s of the flight",
                 "engaged_at": "" if engaged_at is None else repr(engaged_at)}
     metadata.update({key: json.dumps(summary.get(key)) for key in keys if key in summary})
+    truth = summary.get("truth") or {}
+    for key, name in (("outcome", "outcome"), ("tilt_limit_deg", "max_tilt_limit_deg")):
+        if truth.get(key) is not None:
+            metadata[name] = str(truth[key])
     return metadata
 
 

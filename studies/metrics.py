@@ -314,7 +314,17 @@ def summarize(series: dict[str, np.ndarray], scenario: Scenario, termination: en
         "monitor_verdict": monitor_verdict(termination, divergence, estimated),
         "verdict": verdict(termination, divergence, estimated, truth["diverged"]),
         "truth": truth,
+        "final_estimate": final_estimate(time, series["estimate_position"]),
     }
+
+
+def final_estimate(time: np.ndarray, estimate_position: np.ndarray) -> dict | None:
+    """The last finite estimated target position: {"time": s in the series' time, "position": [n, e, d] m}."""
+    finite = np.flatnonzero(np.all(np.isfinite(estimate_position), axis=1))
+    if len(finite) == 0:
+        return None
+    last = finite[-1]
+    return {"time": float(time[last]), "position": [float(v) for v in estimate_position[last]]}
 
 
 def convergence_text(summary: dict, after: str = "") -> str:
