@@ -210,6 +210,9 @@ class Follower:
                        est_vx=e.velocity[0], est_vy=e.velocity[1], est_vz=e.velocity[2],
                        est_position_std=e.position_std,
                        range_estimate=float(np.linalg.norm(e.position - s.position)))
+            c = e.covariance
+            row.update(est_pxx=float(c[0, 0]), est_pxy=float(c[0, 1]), est_pxz=float(c[0, 2]),
+                       est_pyy=float(c[1, 1]), est_pyz=float(c[1, 2]), est_pzz=float(c[2, 2]))
         own = [b for b in bearings if b.source == 0]  # a neighbour's shared bearing is not this sensor's
         if own:
             b = own[-1]

@@ -35,7 +35,8 @@ _ACTION_NAMES = {code: action.value for action, code in HEALTH_ACTION_CODES.item
 class FlightRecord:
     """One flight as streams; every time in simulated s of the flight (>= 0), arrays row by row.
 
-    pursuer: time (N,), position (N, 3), velocity (N, 3), rotation (N, 9) body FRD -> NED row-major.
+    pursuer: time (N,), position (N, 3), velocity (N, 3), and the attitude body FRD -> NED as either
+    rotation (N, 9) row-major or attitude (N, 4) unit quaternions (w, x, y, z).
     target: time (M,), position (M, 3) (the truth).
     companion: time (K,) and the FlightLog-named columns the companion logged at those times
     (estimate_position, estimate_position_covariance, bearing_direction, command_acceleration,
@@ -110,10 +111,15 @@ class _Emitter:
         self.channels = FlightChannels(desired_range=flight.desired_range)
         self.target: list[float] | None = None
         p = flight.pursuer
-        rotations = np.asarray(p["rotation"], dtype=float).reshape(-1, 3, 3)
-        self.pursuer = {"position": p["position"].tolist(), "attitude": quaternion_wxyz(rotations).tolist(),
+        if "attitude" in p:
+            attitude = np.asarray(p["attitude"], dtype=float)
+            down_z = 1.0 - 2.0 * (attitude[:, 1] ** 2 + attitude[:, 2] ** 2)  # R[2, 2] of the unit quaternion
+        else:
+            rotations = np.asarray(p["rotation"], dtype=float).reshape(-1, 3, 3)
+            attitude, down_z = quaternion_wxyz(rotations), rotations[:, 2, 2]
+        self.pursuer = {"position": p["position"].tolist(), "attitude": attitude.tolist(),
                         "speed": np.linalg.norm(p["velocity"], axis=1).tolist(),
-                        "tilt_deg": np.degrees(np.arccos(np.clip(rotations[:, 2, 2], -1.0, 1.0))).tolist()}
+                        "tilt_deg": np.degrees(np.arccos(np.clip(down_z, -1.0, 1.0))).tolist()}
         self.target_positions = flight.target["position"].tolist()
         c = dict(flight.companion)
         n = len(c["time"])
@@ -249,3 +255,125 @@ def in_process_record(series: dict[str, np.ndarray], summary: dict, desired_rang
         link.append((float(time[-1]), int(summary["link"]["accepted"]), dict(summary["link"]["rejected"])))
     return FlightRecord(pursuer, target, companion, sorted(events), link,
                         _figures_metadata(summary, engaged_at, "in-process"), desired_range)
+
+
+#: events.jsonl kinds written as warnings on /events (the rest are info).
+_WARNING_KINDS = ("error", "rejected", "failsafe", "abort", "failed", "lost")
+#: A /link message is written at most this often, s (and once at the end).
+LINK_PERIOD_S = 0.5
+
+
+def _event_level(record: dict) -> str:
+    kind = str(record.get("kind", ""))
+    if kind == "filter_health" and record.get("state") == "suspect":
+        return "warning"
+    if kind == "track_mode" and record.get("mode") not in (None, "tracking"):
+        return "warning"
+    return "warning" if any(word in kind for word in _WARNING_KINDS) else "info"
+
+
+def _jsonl(path: Path) -> list[dict]:
+    """A JSON-lines log's records; a line cut by an interruption is skipped."""
+    records = []
+    try:
+        lines = path.read_text().splitlines()
+    except FileNotFoundError:
+        return records
+    for line in lines:
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if isinstance(record, dict):
+            records.append(record)
+    return records
+
+
+def _link_counts(records: list[dict]) -> list[tuple[float, int, dict[str, int]]]:
+    """Cumulative accepted / rejected-by-reason fixes from zenoh_rx.jsonl, at the companion's simulated receipt
+    times. Rejections past the first few per reason are logged as once-a-second counts without a simulated time:
+    they are counted at the simulated time of the record before them (0 before the vehicle's clock started)."""
+    accepted, rejected, out = 0, {}, []
+    now, last_written = 0.0, -math.inf
+    for record in records:
+        stamp = record.get("sim_time")
+        if isinstance(stamp, (int, float)) and math.isfinite(stamp):
+            now = max(now, float(stamp))
+        if record.get("kind") == "suppressed":
+            key = str(record.get("key"))
+            rejected[key] = rejected.get(key, 0) + int(record.get("count", 0))
+        elif record.get("verdict") == "accepted":
+            accepted += 1
+        elif record.get("verdict") == "rejected":
+            key = str(record.get("reason"))
+            rejected[key] = rejected.get(key, 0) + 1
+        else:
+            continue
+        if now - last_written >= LINK_PERIOD_S:
+            out.append((now, accepted, dict(rejected)))
+            last_written = now
+    if out and out[-1][1:] != (accepted, rejected):
+        out.append((now, accepted, dict(rejected)))
+    return out
+
+
+def sitl_record(run: Path, summary: dict | None, desired_range: float, target_folder: Path | None = None) -> FlightRecord:
+    """A bof-sitl run folder's flight as a FlightRecord: the plant's truth (plant/vehicle.csv) and the target's
+    (target/target.csv) over the whole flight, the companion's series, events and link log, in the plant's
+    simulated time (from its start on the ground). summary: the flight's figures (summary.json's "flight")."""
+    from studies.sitl_runs import read_csv
+
+    run = Path(run)
+    plant = read_csv(run / "plant" / "vehicle.csv")
+    target = read_csv((run / "target" if target_folder is None else target_folder) / "target.csv")
+    companion = read_csv(run / "companion" / "series.csv")
+    stack = lambda source, keys: np.column_stack([np.asarray(source[k], dtype=float) for k in keys])  # noqa: E731
+    attitude = stack(plant, ("qw", "qx", "qy", "qz"))
+    attitude /= np.linalg.norm(attitude, axis=1, keepdims=True)
+    pursuer = {"time": plant["time"], "position": stack(plant, ("x", "y", "z")),
+               "velocity": stack(plant, ("vx", "vy", "vz")), "attitude": attitude}
+    truth = {"time": target["stamp"], "position": stack(target, ("true_n", "true_e", "true_d"))}
+    time = np.asarray(companion["time"], dtype=float)
+    columns = {"time": time, "pursuer_position": stack(companion, ("px", "py", "pz"))}
+    pairs = {"estimate_position": ("est_x", "est_y", "est_z"),
+             "estimate_position_covariance": ("est_pxx", "est_pxy", "est_pxz", "est_pyy", "est_pyz", "est_pzz"),
+             "bearing_direction": ("bearing_x", "bearing_y", "bearing_z"),
+             "command_acceleration": ("acc_x", "acc_y", "acc_z"),
+             "model_probabilities": ("model_straight", "model_right", "model_left")}
+    for key, names in pairs.items():
+        if all(name in companion for name in names):
+            columns[key] = stack(companion, names)
+    for key in ("thrust_normalized", "health_suspect", "health_nis_ratio", "process_noise_boost"):
+        if key in companion:
+            columns[key] = np.asarray(companion[key], dtype=float)
+    codes = {"track_mode": {mode.value: code for mode, code in TRACK_MODE_CODES.items()},
+             "health_action": {action.value: code for action, code in HEALTH_ACTION_CODES.items()}}
+    for key, table in codes.items():
+        if key in companion:
+            columns[key] = np.array([table.get(str(value), math.nan) for value in companion[key]], dtype=float)
+    # The true range at the companion's samples (the target's truth interpolated at its times).
+    if len(truth["time"]) and "estimate_position" in columns:
+        true_target = np.column_stack([np.interp(time, truth["time"], truth["position"][:, axis]) for axis in range(3)])
+        true_own = np.column_stack([np.interp(time, pursuer["time"], pursuer["position"][:, axis]) for axis in range(3)])
+        columns["range"] = np.linalg.norm(true_target - true_own, axis=1)
+    following = np.flatnonzero((companion["phase"] == "following") & np.all(np.isfinite(columns.get(
+        "estimate_position", np.full((len(time), 3), np.nan))), axis=1)) if "phase" in companion else []
+    engaged_at = float(time[following[0]]) if len(following) else None
+    events = [] if engaged_at is None else [(engaged_at, "engaged: the estimator is running and following starts", "info")]
+    for record in _jsonl(run / "companion" / "events.jsonl"):
+        stamp = record.get("time")
+        if isinstance(stamp, (int, float)) and math.isfinite(stamp) and stamp >= 0.0:
+            events.append((float(stamp), f"{record.get('kind')}: {record.get('detail', '')}", _event_level(record)))
+    link = _link_counts(_jsonl(run / "companion" / "zenoh_rx.jsonl"))
+    return FlightRecord(pursuer, truth, columns, sorted(events), link,
+                        _figures_metadata(summary or {}, engaged_at, "sitl"), desired_range)
+
+
+def write_sitl_mcap(run: Path, summary: dict | None, desired_range: float, target_folder: Path | None = None) -> str | None:
+    """<run>/flight.mcap from a SITL run folder (sitl_record); returns None, or why it could not be written (a
+    child's log missing or empty, e.g. a run stopped before the plant started), so a run still gets its summary."""
+    try:
+        write_flight_mcap(Path(run) / "flight.mcap", sitl_record(run, summary, desired_range, target_folder))
+    except (FileNotFoundError, KeyError, ValueError, IndexError) as error:
+        return f"no flight.mcap: {type(error).__name__}: {error}"
+    return None

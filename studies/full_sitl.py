@@ -46,6 +46,7 @@ from interfaces import zenoh_transport
 from interfaces.records import write_json
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, VehicleConfig, load_scenario
 from studies.closed_loop import Termination
+from studies.flight_mcap import write_sitl_mcap
 from studies.metrics import (convergence_text, outcome_lines, summarize, suspect_warning, termination_name, truth_failed,
                              write_summary)
 from interfaces.cli import SPEED_FACTOR_BOUNDS, output_folder, scenario_file, seed_argument
@@ -363,6 +364,9 @@ class SingleRun:
             summary["termination"], summary["termination_reason"] = (summary["flight"]["termination"],
                                                                      summary["flight"]["termination_reason"])
             summary["bearing_only"] = bearing_only_check(folder)
+            mcap_error = write_sitl_mcap(folder, summary["flight"], scenario.guidance.desired_range)
+            if mcap_error:
+                summary["mcap_error"] = mcap_error
             if self.options.plots and plots:
                 from studies.plots import plot_errors, plot_trajectories
 
@@ -373,6 +377,10 @@ class SingleRun:
             summary["flight"] = None
             summary["flight_error"] = str(error)
             code = code or 1
+            # the truth and whatever the companion logged, even without figures
+            mcap_error = write_sitl_mcap(folder, None, scenario.guidance.desired_range)
+            if mcap_error:
+                summary["mcap_error"] = mcap_error
         return code
 
 

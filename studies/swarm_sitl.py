@@ -51,6 +51,7 @@ from interfaces.records import write_json
 from interfaces.scenario import ConfigError, Scenario, VehicleConfig, pursuer_starts
 from studies.metrics import outcome_lines, rms, summarize, termination_name, write_summary
 from studies.processes import ChildProcess, Interrupted, StopSignals, free_port, stop_all
+from studies.flight_mcap import write_sitl_mcap
 from studies.sitl_runs import (SitlOptions, Stopped, ZenohNetwork, fail_on_early_exit, flight_series, interp,
                                make_run_folder, read_csv, read_json, run_termination, watch)
 
@@ -404,6 +405,10 @@ class SwarmRun:
             entry["engaged_at_sim_time"] = engaged_at
         except (RuntimeError, FileNotFoundError, KeyError, ValueError, IndexError) as error:
             entry["flight_error"] = str(error)
+        mcap_error = write_sitl_mcap(where, entry if "flight_error" not in entry else None,
+                                     own.guidance.desired_range, self.folder / "target")
+        if mcap_error:
+            entry["mcap_error"] = mcap_error
         swarm = (companion_summary or {}).get("swarm") or {}
         entry.update(pursuer=k, neighbour_bearings_used=swarm.get("neighbour_bearings_used"),
                      shares_rejected=swarm.get("shares_rejected"), law_changes=swarm.get("law_changes"),

@@ -1,7 +1,8 @@
 """The companion's run log: every file is written line by line and flushed, so an
 interrupted run keeps everything up to the interruption.
 
-    series.csv      one row per own-state sample while engaged: own state, estimate,
+    series.csv      one row per own-state sample while engaged: own state, estimate (with its position
+                    covariance's upper triangle, est_pxx ... est_pzz, m^2),
                     bearing used (if any), command, setpoint, filter health and, with the IMM
                     estimator, its model probabilities summed by motion (model_straight,
                     model_right, model_left; companion.core.imm)
@@ -31,6 +32,7 @@ SERIES_COLUMNS = (
     "time", "phase", "track_mode", "bearing_age",
     "px", "py", "pz", "vx", "vy", "vz",
     "est_x", "est_y", "est_z", "est_vx", "est_vy", "est_vz", "est_position_std", "range_estimate",
+    "est_pxx", "est_pxy", "est_pxz", "est_pyy", "est_pyz", "est_pzz",
     "bearing_x", "bearing_y", "bearing_z", "bearing_time",
     "acc_x", "acc_y", "acc_z", "thrust_normalized", "new_setpoint",
     "observability_log_det", "observability_min_eigenvalue", "health", "health_suspect", "health_nis_ratio",
