@@ -85,6 +85,13 @@ def _machine_to_itself(request, tmp_path_factory):
 @pytest.fixture(autouse=True)
 def _machine_shared(request, tmp_path_factory):
     computing = request.path.name not in REAL_TIME_FILES
+    if not computing and request.config.getoption("loadgroup", default=False) \
+            and not request.node.nodeid.endswith("@real_time"):
+        # Under `--dist loadgroup` xdist tags each grouped test's id with its group; untagged, the real-time
+        # tests would be spread over both workers and fly side by side, so none of them runs.
+        pytest.fail(f"pytest-xdist did not group the real-time tests: pytest {pytest.__version__} with this "
+                    "pytest-xdist does not support --dist loadgroup (see the test extra in pyproject.toml)",
+                    pytrace=False)
     with _holding(_machine_lock(tmp_path_factory) if computing else None, fcntl.LOCK_SH):
         yield
 

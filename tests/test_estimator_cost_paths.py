@@ -125,14 +125,15 @@ def runs() -> dict[str, np.ndarray]:
     return reference_runs()
 
 
-@pytest.mark.parametrize("label,tolerance", [("normal", 1e-6), ("boosted", 1e-6), ("noisy", 1e-6)])
+@pytest.mark.parametrize("label,tolerance", [("normal", 1e-5), ("boosted", 1e-5), ("noisy", 1e-5)])
 @pytest.mark.parametrize("name", list(estimators()))
 def test_update_results_are_unchanged(runs, label, tolerance, name):
     """The u-PLKF forms and the IMMs reproduce the pre-change estimates: on the machine that recorded
     them to the last bit; the tolerance (relative to each array's largest entry) leaves room for another
     BLAS's rounding, which a sequence of a few thousand corrections amplifies: on an AMD EPYC's OpenBLAS
     kernels the recorded arrays came back within 1.2e-7 (normal), 1.1e-10 (boosted) and 8.3e-8 (noisy) of
-    their largest entries. A change of arithmetic that is not rounding moves them by far more."""
+    their largest entries, on the CI machine's within 1.6e-6 (noisy). A change of arithmetic that is not
+    rounding moves them by far more."""
     recorded = np.load(REFERENCE)
     for kind in ("states", "covariances", "innovations", "innovation_covariances"):
         key = f"{label}/{name}/{kind}"
