@@ -54,7 +54,7 @@ from companion.target_link import TargetLink
 from companion.warmup import warm_up as warm_up_kernels
 from interfaces import link_schema as link
 from interfaces import zenoh_transport
-from interfaces.cli import add_zenoh_security_arguments, output_folder, scenario_file, seed_argument
+from interfaces.cli import LIVE_PORT, add_zenoh_security_arguments, live_port, output_folder, scenario_file, seed_argument
 from interfaces.scenario import (DEFAULT_SCENARIO, MAX_PURSUERS, ConfigError, Scenario, VehicleConfig, load_scenario,
                                  pursuer_starts)
 
@@ -155,6 +155,7 @@ class CompanionApp:
                                    pipeline=lambda: self.follower.pipeline, log_folder=self.recorder.folder)
             self.follower.swarm = self.swarm
         self._session = None
+        self.live = None  # companion.adapters.live_view.LiveView with --live
         self.error: str | None = None
         self.stopped_by: str | None = None  # the stop signal's name (SIGTERM...), None while not stopped
         self._mission: asyncio.Task | None = None
@@ -162,6 +163,17 @@ class CompanionApp:
     @property
     def phase(self) -> Phase:
         return self.sequencer.phase
+
+    def attach_live_view(self, live) -> None:
+        """Serve the flight on `live` (a LiveView): every control sample, and every event but the rejections
+        (their counts are on /link)."""
+        self.live = live
+        self.follower.live = live
+
+        def on_event(time_s: float | None, kind: str, detail: str) -> None:
+            live.event(time_s, f"{kind}: {detail}", "warning" if kind.endswith("_failed") else "info")
+
+        self.recorder.listeners.append(on_event)
 
     def _vehicle_time(self) -> float | None:
         return self.vehicle.latest.state.time if self.vehicle is not None and self.vehicle.latest else None
@@ -309,6 +321,7 @@ class CompanionApp:
             "pursuer_id": self.pursuer_id,
             "companion_id": self.link_settings.companion_id,
             "swarm": self._swarm_summary(),
+            "live_view": None if self.live is None else self.live.summary(),
         }
 
     def _swarm_summary(self) -> dict | None:
@@ -324,6 +337,8 @@ class CompanionApp:
         (bounded: CLOSE_TIMEOUT) and Zenoh."""
         try:
             tlog.stop()
+            if self.live is not None:
+                self.live.close()
             self.recorder.summary(self.summary())
             self.summary_written = True
             self.recorder.close()
@@ -365,6 +380,13 @@ def build_parser() -> argparse.ArgumentParser:
                         help=f"which pursuer of a [swarm] scenario this companion flies, 1..{MAX_PURSUERS} (its start, its "
                              "share key bof/swarm/K/share, companion id <companion_id>-K); 1 without [swarm] "
                              "(default: %(default)s)")
+    parser.add_argument("--live", type=live_port, nargs="?", const=LIVE_PORT, default=None, metavar="PORT",
+                        help="serve the flight's channels (poses, 3-D scene, range, health, link) to Foxglove on a "
+                             f"WebSocket server while it flies: port {LIVE_PORT} without PORT, 0 for any free port; the "
+                             "URL is printed at start. Off by default (nothing is published)")
+    parser.add_argument("--live-host", default="127.0.0.1", metavar="HOST",
+                        help="address the live view listens on (default: %(default)s, this computer only; 0.0.0.0 "
+                             "serves every network the onboard computer is on, unauthenticated)")
     parser.add_argument("--precompile", action="store_true",
                         help="compile the estimator and setpoint kernels into numba's cache (or load them), say where and "
                              "how long it took, and exit without opening any link: run it once on the onboard computer "
@@ -441,6 +463,16 @@ def main(argv: list[str] | None = None) -> int:
               "fills the cache ahead of a flight)", flush=True)
     app = CompanionApp(scenario, vehicle_config, log_dir, args.mavlink, args.zenoh_connect, args.zenoh_listen, args.seed,
                        zenoh_tls=zenoh_tls, zenoh_namespace=args.zenoh_namespace, pursuer_id=args.pursuer_id)
+    if args.live is not None:
+        from companion.adapters.live_view import LiveView
+
+        try:
+            live = LiveView(args.live, args.live_host, app.scenario.guidance.desired_range)
+        except RuntimeError as error:  # the SDK's FoxgloveError: port taken, host unknown
+            print(f"companion: --live {args.live_host}:{args.live}: {error}", file=sys.stderr)
+            return 2
+        app.attach_live_view(live)
+        print(f"companion: live view on {live.url} (Foxglove: Open connection)", flush=True)
 
     def hard_exit(signum: int) -> None:
         written = "logs and summary already written"

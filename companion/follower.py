@@ -72,6 +72,8 @@ class Follower:
         #: companion.swarm_link.SwarmLink of a [swarm] scenario (None: one pursuer): its neighbours and their
         #: bearings go to the pipeline with the own ones, and it learns the own bearings it shares next
         self.swarm = None
+        #: companion.adapters.live_view.LiveView with --live (None: nothing is published)
+        self.live = None
 
     def attach(self, vehicle: MavsdkVehicle, pipeline: FollowingPipeline) -> None:
         self.vehicle = vehicle
@@ -144,7 +146,12 @@ class Follower:
         if getattr(output, "health_reinitialized", False):
             await self._announce(output.time, "health_restart", "estimator restarted on the bearing", HEALTH_RESTART_TEXT)
         self.last_output = output
-        self._log_row(sample, output, bearings, phase)
+        row = self._log_row(sample, output, bearings, phase)
+        if self.live is not None:
+            link = self.target_link.health
+            self.live.publish(row, sample.rotation, self.target_link.last_position,
+                              {"accepted": link.accepted, "rejected": link.rejected},
+                              () if output.health is None else tuple(output.health.reasons))
 
     async def _track_mode_changed(self, output: PipelineOutput) -> None:
         """Say so in the log, on Zenoh (next state) and to the autopilot/ground station (STATUSTEXT)."""
@@ -198,7 +205,8 @@ class Follower:
         if newest - output.time > self.pipeline.control_period:
             self.deadline_misses += 1
 
-    def _log_row(self, sample: VehicleSample, output: PipelineOutput, bearings: list[BearingMeasurement], phase: str) -> None:
+    def _log_row(self, sample: VehicleSample, output: PipelineOutput, bearings: list[BearingMeasurement], phase: str) -> dict:
+        """Write the series row of this sample (companion.adapters.recorder.SERIES_COLUMNS) and return it."""
         s = sample.state
         row = {"time": s.time, "phase": phase, "track_mode": output.mode.value, "bearing_age": output.bearing_age,
                "px": s.position[0], "py": s.position[1], "pz": s.position[2],
@@ -234,3 +242,4 @@ class Follower:
             a = output.setpoint.acceleration
             row.update(acc_x=float(a[0]), acc_y=float(a[1]), acc_z=float(a[2]), thrust_normalized=output.setpoint.thrust_normalized)
         self.recorder.series(row)
+        return row

@@ -110,6 +110,7 @@ class TargetLink:
         self.wants_bearings = wants_bearings
         self.pending: collections.deque[PendingFix] = collections.deque()
         self.bearing_latencies_ms: list[float] = []  # fix received -> its bearing given to the estimator
+        self.last_position: np.ndarray | None = None  # the newest accepted fix, local NED m
         self._loop: asyncio.AbstractEventLoop | None = None
 
     def subscribe(self, session, loop: asyncio.AbstractEventLoop) -> None:
@@ -138,6 +139,7 @@ class TargetLink:
             self.recorder.zenoh(record)
             return
         self.health.last_received_wall = time.monotonic()
+        self.last_position = position
         record.update(verdict="accepted", seq=fix.seq, epoch=fix.epoch, stamp=fix.stamp, frame=fix.frame,
                       position=list(fix.position))
         self.recorder.zenoh(record)

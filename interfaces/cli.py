@@ -53,6 +53,22 @@ def seed_argument(text: str) -> int:
     return value
 
 
+#: Foxglove's default WebSocket port (what its "Open connection" dialog proposes): a live view's port when
+#: --live is given without one.
+LIVE_PORT = 8765
+
+
+def live_port(text: str) -> int:
+    """argparse type of --live: a TCP port 0..65535 (0: any free port)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a port number") from None
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"{value} is outside 0..65535")
+    return value
+
+
 def add_zenoh_security_arguments(parser: argparse.ArgumentParser, role: str) -> None:
     """--zenoh-tls DIR and --zenoh-namespace NAME, as every Zenoh process of the project takes them.
 

@@ -49,10 +49,10 @@ from studies.closed_loop import Termination
 from studies.flight_mcap import write_sitl_mcap
 from studies.metrics import (convergence_text, outcome_lines, summarize, suspect_warning, termination_name, truth_failed,
                              write_summary)
-from interfaces.cli import SPEED_FACTOR_BOUNDS, output_folder, scenario_file, seed_argument
+from interfaces.cli import LIVE_PORT, SPEED_FACTOR_BOUNDS, live_port, output_folder, scenario_file, seed_argument
 from studies.processes import ChildProcess, Interrupted, StopSignals, free_port, stop_all
 # The run folder's reading and the set-up both runs share (flight_series is used from here too: bof-campaign).
-from studies.sitl_runs import (DEFAULT_GCS_PORT, SitlOptions, Stopped, ZenohNetwork, bearing_only_check,
+from studies.sitl_runs import (DEFAULT_GCS_PORT, SitlOptions, live_args, Stopped, ZenohNetwork, bearing_only_check,
                                fail_on_early_exit, flight_series, make_run_folder, read_csv, read_json,
                                run_termination, watch)
 
@@ -184,7 +184,7 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None = 
         target_faults: list[str] | None = None,
         on_state: Callable[[link.CompanionState | None, float | None], None] | None = None,
         gcs_port: int = DEFAULT_GCS_PORT, stop: StopSignals | None = None,
-        secure: bool = False) -> tuple[int, Path, dict]:
+        secure: bool = False, live: int | None = None) -> tuple[int, Path, dict]:
     """Fly `config` through the three processes; returns (exit code, run folder, summary).
 
     speed_factor, seed: None takes the scenario's [sitl] speed_factor and [simulation] seed. timeout: wall s
@@ -201,9 +201,12 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None = 
     run folder is made.
     secure: Zenoh with mutual TLS and access control: a development PKI is made in <run>/pki
     and every process (this ground station as role gcs) uses its own role's certificate.
+    live: the companion serves its Foxglove live view on this loopback port (0: a free one; pursuer k of a
+    swarm on live + k - 1); None: no live view.
     A scenario with [swarm] is flown by studies.swarm_sitl.run_swarm (on_state is not called)."""
     options = SitlOptions(plots=plots, quiet=quiet, abort_after=abort_after, target_faults=target_faults,
-                          on_state=on_state, gcs_port=gcs_port, stop=stop, secure=secure)
+                          on_state=on_state, gcs_port=gcs_port, stop=stop, secure=secure,
+                          live=live)
     scenario, vehicle = load_scenario(config)
     speed = scenario.sitl.speed_factor if speed_factor is None else speed_factor
     seed = scenario.simulation.seed if seed is None else seed
@@ -231,6 +234,8 @@ def check_run(scenario: Scenario, speed: float, seed: int, timeout: float | None
         raise ConfigError(f"--abort-after {abort_after:g}: must be > 0 simulated seconds after engagement")
     if not 1 <= options.gcs_port <= 65535:
         raise ConfigError(f"--gcs-port {options.gcs_port} is not a UDP port")
+    if options.live is not None and not 0 <= options.live <= 65535 - (scenario.swarm.count - 1 if scenario.swarm else 0):
+        raise ConfigError(f"--live {options.live} is not a TCP port (0: any free port)")
     if timeout is not None and not timeout >= minimum_timeout(scenario, speed):
         raise ConfigError(f"--timeout {timeout:g} s is too short: this flight needs at least "
                           f"{minimum_timeout(scenario, speed):.0f} s of wall time at x{speed:g}")
@@ -252,6 +257,7 @@ class SingleRun:
                                                 "mavlink": {"gcs_port": options.gcs_port,
                                                             "companion_port": self.companion_port,
                                                             "signing_required": options.secure}}, indent=2)
+        self.live_port = options.live_port()
         self.plant, self.target, self.companion = self._children()
         self.station: GroundStation | None = None
         self.termination = Termination.INTERRUPTED  # until the summary reads it from the run folder
@@ -272,7 +278,8 @@ class SingleRun:
                               folder / "target.out", ready="sitl-target ready")
         companion = ChildProcess([python, "-m", "companion", "--config", config, "--mavlink",
                                   f"udpin://127.0.0.1:{self.companion_port}", "--zenoh-connect", network.endpoint,
-                                  "--seed", seed, "--log-dir", str(folder / "companion"), *zenoh_args],
+                                  "--seed", seed, "--log-dir", str(folder / "companion"), *zenoh_args,
+                                  *live_args(self.live_port)],
                                  folder / "companion.out", ready="companion ready")
         return plant, target, companion
 
@@ -285,6 +292,8 @@ class SingleRun:
         print(f"bof-sitl: zenoh {network.endpoint}, " + ("mutual TLS and access control (pki in the run folder)"
               if options.secure else f"plain TCP, unauthenticated, namespace {network.namespace} (other processes "
                                      "join with --zenoh-namespace)"), flush=True)
+        if self.live_port is not None:
+            print(f"bof-sitl: live view ws://127.0.0.1:{self.live_port} (Foxglove: Open connection)", flush=True)
         code = 1
         stopped: Stopped | None = None
         try:
@@ -466,6 +475,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="Zenoh with mutual TLS and access control (a development PKI in <run>/pki, every process "
                              "with its own certificate) and MAVLink 2 signing required on the plant's ground-station "
                              "link (key and passphrase in <run>/pki) (default: plain TCP, unauthenticated, unsigned)")
+    parser.add_argument("--live", type=live_port, nargs="?", const=LIVE_PORT, default=None, metavar="PORT",
+                        help=f"the companion serves the flight live to Foxglove (Open connection, ws://127.0.0.1:PORT): "
+                             f"port {LIVE_PORT} without PORT, 0 for any free port (printed); pursuer k of a swarm on "
+                             "PORT + k - 1. Off by default")
     parser.add_argument("--quiet", action="store_true",
                         help="no progress line every 2 s of wall time, only the final summary (default: print them)")
     return parser
@@ -486,7 +499,7 @@ def main(argv: list[str] | None = None) -> int:
             code, folder, summary = run(args.config, args.out, args.speed_factor, args.seed, args.timeout,
                                         plots=not args.no_plots, quiet=args.quiet, abort_after=args.abort_after,
                                         target_faults=args.fault, gcs_port=args.gcs_port, stop=stop,
-                                        secure=args.secure)
+                                        secure=args.secure, live=args.live)
         except ConfigError as error:
             parser.error(str(error))
     if summary.get("interrupted"):

@@ -190,10 +190,22 @@ class SitlOptions:
     gcs_port: int = DEFAULT_GCS_PORT
     stop: StopSignals | None = None
     secure: bool = False
+    live: int | None = None
+
+    def live_port(self, pursuer: int = 1) -> int | None:
+        """The loopback port pursuer `pursuer`'s companion serves its live view on (a free one for 0), or None."""
+        if self.live is None:
+            return None
+        return free_port(socket.SOCK_STREAM) if self.live == 0 else self.live + pursuer - 1
 
     def fault_args(self) -> list[str]:
         """sitl-target's --fault options."""
         return [arg for fault in (self.target_faults or []) for arg in ("--fault", fault)]
+
+
+def live_args(port: int | None) -> list[str]:
+    """The companion's --live option for a live view on loopback `port` (none for None)."""
+    return [] if port is None else ["--live", str(port)]
 
 
 def make_run_folder(out: Path, scenario: Scenario, seed: int) -> Path:

@@ -52,7 +52,7 @@ from interfaces.scenario import ConfigError, Scenario, VehicleConfig, pursuer_st
 from studies.metrics import outcome_lines, rms, summarize, termination_name, write_summary
 from studies.processes import ChildProcess, Interrupted, StopSignals, free_port, stop_all
 from studies.flight_mcap import write_sitl_mcap
-from studies.sitl_runs import (SitlOptions, Stopped, ZenohNetwork, fail_on_early_exit, flight_series, interp,
+from studies.sitl_runs import (SitlOptions, live_args, Stopped, ZenohNetwork, fail_on_early_exit, flight_series, interp,
                                make_run_folder, read_csv, read_json, run_termination, watch)
 
 #: Wall s between the start of the first plant and simulated time 0 of every plant, per pursuer (the plants
@@ -286,6 +286,7 @@ class SwarmRun:
         python, config, seed, network = sys.executable, str(self.config), self.seed, self.network
         zenoh_args, gcs_port = list(network.zenoh_args), self.options.gcs_port
         plants, companions = {}, {}
+        self.live_ports = {k: self.options.live_port(k) for k in range(1, self.count + 1)}
         for k in range(1, self.count + 1):
             where = self.folder / f"pursuer-{k}"
             zenoh = ["--zenoh-listen", network.endpoint, *zenoh_args] if k == 1 else []
@@ -298,7 +299,7 @@ class SwarmRun:
             companions[k] = ChildProcess([python, "-m", "companion", "--config", config, "--pursuer-id", str(k),
                                           "--mavlink", f"udpin://127.0.0.1:{self.companion_ports[k]}",
                                           "--zenoh-connect", network.endpoint, "--seed", str(seed), "--log-dir",
-                                          str(where / "companion"), *zenoh_args],
+                                          str(where / "companion"), *zenoh_args, *live_args(self.live_ports[k])],
                                          where / "companion.out", ready="companion ready")
         target = ChildProcess([python, "-m", "sitl_plant.world.target_publisher", "--config", config, "--zenoh-connect",
                                network.endpoint, "--seed", str(seed), "--log-dir", str(self.folder / "target"),
@@ -314,6 +315,9 @@ class SwarmRun:
               flush=True)
         print(f"bof-sitl: zenoh {network.endpoint}, " + ("mutual TLS and access control (pki in the run folder)"
               if options.secure else f"plain TCP, unauthenticated, namespace {network.namespace}"), flush=True)
+        for k, port in self.live_ports.items():
+            if port is not None:
+                print(f"bof-sitl: pursuer {k} live view ws://127.0.0.1:{port} (Foxglove: Open connection)", flush=True)
         self._on_progress = on_progress
         code = 1
         stopped: Stopped | None = None

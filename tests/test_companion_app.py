@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -339,3 +340,24 @@ def test_a_reject_flood_leaves_the_logs_bounded_and_the_counters_exact(app):
         assert len(verbatim) == REJECTS_VERBATIM
         assert len(verbatim) + sum(r["count"] for r in suppressed) == 3000  # every reject written or counted
         assert len(records) < REJECTS_VERBATIM + 10  # a few seconds of wall time: a few count lines
+
+
+def test_live_view_refuses_a_taken_port_or_a_bad_one_before_any_link_opens(tmp_path):
+    """`companion --live PORT` on a port another program holds, or outside 0..65535: one line naming it and exit 2
+    (the taken port is found before MAVLink or Zenoh is opened: the refusal comes without an autopilot)."""
+    import socket
+    import subprocess
+    import sys
+
+    scenario = Path(__file__).resolve().parent.parent / "config" / "scenarios" / "constant_velocity.toml"
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as holder:
+        holder.bind(("127.0.0.1", 0))
+        holder.listen()
+        taken = holder.getsockname()[1]
+        result = subprocess.run([sys.executable, "-m", "companion", "--config", str(scenario), "--live", str(taken),
+                                 "--log-dir", str(tmp_path / "run")], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2, result.stderr
+    assert f"--live 127.0.0.1:{taken}" in result.stderr and "in use" in result.stderr
+    result = subprocess.run([sys.executable, "-m", "companion", "--live", "70000"], capture_output=True, text=True,
+                            timeout=60)
+    assert result.returncode == 2 and "--live: 70000 is outside 0..65535" in result.stderr

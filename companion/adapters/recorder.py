@@ -67,6 +67,8 @@ class RunRecorder:
         self._latency = CsvLog(self.folder / "latency.csv", LATENCY_COLUMNS)
         self._zenoh_rejects = AggregatingLog(self._zenoh, verbatim=REJECTS_VERBATIM)
         self._event_rejects = AggregatingLog(self._events, verbatim=REJECTS_VERBATIM)
+        #: called with (sim_time, kind, detail) for every event that is not a rejection (the live view's /events)
+        self.listeners: list = []
 
     def series(self, row: dict) -> None:
         """One own-state sample: SERIES_COLUMNS -> value; floats with 6 significant digits, NaN left empty."""
@@ -92,6 +94,8 @@ class RunRecorder:
         else:
             self._events.write(record)
             self._event_rejects.tick(time.monotonic())
+            for listener in self.listeners:
+                listener(sim_time, kind, detail)
 
     def bearing(self, bearing, fix_seq: int) -> None:
         """One estimator input: the bearing (its time, direction, projection centre), the fix it came from,
