@@ -60,7 +60,7 @@ def _up(points: np.ndarray) -> np.ndarray:
 
 def scene_figure(flight: FlightFile, title: str) -> plt.Figure:
     """The 3-D scene: paths from the pose channels, ellipsoids and rays from /scene."""
-    figure = plt.figure(figsize=(14, 7))
+    figure = plt.figure(figsize=(15, 7))
     axes = figure.add_subplot(1, 2, 1, projection="3d")
     plan = figure.add_subplot(1, 2, 2)
     drawn = []
@@ -110,7 +110,7 @@ def scene_figure(flight: FlightFile, title: str) -> plt.Figure:
     plan.set_aspect("equal", adjustable="datalim")
     plan.grid(True, alpha=0.3)
     plan.set_title("plan view (2-sigma ellipses and bearing rays at the same instants)")
-    figure.tight_layout()
+    figure.tight_layout(w_pad=4.0)  # room for the 3-D axes' vertical label beside the plan view
     return figure
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -177,3 +178,26 @@ def test_a_json_channel_refuses_a_field_it_does_not_declare_and_drops_non_finite
     writer.close()
     flight = fc.read_flight(tmp_path / "x.mcap")
     assert flight.messages["/flight/range"] == [{"range_estimate": 7.5}]
+
+
+def test_the_docs_foxglove_layout_shows_only_channels_and_fields_a_flight_has():
+    """docs/foxglove-layout.json: every panel it configures is placed in its layout (and only those), and every
+    topic or message path it plots names a channel of interfaces.flight_channels and, on a JSON channel, a field
+    that channel declares."""
+    layout = json.loads((Path(__file__).resolve().parent.parent / "docs" / "foxglove-layout.json").read_text())
+
+    def placed(node) -> list[str]:
+        return [node] if isinstance(node, str) else placed(node["first"]) + placed(node["second"])
+
+    assert sorted(placed(layout["layout"])) == sorted(layout["configById"])
+    paths = []
+    for config in layout["configById"].values():
+        paths += [entry["value"] for entry in config.get("paths", [])]
+        paths += [f"{topic}." for topic in config.get("topics", {})]
+        paths += [f"{config[key]}." for key in ("topicPath", "topicToRender") if key in config]
+    assert paths
+    for path in paths:
+        topic, _, field = path.partition(".")
+        assert topic in fc.ALL_TOPICS, path
+        if field:
+            assert field in fc.JSON_TOPICS[topic], path
