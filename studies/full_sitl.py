@@ -146,13 +146,16 @@ def _figure(value: float | None, spec: str) -> str:
 
 
 def _progress(state: link.CompanionState | None) -> str:
+    """bof-sitl's progress line: the companion's phase; while it follows, the range estimate, its spread and the
+    health monitor's word when it calls the estimate suspect; the target fixes accepted and refused, by reason."""
     if state is None:
         return "waiting for the companion"
     text = f"t={state.stamp:6.1f}s phase={state.phase:10s}"
-    if state.estimate is not None:
+    if state.phase == "following" and state.estimate is not None:
         text += f" range^={_figure(state.estimate.range, '6.1f')} m  sigma_p={_figure(state.estimate.position_std, '5.2f')} m"
-    text += f"  fixes {state.link.accepted} ok / {sum(state.link.rejected.values())} rejected"
-    return text
+        if state.health is not None and state.health.state == "suspect":
+            text += f"  estimate SUSPECT ({', '.join(state.health.reasons) or 'no reason given'})"
+    return text + f"  fixes {state.link.accepted} ok / {_rejections(state.link.rejected)}"
 
 
 #: Wall-clock seconds the children need to start and the companion to connect, arm and take off at any speed;
@@ -393,6 +396,12 @@ class SingleRun:
         return code
 
 
+def _rejections(rejected: dict[str, int]) -> str:
+    """'3 rejected (no_clock 3)': the refused fixes and their reasons, most frequent first."""
+    reasons = ", ".join(f"{reason} {count}" for reason, count in sorted(rejected.items(), key=lambda item: -item[1]))
+    return f"{sum(rejected.values())} rejected" + (f" ({reasons})" if reasons else "")
+
+
 def format_summary(summary: dict) -> str:
     flight = summary.get("flight")
     lines = [f"run folder: {summary['run_folder']}",
@@ -417,15 +426,21 @@ def format_summary(summary: dict) -> str:
         f"  position / velocity estimation: rms {flight['position_estimation_error_rms']:.3f} m, {flight['velocity_estimation_error_rms']:.3f} m/s",
         f"  {convergence_text(flight, after=' after engagement')}",
         f"  minimum range {flight['min_range']:.2f} m, max tilt {flight['max_tilt_deg']:.1f} deg",
-        f"  link: {companion['link']['accepted']} fixes accepted, {sum(companion['link']['rejected'].values())} rejected, "
+        f"  link: {companion['link']['accepted']} fixes accepted, {_rejections(companion['link']['rejected'])}, "
         f"{companion['link']['bearings_used']} bearings used",
         f"  fix received -> bearing into the estimator: p50 {companion['latency_fix_to_estimator_ms']['p50']:.2f} ms, "
         f"p99 {companion['latency_fix_to_estimator_ms']['p99']:.2f} ms",
-        f"  fix received -> next setpoint sent: p50 {latency['p50']:.2f} ms, p99 {latency['p99']:.2f} ms; "
-        f"deadline misses {companion['deadline_misses']}/{companion['setpoints_sent']}",
+        f"  fix received -> next setpoint sent: p50 {latency['p50']:.2f} ms, p99 {latency['p99']:.2f} ms",
+        f"  control deadlines: {companion['deadline_misses']} of {companion['setpoints_sent']} setpoints late  "
+        + ("ok" if companion["deadline_misses"] == 0 else "MISSED (a setpoint out after the next tick was due)"),
         f"  plant: x{summary['plant']['speed_factor_achieved']} achieved (asked x{summary['speed_factor']:g}), "
         f"MAVLink rejected {summary['plant']['mavlink_rejected'] or 'none'}",
     ]
+    live = companion.get("live_view")
+    if live:
+        cost = live["publish_us"]
+        lines.append(f"  live view {live['url']}: {live['samples_published']} samples published, "
+                     f"p50 {cost['p50']:.0f} us, p99 {cost['p99']:.0f} us per sample")
     warning = suspect_warning(flight, companion.get("health_reasons_at_end", ()))
     if warning:
         lines.append(f"  {warning}")

@@ -396,3 +396,17 @@ def test_a_live_client_receives_the_flight_while_it_follows(flown_live, scenario
     assert "tracking" in modes
     ranges = [m for t, m in received.get("/flight/range", []) if following <= t <= landing]
     assert ranges and all(m["desired_range"] == 8.0 and m["range_estimate"] > 0.0 for m in ranges)
+
+
+def test_the_closing_block_judges_the_flight_in_words(flown):
+    """bof-sitl's closing block: the truth's outcome beside the monitor's verdict, each envelope marked ok or not,
+    the control deadlines, the refused fixes by reason, and the live view's publish cost."""
+    _, _, summary = flown
+    text = full_sitl.format_summary(summary)
+    assert "outcome (truth): success" in text and "monitor verdict:" in text
+    assert "closest approach" in text and "max tilt" in text and "range-estimation rms" in text
+    misses, sent = summary["companion"]["deadline_misses"], summary["companion"]["setpoints_sent"]
+    assert f"control deadlines: {misses} of {sent} setpoints late  " + ("ok" if misses == 0 else "MISSED") in text
+    rejected = summary["companion"]["link"]["rejected"]
+    assert all(f"{reason} {count}" in text for reason, count in rejected.items())
+    assert f"live view {summary['companion']['live_view']['url']}" in text

@@ -544,16 +544,24 @@ def test_fixes_cross_a_real_loopback_session_in_order():
         listener.close()
 
 
-def test_ground_station_progress_line_shows_missing_figures_as_dashes():
-    """bof-sitl's progress line reads the decoded state; a null range or std (no estimate yet: the
-    encoder nulls NaN) prints '-' instead of failing on None."""
+def test_ground_station_progress_line_names_the_phase_the_rejections_and_shows_missing_figures_as_dashes():
+    """bof-sitl's progress line reads the decoded state: the range estimate only while the companion follows (a null
+    range or std, no estimate yet: the encoder nulls NaN, prints '-'), the monitor's word when it calls the estimate
+    suspect, and the refused fixes by reason."""
     from studies.full_sitl import _progress
 
     full = _progress(link.decode_state(encode_state(_state())))
-    assert "range^=  59.0 m" in full and "sigma_p= 0.80 m" in full and "fixes 10 ok / 2 rejected" in full
+    assert "phase=following" in full and "range^=  59.0 m" in full and "sigma_p= 0.80 m" in full
+    assert "fixes 10 ok / 2 rejected (not_json 2)" in full and "SUSPECT" not in full
     estimate = dict(_state()["estimate"], range=float("nan"), position_std=float("inf"))
     line = _progress(link.decode_state(encode_state(_state(estimate=estimate))))
     assert "range^=- m" in line and "sigma_p=- m" in line
+    landing = _progress(link.decode_state(encode_state(_state(phase="landing"))))
+    assert "phase=landing" in landing and "range^" not in landing and "sigma_p" not in landing
+    several = dict(_state()["link"], rejected={"no_clock": 4, "future_stamp": 7})
+    assert "11 rejected (future_stamp 7, no_clock 4)" in _progress(link.decode_state(encode_state(_state(link=several))))
+    health = {"state": "suspect", "reasons": ["nis"], "nis_ratio": 4.0, "relative_range_std": 0.1}
+    assert "estimate SUSPECT (nis)" in _progress(link.decode_state(encode_state(_state(health=health))))
     assert _progress(None) == "waiting for the companion"
 
 
