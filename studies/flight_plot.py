@@ -25,7 +25,7 @@ import matplotlib.pyplot as plt  # noqa: E402  (backend first)
 import numpy as np  # noqa: E402
 
 from interfaces.flight_channels import SCENE_TOPIC, FlightFile, read_flight  # noqa: E402
-from studies.plots import set_metric_aspect  # noqa: E402
+from studies.plots import set_metric_aspect, suspect_spans  # noqa: E402
 
 #: How many of the scene's ellipsoids and rays the 3-D figure draws (evenly spaced over the flight).
 SCENE_SNAPSHOTS = 6
@@ -37,20 +37,6 @@ def _engaged_at(flight: FlightFile) -> float | None:
         return float(text) if text else None
     except ValueError:
         return None
-
-
-def suspect_spans(times: np.ndarray, suspect: np.ndarray) -> list[tuple[float, float]]:
-    """The (start, end) times of each run of suspect samples (a run ends at the next sample that is not)."""
-    spans, start = [], None
-    for k, flagged in enumerate(suspect > 0.5):
-        if flagged and start is None:
-            start = times[k]
-        elif not flagged and start is not None:
-            spans.append((float(start), float(times[k])))
-            start = None
-    if start is not None:
-        spans.append((float(start), float(times[-1])))
-    return spans
 
 
 def _up(points: np.ndarray) -> np.ndarray:

@@ -383,7 +383,8 @@ class SingleRun:
                 from studies.plots import plot_errors, plot_trajectories
 
                 plot_trajectories(series, folder / "trajectory.png", f"{scenario.name} (SITL)")
-                plot_errors(series, scenario.guidance.desired_range, folder / "errors.png", f"{scenario.name} (SITL)")
+                plot_errors(series, scenario.guidance.desired_range, folder / "errors.png", f"{scenario.name} (SITL)",
+                            summary["flight"])
                 plot_link(folder, engaged_at, folder / "link.png")
         except (RuntimeError, FileNotFoundError, KeyError, ValueError, IndexError) as error:
             summary["flight"] = None

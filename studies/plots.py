@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import matplotlib
@@ -74,11 +75,36 @@ def plot_trajectories(series: dict[str, np.ndarray], path: Path, title: str) -> 
     plt.close(figure)
 
 
-def plot_errors(series: dict[str, np.ndarray], desired_range: float, path: Path, title: str) -> None:
+def suspect_spans(times: np.ndarray, suspect: np.ndarray) -> list[tuple[float, float]]:
+    """The (start, end) times of each run of suspect samples (a run ends at the next sample that is not)."""
+    spans, start = [], None
+    for k, flagged in enumerate(suspect > 0.5):
+        if flagged and start is None:
+            start = times[k]
+        elif not flagged and start is not None:
+            spans.append((float(start), float(times[k])))
+            start = None
+    if start is not None:
+        spans.append((float(start), float(times[-1])))
+    return spans
+
+
+def plot_errors(series: dict[str, np.ndarray], desired_range: float, path: Path, title: str,
+                summary: dict | None = None) -> None:
+    """errors_figure saved to `path` (PNG)."""
+    figure = errors_figure(series, desired_range, title, summary)
+    figure.savefig(path, dpi=120)
+    plt.close(figure)
+
+
+def errors_figure(series: dict[str, np.ndarray], desired_range: float, title: str,
+                  summary: dict | None = None) -> plt.Figure:
     """Fig. 8(b): position, velocity and range estimation errors, and the range against r_d.
 
-    The two error norms (>= 0) are on a log axis; the signed range-estimation error on a
-    symmetric-log axis (linear within +-1 m); the range on a linear axis."""
+    The two error norms (>= 0) are on a log axis; the signed range-estimation error, which crosses zero, and
+    the range on linear axes. With the flight's `summary` (studies.metrics.summarize) every panel marks the
+    summary window (shaded, its last summary_window seconds) and the convergence time (dashed); spans the
+    health monitor called suspect (series "health_suspect") are shaded red."""
     time = series["time"]
     position_error = np.linalg.norm(series["estimate_position"] - series["target_position"], axis=1)
     velocity_error = np.linalg.norm(series["estimate_velocity"] - series["target_velocity"], axis=1)
@@ -94,18 +120,29 @@ def plot_errors(series: dict[str, np.ndarray], desired_range: float, path: Path,
     axes[3].plot(time, series["range"], "b-", linewidth=1.0, label="range r")
     axes[3].plot(time, series["range_estimate"], "g--", linewidth=1.0, label="estimated range")
     axes[3].axhline(desired_range, color="r", linestyle=":", label="desired r_d")
+    axes[3].axhline(0.5 * desired_range, color="darkred", linestyle=":", linewidth=0.8, label="r_d / 2")
     axes[3].set_ylabel("range [m]")
     axes[3].set_xlabel("time [s]")
-    axes[3].legend(loc="upper right")
     for ax in axes[:2]:
         ax.set_yscale("log")
-    axes[2].set_yscale("symlog", linthresh=1.0)
-    for ax in axes:
+    suspect = series.get("health_suspect")
+    spans = suspect_spans(time, np.asarray(suspect, dtype=float).reshape(-1)) if suspect is not None else []
+    window = summary.get("summary_window") if summary else None
+    convergence = summary.get("convergence_time") if summary else None
+    for k, ax in enumerate(axes):
+        for start, end in spans:
+            ax.axvspan(start, end, color="tab:red", alpha=0.12, linewidth=0, label="suspect" if k == 3 and start == spans[0][0] else None)
+        if window and len(time):
+            ax.axvspan(max(float(time[-1]) - window, float(time[0])), float(time[-1]), color="grey", alpha=0.12,
+                       linewidth=0, label=f"summary window (last {window:g} s)" if k == 3 else None)
+        if convergence is not None and math.isfinite(convergence):
+            ax.axvline(convergence, color="tab:green", linestyle="--", linewidth=0.9,
+                       label=f"converged at {convergence:.1f} s" if k == 3 else None)
         ax.grid(True, which="major", alpha=0.3)
+    axes[3].legend(loc="upper right", fontsize="small")
     axes[0].set_title(title)
     figure.tight_layout()
-    figure.savefig(path, dpi=120)
-    plt.close(figure)
+    return figure
 
 
 def plot_observability_comparison(flights: dict[str, dict[str, np.ndarray]], path: Path, title: str) -> None:

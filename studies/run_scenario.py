@@ -65,7 +65,7 @@ def write_run_folder(result: SimulationResult, folder: Path, plots: bool = True)
     write_summary(folder / "summary.json", result.summary)
     title = f"{result.scenario.name} (seed {result.summary['seed']})"
     plot_trajectories(series, folder / "trajectory.png", title)
-    plot_errors(series, result.scenario.guidance.desired_range, folder / "errors.png", title)
+    plot_errors(series, result.scenario.guidance.desired_range, folder / "errors.png", title, result.summary)
 
 
 def in_process_notes(scenario: Scenario) -> list[str]:

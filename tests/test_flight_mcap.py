@@ -201,3 +201,49 @@ def test_the_docs_foxglove_layout_shows_only_channels_and_fields_a_flight_has():
         assert topic in fc.ALL_TOPICS, path
         if field:
             assert field in fc.JSON_TOPICS[topic], path
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.booleans(), min_size=2, max_size=60))
+def test_suspect_spans_cover_exactly_the_flagged_samples(flags):
+    """Each span runs from a flagged sample that follows an unflagged one (or is the first) to the next unflagged
+    sample, or to the last sample when the flight ends flagged: every sample but the last lies in a span
+    [start, end) exactly when it is flagged, and there is one span per run of flagged samples."""
+    from studies.plots import suspect_spans
+
+    times = np.arange(len(flags)) * 0.1
+    spans = suspect_spans(times, np.array(flags, dtype=float))
+    for t, flagged in zip(times[:-1], flags[:-1]):
+        assert any(start <= t < end for start, end in spans) == flagged
+    if flags[-1]:
+        assert spans[-1][1] == times[-1]
+    assert len(spans) == sum(1 for k, f in enumerate(flags) if f and (k == 0 or not flags[k - 1]))
+
+
+def test_errors_figure_marks_the_window_the_convergence_and_the_suspect_spans_on_linear_signed_axes():
+    """errors.png: the signed range-estimation error and the range on linear axes (values cross zero); with the
+    flight's summary, the summary window, the convergence time and each suspect span drawn on every panel."""
+    import matplotlib.patches
+
+    from studies.plots import errors_figure
+
+    scenario, vehicle = load_scenario(SCENARIOS_DIR / "constant_velocity.toml")
+    result = simulate(scenario.model_copy(update={"simulation": scenario.simulation.model_copy(update={"duration": 30.0})}),
+                      vehicle, seed=1)
+    series = dict(result.series)
+    suspect = np.zeros(len(series["time"]))
+    suspect[(series["time"] > 5.0) & (series["time"] < 8.0)] = 1.0  # one suspect span, 5-8 s
+    series["health_suspect"] = suspect
+    figure = errors_figure(series, scenario.guidance.desired_range, "t", result.summary)
+    axes = figure.axes
+    assert [ax.get_yscale() for ax in axes] == ["log", "log", "linear", "linear"]
+    window = result.summary["summary_window"]
+    for ax in axes:
+        spans = sorted((p.get_x(), p.get_x() + p.get_width()) for p in ax.patches
+                       if isinstance(p, matplotlib.patches.Rectangle))
+        assert len(spans) == 2, spans
+        (s0, s1), (w0, w1) = spans
+        assert 5.0 < s0 < 5.1 and 8.0 <= s1 < 8.1
+        assert w1 == pytest.approx(series["time"][-1]) and w1 - w0 == pytest.approx(window)
+        vertical = [line.get_xdata()[0] for line in ax.lines if line.get_linestyle() == "--" and len(set(line.get_xdata())) == 1]
+        assert vertical == [pytest.approx(result.summary["convergence_time"])]
