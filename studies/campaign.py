@@ -550,7 +550,7 @@ def main(argv: list[str] | None = None) -> int:
     report += f"\n\n{throughput.line('bof-campaign')} (in-process flights; SITL cases not counted)\n"
     (folder / "summary.md").write_text(report)
     write_summary(folder / "summary.json", {"patterns": table, "sitl": sitl_rows, "throughput": throughput.record()})
-    print(report)
+    print(reporting.for_terminal(report))
     print(f"run folder: {folder}")
     missed = [e["pattern"] for e in table + sitl_rows if e.get("meets_targets") is False]
     return 1 if missed else 0

@@ -558,7 +558,7 @@ def main(argv: list[str] | None = None) -> int:
         report += montecarlo_plots.draw_all(rows, series, folder, curves_by=study.curves_by if study else None, title=title)
     report += f"\n\n{throughput.line('bof-montecarlo')}\n"
     (folder / "summary.md").write_text(report)
-    print(report)
+    print(reporting.for_terminal(report))
     print(f"run folder: {folder}")
     return 0
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 import csv
 import math
 import sys
+import textwrap
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -94,6 +95,52 @@ def markdown(lines: Sequence[Mapping[str, str]], headers: Sequence[str]) -> str:
     """A markdown (pipe) table of `lines`, cells taken as given (already formatted text), columns `headers`."""
     frame = pd.DataFrame(list(lines), columns=list(headers))
     return frame.to_markdown(index=False, tablefmt="pipe", disable_numparse=True, stralign="left")
+
+
+#: Terminal width the study commands print to; the whole report is in the run folder's summary.md.
+TERMINAL_WIDTH = 120
+
+
+def for_terminal(report: str, width: int = TERMINAL_WIDTH, where: str = "summary.md") -> str:
+    """A markdown report as a terminal shows it in `width` columns: prose wrapped; a pipe table wider than `width`
+    keeps its leading columns that fit (the first always) and says how many of them it shows and where the whole
+    table is. Lines that are neither (headings, links) are kept as they are."""
+    out: list[str] = []
+    lines = report.splitlines()
+    k = 0
+    while k < len(lines):
+        if not lines[k].startswith("|"):
+            line = lines[k]
+            out += textwrap.wrap(line, width, break_long_words=False, break_on_hyphens=False) if len(line) > width else [line]
+            k += 1
+            continue
+        table = []
+        while k < len(lines) and lines[k].startswith("|"):
+            table.append([cell.strip() for cell in lines[k].strip().strip("|").split("|")])
+            k += 1
+        out += _narrow_table(table, width, where)
+    return "\n".join(out)
+
+
+def _narrow_table(rows: list[list[str]], width: int, where: str) -> list[str]:
+    """Rows of a pipe table (the second one its rule) with as many leading columns as fit in `width`."""
+    count = max(len(row) for row in rows)
+    rows = [row + [""] * (count - len(row)) for row in rows]
+    body = [row for index, row in enumerate(rows) if index != 1]
+    widths = [max(max(len(row[c]) for row in body), 3) for c in range(count)]
+    shown, used = 0, 1
+    while shown < count and (shown == 0 or used + widths[shown] + 3 <= width):
+        used += widths[shown] + 3
+        shown += 1
+
+    def line(cells: list[str]) -> str:
+        return "| " + " | ".join(cell.ljust(widths[c]) for c, cell in enumerate(cells[:shown])) + " |"
+
+    text = [line(body[0]), "|" + "|".join("-" * (widths[c] + 2) for c in range(shown)) + "|"]
+    text += [line(row) for row in body[1:]]
+    if shown < count:
+        text.append(f"({shown} of {count} columns; the whole table is in {where})")
+    return text
 
 
 def progress_bar(total: int | None, unit: str, enabled: bool = True, description: str | None = None) -> tqdm:

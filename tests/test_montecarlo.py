@@ -340,3 +340,33 @@ def test_the_parent_compiles_the_kernels_before_starting_workers():
         assert (estimators._correct_into.signatures and estimators._predict_kernel.signatures
                 and imm._imm_correction.signatures and imm._predict_models.signatures
                 and imm._turn_acceleration_into.signatures)
+
+
+_CELL = st.text(alphabet="abcdefghij0123456789 ./()-", min_size=0, max_size=40).map(str.strip)
+
+
+@given(st.integers(1, 12).flatmap(lambda columns: st.tuples(
+    st.lists(_CELL.filter(bool), min_size=columns, max_size=columns, unique=True),
+    st.lists(st.lists(_CELL, min_size=columns, max_size=columns), min_size=0, max_size=6))),
+    st.text(alphabet="abc de", min_size=0, max_size=400))
+def test_a_report_on_the_terminal_fits_120_columns_and_keeps_each_rows_leading_cells(table, prose):
+    """The terminal's copy of a study report (the whole one goes to summary.md): every line within 120
+    columns, unless one word or the first column alone is wider; a table keeps its first columns, each row's
+    cells as they were, and says how many of its columns it shows when it drops any."""
+    from studies import reporting
+
+    headers, rows = table
+    report = f"# title\n\n{prose}\n\n" + reporting.markdown([dict(zip(headers, row)) for row in rows], headers)
+    text = reporting.for_terminal(report)
+    longest_word = max((len(word) for word in prose.split()), default=0)
+    lines = text.splitlines()
+    table_lines = [line for line in lines if line.startswith("|")]
+    first = max(len(cell) for cell in [headers[0], *(row[0] for row in rows)] + ["---"])
+    for line in lines:
+        assert len(line) <= max(reporting.TERMINAL_WIDTH, longest_word, first + 4), line
+    shown = len(table_lines[0].strip("|").split("|"))
+    assert 1 <= shown <= len(headers)
+    assert [cell.strip() for cell in table_lines[0].strip("|").split("|")] == [h.strip() for h in headers[:shown]]
+    for line, row in zip(table_lines[2:], rows):
+        assert [cell.strip() for cell in line.strip("|").split("|")] == [c.strip() for c in row[:shown]]
+    assert (f"({shown} of {len(headers)} columns; the whole table is in summary.md)" in text) == (shown < len(headers))
