@@ -54,7 +54,7 @@ from companion.target_link import TargetLink
 from companion.warmup import warm_up as warm_up_kernels
 from interfaces import link_schema as link
 from interfaces import zenoh_transport
-from interfaces.cli import add_zenoh_security_arguments, output_folder, scenario_file, seed_argument
+from interfaces.cli import CommandParser, add_zenoh_security_arguments, output_folder, scenario_file, seed_argument
 from interfaces.scenario import (DEFAULT_SCENARIO, MAX_PURSUERS, ConfigError, Scenario, VehicleConfig, load_scenario,
                                  pursuer_starts)
 
@@ -353,7 +353,7 @@ def _pursuer_id(text: str) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of `companion` (the CLI reference page prints its help)."""
-    parser = argparse.ArgumentParser(prog="companion", description=__doc__.split("\n\n")[0])
+    parser = CommandParser(prog="companion", description=__doc__.split("\n\n")[0])
     parser.add_argument("--config", type=scenario_file, default=DEFAULT_SCENARIO, help="scenario TOML (default: %(default)s)")
     parser.add_argument("--mavlink", default=None, help="MAVSDK connection URL ([companion] mavlink_url)")
     parser.add_argument("--zenoh-connect", action="append", default=None, help="Zenoh endpoint to connect to (repeatable)")

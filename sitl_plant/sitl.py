@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from interfaces.shutdown import arm_exit_deadline
-from interfaces.cli import add_zenoh_security_arguments, output_folder
+from interfaces.cli import CommandParser, add_zenoh_security_arguments, output_folder
 from interfaces.scenario import (DEFAULT_SCENARIO, ConfigError, PlantScenario, VehicleConfig, load_plant_scenario,
                                  pursuer_starts)
 from interfaces.records import AggregatingLog, CsvLog, JsonLinesLog, write_json
@@ -337,7 +337,7 @@ class RealTimeRunner:
         self.log.write_stats(self.stats())
 
 
-class _Parser(argparse.ArgumentParser):
+class _Parser(CommandParser):
     """argparse, but a bad argument is one line on stderr (no usage block) and exit status 2."""
 
     def error(self, message: str):  # noqa: D401

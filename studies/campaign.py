@@ -61,7 +61,7 @@ from studies import reporting
 from studies.executors import check_executor, check_flight_count, make_executor
 from studies.processes import Interrupted, RaisingStopSignals, wait_for
 from studies.metrics import write_summary
-from interfaces.cli import SPEED_FACTOR_BOUNDS, output_folder, scenario_file
+from interfaces.cli import CommandParser, SPEED_FACTOR_BOUNDS, output_folder, scenario_file
 
 DEFAULT_SCENARIO = DEFAULT_SCENARIO
 CONVERGED = 1.0  # m, range-estimation error
@@ -462,8 +462,8 @@ def _sitl_attack_figures(run_folder: Path, rate_hz: float, home) -> dict:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of `bof-campaign` (the CLI reference page prints its help)."""
-    parser = argparse.ArgumentParser(prog="bof-campaign", description=__doc__.split("\n\n")[0],
-                                     formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    parser = CommandParser(prog="bof-campaign", description=__doc__.split("\n\n")[0],
+                           formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("config", nargs="?", type=scenario_file, default=DEFAULT_SCENARIO, help="scenario TOML")
     parser.add_argument("--seeds", type=int, default=10, help="in-process flights per pattern (seeds 1..N)")
     parser.add_argument("--patterns", nargs="+", default=list(PATTERNS), choices=list(PATTERNS), metavar="PATTERN",

@@ -49,7 +49,7 @@ from studies.closed_loop import Termination
 from studies.flight_mcap import write_sitl_mcap
 from studies.metrics import (convergence_text, outcome_lines, summarize, suspect_warning, termination_name, truth_failed,
                              write_summary)
-from interfaces.cli import SPEED_FACTOR_BOUNDS, output_folder, scenario_file, seed_argument
+from interfaces.cli import CommandParser, SPEED_FACTOR_BOUNDS, output_folder, scenario_file, seed_argument
 from studies.processes import ChildProcess, Interrupted, StopSignals, free_port, stop_all
 # The run folder's reading and the set-up both runs share (flight_series is used from here too: bof-campaign).
 from studies.sitl_runs import (DEFAULT_GCS_PORT, SitlOptions, Stopped, ZenohNetwork, bearing_only_check,
@@ -435,7 +435,7 @@ def judged_exit_code(code: int, summary: dict) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of `bof-sitl` (the CLI reference page prints its help)."""
-    parser = argparse.ArgumentParser(prog="bof-sitl", description=__doc__.split("\n\n")[0], epilog=EXIT_STATUS)
+    parser = CommandParser(prog="bof-sitl", description=__doc__.split("\n\n")[0], epilog=EXIT_STATUS)
     parser.add_argument("config", nargs="?", type=scenario_file, default=DEFAULT_SCENARIO,
                         help="scenario TOML (default: %(default)s)")
     parser.add_argument("--speed-factor", type=float, default=None,
