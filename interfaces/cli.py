@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import difflib
+import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -18,9 +19,12 @@ from pathlib import Path
 from interfaces.scenario import MAX_SPEED_FACTOR, MIN_SPEED_FACTOR
 
 
-#: bof-sitl's --speed-factor (and bof-campaign's --sitl-speed) bounds, simulated s per wall s: those of the
-#: scenario's [sitl] speed_factor (below 0.5 MAVSDK's heartbeats time out, above 20 the plant falls behind).
+#: The --speed-factor bounds of every command (sitl-plant, bof-sitl; bof-campaign's --sitl-speed), simulated s per
+#: wall s: those of the scenario's [sitl] speed_factor (below 0.5 MAVSDK's heartbeats time out, above 20 the plant
+#: falls behind).
 SPEED_FACTOR_BOUNDS = (MIN_SPEED_FACTOR, MAX_SPEED_FACTOR)
+#: The same bounds as the help texts and the error say them.
+SPEED_FACTOR_RANGE = f"[{MIN_SPEED_FACTOR:g}, {MAX_SPEED_FACTOR:g}]"
 
 
 class CommandParser(argparse.ArgumentParser):
@@ -93,6 +97,19 @@ def seed_argument(text: str) -> int:
         raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
     if value < 0:
         raise argparse.ArgumentTypeError(f"{value} is negative (seeds are integers >= 0)")
+    return value
+
+
+def speed_factor_argument(text: str) -> float:
+    """argparse type: a speed factor, simulated seconds per wall second, within SPEED_FACTOR_BOUNDS ([0.5, 20])."""
+    low, high = SPEED_FACTOR_BOUNDS
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not low <= value <= high:  # also refuses nan
+        raise argparse.ArgumentTypeError(f"{text} is outside {SPEED_FACTOR_RANGE} (simulated seconds per wall second: "
+                                         f"MAVSDK needs heartbeats, the plant tops out near {high:g}x)")
     return value
 
 

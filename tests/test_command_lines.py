@@ -1,4 +1,5 @@
-"""Every console script's command line: a misspelt option is named as such, never blamed on a positional."""
+"""Every console script's command line: a misspelt option is named as such, never blamed on a positional; one
+speed-factor range."""
 
 from __future__ import annotations
 
@@ -97,3 +98,26 @@ def test_the_installed_command_says_so_in_one_usage_error(tmp_path):
     assert done.stderr.strip().splitlines()[-1] == ("bof-sitl: error: unrecognized option --sped-factor "
                                                     "(did you mean --speed-factor?)")
     assert list(tmp_path.iterdir()) == []
+
+
+#: Every option that sets the SITL's speed factor, simulated seconds per wall second.
+SPEED_OPTIONS = [("sitl-plant", "--speed-factor"), ("bof-sitl", "--speed-factor"), ("bof-campaign", "--sitl-speed")]
+
+
+def test_the_speed_options_are_all_the_commands_have():
+    found = [(command, option) for command, parser in PARSERS.items() for option in _long_options(parser)
+             if "speed" in option]
+    assert sorted(found) == sorted(SPEED_OPTIONS)
+
+
+@pytest.mark.parametrize("command, option", SPEED_OPTIONS)
+def test_every_speed_factor_is_within_one_range(command, option):
+    for refused in ("0.4", "21", "0", "nan", "100"):
+        code, stderr = _parse(command, [option, refused])
+        assert code == 2
+        assert stderr.strip().splitlines()[-1].startswith(
+            f"{command}: error: argument {option}: {refused} is outside [0.5, 20]"), stderr
+    for accepted in ("0.5", "20", "5"):
+        assert getattr(PARSERS[command].parse_args([option, accepted]), option[2:].replace("-", "_")) == float(accepted)
+    help_text = " ".join(PARSERS[command].format_help().split())
+    assert "within [0.5, 20]" in help_text
