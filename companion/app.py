@@ -41,9 +41,11 @@ from pathlib import Path
 import numpy as np
 
 from companion.core._jit import ENABLED as kernels_compiled
+from companion.adapters.mavsdk_log import mavsdk_log_to
 from companion.adapters.mavsdk_vehicle import MavsdkVehicle, VehicleError
 from companion.adapters.recorder import RunRecorder, TlogWriter
 from companion.assembly import build_pipeline, build_sensor, pursuer_scenario
+from companion.console import configure_console, say
 from companion.core.state_history import StateHistory
 from companion.fix_intake import build_command_validator, build_fix_validator
 from companion.follower import Follower
@@ -54,7 +56,8 @@ from companion.target_link import TargetLink
 from companion.warmup import warm_up as warm_up_kernels
 from interfaces import link_schema as link
 from interfaces import zenoh_transport
-from interfaces.cli import LIVE_PORT, add_zenoh_security_arguments, live_port, output_folder, scenario_file, seed_argument
+from interfaces.cli import (LIVE_PORT, CommandParser, add_zenoh_security_arguments, live_port, output_folder,
+                           scenario_file, seed_argument)
 from interfaces.scenario import (DEFAULT_SCENARIO, MAX_PURSUERS, ConfigError, Scenario, VehicleConfig, load_scenario,
                                  pursuer_starts)
 
@@ -368,7 +371,7 @@ def _pursuer_id(text: str) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of `companion` (the CLI reference page prints its help)."""
-    parser = argparse.ArgumentParser(prog="companion", description=__doc__.split("\n\n")[0])
+    parser = CommandParser(prog="companion", description=__doc__.split("\n\n")[0])
     parser.add_argument("--config", type=scenario_file, default=DEFAULT_SCENARIO, help="scenario TOML (default: %(default)s)")
     parser.add_argument("--mavlink", default=None, help="MAVSDK connection URL ([companion] mavlink_url)")
     parser.add_argument("--zenoh-connect", action="append", default=None, help="Zenoh endpoint to connect to (repeatable)")
@@ -446,7 +449,8 @@ def main(argv: list[str] | None = None) -> int:
     except zenoh_transport.LinkError as error:
         print(f"companion: {error}", file=sys.stderr)
         return 2
-    print(f"companion: {zenoh_transport.link_security(zenoh_tls)}", flush=True)
+    log = configure_console()
+    say(f"companion: {zenoh_transport.link_security(zenoh_tls)}")
     log_dir = args.log_dir or Path("runs") / f"companion-{time.strftime('%Y%m%d-%H%M%S')}"
     try:
         check_pursuer_id(scenario, args.pursuer_id)
@@ -459,8 +463,8 @@ def main(argv: list[str] | None = None) -> int:
     started = time.perf_counter()
     warm_up_kernels()
     if kernels_compiled:
-        print(f"companion: kernels ready in {time.perf_counter() - started:.1f} s (numba; `companion --precompile` "
-              "fills the cache ahead of a flight)", flush=True)
+        say(f"companion: kernels ready in {time.perf_counter() - started:.1f} s (numba; `companion --precompile` "
+            "fills the cache ahead of a flight)")
     app = CompanionApp(scenario, vehicle_config, log_dir, args.mavlink, args.zenoh_connect, args.zenoh_listen, args.seed,
                        zenoh_tls=zenoh_tls, zenoh_namespace=args.zenoh_namespace, pursuer_id=args.pursuer_id)
     if args.live is not None:
@@ -472,7 +476,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"companion: --live {args.live_host}:{args.live}: {error}", file=sys.stderr)
             return 2
         app.attach_live_view(live)
-        print(f"companion: live view on {live.url} (Foxglove: Open connection)", flush=True)
+        say(f"companion: live view on {live.url} (Foxglove: Open connection)")
 
     def hard_exit(signum: int) -> None:
         written = "logs and summary already written"
@@ -484,8 +488,8 @@ def main(argv: list[str] | None = None) -> int:
                 written = "summary written by the hard exit; logs flushed line by line"
             except Exception as error:  # the process is about to end either way: say why there is none
                 written = f"NO summary: {type(error).__name__}: {error}"
-        print(f"companion: still busy {HARD_EXIT_AFTER:g} s after {signal.Signals(signum).name}; exiting now "
-              f"({written})", file=sys.stderr, flush=True)
+        log.error(f"companion: still busy {HARD_EXIT_AFTER:g} s after {signal.Signals(signum).name}; exiting now "
+                  f"({written})")
         sys.stdout.flush()
         os._exit(128 + signum)
 
@@ -502,12 +506,13 @@ def main(argv: list[str] | None = None) -> int:
         for sig in STOP_SIGNALS:
             loop.add_signal_handler(sig, on_signal, sig)
         who = f", pursuer {app.pursuer_id} of {scenario.swarm.count}" if scenario.swarm is not None else ""
-        print(f"companion ready: {scenario.name}{who}, vehicle {app.mavlink_url}, log {log_dir}", flush=True)
+        say(f"companion ready: {scenario.name}{who}, vehicle {app.mavlink_url}, log {log_dir}")
         return await app.run()
 
-    code = asyncio.run(run())
+    with mavsdk_log_to(log):
+        code = asyncio.run(run())
     if app.stopped_by is not None:
-        print(f"companion: stopped by {app.stopped_by} in phase {app.phase.value}", flush=True)
+        say(f"companion: stopped by {app.stopped_by} in phase {app.phase.value}")
     return code
 
 

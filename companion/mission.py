@@ -35,6 +35,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
 from companion.adapters.mavsdk_vehicle import VehicleError, VehicleSample
+from companion.console import say
 from companion.core.fix_validator import CommandValidator, FixRejected
 from interfaces.scenario import CompanionConfig
 
@@ -112,13 +113,14 @@ class MissionSequencer:
 
     settings: the scenario's [companion] section. follow_duration: s of vehicle time to follow
     once engaged. link_up: true once a valid target fix has arrived. link_name: the fix key, for
-    the timeout message. log: where events go (the run recorder). echo: prints each transition.
+    the timeout message. log: where events go (the run recorder). echo: writes each transition (default: the
+    companion's console log, companion.console).
     commands: the freshness and order check of ground-station commands (CommandValidator; its
     counters say what was refused).
     """
 
     def __init__(self, settings: CompanionConfig, follow_duration: float, link_up: Callable[[], bool], link_name: str,
-                 log: EventLog, echo: Callable[[str], None] = lambda line: print(line, flush=True),
+                 log: EventLog, echo: Callable[[str], None] = say,
                  commands: CommandValidator | None = None) -> None:
         self.commands = commands if commands is not None else CommandValidator()
         self.settings = settings

@@ -246,7 +246,8 @@ def schema_page() -> str:
            "refused with a message that names the file and the key. Units are SI (m, s, rad unless a key "
            "says `_deg`); positions and velocities are local NED. Bounds are given with each type; the "
            "checks across keys are in the class docstrings and in `Scenario`'s validators.", "",
-           "A scenario file's top level is `Scenario`; its `vehicle` key names a vehicle file "
+           "A scenario file's top level is `Scenario`; its `vehicle` key names a shipped airframe "
+           "(`\"paper_table1\"`: `config/vehicles/paper_table1.toml`) or a vehicle file by its path "
            "(relative to the scenario), whose keys are those of the last section, `VehicleConfig`; "
            "a key it leaves out takes the paper's Table I value from `config/vehicles/paper_table1.toml`."]
     seen: set = set()

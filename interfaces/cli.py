@@ -1,22 +1,69 @@
-"""argparse types every command shares (the companion, the plant's tools and the studies).
+"""The parser and the argparse types every command shares (the companion, the plant's tools and the studies).
 
+    parser = CommandParser(prog="bof-sim", description=...)  # every console script's parser
     parser.add_argument("config", type=scenario_file)    # an existing scenario file, as a Path
     parser.add_argument("--seed", type=seed_argument)     # an integer >= 0
 
-Each raises argparse.ArgumentTypeError, which argparse turns into one usage line and exit status 2.
+Each type raises argparse.ArgumentTypeError, which argparse turns into one usage line and exit status 2.
 """
 
 from __future__ import annotations
 
 import argparse
+import difflib
+import math
+import sys
+from collections.abc import Sequence
 from pathlib import Path
 
 from interfaces.scenario import MAX_SPEED_FACTOR, MIN_SPEED_FACTOR
 
 
-#: bof-sitl's --speed-factor (and bof-campaign's --sitl-speed) bounds, simulated s per wall s: those of the
-#: scenario's [sitl] speed_factor (below 0.5 MAVSDK's heartbeats time out, above 20 the plant falls behind).
+#: The --speed-factor bounds of every command (sitl-plant, bof-sitl; bof-campaign's --sitl-speed), simulated s per
+#: wall s: those of the scenario's [sitl] speed_factor (below 0.5 MAVSDK's heartbeats time out, above 20 the plant
+#: falls behind).
 SPEED_FACTOR_BOUNDS = (MIN_SPEED_FACTOR, MAX_SPEED_FACTOR)
+#: The same bounds as the help texts and the error say them.
+SPEED_FACTOR_RANGE = f"[{MIN_SPEED_FACTOR:g}, {MAX_SPEED_FACTOR:g}]"
+
+
+class CommandParser(argparse.ArgumentParser):
+    """The argument parser of every console script: argparse without prefix abbreviations, naming a misspelt option.
+
+    `bof-sitl --sped-factor 5` is "unrecognized option --sped-factor (did you mean --speed-factor?)", exit status 2.
+    Plain argparse would take an unambiguous prefix (--speed) for the option it starts, and, since it type-checks
+    positionals before it reports unknown options, blamed the misspelt option's value on the positional argument
+    ("argument config: 5: no such file"). Keyword arguments are argparse.ArgumentParser's; allow_abbrev is False.
+    """
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(**kwargs, allow_abbrev=False)
+
+    def parse_args(self, args: Sequence[str] | None = None, namespace: argparse.Namespace | None = None):
+        arguments = sys.argv[1:] if args is None else list(args)
+        unknown = self.unknown_long_option(arguments)
+        if unknown is not None:
+            self.error(unknown)
+        return super().parse_args(arguments, namespace)
+
+    def unknown_long_option(self, arguments: Sequence[str]) -> str | None:
+        """The error for the first --option in `arguments` that this parser does not have (None: all known).
+
+        Everything after a bare `--` is positional, as argparse reads it; `--name=value` is the option --name.
+        """
+        known = [option for action in self._actions for option in action.option_strings if option.startswith("--")]
+        for argument in arguments:
+            if argument == "--":
+                return None
+            if not argument.startswith("--"):
+                continue
+            name = argument.split("=", 1)[0]
+            if name in known:
+                continue
+            completions = [option for option in known if option.startswith(name)]
+            guesses = completions if len(completions) == 1 else difflib.get_close_matches(name, known, n=1)
+            return f"unrecognized option {name}" + (f" (did you mean {guesses[0]}?)" if guesses else "")
+        return None
 
 
 def scenario_file(text: str) -> Path:
@@ -66,6 +113,19 @@ def live_port(text: str) -> int:
         raise argparse.ArgumentTypeError(f"{text!r} is not a port number") from None
     if not 0 <= value <= 65535:
         raise argparse.ArgumentTypeError(f"{value} is outside 0..65535")
+    return value
+
+
+def speed_factor_argument(text: str) -> float:
+    """argparse type: a speed factor, simulated seconds per wall second, within SPEED_FACTOR_BOUNDS ([0.5, 20])."""
+    low, high = SPEED_FACTOR_BOUNDS
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not low <= value <= high:  # also refuses nan
+        raise argparse.ArgumentTypeError(f"{text} is outside {SPEED_FACTOR_RANGE} (simulated seconds per wall second: "
+                                         f"MAVSDK needs heartbeats, the plant tops out near {high:g}x)")
     return value
 
 

@@ -40,6 +40,8 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
+from interfaces.cli import CommandParser
+
 #: The identities of the bearing-follow processes (certificate common names).
 ROLES = ("plant", "target", "companion", "gcs")
 CA_CERTIFICATE = "ca.pem"
@@ -216,7 +218,7 @@ def make_pki(folder: Path, roles: Iterable[str] = ROLES, days: int = DEFAULT_DAY
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of `bof-certs` (the CLI reference page prints its help)."""
-    parser = argparse.ArgumentParser(prog="bof-certs", description=__doc__.split("\n\n")[0])
+    parser = CommandParser(prog="bof-certs", description=__doc__.split("\n\n")[0])
     parser.add_argument("folder", type=Path, metavar="DIR", help="folder to create for the CA and the certificates")
     parser.add_argument("--roles", nargs="+", default=list(ROLES), metavar="ROLE",
                         help="roles to issue a certificate for (default: %(default)s)")

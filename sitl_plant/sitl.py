@@ -28,7 +28,8 @@ from pathlib import Path
 import numpy as np
 
 from interfaces.shutdown import arm_exit_deadline
-from interfaces.cli import add_zenoh_security_arguments, output_folder
+from interfaces.cli import (SPEED_FACTOR_RANGE, CommandParser, add_zenoh_security_arguments, output_folder,
+                            speed_factor_argument)
 from interfaces.scenario import (DEFAULT_SCENARIO, ConfigError, PlantScenario, VehicleConfig, load_plant_scenario,
                                  pursuer_starts)
 from interfaces.records import AggregatingLog, CsvLog, JsonLinesLog, write_json
@@ -337,7 +338,7 @@ class RealTimeRunner:
         self.log.write_stats(self.stats())
 
 
-class _Parser(argparse.ArgumentParser):
+class _Parser(CommandParser):
     """argparse, but a bad argument is one line on stderr (no usage block) and exit status 2."""
 
     def error(self, message: str):  # noqa: D401
@@ -368,8 +369,8 @@ def build_parser() -> argparse.ArgumentParser:
     """The argument parser of `sitl-plant` (the CLI reference page prints its help)."""
     parser = _Parser(prog="sitl-plant", description=__doc__.split("\n\n")[0])
     parser.add_argument("--config", type=Path, default=DEFAULT_SCENARIO, help="scenario TOML (default: %(default)s)")
-    parser.add_argument("--speed-factor", type=_number(float, 0.0, 100.0), default=None,
-                        help="simulated seconds per wall second, in (0, 100] ([sitl] speed_factor)")
+    parser.add_argument("--speed-factor", type=speed_factor_argument, default=None,
+                        help=f"simulated seconds per wall second, within {SPEED_FACTOR_RANGE} ([sitl] speed_factor)")
     parser.add_argument("--companion-port", type=_port, default=None, help="UDP port the companion listens on (default 14540)")
     parser.add_argument("--gcs-port", type=_port, default=None,
                         help="UDP port the ground station listens on (default 14550 on [sitl] gcs_host, 127.0.0.1)")

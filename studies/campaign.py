@@ -61,7 +61,7 @@ from studies import reporting
 from studies.executors import check_executor, check_flight_count, make_executor
 from studies.processes import Interrupted, RaisingStopSignals, wait_for
 from studies.metrics import write_summary
-from interfaces.cli import SPEED_FACTOR_BOUNDS, output_folder, scenario_file
+from interfaces.cli import SPEED_FACTOR_RANGE, CommandParser, output_folder, scenario_file, speed_factor_argument
 
 DEFAULT_SCENARIO = DEFAULT_SCENARIO
 CONVERGED = 1.0  # m, range-estimation error
@@ -462,8 +462,8 @@ def _sitl_attack_figures(run_folder: Path, rate_hz: float, home) -> dict:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of `bof-campaign` (the CLI reference page prints its help)."""
-    parser = argparse.ArgumentParser(prog="bof-campaign", description=__doc__.split("\n\n")[0],
-                                     formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    parser = CommandParser(prog="bof-campaign", description=__doc__.split("\n\n")[0],
+                           formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("config", nargs="?", type=scenario_file, default=DEFAULT_SCENARIO, help="scenario TOML")
     parser.add_argument("--seeds", type=int, default=10, help="in-process flights per pattern (seeds 1..N)")
     parser.add_argument("--patterns", nargs="+", default=list(PATTERNS), choices=list(PATTERNS), metavar="PATTERN",
@@ -473,7 +473,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="patterns also flown once each in full SITL (bof-sitl: real processes, faults by sitl-target); "
                              "and, SITL only, intruders from outside against bof-sitl --secure: " + "; ".join(
                                  f"{name}: {description}" for name, (_, _, description) in INTRUDER_PATTERNS.items()))
-    parser.add_argument("--sitl-speed", type=float, default=5.0, help="SITL speed factor, simulated seconds per wall second")
+    parser.add_argument("--sitl-speed", type=speed_factor_argument, default=5.0,
+                        help=f"SITL speed factor, simulated seconds per wall second, within {SPEED_FACTOR_RANGE} "
+                             "(bof-sitl's --speed-factor)")
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="worker processes for the in-process flights")
     parser.add_argument("--executor", default="local",
                         help="where the in-process flights run: local (processes), serial, dask-local, or tcp://scheduler:port")
@@ -492,10 +494,6 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     if args.seeds < 1 or args.workers < 1:
         print("bof-campaign: --seeds and --workers must be >= 1", file=sys.stderr)
-        return 2
-    low, high = SPEED_FACTOR_BOUNDS
-    if not low <= args.sitl_speed <= high:  # also refuses nan
-        print(f"bof-campaign: --sitl-speed must be within [{low:g}, {high:g}] (bof-sitl's --speed-factor)", file=sys.stderr)
         return 2
     try:
         check_executor(args.executor, args.workers)

@@ -24,6 +24,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402  (backend first)
 import numpy as np  # noqa: E402
 
+from interfaces.cli import CommandParser  # noqa: E402
 from interfaces.flight_channels import SCENE_TOPIC, FlightFile, read_flight  # noqa: E402
 from studies.plots import set_metric_aspect, suspect_spans  # noqa: E402
 
@@ -188,8 +189,8 @@ def plot_flight(path: Path, out: Path | None = None) -> list[Path]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="bof-plot", description="Draw a flight's 3-D scene and time plots from its "
-                                     "flight.mcap alone (a run folder: every flight*.mcap in it).")
+    parser = CommandParser(prog="bof-plot", description="Draw a flight's 3-D scene and time plots from its "
+                           "flight.mcap alone (a run folder: every flight*.mcap in it).")
     parser.add_argument("run", type=Path, help="a run folder of bof-sim or bof-sitl, or one .mcap file")
     parser.add_argument("--out", type=Path, default=None, help="folder for the PNGs (default: beside each .mcap)")
     return parser

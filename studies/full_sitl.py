@@ -49,7 +49,8 @@ from studies.closed_loop import Termination
 from studies.flight_mcap import write_sitl_mcap
 from studies.metrics import (convergence_text, outcome_lines, summarize, suspect_warning, termination_name, truth_failed,
                              write_summary)
-from interfaces.cli import LIVE_PORT, SPEED_FACTOR_BOUNDS, live_port, output_folder, scenario_file, seed_argument
+from interfaces.cli import (LIVE_PORT, SPEED_FACTOR_RANGE, CommandParser, live_port, output_folder, scenario_file,
+                            seed_argument, speed_factor_argument)
 from studies.processes import ChildProcess, Interrupted, StopSignals, free_port, stop_all
 # The run folder's reading and the set-up both runs share (flight_series is used from here too: bof-campaign).
 from studies.sitl_runs import (DEFAULT_GCS_PORT, SitlOptions, live_args, Stopped, ZenohNetwork, bearing_only_check,
@@ -460,12 +461,12 @@ def judged_exit_code(code: int, summary: dict) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of `bof-sitl` (the CLI reference page prints its help)."""
-    parser = argparse.ArgumentParser(prog="bof-sitl", description=__doc__.split("\n\n")[0], epilog=EXIT_STATUS)
+    parser = CommandParser(prog="bof-sitl", description=__doc__.split("\n\n")[0], epilog=EXIT_STATUS)
     parser.add_argument("config", nargs="?", type=scenario_file, default=DEFAULT_SCENARIO,
                         help="scenario TOML (default: %(default)s)")
-    parser.add_argument("--speed-factor", type=float, default=None,
-                        help="simulated seconds per wall second, within [0.5, 20] (default: the scenario's [sitl] "
-                             "speed_factor)")
+    parser.add_argument("--speed-factor", type=speed_factor_argument, default=None,
+                        help=f"simulated seconds per wall second, within {SPEED_FACTOR_RANGE} (default: the scenario's "
+                             "[sitl] speed_factor)")
     parser.add_argument("--seed", type=seed_argument, default=None,
                         help="seed of the plant's, target's and companion's noise, an integer >= 0 (default: the "
                              "scenario's [simulation] seed)")
@@ -503,9 +504,6 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    low, high = SPEED_FACTOR_BOUNDS
-    if args.speed_factor is not None and not low <= args.speed_factor <= high:
-        parser.error(f"--speed-factor must be within [{low:g}, {high:g}] (MAVSDK needs heartbeats; the plant tops out near 20x)")
     if args.abort_after is not None and not (math.isfinite(args.abort_after) and args.abort_after > 0):
         parser.error(f"--abort-after {args.abort_after:g}: must be > 0 simulated seconds after engagement")
     if not 1 <= args.gcs_port <= 65535:

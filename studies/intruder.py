@@ -63,7 +63,7 @@ import zenoh  # noqa: E402
 from interfaces import link_schema as link  # noqa: E402
 from interfaces.geodesy import geodetic_to_ned, ned_to_geodetic  # noqa: E402
 from interfaces.zenoh_transport import LinkError, open_session, publisher, zenoh_config  # noqa: E402
-from interfaces.cli import scenario_file  # noqa: E402
+from interfaces.cli import CommandParser, scenario_file  # noqa: E402
 
 FUTURE_SEQ = 2**62
 FUTURE_STAMP_OFFSET = 1e6  # s
@@ -1011,7 +1011,7 @@ def run_mavlink_attack(args: AttackOptions, endpoints: SitlEndpoints) -> dict:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of `bof-intruder` (the CLI reference page prints its help)."""
-    parser = argparse.ArgumentParser(prog="bof-intruder", description=__doc__.split("\n\n")[0])
+    parser = CommandParser(prog="bof-intruder", description=__doc__.split("\n\n")[0])
     parser.add_argument("attack", choices=ZENOH_ATTACKS + MAVLINK_ATTACKS, help="which attack (see the module docstring)")
     parser.add_argument("--run", type=Path, default=None,
                         help="a running bof-sitl's run folder, or its parent (the newest sitl-* inside): the Zenoh "

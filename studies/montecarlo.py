@@ -59,7 +59,7 @@ from studies import reporting
 from studies.executors import check_executor, check_flight_count, make_executor
 from studies.processes import Interrupted, RaisingStopSignals
 from studies.metrics import write_summary
-from interfaces.cli import output_folder, scenario_file
+from interfaces.cli import CommandParser, output_folder, scenario_file
 
 SCENARIOS = SCENARIOS_DIR
 DEFAULT_SCENARIO = SCENARIOS / "constant_velocity.toml"
@@ -464,7 +464,7 @@ def stack_series(series: list[dict | None]) -> dict[str, np.ndarray]:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of `bof-montecarlo` (the CLI reference page prints its help)."""
-    parser = argparse.ArgumentParser(prog="bof-montecarlo", description=__doc__.split("\n\n")[0])
+    parser = CommandParser(prog="bof-montecarlo", description=__doc__.split("\n\n")[0])
     parser.add_argument("scenarios", nargs="*", type=scenario_file, help=f"scenario files (default {DEFAULT_SCENARIO.name})")
     parser.add_argument("--study", choices=list(STUDIES), help="a preset grid: the paper's comparisons (estimators, guidance, table2) or the "
                         "maneuvering targets")

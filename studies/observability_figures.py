@@ -20,7 +20,7 @@ import matplotlib.pyplot as plt  # noqa: E402  (backend must be chosen first)
 import numpy as np  # noqa: E402
 
 from interfaces.scenario import DEFAULT_SCENARIO  # noqa: E402
-from interfaces.cli import output_folder
+from interfaces.cli import CommandParser, output_folder
 from studies.metrics import write_summary  # noqa: E402
 from companion.core.observability import (  # noqa: E402
     Plane,
@@ -164,7 +164,7 @@ def guidance_comparison(config: Path, path: Path) -> dict:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of `bof-observability` (the CLI reference page prints its help)."""
-    parser = argparse.ArgumentParser(prog="bof-observability", description=__doc__.split("\n\n")[0])
+    parser = CommandParser(prog="bof-observability", description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", type=output_folder, default=Path("runs"),
                         help="parent folder: the run folder observability-<time>/ is created inside it "
                              "(default: %(default)s)")

@@ -23,6 +23,7 @@ from __future__ import annotations
 import ctypes
 import os
 import random
+import re
 import signal
 import socket
 import subprocess
@@ -36,6 +37,8 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 #: s between SIGTERM and SIGKILL when stopping children.
 GRACE_PERIOD = 2.5
 _PR_SET_PDEATHSIG = 1  # linux/prctl.h
+#: The ISO-8601 UTC time stamp that may open a child's log line (the companion's: 2026-12-02T13:45:01.234Z).
+_LEADING_STAMP = re.compile(r"^\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d(\.\d+)?Z ")
 
 
 class Interrupted(Exception):
@@ -188,7 +191,8 @@ def _bindable(host: str, port: int, kind: int) -> bool:
 
 
 class ChildProcess:
-    """A child process whose stdout+stderr go to `log_path`; `ready` is a line prefix it prints when ready."""
+    """A child process whose stdout+stderr go to `log_path`; `ready` is a line prefix it prints when ready (after
+    the line's time stamp, if it has one)."""
 
     def __init__(self, command: list[str], log_path: Path, ready: str | None = None, env: dict | None = None) -> None:
         self.command = command
@@ -215,13 +219,15 @@ class ChildProcess:
         return self.log_path.read_text(errors="replace") if self.log_path.exists() else ""
 
     def wait_for_line(self, prefix: str, timeout: float, stop: StopSignals | None = None) -> str:
-        """Block until the child has printed a line starting with prefix; RuntimeError if it dies or times out,
-        Interrupted if `stop` has received a signal."""
+        """Block until the child has printed a line starting with prefix (after a leading ISO-8601 UTC time stamp,
+        if any); returns the line, stamp removed. RuntimeError if it dies or times out, Interrupted if `stop` has
+        received a signal."""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if stop is not None:
                 stop.check()
             for line in self.output().splitlines():
+                line = _LEADING_STAMP.sub("", line, count=1)
                 if line.startswith(prefix):
                     return line
             if self.process.poll() is not None:

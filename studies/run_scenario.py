@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from interfaces.cli import output_folder, scenario_file, seed_argument
+from interfaces.cli import CommandParser, output_folder, scenario_file, seed_argument
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, load_scenario
 from studies.closed_loop import SimulationResult, simulate
 from studies.flight_mcap import in_process_record, write_flight_mcap
@@ -156,8 +156,8 @@ def _fly_swarm(scenario: Scenario, vehicle, args) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of `bof-sim` (the CLI reference page prints its help)."""
-    parser = argparse.ArgumentParser(prog="bof-sim", description="Fly a bearing-only following scenario in the in-process simulator.",
-                                     epilog=EXIT_STATUS)
+    parser = CommandParser(prog="bof-sim", description="Fly a bearing-only following scenario in the in-process simulator.",
+                           epilog=EXIT_STATUS)
     parser.add_argument("scenario", nargs="?", type=scenario_file, default=DEFAULT_SCENARIO,
                         help="scenario TOML (default: the paper's constant-velocity case, %(default)s)")
     parser.add_argument("--out", type=output_folder, default="runs",

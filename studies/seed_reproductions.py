@@ -46,7 +46,7 @@ import numpy as np
 import studies.swarm as swarm_module
 from interfaces.overrides import apply_overrides
 from interfaces.scenario import MAX_DURATION_S, ConfigError, Scenario, VehicleConfig, load_scenario
-from interfaces.cli import output_folder
+from interfaces.cli import CommandParser, output_folder
 from studies.metrics import write_summary
 from studies.swarm import SwarmResult
 
@@ -386,9 +386,9 @@ def run(paper: str, seeds: Sequence[int], out: Path, duration: float | None = No
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of `bof-seed-repro` (the CLI reference page prints its help)."""
-    parser = argparse.ArgumentParser(prog="bof-seed-repro",
-                                     description="Fly the seed papers' several-pursuer simulations (seed 002 "
-                                                 "circumnavigation, seed 004 standoff) and write a run folder.")
+    parser = CommandParser(prog="bof-seed-repro",
+                           description="Fly the seed papers' several-pursuer simulations (seed 002 "
+                                       "circumnavigation, seed 004 standoff) and write a run folder.")
     parser.add_argument("paper", choices=sorted(REPRODUCTIONS), help="which seed paper's simulation")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4],
                         help="flight seeds, integers >= 0 (default: %(default)s)")

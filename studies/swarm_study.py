@@ -44,7 +44,7 @@ import numpy as np
 from interfaces.overrides import apply_overrides
 from interfaces.records import JsonLinesLog
 from interfaces.scenario import ConfigError, Scenario, SwarmBlackout, VehicleConfig, load_scenario
-from interfaces.cli import output_folder
+from interfaces.cli import CommandParser, output_folder
 from studies import reporting
 from studies.executors import check_executor, check_flight_count, make_executor
 from studies.processes import Interrupted, RaisingStopSignals
@@ -407,7 +407,7 @@ def write_results(folder: Path, rows: list[dict]) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of `bof-swarm-study` (the CLI reference page prints its help)."""
-    parser = argparse.ArgumentParser(prog="bof-swarm-study", description=__doc__.split("\n\n")[0])
+    parser = CommandParser(prog="bof-swarm-study", description=__doc__.split("\n\n")[0])
     parser.add_argument("--seeds", type=int, default=20, help="seeds 1..N per case (default 20)")
     parser.add_argument("--parts", nargs="+", choices=PARTS, default=list(PARTS),
                         help="a: one vs three pursuers; b: share-link blackout; c: estimators (default all)")

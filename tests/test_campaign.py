@@ -78,9 +78,11 @@ def test_every_attack_leaves_the_flight_kept_and_the_intruder_refused_and_counte
 @pytest.mark.parametrize("speed", ["0", "nan", "100"])
 def test_a_sitl_speed_bof_sitl_would_refuse_is_refused_before_any_flight(tmp_path, capsys, speed):
     # --sitl-speed 0 used to fly every in-process flight, then die dividing by zero in the SITL case and lose the report
-    assert campaign.main(["--seeds", "1", "--patterns", "none", "--sitl", "none", "--sitl-speed", speed,
-                          "--out", str(tmp_path)]) == 2
-    assert "--sitl-speed must be within [0.5, 20]" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_:
+        campaign.main(["--seeds", "1", "--patterns", "none", "--sitl", "none", "--sitl-speed", speed,
+                       "--out", str(tmp_path)])
+    assert exit_.value.code == 2
+    assert f"argument --sitl-speed: {speed} is outside [0.5, 20]" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
 
 

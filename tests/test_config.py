@@ -67,6 +67,48 @@ def test_bad_values_are_rejected_naming_the_key(tmp_path, old, new, key):
     assert str(path) in str(error.value)
 
 
+VEHICLE_PATH_LINE = 'vehicle = "../vehicles/paper_table1.toml"'
+
+
+def _copied(tmp_path: Path, vehicle_line: str) -> Path:
+    """constant_velocity copied out of config/scenarios (no vehicles/ folder near it), its vehicle line replaced."""
+    assert VEHICLE_PATH_LINE in VALID
+    path = tmp_path / "copied.toml"
+    path.write_text(VALID.replace(VEHICLE_PATH_LINE, vehicle_line))
+    return path
+
+
+@pytest.mark.parametrize("vehicle_line", ['vehicle = "paper_table1"', ""], ids=["by name", "by default"])
+def test_a_copied_scenario_finds_a_shipped_airframe_by_name(tmp_path, scenario_path, vehicle_line):
+    from interfaces.scenario import load_plant_scenario
+
+    path = _copied(tmp_path, vehicle_line)
+    _, shipped = load_scenario(scenario_path("constant_velocity"))
+    scenario, vehicle = load_scenario(path)
+    assert vehicle == shipped == load_vehicle(VEHICLES_DIR / "paper_table1.toml")
+    assert scenario.vehicle == "paper_table1"
+    assert load_plant_scenario(path)[1] == shipped
+
+
+def test_an_unknown_airframe_name_is_refused_listing_the_shipped_ones(tmp_path):
+    path = _copied(tmp_path, 'vehicle = "paper_table2"')
+    with pytest.raises(ConfigError) as error:
+        load_scenario(path)
+    message = str(error.value)
+    assert message.startswith(f"{path}: vehicle = 'paper_table2': no shipped airframe of that name")
+    shipped = sorted(vehicle.stem for vehicle in VEHICLES_DIR.glob("*.toml"))
+    assert "paper_table1" in shipped and f"(shipped: {', '.join(shipped)})" in message
+
+
+def test_a_vehicle_path_is_still_relative_to_the_scenario(tmp_path):
+    (tmp_path / "heavy.toml").write_text((VEHICLES_DIR / "paper_table1.toml").read_text().replace("mass = 1.5", "mass = 2.5"))
+    for line in ('vehicle = "heavy.toml"', 'vehicle = "./heavy.toml"', f'vehicle = "{tmp_path / "heavy.toml"}"'):
+        _, vehicle = load_scenario(_copied(tmp_path, line))
+        assert vehicle.mass == 2.5, line
+    with pytest.raises(ConfigError, match="not found"):
+        load_scenario(_copied(tmp_path, 'vehicle = "../vehicles/paper_table1.toml"'))
+
+
 def test_missing_range_guess_is_rejected(tmp_path):
     path = _write(tmp_path, VALID.replace("initial_position = [40.0, -20.0, -15.0]", ""))
     with pytest.raises(ConfigError, match="initial_range or initial_position"):

@@ -69,6 +69,9 @@ def test_every_process_ends_cleanly_and_the_companion_lands(flown):
     truth = sitl_runs.read_csv(folder / "plant" / "vehicle.csv")
     assert truth["armed"][-1] == 0 and abs(truth["z"][-1]) < 0.05  # landed and disarmed
     assert summary["plant"]["mavlink_rejected"] == {}
+    console = (folder / "companion.out").read_text()
+    assert "\x1b" not in console  # no terminal escapes, MAVSDK's messages included
+    assert "mavsdk info: MAVSDK version" in console
 
 
 def test_follows_at_the_desired_range_with_a_small_range_estimation_error(flown):

@@ -70,7 +70,7 @@ def test_main_reports_config_errors_with_exit_code_2(tmp_path, capsys):
 
 
 def test_main_runs_for_a_duration_and_leaves_complete_logs(tmp_path, capsys):
-    code = sitl.main(["--duration", "2.0", "--speed-factor", "50", "--companion-port", str(free_port()),
+    code = sitl.main(["--duration", "2.0", "--speed-factor", "20", "--companion-port", str(free_port()),
                       "--gcs-port", str(free_port()), "--log-dir", str(tmp_path), "--quiet"])
     assert code == 0
     assert "sitl-plant ready" in capsys.readouterr().out
@@ -110,7 +110,7 @@ def test_the_plant_starts_without_the_companions_sections_and_the_companion_refu
     from studies import run_scenario
 
     path = _without_the_companion_sections(tmp_path, scenario_path, broken)
-    code = sitl.main(["--config", str(path), "--duration", "0.5", "--speed-factor", "50", "--quiet",
+    code = sitl.main(["--config", str(path), "--duration", "0.5", "--speed-factor", "20", "--quiet",
                       "--companion-port", str(free_port()), "--gcs-port", str(free_port())])
     out = capsys.readouterr()
     assert code == 0, out.err

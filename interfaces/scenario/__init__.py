@@ -46,8 +46,8 @@ from interfaces.scenario.swarm import (CircumnavigationConfig, FusionConfig, MAX
 from interfaces.scenario.base import (MAX_NAME_LENGTH, MIN_LOOP_RATE_HZ, ScenarioBase, ScenarioName)
 from interfaces.scenario.full import (Scenario)
 from interfaces.scenario.plant import (COMPANION_SECTIONS, PlantScenario, PlantSensorConfig)
-from interfaces.scenario.loading import (ScenarioT, describe_errors, load_plant_scenario, load_scenario, load_vehicle,
-                                         table1_vehicle)
+from interfaces.scenario.loading import (ScenarioT, describe_errors, is_vehicle_name, load_plant_scenario, load_scenario,
+                                         load_vehicle, shipped_vehicle_names, table1_vehicle)
 from interfaces.derived_defaults import (DROPOUT_MIN_RANGE_FACTOR, DROPOUT_SAFE_RANGE_FACTOR,
                                          HEALTH_MIN_RANGE_FACTOR)
 
@@ -69,5 +69,6 @@ __all__ = ['AccelerateSegment', 'BlackoutWindow', 'BrakeSegment', 'BurstLossConf
            'StandoffConfig', 'StopAndGoConfig', 'SwarmBlackout', 'SwarmConfig', 'SwarmLinkConfig', 'SwarmPursuerConfig',
            'TARGET_PATTERNS', 'TRAJECTORY_EXTENSIONS', 'TargetConfig', 'TargetSegment', 'TrajectoryConfig',
            'TriangulationConfig', 'TurnConfig', 'TurnDirection', 'TurnSegment', 'VEHICLES_DIR', 'Vector3',
-           'VehicleConfig', 'WeaveConfig', 'describe_errors', 'load_plant_scenario', 'load_scenario', 'load_vehicle',
-           'pursuer_starts', 'read_regular_file', 'share_rate_hz', 'table1_vehicle']
+           'VehicleConfig', 'WeaveConfig', 'describe_errors', 'is_vehicle_name', 'load_plant_scenario', 'load_scenario',
+           'load_vehicle', 'pursuer_starts', 'read_regular_file', 'share_rate_hz', 'shipped_vehicle_names',
+           'table1_vehicle']

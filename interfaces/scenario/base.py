@@ -52,7 +52,9 @@ class ScenarioBase(_Strict):
 
     name: ScenarioName
     description: str = ""
-    vehicle: str = "../vehicles/paper_table1.toml"
+    vehicle: str = "paper_table1"
+    """The airframe: a shipped one by name (no "/", no .toml: config/vehicles/<name>.toml of the installed package,
+    wherever the scenario is), or a vehicle file by its path, relative to the scenario's folder."""
     pursuer: PursuerConfig = PursuerConfig()
     target: TargetConfig
 

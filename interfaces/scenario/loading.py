@@ -8,7 +8,7 @@ from typing import TypeVar
 from pydantic import ValidationError
 
 from interfaces.scenario.common import ConfigError
-from interfaces.scenario.files import _read_toml
+from interfaces.scenario.files import VEHICLES_DIR, _read_toml
 from interfaces.scenario.full import Scenario
 from interfaces.scenario.plant import COMPANION_SECTIONS, PlantScenario, PlantSensorConfig
 from interfaces.scenario.vehicle import PAPER_TABLE1, VehicleConfig
@@ -32,13 +32,34 @@ def _format(path: Path, error: ValidationError) -> str:
     return "\n".join([f"{path}: invalid configuration", *(f"  {problem}" for problem in describe_errors(error))])
 
 
+def shipped_vehicle_names() -> list[str]:
+    """The airframes a scenario's `vehicle` may name without a path: config/vehicles/<name>.toml, sorted."""
+    return sorted(path.stem for path in VEHICLES_DIR.glob("*.toml"))
+
+
+def is_vehicle_name(vehicle: str) -> bool:
+    """True when a scenario's `vehicle` value is a shipped airframe's name ("paper_table1": no folder separator, no
+    .toml), not a path to a vehicle file."""
+    return "/" not in vehicle and "\\" not in vehicle and not vehicle.endswith(".toml")
+
+
 def _scenario_vehicle(scenario_path: Path, vehicle: str) -> VehicleConfig:
-    """The vehicle file a scenario names (relative to the scenario's folder), read and validated; a ConfigError names
-    the scenario file and its `vehicle` key besides the vehicle file's own message."""
-    try:
-        resolved = (scenario_path.parent / vehicle).resolve()
-    except (OSError, ValueError, RuntimeError) as error:  # a NUL byte, a symlink loop
-        raise ConfigError(f"{scenario_path}: vehicle: {vehicle!r} is not a usable path ({error})") from None
+    """The vehicle a scenario names, read and validated: a shipped airframe by name (config/vehicles/<name>.toml of
+    the installed package, wherever the scenario is), or a vehicle file by its path (relative to the scenario's
+    folder). A ConfigError names the scenario file and its `vehicle` key besides the vehicle file's own message; for
+    an unknown name it lists the shipped ones."""
+    if is_vehicle_name(vehicle):
+        names = shipped_vehicle_names()
+        if vehicle not in names:
+            raise ConfigError(f"{scenario_path}: vehicle = {vehicle!r}: no shipped airframe of that name (shipped: "
+                              f"{', '.join(names)}); a vehicle file of your own is given by its path, relative to "
+                              "the scenario, ending in .toml")
+        resolved = VEHICLES_DIR / f"{vehicle}.toml"
+    else:
+        try:
+            resolved = (scenario_path.parent / vehicle).resolve()
+        except (OSError, ValueError, RuntimeError) as error:  # a NUL byte, a symlink loop
+            raise ConfigError(f"{scenario_path}: vehicle: {vehicle!r} is not a usable path ({error})") from None
     try:
         return load_vehicle(resolved)
     except ConfigError as error:

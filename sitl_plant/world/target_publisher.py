@@ -50,7 +50,7 @@ from pathlib import Path
 import numpy as np
 
 from interfaces.shutdown import arm_exit_deadline
-from interfaces.cli import add_zenoh_security_arguments, output_folder
+from interfaces.cli import CommandParser, add_zenoh_security_arguments, output_folder
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, FaultsConfig, TargetConfig, load_plant_scenario
 from interfaces.link_schema import (CLOCK_KEY, PayloadError, TargetFix, decode_clock, decode_command, encode_target_fix,
                                     new_epoch, target_command_key, target_fix_key)
@@ -295,7 +295,7 @@ class TargetPublisher:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of `sitl-target` (the CLI reference page prints its help)."""
-    parser = argparse.ArgumentParser(prog="sitl-target", description=__doc__.split("\n\n")[0])
+    parser = CommandParser(prog="sitl-target", description=__doc__.split("\n\n")[0])
     parser.add_argument("--config", type=Path, default=DEFAULT_SCENARIO, help="scenario TOML (default: %(default)s)")
     parser.add_argument("--zenoh-connect", action="append", default=[], metavar="ENDPOINT",
                         help="Zenoh endpoint to connect to, e.g. tcp/127.0.0.1:7447 (the plant); repeatable")
