@@ -143,15 +143,40 @@ def _narrow_table(rows: list[list[str]], width: int, where: str) -> list[str]:
     return text
 
 
+class _Lines:
+    """A stream for tqdm that is not a terminal: each redraw (tqdm's '\\r' + state) becomes a line of its own,
+    an unchanged state is not repeated, so a captured log reads one progress line per tenth of the run."""
+
+    def __init__(self, stream) -> None:
+        self.stream = stream
+        self._last = ""
+
+    def write(self, text: str) -> None:
+        line = text.replace("\r", "").strip()
+        if line and line.split(",")[0] != self._last.split(",")[0]:
+            self.stream.write(line + "\n")
+            self._last = line
+
+    def flush(self) -> None:
+        self.stream.flush()
+
+
 def progress_bar(total: int | None, unit: str, enabled: bool = True, description: str | None = None) -> tqdm:
     """A progress bar on stderr (done/total, rate, elapsed, time left); nothing at all when not enabled.
 
-    In a terminal it redraws in place; written to a file or pipe it redraws only about every tenth of the run.
+    In a terminal it redraws in place; written to a file or pipe it prints a plain line about every tenth of the
+    run instead (no carriage returns, no bar).
     """
     interactive = sys.stderr.isatty()
-    return tqdm(total=total, unit=f" {unit}", desc=description, file=sys.stderr, disable=not enabled,
-                dynamic_ncols=interactive, mininterval=0.5 if interactive else 0.0,
-                miniters=None if interactive else max(1, (total or 10) // 10), ascii=not interactive)
+    if interactive:
+        return tqdm(total=total, unit=f" {unit}", desc=description, file=sys.stderr, disable=not enabled,
+                    dynamic_ncols=True, mininterval=0.5)
+    if total is None:  # no tenths to count: a line every 5 s
+        return tqdm(total=None, unit=f" {unit}", desc=description, file=_Lines(sys.stderr), disable=not enabled,
+                    mininterval=5.0, bar_format="{desc}: {n_fmt}{unit}, {elapsed} elapsed, {rate_fmt}")
+    return tqdm(total=total, unit=f" {unit}", desc=description, file=_Lines(sys.stderr), disable=not enabled,
+                mininterval=0.0, miniters=max(1, total // 10),
+                bar_format="{desc}: {n_fmt}/{total_fmt}{unit} ({percentage:3.0f} %), {elapsed} elapsed, {remaining} left")
 
 
 def interrupted(command: str, reason: object, path: Path | None, total: int) -> str:

@@ -370,3 +370,23 @@ def test_a_report_on_the_terminal_fits_120_columns_and_keeps_each_rows_leading_c
     for line, row in zip(table_lines[2:], rows):
         assert [cell.strip() for cell in line.strip("|").split("|")] == [c.strip() for c in row[:shown]]
     assert (f"({shown} of {len(headers)} columns; the whole table is in summary.md)" in text) == (shown < len(headers))
+
+
+def test_progress_written_to_a_file_is_plain_lines_about_every_tenth_of_the_run(monkeypatch):
+    """Captured (not a terminal), the progress is lines of their own, no carriage returns or bar characters: about
+    one per tenth of the run, each saying how far it is, the last one the whole run."""
+    import io
+
+    from studies import reporting
+
+    captured = io.StringIO()
+    monkeypatch.setattr("sys.stderr", captured)
+    with reporting.progress_bar(200, "flights", description="study") as bar:
+        for _ in range(200):
+            bar.update()
+    text = captured.getvalue()
+    lines = text.splitlines()
+    assert "\r" not in text and "#" not in text and "|" not in text
+    assert 5 <= len(lines) <= 13, lines
+    assert all(line.startswith("study: ") and " flights (" in line for line in lines)
+    assert lines[-1].startswith("study: 200/200 flights (100 %)")
