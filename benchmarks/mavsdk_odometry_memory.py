@@ -35,20 +35,37 @@ def free_udp_port() -> int:
         return probe.getsockname()[1]
 
 
-async def measure(port: int, subscribe: bool, seconds: float) -> list[tuple[float, int, int]]:
-    """(wall s, VmRSS kB, odometry messages so far) every 20 s; MAVSDK connected to the plant on `port`."""
-    from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
+async def measure(port: int, subscribe: str, seconds: float) -> list[tuple[float, int, int]]:
+    """(wall s, VmRSS kB, odometry messages so far) every 20 s; MAVSDK connected to the plant on `port`.
+    subscribe: "none", "telemetry" (MAVSDK's odometry subscription) or "raw" (MAVSDK's raw:// byte stream,
+    ODOMETRY decoded by pymavlink)."""
+    from mavsdk.asyncio import ComponentType, Configuration, ForwardingOption, Mavsdk
     from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 
     config = Configuration.create_with_component_type(ComponentType.COMPANION_COMPUTER)
     samples, count = [], [0]
     async with Mavsdk(config) as sdk:
-        await sdk.add_any_connection(f"udpin://127.0.0.1:{port}")
+        await sdk.add_any_connection(f"udpin://127.0.0.1:{port}", ForwardingOption.OFF)
+        raw = None
+        if subscribe == "raw":
+            os.environ.setdefault("MAVLINK20", "1")
+            from pymavlink.dialects.v20 import common
+
+            parser = common.MAVLink(None)
+            parser.robust_parsing = True
+
+            def on_bytes(packet: bytes) -> None:
+                for message in parser.parse_buffer(bytes(packet)) or ():
+                    if message.get_msgId() == common.MAVLINK_MSG_ID_ODOMETRY:
+                        count[0] += 1
+
+            await sdk.add_any_connection("raw://", ForwardingOption.ON)
+            raw = sdk._mavsdk.subscribe_raw_bytes_to_be_sent(on_bytes)
         system = await sdk.first_autopilot(timeout_s=20)
         if system is None:
             raise RuntimeError("no autopilot heard")
         task = None
-        if subscribe:
+        if subscribe == "telemetry":
             telemetry = TelemetryAsync(system)
 
             async def follow() -> None:
@@ -63,6 +80,8 @@ async def measure(port: int, subscribe: bool, seconds: float) -> list[tuple[floa
             print(f"  subscribe={subscribe}: {samples[-1]}", flush=True)
         if task is not None:
             task.cancel()
+        if raw is not None:
+            sdk._mavsdk.unsubscribe_raw_bytes_to_be_sent(raw)
     return samples
 
 
@@ -70,8 +89,10 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seconds", type=float, default=80.0, help="wall seconds per case (default: %(default)s)")
     parser.add_argument("--speed-factor", type=float, default=5.0, help="the plant's speed factor (default: %(default)s)")
+    parser.add_argument("--cases", nargs="+", choices=("none", "telemetry", "raw"), default=["none", "telemetry", "raw"],
+                        help="what to subscribe to (default: all three, one after another)")
     args = parser.parse_args()
-    for subscribe in (False, True):
+    for subscribe in args.cases:
         port = free_udp_port()
         with tempfile.TemporaryDirectory() as logs:
             plant = subprocess.Popen([sys.executable, "-m", "sitl_plant.sitl", "--speed-factor", str(args.speed_factor),
@@ -85,7 +106,7 @@ def main() -> int:
                 os.killpg(plant.pid, signal.SIGTERM)
                 plant.wait(10)
         (_, first_kb, first_n), (_, last_kb, last_n) = samples[0], samples[-1]
-        per_1000 = (last_kb - first_kb) / max(last_n - first_n, 1) * 1000 if subscribe else float("nan")
+        per_1000 = (last_kb - first_kb) / max(last_n - first_n, 1) * 1000 if subscribe != "none" else float("nan")
         print(f"subscribe={subscribe}: VmRSS {first_kb} -> {last_kb} kB over {samples[-1][0] - samples[0][0]:.0f} s; "
               f"{last_n - first_n} odometry messages; {per_1000:.0f} kB per 1000 messages", flush=True)
     return 0

@@ -361,3 +361,45 @@ def test_live_view_refuses_a_taken_port_or_a_bad_one_before_any_link_opens(tmp_p
     result = subprocess.run([sys.executable, "-m", "companion", "--live", "70000"], capture_output=True, text=True,
                             timeout=60)
     assert result.returncode == 2 and "--live: 70000 is outside 0..65535" in result.stderr
+
+
+def test_odometry_from_the_raw_stream_is_the_autopilots_own_in_ned():
+    """The vehicle adapter reads ODOMETRY from MAVSDK's raw stream: an autopilot packet (system 1, component 1)
+    yaw 90 deg with body velocity (2, 0, 0) becomes NED velocity (0, 2, 0) (a quarter turn, closed form) at its
+    time_usec; the same message from another system or component, a pose in another frame (counted as bad
+    odometry) and garbage bytes change nothing; a packet split in two still decodes."""
+    import asyncio
+    import math
+    import os
+
+    os.environ.setdefault("MAVLINK20", "1")
+    from pymavlink.dialects.v20 import common as mav
+
+    from companion.adapters.mavsdk_vehicle import MavsdkVehicle
+
+    def odometry(system: int, component: int, time_usec: int, frame: int = mav.MAV_FRAME_LOCAL_NED) -> bytes:
+        sender = mav.MAVLink(None, srcSystem=system, srcComponent=component)
+        half = math.radians(90.0) / 2.0
+        return sender.odometry_encode(time_usec, frame, mav.MAV_FRAME_BODY_FRD, 1.0, 2.0, -3.0,
+                                      [math.cos(half), 0.0, 0.0, math.sin(half)], 2.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+                                      [math.nan] * 21, [math.nan] * 21, 0, mav.MAV_ESTIMATOR_TYPE_AUTOPILOT, 100).pack(sender)
+
+    async def feed() -> MavsdkVehicle:
+        vehicle = MavsdkVehicle()
+        vehicle._loop, vehicle._autopilot_id = asyncio.get_running_loop(), 1
+        vehicle._on_raw(odometry(7, 1, 1_000_000) + odometry(1, 190, 1_100_000))
+        vehicle._on_raw(odometry(1, 1, 1_200_000, frame=mav.MAV_FRAME_GLOBAL))
+        packet = odometry(1, 1, 2_000_000)
+        vehicle._on_raw(packet[:7])
+        vehicle._on_raw(packet[7:])
+        vehicle._on_raw(b"\xfd\x09garbage")
+        await asyncio.sleep(0)
+        return vehicle
+
+    vehicle = asyncio.run(feed())
+    sample = vehicle.latest
+    assert sample is not None and sample.state.time == 2.0
+    np.testing.assert_allclose(sample.state.position, [1.0, 2.0, -3.0], atol=1e-6)
+    np.testing.assert_allclose(sample.state.velocity, [0.0, 2.0, 0.0], atol=1e-6)
+    np.testing.assert_allclose(sample.rotation, [[0, -1, 0], [1, 0, 0], [0, 0, 1]], atol=1e-6)
+    assert vehicle.bad_odometry == 1

@@ -9,7 +9,12 @@ bundled SITL plant, a PX4 SITL or a real PX4: only the connection URL changes.
 Own state comes from ODOMETRY: position in local NED, velocity in body FRD (PX4's
 child frame) rotated to NED with the reported attitude, time stamped with the
 autopilot's time_usec, so the pipeline runs on the vehicle's clock (simulated
-time in SITL, at any speed factor).
+time in SITL, at any speed factor). The ODOMETRY messages are read from MAVSDK's
+raw:// stream (every packet MAVSDK receives from the autopilot) and decoded with
+pymavlink, from the autopilot's system and component only: MAVSDK 4.1's own
+odometry subscription keeps about 190 bytes per message it delivers (at 50 Hz a
+companion grew 0.5 MB a minute without end), the raw stream keeps nothing
+(benchmarks/mavsdk_odometry_memory.py).
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import math
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -29,8 +35,11 @@ from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 from mavsdk.enums import ForwardingOption
 from mavsdk.plugins.offboard import Attitude
 from mavsdk.plugins.server_utility import StatusTextType
-from mavsdk.plugins.telemetry import FlightMode, Odometry
+from mavsdk.plugins.telemetry import FlightMode
 from scipy.spatial.transform import Rotation
+
+os.environ.setdefault("MAVLINK20", "1")  # before pymavlink is imported anywhere
+from pymavlink.dialects.v20 import common as mavlink  # noqa: E402
 
 from companion.core.attitude import VehicleLimits
 from companion.core.messages import AttitudeSetpoint, PursuerState
@@ -54,22 +63,28 @@ class VehicleSample:
     rotation: np.ndarray
 
 
-def pursuer_state_from_odometry(odometry: Odometry) -> VehicleSample:
-    """ODOMETRY -> PursuerState: NED position, body velocity rotated to NED, time_usec in seconds.
+#: The autopilot's component id (MAV_COMP_ID_AUTOPILOT1): the only sender whose ODOMETRY is the own state.
+AUTOPILOT_COMPONENT = mavlink.MAV_COMP_ID_AUTOPILOT1
 
-    Raises VehicleError for a non-finite or zero quaternion or non-finite numbers.
+
+def pursuer_state_from_odometry(odometry) -> VehicleSample:
+    """An ODOMETRY message (pymavlink) -> PursuerState: NED position, body velocity rotated to NED, time_usec in
+    seconds.
+
+    Raises VehicleError for a pose not in local NED or a velocity not in body FRD (frame_id, child_frame_id), a
+    non-finite or zero quaternion, or non-finite numbers.
     """
-    q = odometry.q
-    p = odometry.position_body
-    v = odometry.velocity_body
-    values = (q.w, q.x, q.y, q.z, p.x_m, p.y_m, p.z_m, v.x_m_s, v.y_m_s, v.z_m_s)
+    if odometry.frame_id != mavlink.MAV_FRAME_LOCAL_NED or odometry.child_frame_id != mavlink.MAV_FRAME_BODY_FRD:
+        raise VehicleError(f"odometry in frames {odometry.frame_id}/{odometry.child_frame_id}, not local NED / body FRD")
+    qw, qx, qy, qz = odometry.q
+    values = (qw, qx, qy, qz, odometry.x, odometry.y, odometry.z, odometry.vx, odometry.vy, odometry.vz)
     if not all(math.isfinite(x) for x in values):
         raise VehicleError(f"odometry with non-finite values at time_usec={odometry.time_usec}")
-    if math.sqrt(q.w * q.w + q.x * q.x + q.y * q.y + q.z * q.z) < 0.5:
+    if math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz) < 0.5:
         raise VehicleError(f"odometry quaternion {values[:4]} is not a rotation")
-    rotation = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-    velocity = rotation @ np.array([v.x_m_s, v.y_m_s, v.z_m_s])
-    state = PursuerState(odometry.time_usec * 1e-6, np.array([p.x_m, p.y_m, p.z_m]), velocity)
+    rotation = Rotation.from_quat([qx, qy, qz, qw]).as_matrix()
+    velocity = rotation @ np.array([odometry.vx, odometry.vy, odometry.vz])
+    state = PursuerState(odometry.time_usec * 1e-6, np.array([odometry.x, odometry.y, odometry.z]), velocity)
     return VehicleSample(state, rotation)
 
 
@@ -122,6 +137,10 @@ class MavsdkVehicle:
         self.status_texts_dropped = 0  # and how many more came (a peer may flood them through the autopilot)
         self.bad_odometry = 0
         self._tasks: list[asyncio.Task] = []
+        self._parser = mavlink.MAVLink(None)
+        self._parser.robust_parsing = True  # a corrupt packet is skipped, never raised on MAVSDK's thread
+        self._autopilot_id: int | None = None  # the autopilot's system id, once MAVSDK found it
+        self._loop: asyncio.AbstractEventLoop | None = None
 
     async def __aenter__(self) -> "MavsdkVehicle":
         await self.connect()
@@ -144,10 +163,11 @@ class MavsdkVehicle:
             await self._sdk.add_any_connection(self.url, ForwardingOption.OFF)
             if self.forward_url is not None:
                 await self._sdk.add_any_connection(self.forward_url, ForwardingOption.ON)
-            if self.on_mavlink is not None:
-                await self._sdk.add_any_connection("raw://", ForwardingOption.ON)
-                # The synchronous binding underneath the asyncio wrapper has the raw-bytes subscription.
-                self._raw_subscription = self._sdk._mavsdk.subscribe_raw_bytes_to_be_sent(self.on_mavlink)
+            # Every packet MAVSDK receives from the autopilot, in process: the odometry is read from it, and the
+            # recorder (on_mavlink) keeps it. The synchronous binding under the asyncio wrapper has the subscription.
+            self._loop = asyncio.get_running_loop()
+            await self._sdk.add_any_connection("raw://", ForwardingOption.ON)
+            self._raw_subscription = self._sdk._mavsdk.subscribe_raw_bytes_to_be_sent(self._on_raw)
         except Exception as error:
             await self.close()
             raise VehicleError(f"cannot open MAVLink connection {self.url!r}: {error}") from error
@@ -156,12 +176,12 @@ class MavsdkVehicle:
             await self.close()
             raise VehicleError(f"no autopilot heard on {self.url} within {self.connect_timeout:g} s")
         self._system = system
+        self._autopilot_id = int(await system.get_system_id())
         self.telemetry = TelemetryAsync(system)
         self.action = ActionAsync(system)
         self.offboard = OffboardAsync(system)
         self.param = ParamAsync(system)
         self._tasks = [
-            asyncio.create_task(self._follow_odometry()),
             asyncio.create_task(self._follow(self.telemetry.subscribe_flight_mode(), "_flight_mode")),
             asyncio.create_task(self._follow(self.telemetry.subscribe_in_air(), "_in_air")),
             asyncio.create_task(self._follow(self.telemetry.subscribe_armed(), "_armed")),
@@ -188,19 +208,32 @@ class MavsdkVehicle:
                 sdk._mavsdk.unsubscribe_raw_bytes_to_be_sent(subscription)
             await sdk.__aexit__(None, None, None)
 
-    async def _follow_odometry(self) -> None:
-        async for odometry in self.telemetry.subscribe_odometry():
-            try:
-                sample = pursuer_state_from_odometry(odometry)
-            except VehicleError:
-                self.bad_odometry += 1
-                continue
-            if self._latest is not None and sample.state.time <= self._latest.state.time:
-                continue  # stale or duplicated: the pipeline's clock never runs backwards
-            self._latest = sample
-            for observer in self.sample_observers:
-                observer(sample)
-            self._new_sample.set()
+    def _on_raw(self, packet: bytes) -> None:
+        """MAVSDK's thread: one packet of the raw stream to the recorder, and its autopilot ODOMETRY to the loop."""
+        if self.on_mavlink is not None:
+            self.on_mavlink(packet)
+        for message in self._parser.parse_buffer(bytes(packet)) or ():
+            if (message.get_msgId() == mavlink.MAVLINK_MSG_ID_ODOMETRY and self._autopilot_id is not None
+                    and message.get_srcSystem() == self._autopilot_id
+                    and message.get_srcComponent() == AUTOPILOT_COMPONENT):
+                try:
+                    self._loop.call_soon_threadsafe(self._on_odometry, message)
+                except RuntimeError:  # the event loop has closed: the companion is exiting
+                    return
+
+    def _on_odometry(self, message) -> None:
+        """Event loop: one autopilot ODOMETRY, in order of arrival; a stale or unusable one is skipped (counted)."""
+        try:
+            sample = pursuer_state_from_odometry(message)
+        except VehicleError:
+            self.bad_odometry += 1
+            return
+        if self._latest is not None and sample.state.time <= self._latest.state.time:
+            return  # stale or duplicated: the pipeline's clock never runs backwards
+        self._latest = sample
+        for observer in self.sample_observers:
+            observer(sample)
+        self._new_sample.set()
 
     async def _follow(self, stream, attribute: str) -> None:
         async for value in stream:
