@@ -37,8 +37,9 @@ def free_udp_port() -> int:
 
 async def measure(port: int, subscribe: str, seconds: float) -> list[tuple[float, int, int]]:
     """(wall s, VmRSS kB, odometry messages so far) every 20 s; MAVSDK connected to the plant on `port`.
-    subscribe: "none", "telemetry" (MAVSDK's odometry subscription) or "raw" (MAVSDK's raw:// byte stream,
-    ODOMETRY decoded by pymavlink)."""
+    subscribe: "none", "telemetry" (MAVSDK's odometry subscription), "raw" (MAVSDK's raw:// byte stream,
+    ODOMETRY decoded by pymavlink) or "modes" (MAVSDK's flight-mode, armed, in-air and status-text subscriptions,
+    which the companion keeps; the count is then of HEARTBEATs seen by the flight-mode subscription)."""
     from mavsdk.asyncio import ComponentType, Configuration, ForwardingOption, Mavsdk
     from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 
@@ -73,6 +74,19 @@ async def measure(port: int, subscribe: str, seconds: float) -> list[tuple[float
                     count[0] += 1
 
             task = asyncio.create_task(follow())
+        elif subscribe == "modes":
+            telemetry = TelemetryAsync(system)
+
+            async def drain(stream, counted: bool) -> None:
+                async for _ in stream:
+                    if counted:
+                        count[0] += 1
+
+            tasks = [asyncio.create_task(drain(telemetry.subscribe_flight_mode(), True)),
+                     asyncio.create_task(drain(telemetry.subscribe_armed(), False)),
+                     asyncio.create_task(drain(telemetry.subscribe_in_air(), False)),
+                     asyncio.create_task(drain(telemetry.subscribe_status_text(), False))]
+            task = asyncio.gather(*tasks)
         start = time.monotonic()
         while time.monotonic() - start < seconds:
             await asyncio.sleep(20.0)
@@ -89,7 +103,8 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seconds", type=float, default=80.0, help="wall seconds per case (default: %(default)s)")
     parser.add_argument("--speed-factor", type=float, default=5.0, help="the plant's speed factor (default: %(default)s)")
-    parser.add_argument("--cases", nargs="+", choices=("none", "telemetry", "raw"), default=["none", "telemetry", "raw"],
+    parser.add_argument("--cases", nargs="+", choices=("none", "telemetry", "raw", "modes"),
+                        default=["none", "telemetry", "raw", "modes"],
                         help="what to subscribe to (default: all three, one after another)")
     args = parser.parse_args()
     for subscribe in args.cases:
@@ -108,7 +123,7 @@ def main() -> int:
         (_, first_kb, first_n), (_, last_kb, last_n) = samples[0], samples[-1]
         per_1000 = (last_kb - first_kb) / max(last_n - first_n, 1) * 1000 if subscribe != "none" else float("nan")
         print(f"subscribe={subscribe}: VmRSS {first_kb} -> {last_kb} kB over {samples[-1][0] - samples[0][0]:.0f} s; "
-              f"{last_n - first_n} odometry messages; {per_1000:.0f} kB per 1000 messages", flush=True)
+              f"{last_n - first_n} messages counted; {per_1000:.0f} kB per 1000 of them", flush=True)
     return 0
 
 

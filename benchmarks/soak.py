@@ -1,10 +1,10 @@
-"""Soak: a whole bof-sitl flight at 1x under a bounded MAVLink and Zenoh flood; are memory and logs bounded?
+"""Soak: a whole bof-sitl flight under a bounded MAVLink and Zenoh flood; are memory and logs bounded?
 
-    python benchmarks/soak.py [--duration 600] [--mavlink-rate 500] [--zenoh-rate 500] [--out runs]
+    python benchmarks/soak.py [--duration 600] [--speed-factor 1] [--mavlink-rate 500] [--zenoh-rate 500] [--out runs]
 
-Runs `bof-sitl` (the scenario's [simulation] duration set to --duration simulated seconds, speed
-factor 1, so the companion follows that long) as a child in its own process group. Once the
-companion follows, it floods for --duration wall seconds, from this process:
+Runs `bof-sitl` (the scenario's [simulation] duration set to --duration simulated seconds at
+--speed-factor, so the companion follows that long) as a child in its own process group. Once the
+companion follows, it floods for --duration / --speed-factor wall seconds, from this process:
 * MAVLink (studies.intruder.mavlink_flood): --mavlink-rate datagrams/s of garbage and valid but
   unwanted messages to the plant's ground-station socket (read from the run's plant/stats.json);
 * Zenoh (studies.intruder.zenoh_flood): --zenoh-rate messages/s of malformed and well-formed but
@@ -218,13 +218,15 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--config", type=Path, default=DEFAULT_SCENARIO, help="scenario TOML (default: %(default)s)")
     parser.add_argument("--duration", type=float, default=600.0,
-                        help="simulated seconds to follow at 1x, and wall seconds of flooding (default: %(default)s)")
+                        help="simulated seconds to follow; the floods last as long (default: %(default)s)")
+    parser.add_argument("--speed-factor", type=float, default=1.0,
+                        help="simulated seconds per wall second of the flight, 0.5 to 20 (default: %(default)s)")
     parser.add_argument("--mavlink-rate", type=float, default=500.0, help="MAVLink flood, datagrams/s (default: %(default)s)")
     parser.add_argument("--zenoh-rate", type=float, default=500.0, help="Zenoh flood, messages/s (default: %(default)s)")
     parser.add_argument("--sample", type=float, default=10.0, help="seconds between samples (default: %(default)s)")
     parser.add_argument("--out", type=Path, default=Path("runs"), help="parent of the soak-<time>/ folder (default: %(default)s)")
     args = parser.parse_args(argv)
-    for name in ("duration", "mavlink_rate", "zenoh_rate", "sample"):
+    for name in ("duration", "speed_factor", "mavlink_rate", "zenoh_rate", "sample"):
         if not (math.isfinite(getattr(args, name)) and getattr(args, name) > 0):
             parser.error(f"--{name.replace('_', '-')} must be positive")
     def interrupted(signum, frame):  # noqa: ARG001 - SIGTERM/SIGHUP end the soak like Ctrl-C: the finally cleans up
@@ -236,8 +238,9 @@ def main(argv: list[str] | None = None) -> int:
     folder = args.out / f"soak-{time.strftime('%Y%m%d-%H%M%S')}"
     folder.mkdir(parents=True)
     config = soak_scenario(args.config, args.duration, folder / "scenario.toml")
-    command = [sys.executable, "-m", "studies.full_sitl", str(config), "--speed-factor", "1", "--out", str(folder / "runs"),
-               "--no-plots", "--timeout", str(args.duration + 300.0)]
+    wall = args.duration / args.speed_factor  # s of following, and of flooding
+    command = [sys.executable, "-m", "studies.full_sitl", str(config), "--speed-factor", f"{args.speed_factor:g}",
+               "--out", str(folder / "runs"), "--no-plots", "--timeout", str(wall + 300.0)]
     log = (folder / "bof-sitl.out").open("w")
     process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
                                env={**os.environ, "PYTHONUNBUFFERED": "1"})
@@ -276,12 +279,12 @@ def main(argv: list[str] | None = None) -> int:
                     try:
                         floods["zenoh"] = intruder.zenoh_flood(session, scenario.link.target_sender,
                                                                scenario.link.companion_id, rate_hz=args.zenoh_rate,
-                                                               duration=args.duration, stop=stop).summary()
+                                                               duration=wall, stop=stop).summary()
                     finally:
                         session.close()
 
                 def mavlink_flood() -> None:
-                    result = intruder.mavlink_flood(*endpoints.gcs, rate_hz=args.mavlink_rate, duration=args.duration,
+                    result = intruder.mavlink_flood(*endpoints.gcs, rate_hz=args.mavlink_rate, duration=wall,
                                                     stop=stop)
                     floods["mavlink"] = {"sent": result.sent, "notes": result.notes, "target": list(endpoints.gcs)}
 
@@ -323,7 +326,8 @@ def main(argv: list[str] | None = None) -> int:
         csv.close()
         log.close()
     result = summarize(samples, names, run)
-    result.update(bof_sitl_exit_code=process.returncode, duration=args.duration, mavlink_rate=args.mavlink_rate,
+    result.update(bof_sitl_exit_code=process.returncode, duration=args.duration, speed_factor=args.speed_factor,
+                  mavlink_rate=args.mavlink_rate,
                   zenoh_rate=args.zenoh_rate, run_folder=str(run) if run else None, floods=floods,
                   flood_started_after_s=round(flood_started - started, 1) if flood_started else None)
     write_json(folder / "soak.json", result, indent=2, sort_keys=True)

@@ -43,7 +43,7 @@ import numpy as np
 from companion.core._jit import ENABLED as kernels_compiled
 from companion.adapters.mavsdk_log import mavsdk_log_to
 from companion.adapters.mavsdk_vehicle import MavsdkVehicle, VehicleError
-from companion.adapters.recorder import RunRecorder, TlogWriter
+from companion.adapters.recorder import RecentSamples, RunRecorder, TlogWriter
 from companion.assembly import build_pipeline, build_sensor, pursuer_scenario
 from companion.console import configure_console, say
 from companion.core.state_history import StateHistory
@@ -106,11 +106,11 @@ def check_pursuer_id(scenario: Scenario, pursuer_id: int) -> None:
                           f"(ids are at most 64 characters)")
 
 
-def _percentiles(values: list[float]) -> dict:
-    """p50/p99/max (ms) and count of a latency list; NaN figures when it is empty."""
-    data = np.array(values) if values else np.array([math.nan])
+def _percentiles(samples: RecentSamples) -> dict:
+    """p50/p99/max (ms) of the kept latency samples and how many there were in all; NaN figures when none."""
+    data = samples.values() if len(samples) else np.array([math.nan])
     return {"p50": float(np.percentile(data, 50)), "p99": float(np.percentile(data, 99)), "max": float(np.max(data)),
-            "count": len(values)}
+            "count": samples.count}
 
 
 class CompanionApp:

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from companion.adapters.mavsdk_vehicle import MavsdkVehicle, VehicleError, VehicleSample
-from companion.adapters.recorder import RunRecorder, model_columns
+from companion.adapters.recorder import RecentSamples, RunRecorder, model_columns
 from companion.core.health import HealthAction, HealthReport, HealthState
 from companion.core.messages import BearingMeasurement
 from companion.core.pipeline import FollowingPipeline, PipelineOutput
@@ -64,7 +64,7 @@ class Follower:
         self.pipeline: FollowingPipeline | None = None
         self.setpoints_sent = 0
         self.deadline_misses = 0
-        self.latencies_ms: list[float] = []  # fix received -> first setpoint sent after its bearing
+        self.latencies_ms = RecentSamples()  # fix received -> first setpoint sent after its bearing, ms
         self.last_output: PipelineOutput | None = None
         self.health_state = HealthState.OK
         self.health_action: HealthAction | None = None

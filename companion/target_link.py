@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.adapters.recorder import RunRecorder
+from companion.adapters.recorder import RecentSamples, RunRecorder
 from companion.core.bearing_builder import BearingBuilder
 from companion.core.bearing_sensor import BearingSensor
 from companion.core.fix_validator import FixRejected, FixValidator
@@ -109,7 +109,7 @@ class TargetLink:
         self.clock = clock
         self.wants_bearings = wants_bearings
         self.pending: collections.deque[PendingFix] = collections.deque()
-        self.bearing_latencies_ms: list[float] = []  # fix received -> its bearing given to the estimator
+        self.bearing_latencies_ms = RecentSamples()  # fix received -> its bearing given to the estimator, ms
         self.last_position: np.ndarray | None = None  # the newest accepted fix, local NED m
         self._loop: asyncio.AbstractEventLoop | None = None
 

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from interfaces import link_schema as link
 from interfaces import geodesy
@@ -403,3 +405,19 @@ def test_odometry_from_the_raw_stream_is_the_autopilots_own_in_ned():
     np.testing.assert_allclose(sample.state.velocity, [0.0, 2.0, 0.0], atol=1e-6)
     np.testing.assert_allclose(sample.rotation, [[0, -1, 0], [1, 0, 0], [0, 0, 1]], atol=1e-6)
     assert vehicle.bad_odometry == 1
+
+
+@given(st.integers(1, 50), st.lists(st.floats(-1e6, 1e6), max_size=200))
+def test_recent_samples_keep_the_newest_values_in_order_and_count_them_all(capacity, values):
+    """RecentSamples: the last `capacity` values added, oldest first (a deque with that maxlen is the reference),
+    and the count of all of them."""
+    import collections
+
+    from companion.adapters.recorder import RecentSamples
+
+    samples, reference = RecentSamples(capacity), collections.deque(maxlen=capacity)
+    for value in values:
+        samples.append(value)
+        reference.append(value)
+    assert samples.count == len(values) and len(samples) == len(reference)
+    assert samples.values().tolist() == list(reference)

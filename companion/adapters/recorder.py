@@ -26,6 +26,8 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
+
 from interfaces.records import AggregatingLog, CsvLog, JsonLinesLog, fmt, write_json
 
 SERIES_COLUMNS = (
@@ -53,6 +55,29 @@ def model_columns(estimator: object) -> dict[str, float]:
     if motion is None:
         return {}
     return dict(zip(("model_straight", "model_right", "model_left"), (float(p) for p in motion)))
+
+
+class RecentSamples:
+    """The most recent `capacity` values of a figure sampled through a flight (e.g. a latency in ms), in a ring
+    preallocated once: memory does not grow with the flight (8 bytes a value, touched as written). `count` is every
+    value ever added, `values()` the kept ones (up to capacity, oldest first)."""
+
+    def __init__(self, capacity: int = 100_000) -> None:
+        self._ring = np.empty(capacity)
+        self.count = 0
+
+    def append(self, value: float) -> None:
+        self._ring[self.count % len(self._ring)] = value
+        self.count += 1
+
+    def __len__(self) -> int:
+        return min(self.count, len(self._ring))
+
+    def values(self) -> np.ndarray:
+        if self.count <= len(self._ring):
+            return self._ring[: self.count].copy()
+        start = self.count % len(self._ring)
+        return np.concatenate([self._ring[start:], self._ring[:start]])
 
 
 class RunRecorder:
