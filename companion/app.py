@@ -1,7 +1,7 @@
 """The companion application: target fixes over Zenoh in, attitude/thrust setpoints over MAVLink out.
 
     companion --config config/scenarios/constant_velocity.toml [--mavlink udpin://127.0.0.1:14540]
-              [--zenoh-connect tcp/127.0.0.1:7447] [--log-dir runs/companion]
+              [--zenoh-connect tcp/127.0.0.1:7447] [--zenoh-tls DIR | --insecure] [--log-dir runs/companion]
     companion --precompile      # once after installing with numba: fill the kernel cache, open nothing
 
 As in the paper's flight experiment (section IX-A, Fig. 16), the target's position
@@ -58,8 +58,8 @@ from interfaces import link_schema as link
 from interfaces import zenoh_transport
 from interfaces.cli import (LIVE_PORT, CommandParser, add_zenoh_security_arguments, live_port, output_folder,
                            scenario_file, seed_argument)
-from interfaces.scenario import (DEFAULT_SCENARIO, MAX_PURSUERS, ConfigError, Scenario, VehicleConfig, load_scenario,
-                                 pursuer_starts)
+from interfaces.scenario import (DEFAULT_SCENARIO, MAX_PURSUERS, ConfigError, LinkConfig, Scenario, VehicleConfig,
+                                 load_scenario, pursuer_starts)
 
 __all__ = ["CompanionApp", "Phase", "main"]
 
@@ -119,7 +119,7 @@ class CompanionApp:
     def __init__(self, scenario: Scenario, vehicle_config: VehicleConfig, log_dir: Path, mavlink_url: str | None = None,
                  zenoh_connect: tuple[str, ...] | None = None, zenoh_listen: tuple[str, ...] | None = None,
                  seed: int | None = None, zenoh_tls: "zenoh_transport.Identity | None" = None,
-                 zenoh_namespace: str | None = None, pursuer_id: int = 1) -> None:
+                 zenoh_namespace: str | None = None, pursuer_id: int = 1, zenoh_insecure: bool = False) -> None:
         check_pursuer_id(scenario, pursuer_id)
         self.pursuer_id = pursuer_id
         full_scenario = scenario
@@ -132,6 +132,7 @@ class CompanionApp:
         self.summary_written = False  # set once _shutdown has written summary.json (the hard exit checks it)
         self.zenoh_namespace = zenoh_namespace  # None: keys as they are (zenoh_transport.check_namespace)
         self.zenoh_tls = zenoh_tls  # None: plain TCP, unauthenticated (see zenoh_transport.link_security)
+        self.zenoh_insecure = zenoh_insecure  # plain TCP beyond loopback asked for (--insecure)
         self.vehicle_config = vehicle_config
         self.settings = scenario.companion
         self.link_settings = scenario.link
@@ -270,11 +271,11 @@ class CompanionApp:
     def _open_zenoh(self, loop: asyncio.AbstractEventLoop):
         """Open the session, subscribe fixes (target link) and commands; returns the state publisher."""
         settings = self.link_settings
-        config = zenoh_transport.zenoh_config(settings.mode, listen=self.zenoh_listen, connect=self.zenoh_connect,
-                                              overrides=settings.zenoh_overrides, tls=self.zenoh_tls,
-                                              namespace=self.zenoh_namespace)
+        config = link_config(settings, self.zenoh_listen, self.zenoh_connect, self.zenoh_tls, self.zenoh_namespace,
+                             insecure=self.zenoh_insecure)
         self._session = zenoh_transport.open_session(config)
-        self.recorder.event(None, "zenoh_security", zenoh_transport.link_security(self.zenoh_tls),
+        self.recorder.event(None, "zenoh_security",
+                            zenoh_transport.link_security(self.zenoh_tls, insecure=self.zenoh_insecure),
                             role=self.zenoh_tls.role if self.zenoh_tls is not None else None)
         self.target_link.subscribe(self._session, loop)
         if self.swarm is not None:
@@ -358,6 +359,22 @@ class CompanionApp:
                     self._session.close()
 
 
+def link_config(settings: LinkConfig, listen: tuple[str, ...], connect: tuple[str, ...],
+                tls: "zenoh_transport.Identity | None", namespace: str | None = None, *, insecure: bool = False):
+    """The companion's Zenoh configuration ([link] `settings` with these endpoints; zenoh_transport.zenoh_config).
+
+    LinkError (one line) when it would reach beyond this computer (an endpoint that is not loopback, multicast
+    scouting) without `tls`, unless `insecure` (zenoh_transport.check_exposure): fixes and aborts are obeyed, so a
+    plain link is taken only from this computer unless asked for. With TLS or `insecure` it may listen on any
+    address.
+    """
+    config = zenoh_transport.zenoh_config(settings.mode, listen=listen, connect=connect,
+                                          overrides=settings.zenoh_overrides, tls=tls, namespace=namespace,
+                                          allow_remote_listen=True)
+    zenoh_transport.check_exposure(config, tls, insecure=insecure)
+    return config
+
+
 def _pursuer_id(text: str) -> int:
     """argparse type of --pursuer-id: an integer in 1..MAX_PURSUERS."""
     try:
@@ -377,6 +394,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--zenoh-connect", action="append", default=None, help="Zenoh endpoint to connect to (repeatable)")
     parser.add_argument("--zenoh-listen", action="append", default=None, help="Zenoh endpoint to listen on (repeatable)")
     add_zenoh_security_arguments(parser, "companion")
+    parser.add_argument("--insecure", action="store_true",
+                        help="accept an unauthenticated Zenoh link beyond this computer (an endpoint that is not "
+                             "loopback, or multicast scouting) without --zenoh-tls: anyone who reaches it may publish "
+                             "fixes or an abort. Without it such a plain link is refused at start")
     parser.add_argument("--log-dir", type=output_folder, default=None, help="run folder (default runs/companion-<time>)")
     parser.add_argument("--seed", type=seed_argument, default=None, help="bearing-noise seed, an integer >= 0 ([simulation] seed)")
     parser.add_argument("--pursuer-id", type=_pursuer_id, default=1, metavar="K",
@@ -442,15 +463,15 @@ def main(argv: list[str] | None = None) -> int:
         zenoh_tls = zenoh_transport.tls_identity(args.zenoh_tls, "companion")
         if args.zenoh_namespace is not None:
             zenoh_transport.check_namespace(args.zenoh_namespace)
-        # A malformed endpoint, or a plain one with --zenoh-tls: say so now, not as a traceback once the app starts.
-        zenoh_transport.zenoh_config(scenario.link.mode, listen=args.zenoh_listen or scenario.link.listen,
-                                     connect=args.zenoh_connect or scenario.link.connect,
-                                     overrides=scenario.link.zenoh_overrides, tls=zenoh_tls)
+        # A malformed endpoint, a plain one with --zenoh-tls, or a plain link beyond loopback without --insecure:
+        # say so now, before anything is opened, not as a traceback once the app starts.
+        link_config(scenario.link, tuple(args.zenoh_listen or scenario.link.listen),
+                    tuple(args.zenoh_connect or scenario.link.connect), zenoh_tls, insecure=args.insecure)
     except zenoh_transport.LinkError as error:
         print(f"companion: {error}", file=sys.stderr)
         return 2
     log = configure_console()
-    say(f"companion: {zenoh_transport.link_security(zenoh_tls)}")
+    say(f"companion: {zenoh_transport.link_security(zenoh_tls, insecure=args.insecure)}")
     log_dir = args.log_dir or Path("runs") / f"companion-{time.strftime('%Y%m%d-%H%M%S')}"
     try:
         check_pursuer_id(scenario, args.pursuer_id)
@@ -466,7 +487,8 @@ def main(argv: list[str] | None = None) -> int:
         say(f"companion: kernels ready in {time.perf_counter() - started:.1f} s (numba; `companion --precompile` "
             "fills the cache ahead of a flight)")
     app = CompanionApp(scenario, vehicle_config, log_dir, args.mavlink, args.zenoh_connect, args.zenoh_listen, args.seed,
-                       zenoh_tls=zenoh_tls, zenoh_namespace=args.zenoh_namespace, pursuer_id=args.pursuer_id)
+                       zenoh_tls=zenoh_tls, zenoh_namespace=args.zenoh_namespace, pursuer_id=args.pursuer_id,
+                       zenoh_insecure=args.insecure)
     if args.live is not None:
         from companion.adapters.live_view import LiveView
 

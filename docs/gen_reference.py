@@ -127,6 +127,8 @@ def _is_model(kind) -> bool:
 def _bounds(metadata) -> str:
     words = {"gt": ">", "ge": ">=", "lt": "<", "le": "<=", "min_length": "length >=", "max_length": "length <="}
     found = []
+    # A Field(...) inside Annotated (a tuple's items, an optional value) carries its bounds in its own metadata.
+    metadata = [inner for item in metadata for inner in (getattr(item, "metadata", None) or [item])]
     for item in metadata:
         for attribute, word in words.items():
             value = getattr(item, attribute, None)
@@ -152,7 +154,12 @@ def _type_name(annotation, metadata=()) -> str:
     if origin is tuple:
         if len(arguments) == 2 and arguments[1] is Ellipsis:
             return f"list of {_type_name(arguments[0])}" + suffix
-        return "[" + ", ".join(_type_name(argument) for argument in arguments) + "]" + suffix
+        names = [_type_name(argument) for argument in arguments]
+        if len(set(names)) == 1 and names[0].endswith(")") and " (" in names[0]:  # a vector: its items' bounds once
+            item, _, item_bounds = names[0].partition(" (")
+            extra = f"; {bounds}" if bounds else ""
+            return "[" + ", ".join([item] * len(names)) + f"] (each {item_bounds[:-1]}{extra})"
+        return "[" + ", ".join(names) + "]" + suffix
     if _is_model(annotation):
         return f"table ({annotation.__name__})"
     return getattr(annotation, "__name__", str(annotation)) + suffix

@@ -29,6 +29,8 @@ peers' loopback addresses, which it could not reach.
 Secure links (``zenoh_config(..., tls=identity)``)
 --------------------------------------------------
 Plain TCP is the default: anyone who can reach a port may join and publish anything.
+`check_exposure` is what the companion checks before it opens a session: plain links only on
+loopback (every endpoint `endpoint_is_loopback`, multicast scouting off) unless asked for.
 With an `interfaces.pki.Identity` (``--zenoh-tls DIR`` on the command lines) the session
 uses only Zenoh's own security:
 
@@ -112,13 +114,64 @@ def _endpoint_host(endpoint: str) -> str:
     return host
 
 
-def _is_loopback(host: str) -> bool:
+def is_loopback_host(host: str) -> bool:
+    """Whether `host` (an endpoint's host, IPv6 without its brackets) names this computer only: an address in
+    127.0.0.0/8, ::1 (also written IPv4-mapped, ::ffff:127.x.x.x) or the name "localhost". Every other name is
+    not (a resolver could map it anywhere), nor are the wildcards 0.0.0.0 and :: (every interface)."""
     if host == "localhost":
         return True
     try:
-        return ipaddress.ip_address(host).is_loopback
+        address = ipaddress.ip_address(host)
     except ValueError:
         return False
+    if isinstance(address, ipaddress.IPv6Address) and address.ipv4_mapped is not None:
+        address = address.ipv4_mapped
+    return address.is_loopback
+
+
+def endpoint_is_loopback(endpoint: str) -> bool:
+    """Whether Zenoh endpoint `endpoint` (``tcp/127.0.0.1:7447``, ``tls/[::1]:7447``, ``udp/host:port``) stays on
+    this computer (`is_loopback_host` of its host); LinkError if it is not <protocol>/<host>:<port>."""
+    return is_loopback_host(_endpoint_host(endpoint))
+
+
+def _configured_endpoints(config: zenoh.Config, key: str) -> list[str]:
+    """The endpoints under `key` ("listen/endpoints", "connect/endpoints") that a session opened with `config`
+    uses: those of its mode when Zenoh keeps them per mode ({"peer": [...], "router": [...]})."""
+    endpoints = json.loads(config.get_json(key)) or []
+    if isinstance(endpoints, dict):
+        endpoints = endpoints.get(json.loads(config.get_json("mode")) or "peer") or []
+    return list(endpoints)
+
+
+def remote_exposure(config: zenoh.Config) -> str | None:
+    """What would make a session opened with `config` reach beyond this computer, in words, or None: the first
+    listen or connect endpoint that is not loopback (`endpoint_is_loopback`; the endpoints as configured,
+    overrides included), or multicast scouting (UDP multicast finds peers on every network; on unless
+    `config` turns it off, as `zenoh_config` does by default). LinkError for a malformed endpoint."""
+    for direction in ("listen", "connect"):
+        for endpoint in _configured_endpoints(config, f"{direction}/endpoints"):
+            if not endpoint_is_loopback(endpoint):
+                return f"{direction} endpoint {endpoint!r} is not loopback"
+    if json.loads(config.get_json("scouting/multicast/enabled")) is not False:
+        return "multicast scouting is on (it finds peers on every network)"
+    return None
+
+
+def check_exposure(config: zenoh.Config, tls: Identity | None, *, insecure: bool = False) -> None:
+    """LinkError (one line, naming the endpoint) when a session opened with `config` would reach beyond this
+    computer (`remote_exposure`) without a TLS identity, unless `insecure` (``--insecure``: asked for).
+
+    Why: a plain session takes fixes and commands (an abort) from anyone who reaches it. On loopback that is
+    a local process; on a network it is anyone on that network.
+    """
+    if tls is not None or insecure:
+        return
+    exposure = remote_exposure(config)
+    if exposure is not None:
+        raise LinkError(f"Zenoh {exposure} and the link would be unauthenticated (anyone who reaches it could "
+                        "publish fixes or an abort): use --zenoh-tls DIR for mutual TLS and access control, or "
+                        "--insecure to accept an unauthenticated link")
 
 
 def _endpoint_protocol(endpoint: str) -> str:
@@ -164,8 +217,13 @@ def tls_identity(folder: str | Path | None, role: str) -> Identity | None:
         raise LinkError(f"--zenoh-tls: {error}") from None
 
 
-def link_security(tls: Identity | None) -> str:
-    """One line for the process log: who this process is on Zenoh, or that its link is unauthenticated."""
+def link_security(tls: Identity | None, *, insecure: bool = False) -> str:
+    """One line for the process log: who this process is on Zenoh, or that its link is unauthenticated (and, with
+    `insecure`, that ``--insecure`` asked for that beyond loopback)."""
+    if tls is None and insecure:
+        return ("Zenoh link UNAUTHENTICATED, as asked by --insecure: plain TCP, no access control, endpoints may be "
+                "beyond loopback (anyone who reaches them may publish fixes or commands); use --zenoh-tls DIR for "
+                "mutual TLS and access control")
     if tls is None:
         return ("Zenoh link UNAUTHENTICATED: plain TCP, no access control (any local process may publish fixes or "
                 "commands); use --zenoh-tls DIR for mutual TLS and access control")
@@ -241,7 +299,7 @@ def zenoh_config(mode: Literal["peer", "client", "router"] = "peer", listen: Ite
         _endpoint_host(endpoint)
     for endpoint in listen:
         host = _endpoint_host(endpoint)
-        if not allow_remote_listen and not _is_loopback(host):
+        if not allow_remote_listen and not is_loopback_host(host):
             raise LinkError(f"Zenoh listen endpoint {endpoint!r} is not loopback; pass allow_remote_listen=True "
                             "to accept connections from other machines")
     if mode == "client":

@@ -41,7 +41,7 @@ class Termination(enum.Enum):
 
     COMPLETED = "flew the whole scenario"
     ESTIMATE_NOT_FINITE = "estimator state became NaN or infinite"
-    OUT_OF_CONTROL = "out of control: tilted past 90 degrees or faster than 60 m/s"
+    OUT_OF_CONTROL = "out of control: tilted past 90 degrees, faster than 60 m/s, or its state no longer finite"
     ABORTED = "aborted by the ground station's command: held, then landed"
     FAILSAFE = "the companion stopped commanding before the end; the autopilot's failsafe was left in charge"
     INTERRUPTED = "interrupted (a stop signal or the wall-clock timeout); every process was stopped"
@@ -168,6 +168,15 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
         time = step * dt
         # The true state as tuples (autopilot.kinematics(): the values of autopilot.state, without its arrays).
         position, velocity, rotation = autopilot.kinematics()
+        vx, vy, vz = velocity  # |v|^2 summed left to right (what numpy's dot of three gave here, to the bit)
+        speed_squared = vx * vx + vy * vy + vz * vz
+        if index and not (speed_squared <= max_speed_squared and math.isfinite(_sum3(position) + sum(rotation))):
+            # Lost since the last tick: faster than MAX_SPEED, or the airframe's integration blew up (a stiff
+            # attitude loop, e.g. a tiny inertia against long arms, gave 1e196 m/s or NaN within one tick). Logged
+            # with the last tick's commands; the companion's vector maths never sees a state it cannot use.
+            termination = Termination.OUT_OF_CONTROL
+            _log_row(log, time, position, velocity, rotation, target, output, pipeline.estimator, estimate_values, [])
+            break
         measured_position, measured_velocity = autopilot.measured_state()
         pursuer = pursuer_state(time, measured_position, measured_velocity)  # PursuerState(...), see there
         bearings = []
@@ -210,9 +219,8 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
                 termination = Termination.ESTIMATE_NOT_FINITE
         else:
             estimate_values = None
-        vx, vy, vz = velocity  # |v|^2 summed left to right (what numpy's dot of three gave here, to the bit)
         down_z = rotation[8]
-        if down_z < 0.0 or vx * vx + vy * vy + vz * vz > max_speed_squared:
+        if down_z < 0.0 or speed_squared > max_speed_squared:
             termination = Termination.OUT_OF_CONTROL
         _log_row(log, time, position, velocity, rotation, target, output, pipeline.estimator, estimate_values, bearings)
         if termination is not Termination.COMPLETED or index == last_index:
@@ -262,8 +270,12 @@ def _measure(sensor: BearingSensor, time: float, line_of_sight: np.ndarray, rota
 
     The noise-free direction rides along as true_direction for the simulation-only
     "optimal u-PLKF" benchmark (section VIII-B); every other estimator ignores it.
+    At zero range (the pursuer on the target) there is no direction: no bearing, as the
+    companion's bearing builder gives none (too_close).
     """
     distance = norm(line_of_sight)  # np.linalg.norm's sqrt(x . x), without its wrapper
+    if distance == 0.0:
+        return None
     true_direction = line_of_sight / distance
     direction = sensor.measure(true_direction, sensor_rng, rotation, true_range=distance)
     if direction is None:

@@ -9,6 +9,7 @@ from hypothesis import strategies as st
 from pydantic import ValidationError
 
 from interfaces.scenario import SCENARIOS_DIR, VEHICLES_DIR, ConfigError, Scenario, load_scenario, load_vehicle
+from interfaces.scenario.common import MAX_DISTANCE_M, MAX_SPEED_M_S
 
 VALID = (SCENARIOS_DIR / "constant_velocity.toml").read_text()
 
@@ -158,26 +159,26 @@ def test_a_boolean_string_is_refused(tmp_path):
 
 
 def _guidance_with(literal: str):
-    # [health] max_range well above the derived min_range (desired_range / 4) of every value drawn below
+    # [health] max_range, at its bound, above the derived min_range (desired_range / 4) of every value drawn below
     return Scenario.model_validate(tomllib.loads(VALID.replace("desired_range = 8.0", f"desired_range = {literal}", 1)
-                                                 + "\n[health]\nmax_range = 1e9\n"))
+                                                 + f"\n[health]\nmax_range = {MAX_DISTANCE_M!r}\n"))
 
 
-@given(st.floats(min_value=1e-3, max_value=1e4, allow_nan=False))
+@given(st.floats(min_value=1e-3, max_value=MAX_DISTANCE_M, allow_nan=False))
 def test_a_toml_float_loads_and_its_quoted_form_does_not(value):
     assert _guidance_with(repr(value)).guidance.desired_range == value
     with pytest.raises(ValidationError):
         _guidance_with(f'"{value!r}"')
 
 
-@given(st.integers(min_value=1, max_value=10**6))
+@given(st.integers(min_value=1, max_value=int(MAX_DISTANCE_M)))
 def test_a_toml_integer_is_a_valid_float(value):
     # TOML writes 8 for 8.0; a strict schema must still take it, as the same number.
     desired_range = _guidance_with(str(value)).guidance.desired_range
     assert isinstance(desired_range, float) and desired_range == float(value)
 
 
-@given(st.lists(st.floats(min_value=-1e4, max_value=1e4), min_size=3, max_size=3))
+@given(st.lists(st.floats(min_value=-MAX_SPEED_M_S, max_value=MAX_SPEED_M_S), min_size=3, max_size=3))
 def test_toml_arrays_load_as_vectors(components):
     literal = "[" + ", ".join(repr(c) for c in components) + "]"
     scenario = Scenario.model_validate(

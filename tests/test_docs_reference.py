@@ -43,7 +43,11 @@ def test_the_schema_page_has_every_table_and_key(generator):
         assert f"## `{table}`" in page, table
     for name in VehicleConfig.model_fields:
         assert f"| `{name}` |" in page
-    assert "| `rate_hz` | float (> 0) | 50 |" in page  # [estimator] rate_hz: type, bound and default
+    assert "| `rate_hz` | float (> 0, <= 10000) | 50 |" in page  # [estimator] rate_hz: type, bounds and default
+    # A vector's component bounds and an optional key's bounds are shown too.
+    assert "| `initial_position` | [float, float, float] (each >= -10000, <= 10000) | [0, 0, 0] |" in page
+    assert "| `inertia` | [float, float, float] (each >= 1e-05, <= 10) |" in page
+    assert "| `range_noise_std` | float (>= 0) or none | none |" in page
 
 
 def test_the_equation_page_lists_the_method(generator):

@@ -15,6 +15,8 @@ import json
 import re
 import shutil
 import stat
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -28,9 +30,10 @@ from hypothesis import strategies as st
 
 from interfaces import pki
 from interfaces import link_schema as link
-from interfaces.zenoh_transport import (PUBLISH_RIGHTS, LinkError, count_tls_refusals, link_security, open_session,
+from interfaces.zenoh_transport import (PUBLISH_RIGHTS, LinkError, check_exposure, count_tls_refusals,
+                                        endpoint_is_loopback, link_security, open_session, remote_exposure,
                                         tls_identity, zenoh_config)
-from studies.processes import free_port
+from studies.processes import ChildProcess, free_port
 
 TIMEOUT = 20.0  # s of wall time before a wait gives up (never reached when things work)
 COMMAND_KEY = link.companion_command_key("pursuer-1")
@@ -438,3 +441,125 @@ def test_bof_sitl_secure_flies_and_refuses_intruders(tmp_path):
     assert summary["companion"]["link"]["accepted"] > 0
     for name in ("ca.key", "target.key"):
         assert stat.S_IMODE((folder / "pki" / name).stat().st_mode) == 0o600
+
+
+# ------------------------------------------------------------ plain links stay on loopback
+PORTS = st.integers(0, 65535)
+PROTOCOLS = st.sampled_from(["tcp", "tls", "udp", "quic", "ws"])
+HOSTNAMES = st.from_regex(r"[A-Za-z][A-Za-z0-9\-]{0,20}(\.[A-Za-z][A-Za-z0-9\-]{0,20}){0,3}", fullmatch=True)
+
+
+@settings(max_examples=300, deadline=None)
+@given(protocol=PROTOCOLS, port=PORTS, address=st.ip_addresses(v=4))
+def test_an_ipv4_endpoint_is_loopback_exactly_when_it_is_in_127_0_0_0_8(protocol, port, address):
+    expected = address in ipaddress.ip_network("127.0.0.0/8")
+    assert endpoint_is_loopback(f"{protocol}/{address}:{port}") is expected
+
+
+@settings(max_examples=300, deadline=None)
+@given(protocol=PROTOCOLS, port=PORTS, address=st.ip_addresses(v=6))
+def test_a_bracketed_ipv6_endpoint_is_loopback_only_for_ipv6_or_mapped_loopback(protocol, port, address):
+    loopback = address == ipaddress.IPv6Address("::1") or (
+        address.ipv4_mapped is not None and address.ipv4_mapped in ipaddress.ip_network("127.0.0.0/8"))
+    assert endpoint_is_loopback(f"{protocol}/[{address}]:{port}") is loopback
+    assert endpoint_is_loopback(f"{protocol}/[{address}]:{port}#iface=lo") is loopback
+
+
+@settings(max_examples=300, deadline=None)
+@given(protocol=PROTOCOLS, port=PORTS, host=HOSTNAMES)
+def test_no_host_name_is_loopback_but_localhost(protocol, port, host):
+    assert endpoint_is_loopback(f"{protocol}/{host}:{port}") is (host == "localhost")
+
+
+@pytest.mark.parametrize("endpoint, loopback", [
+    ("tcp/127.0.0.1:7447", True), ("tcp/127.255.0.9:1", True), ("tcp/[::1]:7447", True), ("tcp/localhost:7447", True),
+    ("tls/[::ffff:127.0.0.1]:7447", True), ("tcp/0.0.0.0:7447", False), ("tcp/[::]:7447", False),
+    ("tcp/192.0.2.1:7447", False), ("tcp/128.0.0.1:7447", False), ("tcp/LOCALHOST:7447", False),
+    ("tcp/localhost.example.org:7447", False), ("tcp/127.0.0.1.example.org:7447", False),
+    ("udp/224.0.0.224:7447", False), ("tcp/[fe80::1]:7447", False),
+])
+def test_loopback_endpoints_by_example(endpoint, loopback):
+    assert endpoint_is_loopback(endpoint) is loopback
+
+
+def test_the_default_session_is_loopback_only_and_multicast_scouting_is_off():
+    for config in (zenoh_config(), zenoh_config(connect=["tcp/127.0.0.1:7447"]),
+                   zenoh_config("client", connect=["tcp/[::1]:7447"]), zenoh_config(listen=["tcp/localhost:7447"])):
+        assert json.loads(config.get_json("scouting/multicast/enabled")) is False
+        assert remote_exposure(config) is None
+        check_exposure(config, None)
+    # Zenoh's own defaults listen on every interface and scout by multicast: both are exposure.
+    bare = zenoh.Config()
+    assert remote_exposure(bare) == "listen endpoint 'tcp/[::]:0' is not loopback"
+    bare.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
+    assert remote_exposure(bare) == "multicast scouting is on (it finds peers on every network)"
+    bare.insert_json5("scouting/multicast/enabled", "false")
+    assert remote_exposure(bare) is None
+
+
+@pytest.mark.parametrize("kwargs, named", [
+    ({"connect": ["tcp/127.0.0.1:7447", "tcp/192.0.2.1:7447"]}, "connect endpoint 'tcp/192.0.2.1:7447'"),
+    ({"listen": ["tcp/0.0.0.0:7447"], "allow_remote_listen": True}, "listen endpoint 'tcp/0.0.0.0:7447'"),
+    ({"listen": ["tcp/[::]:0"], "allow_remote_listen": True}, "listen endpoint 'tcp/[::]:0'"),
+    ({"overrides": {"connect.endpoints": '["tcp/198.51.100.7:7447"]'}}, "connect endpoint 'tcp/198.51.100.7:7447'"),
+    ({"overrides": {"connect/endpoints": '{peer: ["udp/example.org:7447"]}'}},
+     "connect endpoint 'udp/example.org:7447'"),
+    ({"overrides": {"scouting.multicast.enabled": "true"}}, "multicast scouting is on"),
+])
+def test_a_plain_session_beyond_loopback_is_refused_unless_insecure(kwargs, named):
+    config = zenoh_config(**kwargs)
+    with pytest.raises(LinkError) as refusal:
+        check_exposure(config, None)
+    message = str(refusal.value)
+    assert named in message and "--zenoh-tls DIR" in message and "--insecure" in message and "\n" not in message
+    check_exposure(config, None, insecure=True)
+
+
+def test_a_tls_identity_may_connect_and_listen_beyond_loopback(certs):
+    from companion.app import link_config
+    from interfaces.scenario import LinkConfig
+
+    identity = tls_identity(certs, "companion")
+    config = link_config(LinkConfig(), ("tls/0.0.0.0:7447",), ("tls/192.0.2.1:7447",), identity)
+    assert json.loads(config.get_json("connect/endpoints")) == ["tls/192.0.2.1:7447"]
+    with pytest.raises(LinkError, match="'tcp/192.0.2.1:7447' is not loopback"):
+        link_config(LinkConfig(), (), ("tcp/192.0.2.1:7447",), None)
+
+
+def test_the_start_line_says_unauthenticated_and_whether_insecure_was_asked_for():
+    plain, insecure = link_security(None), link_security(None, insecure=True)
+    assert plain.startswith("Zenoh link UNAUTHENTICATED: ") and "--insecure" not in plain
+    assert insecure.startswith("Zenoh link UNAUTHENTICATED, as asked by --insecure: ") and "\n" not in insecure
+
+
+def test_companion_refuses_a_plain_remote_endpoint_before_opening_anything(tmp_path):
+    """`companion --zenoh-connect tcp/192.0.2.1:7447` (a documentation address): exit 2, one line on stderr naming
+    the endpoint and both ways out, and nothing made (no run folder, no socket: it ends before the console)."""
+    result = subprocess.run([sys.executable, "-m", "companion", "--zenoh-connect", "tcp/192.0.2.1:7447"],
+                            capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert result.returncode == 2, result.stdout + result.stderr
+    assert result.stderr.strip().splitlines() == [
+        "companion: Zenoh connect endpoint 'tcp/192.0.2.1:7447' is not loopback and the link would be unauthenticated "
+        "(anyone who reaches it could publish fixes or an abort): use --zenoh-tls DIR for mutual TLS and access "
+        "control, or --insecure to accept an unauthenticated link"]
+    assert result.stdout == "" and list(tmp_path.iterdir()) == []
+    listen = subprocess.run([sys.executable, "-m", "companion", "--zenoh-listen", "tcp/0.0.0.0:7447"],
+                            capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert listen.returncode == 2 and "listen endpoint 'tcp/0.0.0.0:7447' is not loopback" in listen.stderr
+
+
+def test_companion_with_insecure_starts_and_says_the_link_is_unauthenticated(tmp_path):
+    """With --insecure the same endpoint passes the check: the companion goes on and its first line says that its
+    link is unauthenticated as asked (it would then load its kernels and wait for an autopilot nobody runs; the
+    test stops it there)."""
+    command = [sys.executable, "-m", "companion", "--zenoh-connect", "tcp/192.0.2.1:7447", "--insecure",
+               "--mavlink", f"udpin://127.0.0.1:{free_port()}", "--log-dir", str(tmp_path / "companion")]
+    child = ChildProcess(command, tmp_path / "companion.out", ready="companion: Zenoh link")
+    try:
+        child.start(timeout=120.0)
+        line = child.wait_for_line("companion: Zenoh link", 1.0)
+        assert line.startswith("companion: Zenoh link UNAUTHENTICATED, as asked by --insecure: "), line
+        assert child.running  # past the check: it refuses in about a second when it refuses
+    finally:
+        child.stop()
+    assert not child.running

@@ -7,7 +7,14 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
-from interfaces.scenario.common import FROM_ARRAY, NonNegative, Positive, Vector3, _Strict
+from interfaces.scenario.common import (FROM_ARRAY, MAX_ACCELERATION_M_S2, MAX_GAIN, Distance, Duration,
+                                        NonNegativeDistance, Position, Rate, Speed, Velocity, _Strict)
+
+
+#: (m/s^2)^2 per axis: a process noise q, at most that of a white acceleration of MAX_ACCELERATION_M_S2.
+ProcessNoise = Annotated[float, Field(gt=0.0, le=MAX_ACCELERATION_M_S2**2)]
+#: A bearing's noise variance the filter assumes (unit-vector units squared; sensor.noise_std is at most 10).
+MeasurementNoise = Annotated[float, Field(gt=0.0, le=100.0)]
 
 
 class EstimatorConfig(_Strict):
@@ -26,26 +33,26 @@ class EstimatorConfig(_Strict):
     kind: Literal["uplkf", "ekf", "msc_ekf", "ekf_rae", "imm"] = "imm"
     gain_projection: Literal["predicted", "measured", "noise_free"] = "predicted"
     initialize: Literal["bearing", "position"] = "bearing"
-    rate_hz: Positive = 50.0
-    process_noise: Positive = 0.04
+    rate_hz: Rate = 50.0
+    process_noise: ProcessNoise = 0.04
     adaptive_process_noise: bool = False
     """u-PLKF only. True: Q = s process_noise I with a scale 1 <= s <= adaptive_max_scale raised while
     the innovations are larger than the filter claims (mean NIS per degree of freedom above
     adaptive_nis_threshold) and relaxed back to 1 when they are not (docs/explanation/estimation.md;
     companion.core.estimators.AdaptiveProcessNoise). False (default): the constant Q."""
-    adaptive_max_scale: float = Field(25.0, ge=1.0)
-    adaptive_nis_time_constant: Positive = 2.0
+    adaptive_max_scale: float = Field(25.0, ge=1.0, le=MAX_GAIN)
+    adaptive_nis_time_constant: Duration = 2.0
     """s, of the running mean of the NIS per degree of freedom."""
-    adaptive_rise_time_constant: Positive = 2.0
+    adaptive_rise_time_constant: Duration = 2.0
     """s, of the scale's growth while that mean exceeds adaptive_nis_threshold."""
-    adaptive_relax_time_constant: Positive = 10.0
+    adaptive_relax_time_constant: Duration = 10.0
     """s, of its return to 1 while the mean is below 1."""
-    adaptive_nis_threshold: float = Field(3.0, gt=1.0)
+    adaptive_nis_threshold: float = Field(3.0, gt=1.0, le=MAX_GAIN)
     imm_turn_rates: Annotated[tuple[float, ...], FROM_ARRAY] = (0.2,)
     """kind 'imm' only: omega, rad/s, of the coordinated-turn models (docs/explanation/estimation.md, "IMM estimator"); each rate
     gives a right (+omega) and a left (-omega) model beside the constant-velocity one. Each in
     (0, IMM_MAX_TURN_RATE]; an empty list leaves the constant-velocity model alone (the u-PLKF)."""
-    imm_turn_process_noise: Positive = 0.04
+    imm_turn_process_noise: ProcessNoise = 0.04
     """kind 'imm' only: q of the turn models, (m/s^2)^2 per axis (the constant-velocity model uses process_noise)."""
     imm_manoeuvre_model: bool = False
     """kind 'imm' only: add the manoeuvre model (white-noise acceleration, q = (target_max_acceleration / 3)^2
@@ -58,17 +65,17 @@ class EstimatorConfig(_Strict):
     imm_stay_probability: float = Field(0.98, gt=0.0, le=1.0)
     """kind 'imm' only: p_ii, the probability that the target keeps its motion model over imm_stay_time s
     (seed 004: 0.98, the rest split evenly over the other models)."""
-    imm_stay_time: Positive = 1.0
+    imm_stay_time: Duration = 1.0
     """kind 'imm' only: s, the interval imm_stay_probability refers to (p_ii = p^(Delta / imm_stay_time)
     over a correction interval Delta, so the switching is the same at any bearing rate)."""
-    measurement_noise: Positive = 1e-4
-    pursuer_position_std: NonNegative = 0.1
+    measurement_noise: MeasurementNoise = 1e-4
+    pursuer_position_std: NonNegativeDistance = 0.1
     restart_when_behind: bool = True
-    initial_position: Vector3 | None = None
-    initial_range: Positive | None = None
-    initial_range_std: Positive = 30.0
-    initial_velocity: Vector3 = (0.0, 0.0, 0.0)
-    initial_velocity_std: Positive = 5.0
+    initial_position: Position | None = None
+    initial_range: Distance | None = None
+    initial_range_std: Distance = 30.0
+    initial_velocity: Velocity = (0.0, 0.0, 0.0)
+    initial_velocity_std: Speed = 5.0
 
     @model_validator(mode="after")
     def _has_range_guess(self) -> "EstimatorConfig":

@@ -6,7 +6,7 @@ from typing import Annotated, Literal, get_args
 
 from pydantic import Field, model_validator
 
-from interfaces.scenario.common import FROM_ARRAY, NonNegative, Positive, Probability, Vector3, _Strict
+from interfaces.scenario.common import FROM_ARRAY, Duration, NonNegativeDuration, Position, Probability, _Strict
 
 
 SenderName = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")]
@@ -19,8 +19,8 @@ CORRUPT_KINDS: tuple[str, ...] = get_args(CorruptKind)
 class BlackoutWindow(_Strict):
     """A link outage from start for duration, s (scenario time for the target link, plant time for MAVLink)."""
 
-    start: NonNegative
-    duration: NonNegative
+    start: NonNegativeDuration
+    duration: NonNegativeDuration
 
     @property
     def end(self) -> float:
@@ -46,8 +46,8 @@ class BurstLossConfig(_Strict):
 
     p_good_to_bad: Probability | None = None
     p_bad_to_good: Probability | None = None
-    mean_burst_s: Positive | None = None
-    mean_gap_s: Positive | None = None
+    mean_burst_s: Duration | None = None
+    mean_gap_s: Duration | None = None
     loss_in_good: Probability = 0.0
     loss_in_bad: Probability = 1.0
 
@@ -113,32 +113,32 @@ class FaultsConfig(_Strict):
     loss_probability: Probability = 0.0
     burst: BurstLossConfig | None = None
     blackouts: Annotated[tuple[BlackoutWindow, ...], FROM_ARRAY] = ()
-    latency_s: NonNegative = 0.0
-    jitter_s: NonNegative = 0.0
+    latency_s: NonNegativeDuration = 0.0
+    jitter_s: NonNegativeDuration = 0.0
     stalls: Annotated[tuple[BlackoutWindow, ...], FROM_ARRAY] = ()
     reorder_probability: Probability = 0.0
-    reorder_delay_s: Positive = 0.3
+    reorder_delay_s: Duration = 0.3
     duplicate_probability: Probability = 0.0
-    duplicate_delay_s: NonNegative = 0.01
+    duplicate_delay_s: NonNegativeDuration = 0.01
     stale_probability: Probability = 0.0
-    stale_min_age_s: NonNegative = 1.0
-    stale_max_age_s: Positive = 5.0
+    stale_min_age_s: NonNegativeDuration = 1.0
+    stale_max_age_s: Duration = 5.0
     corrupt_probability: Probability = 0.0
     corrupt_kinds: Annotated[tuple[CorruptKind, ...], FROM_ARRAY, Field(min_length=1)] = CORRUPT_KINDS
     impostor_rate_hz: Annotated[float, Field(ge=0.0, le=MAX_ATTACK_RATE_HZ)] = 0.0
     impostor_sender: SenderName = "impostor-1"
-    impostor_offset: Vector3 = (30.0, 0.0, 0.0)
-    future_seq_at: NonNegative | None = None
-    future_stamp_at: NonNegative | None = None
-    replay_at: NonNegative | None = None
+    impostor_offset: Position = (30.0, 0.0, 0.0)
+    future_seq_at: NonNegativeDuration | None = None
+    future_stamp_at: NonNegativeDuration | None = None
+    replay_at: NonNegativeDuration | None = None
     replay_count: Annotated[int, Field(ge=1, le=10000)] = 25
-    restart_at: NonNegative | None = None
-    restart_gap_s: NonNegative = 1.0
-    spoof_burst_at: NonNegative | None = None
+    restart_at: NonNegativeDuration | None = None
+    restart_gap_s: NonNegativeDuration = 1.0
+    spoof_burst_at: NonNegativeDuration | None = None
     spoof_burst_count: Annotated[int, Field(ge=1, le=1000)] = 3
     spoof_rate_hz: Annotated[float, Field(ge=0.0, le=MAX_ATTACK_RATE_HZ)] = 0.0
-    spoof_from: NonNegative = 0.0
-    spoof_offset: Vector3 = (30.0, 0.0, 0.0)
+    spoof_from: NonNegativeDuration = 0.0
+    spoof_offset: Position = (30.0, 0.0, 0.0)
     spoof_seq_lead: Annotated[int, Field(ge=0, le=2**62)] = 2**40
     spoof_epoch: Literal["own", "target"] = "own"
     mavlink: MavlinkFaultsConfig = MavlinkFaultsConfig()

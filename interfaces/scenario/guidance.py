@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
-from pydantic import model_validator
+from pydantic import Field, model_validator
 
-from interfaces.scenario.common import NonNegative, Positive, _Strict
+from interfaces.scenario.common import Distance, Gain, NonNegativeGain, Rate, Speed, _Strict
 
+
+#: The largest relative range spread sigma_r / r^ an excitation threshold may name.
+MAX_RELATIVE_STD = 100.0
 
 GUIDANCE_LAWS = ("hng", "ppg", "png", "pd", "retro_png", "zem", "seed003")
 
@@ -22,25 +25,25 @@ class GuidanceConfig(_Strict):
     desired_range behind the target. All but 'pd' and 'seed003' add the range controller of eq. (18)."""
 
     law: Literal["hng", "ppg", "png", "pd", "retro_png", "zem", "seed003"] = "hng"
-    navigation_gain: Positive = 3.0
-    c_z: NonNegative = 3.5
-    c_y: NonNegative = 3.5
-    weave_frequency: Positive = 1.0
+    navigation_gain: Gain = 3.0
+    c_z: NonNegativeGain = 3.5
+    c_y: NonNegativeGain = 3.5
+    weave_frequency: Gain = 1.0
     scale_with_range: bool = True
-    desired_range: Positive = 8.0
-    range_gain: Positive = 3.0
-    rate_hz: Positive = 20.0
+    desired_range: Distance = 8.0
+    range_gain: Gain = 3.0
+    rate_hz: Rate = 20.0
     los_source: Literal["estimate", "measurement"] = "estimate"
-    pd_kp: Positive = 0.5
-    pd_kd: Positive = 0.2
-    retro_gain: Positive = 2.0
-    zem_k_w: Positive = 0.007
-    zem_max_gain: Positive = 10.0
-    seed003_alpha: Positive = 0.5
+    pd_kp: Gain = 0.5
+    pd_kd: Gain = 0.2
+    retro_gain: Gain = 2.0
+    zem_k_w: Gain = 0.007
+    zem_max_gain: Gain = 10.0
+    seed003_alpha: Gain = 0.5
     """1/s: seed 003's position gain alpha_1 = alpha_2 = alpha_3 (the seed flies 1)."""
-    seed003_gain: Positive = 1.0
+    seed003_gain: Gain = 1.0
     """1/s: seed 003's velocity/course gain lambda_1..3 (the seed's 50 assumes a 100/s autopilot)."""
-    seed003_max_approach_speed: Positive = 3.0
+    seed003_max_approach_speed: Speed = 3.0
     """m/s: bound on seed 003's approach velocity alpha |e| towards the following point (not in the seed)."""
     # Range excitation (companion.core.guidance.RangeExcitation): 'none' is the paper's
     # law unchanged; 'uncertainty' adds a lateral term that makes the pursuer circle the line of
@@ -48,10 +51,10 @@ class GuidanceConfig(_Strict):
     # range std sigma_r / r^ is above excitation_low (full above excitation_high) or the health
     # monitor says suspect. Only for 'hng' and 'ppg' (its design cancels their N P v damping).
     excitation: Literal["none", "uncertainty"] = "none"
-    excitation_speed: Positive = 1.0
-    excitation_frequency: Positive = 0.5
-    excitation_low: NonNegative = 0.05
-    excitation_high: Positive = 0.15
+    excitation_speed: Speed = 1.0
+    excitation_frequency: Gain = 0.5
+    excitation_low: Annotated[float, Field(ge=0.0, le=MAX_RELATIVE_STD)] = 0.05
+    excitation_high: Annotated[float, Field(gt=0.0, le=MAX_RELATIVE_STD)] = 0.15
 
     @model_validator(mode="after")
     def _excitation_consistent(self) -> "GuidanceConfig":

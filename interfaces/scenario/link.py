@@ -6,8 +6,8 @@ from typing import Annotated, Literal
 
 from pydantic import Field
 
-from interfaces.scenario.common import FROM_ARRAY, NonNegative, Positive, _Strict
-from interfaces.scenario.simulation import MAX_DURATION_S
+from interfaces.scenario.common import (FROM_ARRAY, MAX_DURATION_S, Duration, NonNegativeDistance, NonNegativeDuration,
+                                        Rate, Speed, _Strict)
 
 
 class LinkConfig(_Strict):
@@ -38,14 +38,14 @@ class LinkConfig(_Strict):
     target_sender: Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")] = "target-1"
     companion_id: Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")] = "pursuer-1"
     fix_frame: Literal["geodetic", "ned"] = "geodetic"
-    fix_noise_std: NonNegative = 0.0
-    state_rate_hz: Positive = 5.0
-    max_future_skew_s: NonNegative = 0.5
-    max_fix_age_s: Positive = 10.0
-    max_fix_rate_hz: Positive = 50.0
-    reanchor_silence_s: Positive = 2.0
-    epoch_switch_silence_s: NonNegative = 0.5
-    max_target_speed: Positive = 30.0
+    fix_noise_std: NonNegativeDistance = 0.0
+    state_rate_hz: Rate = 5.0
+    max_future_skew_s: NonNegativeDuration = 0.5
+    max_fix_age_s: Duration = 10.0
+    max_fix_rate_hz: Rate = 50.0
+    reanchor_silence_s: Duration = 2.0
+    epoch_switch_silence_s: NonNegativeDuration = 0.5
+    max_target_speed: Speed = 30.0
 
 
 class CompanionConfig(_Strict):
@@ -65,11 +65,11 @@ class CompanionConfig(_Strict):
 
     mavlink_url: str = "udpin://127.0.0.1:14540"
     engage_altitude: Annotated[float, Field(gt=1.0, le=120.0)] = 20.0
-    settle_time: NonNegative = 1.5
+    settle_time: NonNegativeDuration = 1.5
     follow_duration: Annotated[float, Field(gt=0.0, le=MAX_DURATION_S)] | None = None
-    link_timeout: Positive = 60.0
-    connect_timeout: Positive = 30.0
-    hold_after_abort: NonNegative = 3.0
-    vehicle_link_timeout: Positive = 1.0
-    vehicle_link_wait: Positive = 60.0
+    link_timeout: Duration = 60.0
+    connect_timeout: Duration = 30.0
+    hold_after_abort: NonNegativeDuration = 3.0
+    vehicle_link_timeout: Duration = 1.0
+    vehicle_link_wait: Duration = 60.0
     on_vehicle_link_return: Literal["resume", "land"] = "land"

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pydantic import model_validator
 
 from interfaces.scenario.base import ScenarioBase, _check_rates
-from interfaces.scenario.common import Positive, _Strict
+from interfaces.scenario.common import Rate, _Strict
 from interfaces.scenario.faults import FaultsConfig
 from interfaces.scenario.link import LinkConfig
 from interfaces.scenario.sensor import SensorConfig
@@ -21,7 +21,7 @@ COMPANION_SECTIONS = ("estimator", "guidance", "companion", "dropout", "health")
 class PlantSensorConfig(_Strict):
     """The one key of [sensor] the plant's side reads: the target publishes a fix per bearing."""
 
-    rate_hz: Positive = SensorConfig.model_fields["rate_hz"].default
+    rate_hz: Rate = SensorConfig.model_fields["rate_hz"].default
 
 
 class PlantScenario(ScenarioBase):

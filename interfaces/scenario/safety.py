@@ -6,7 +6,8 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
-from interfaces.scenario.common import FROM_ARRAY, NonNegative, Positive, _Strict
+from interfaces.scenario.common import (FROM_ARRAY, MAX_GAIN, Distance, Duration, NonNegativeDistance,
+                                        NonNegativeDuration, NonNegativeSpeed, _Strict)
 
 
 class DropoutConfig(_Strict):
@@ -21,16 +22,16 @@ class DropoutConfig(_Strict):
     safe_range / min_range default to 1.5 and 0.5 times guidance.desired_range.
     """
 
-    coast_after: Positive = 0.6
-    coast_limit: Positive = 3.0
-    max_position_std: Positive = 6.0
-    safe_range: Positive | None = None
-    min_range: Positive | None = None
-    gate_sigma: Positive = 4.0
-    reacquire_bearings: Annotated[int, Field(ge=1)] = 2
-    restart_range_std: Positive = 10.0
-    max_jerk: Positive = 15.0
-    blend_time: NonNegative = 2.0
+    coast_after: Duration = 0.6
+    coast_limit: Duration = 3.0
+    max_position_std: Distance = 6.0
+    safe_range: Distance | None = None
+    min_range: Distance | None = None
+    gate_sigma: Annotated[float, Field(gt=0.0, le=100.0)] = 4.0
+    reacquire_bearings: Annotated[int, Field(ge=1, le=10_000)] = 2
+    restart_range_std: Distance = 10.0
+    max_jerk: Annotated[float, Field(gt=0.0, le=1000.0)] = 15.0
+    blend_time: NonNegativeDuration = 2.0
 
     @model_validator(mode="after")
     def _ordered(self) -> "DropoutConfig":
@@ -84,27 +85,27 @@ class HealthSection(_Strict):
     while a condition is raised, relaxing during the SUSPECT tail).
     """
 
-    nis_window: Positive = 5.0
+    nis_window: Duration = 5.0
     nis_probability: Annotated[float, Field(gt=0.0, lt=1.0)] = 0.999
-    nis_scale: Annotated[float, Field(ge=1.0)] = 2.0
-    min_nis_samples: Annotated[int, Field(ge=1)] = 10
-    max_relative_range_std: Positive = 1.0
-    max_range_std: Positive | None = 2.0
-    min_range: NonNegative | None = None
-    max_range: Positive = 2000.0
-    slow_speed: NonNegative = 1.0
-    unobservable_time: NonNegative = 5.0
-    flag_after: NonNegative = 3.0
-    clear_after: NonNegative = 10.0
+    nis_scale: Annotated[float, Field(ge=1.0, le=MAX_GAIN)] = 2.0
+    min_nis_samples: Annotated[int, Field(ge=1, le=100_000)] = 10
+    max_relative_range_std: Annotated[float, Field(gt=0.0, le=100.0)] = 1.0
+    max_range_std: Distance | None = 2.0
+    min_range: NonNegativeDistance | None = None
+    max_range: Distance = 2000.0
+    slow_speed: NonNegativeSpeed = 1.0
+    unobservable_time: NonNegativeDuration = 5.0
+    flag_after: NonNegativeDuration = 3.0
+    clear_after: NonNegativeDuration = 10.0
     act: bool = True
-    process_noise_boost: Annotated[float, Field(ge=1.0)] = 30.0
-    boost_relax_time: Positive = 5.0
+    process_noise_boost: Annotated[float, Field(ge=1.0, le=MAX_GAIN)] = 30.0
+    boost_relax_time: Duration = 5.0
     reinitialize_reasons: Annotated[tuple[HealthReasonName, ...], FROM_ARRAY] = ("behind_sensor", "range_implausible")
-    reinitialize_interval: NonNegative = 20.0
-    reinitialize_relative_std: Positive = 0.5
+    reinitialize_interval: NonNegativeDuration = 20.0
+    reinitialize_relative_std: Annotated[float, Field(gt=0.0, le=100.0)] = 0.5
     excite: bool = True
-    excitation_low: NonNegative = 0.25
-    excitation_high: Positive = 0.5
+    excitation_low: Annotated[float, Field(ge=0.0, le=100.0)] = 0.25
+    excitation_high: Annotated[float, Field(gt=0.0, le=100.0)] = 0.5
     boost_follows_evidence: bool = True
     boost_reasons: Annotated[tuple[HealthReasonName, ...], FROM_ARRAY] = ("nis", "behind_sensor", "range_implausible")
 

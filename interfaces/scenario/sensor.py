@@ -4,9 +4,18 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import field_validator, model_validator
+from pydantic import Field, field_validator, model_validator
 
-from interfaces.scenario.common import FROM_ARRAY, NonNegative, Positive, PositiveInt, Vector3, _Strict
+from interfaces.scenario.common import FROM_ARRAY, Duration, NonNegative, NonNegativeDistance, Rate, _Strict
+
+
+#: px: the widest or tallest image (a 100-megapixel sensor is 12,000 px wide).
+MAX_IMAGE_SIDE = 20_000
+ImageSide = Annotated[int, Field(gt=0, le=MAX_IMAGE_SIDE)]
+#: m: a pixel's width or height (1 um to 1 mm).
+PixelSize = Annotated[float, Field(ge=1e-6, le=1e-3)]
+#: deg.
+Angle = Annotated[float, Field(ge=-360.0, le=360.0)]
 
 
 class CameraConfig(_Strict):
@@ -19,12 +28,12 @@ class CameraConfig(_Strict):
     up); zero = looking along body +x, no gimbal.
     """
 
-    focal_length: Positive = 0.008
-    pixel_size: Annotated[tuple[Positive, Positive], FROM_ARRAY] = (1e-5, 1e-5)
+    focal_length: Annotated[float, Field(gt=0.0, le=1.0)] = 0.008
+    pixel_size: Annotated[tuple[PixelSize, PixelSize], FROM_ARRAY] = (1e-5, 1e-5)
     principal_point: Annotated[tuple[float, float], FROM_ARRAY] = (512.0, 512.0)
-    image_size: Annotated[tuple[PositiveInt, PositiveInt], FROM_ARRAY] = (1024, 1024)
+    image_size: Annotated[tuple[ImageSide, ImageSide], FROM_ARRAY] = (1024, 1024)
     pixel_noise_std: NonNegative = 1.0
-    mount_rpy_deg: Vector3 = (0.0, 0.0, 0.0)
+    mount_rpy_deg: Annotated[tuple[Angle, Angle, Angle], FROM_ARRAY] = (0.0, 0.0, 0.0)
 
     @model_validator(mode="after")
     def _principal_point_in_image(self) -> "CameraConfig":
@@ -44,13 +53,13 @@ class RangeDependentNoise(_Strict):
     """Seed 003 eq. (15)-(16): sigma_r^2 = a2 (r - a1)^2 + a0 for the range, alpha times that for
     each bearing angle (r the true range, m). Defaults: the seed's case 3."""
 
-    a0: Positive = 1.0
+    a0: Annotated[float, Field(gt=0.0, le=MAX_RANGE_NOISE_STD**2)] = 1.0
     """m^2: the variance at r = a1 (its minimum)."""
-    a1: NonNegative = 1.0
+    a1: NonNegativeDistance = 1.0
     """m: the range of least noise."""
-    a2: NonNegative = 0.0024
+    a2: Annotated[float, Field(ge=0.0, le=1.0)] = 0.0024
     """dimensionless: growth of the variance with (r - a1)^2."""
-    alpha: Positive = 1e-5
+    alpha: Annotated[float, Field(gt=0.0, le=1.0)] = 1e-5
     """rad^2/m^2: angle variance per m^2 of range variance."""
 
 
@@ -68,12 +77,12 @@ class SensorConfig(_Strict):
 
     model: Literal["additive", "rotation", "camera"] = "additive"
     noise_std: NonNegative = 0.01
-    rate_hz: Positive = 5.0
+    rate_hz: Rate = 5.0
     camera: CameraConfig = CameraConfig()
     range_noise_std: NonNegative | None = None
     """m. A range sensor beside the bearing (seed 003's measurement set): every bearing then
     also carries |p_T - p| + N(0, range_noise_std^2). None (default): bearings only."""
-    noise_time_constant: Positive | None = None
+    noise_time_constant: Duration | None = None
     """s. Coloured noise (seed 003 case 2): the bearing noise (model 'additive') and the range
     noise become first-order Gauss-Markov processes with this time constant and the same
     stationary std, sampled at rate_hz. None (default): white noise."""

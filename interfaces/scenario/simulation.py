@@ -6,15 +6,14 @@ from typing import Annotated
 
 from pydantic import Field, model_validator
 
-from interfaces.scenario.common import Port, Positive, Vector3, _Strict
+from interfaces.scenario.common import FROM_ARRAY, MAX_DURATION_S, MAX_RATE_HZ, Distance, Duration, Port, Rate, _Strict
 
-
-#: The longest flight a scenario may ask for, s: a day. Longer is a typo for a multirotor, and an in-process flight
-#: holds its whole log in memory (about 2 GB for a day at the default rates: 60 rows a second of 46 floats).
-MAX_DURATION_S = 86_400.0
+# MAX_DURATION_S (common): the longest flight a scenario may ask for, s: a day. Longer is a typo for a multirotor, and
+# an in-process flight holds its whole log in memory (about 2 GB for a day at the default rates: 60 rows a second of
+# 46 floats).
 #: The fastest physics step a scenario may ask for, Hz: 20x the paper's 500 Hz. Faster would only make the plant
 #: crawl (a 60 s flight at 1 GHz is 6e10 RK4 steps) without a visible change in a 2 ms-scale rigid body.
-MAX_PHYSICS_RATE_HZ = 10_000.0
+MAX_PHYSICS_RATE_HZ = MAX_RATE_HZ
 
 
 #: Range-estimation error RMS over the summary window above which a simulated flight has diverged by truth, m
@@ -32,10 +31,14 @@ class SimulationConfig(_Strict):
     duration: Annotated[float, Field(gt=0.0, le=MAX_DURATION_S)] = 60.0
     seed: Annotated[int, Field(ge=0)] = 0
     physics_rate_hz: Annotated[float, Field(ge=500.0, le=MAX_PHYSICS_RATE_HZ)] = 500.0
-    summary_window: Positive = 20.0
-    converged_range_error: Positive = 1.0
+    summary_window: Duration = 20.0
+    converged_range_error: Distance = 1.0
     divergence_rms: Annotated[float, Field(gt=0.0, le=MAX_DIVERGENCE_RMS_M)] = DIVERGENCE_RMS_M
 
+
+#: m above the WGS-84 ellipsoid: the lowest and highest home altitude (below the Dead Sea shore; above Everest).
+MIN_HOME_ALTITUDE_M, MAX_HOME_ALTITUDE_M = -500.0, 9000.0
+HomeAltitude = Annotated[float, Field(ge=MIN_HOME_ALTITUDE_M, le=MAX_HOME_ALTITUDE_M)]
 
 #: [sitl] speed_factor bounds, simulated s per wall s: bof-sitl's --speed-factor range.
 MIN_SPEED_FACTOR, MAX_SPEED_FACTOR = 0.5, 20.0
@@ -50,7 +53,8 @@ class SitlConfig(_Strict):
     when the plant starts.
     """
 
-    home: Vector3 = (47.397742, 8.545594, 488.0)
+    home: Annotated[tuple[float, float, HomeAltitude], FROM_ARRAY] = (47.397742, 8.545594, 488.0)
+    """(latitude deg, longitude deg, altitude m): the ground below the local NED origin."""
     # bof-sitl's --speed-factor range (studies/full_sitl.py: below 0.5 MAVSDK misses heartbeats, above 20 the plant
     # cannot keep up); sitl-plant's own --speed-factor flag, which overrides this key, takes (0, 100].
     speed_factor: Annotated[float, Field(ge=MIN_SPEED_FACTOR, le=MAX_SPEED_FACTOR)] = 1.0
@@ -59,7 +63,7 @@ class SitlConfig(_Strict):
     gcs_host: str = "127.0.0.1"
     gcs_port: Port = 14550
     bind_host: str = "127.0.0.1"
-    tick_rate_hz: Positive = 250.0
+    tick_rate_hz: Rate = 250.0
     start_yaw_deg: Annotated[float, Field(ge=-180.0, le=360.0)] = 0.0
     parameters: dict[str, float] = {}
 

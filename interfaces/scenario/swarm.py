@@ -8,7 +8,8 @@ from typing import Annotated, Literal, TYPE_CHECKING
 
 from pydantic import Field, model_validator
 
-from interfaces.scenario.common import FROM_ARRAY, NonNegative, Positive, Vector3, _Strict
+from interfaces.scenario.common import (FROM_ARRAY, MAX_DISTANCE_M, Acceleration, Distance, Duration, Gain,
+                                        NonNegativeDuration, NonNegativeSpeed, Position, PositionComponent, Rate, Speed, Velocity, _Strict)
 from interfaces.scenario.vehicle import PursuerConfig
 
 if TYPE_CHECKING:  # annotations only: the modules below import this one
@@ -30,17 +31,17 @@ class SwarmPursuerConfig(_Strict):
     is not at its defaults, they must agree); every other pursuer must give initial_position
     (initial_velocity defaults to rest)."""
 
-    initial_position: Vector3 | None = None
-    initial_velocity: Vector3 | None = None
-    estimator_initial_position: Vector3 | None = None
+    initial_position: Position | None = None
+    initial_velocity: Velocity | None = None
+    estimator_initial_position: Position | None = None
 
 
 class SwarmBlackout(_Strict):
     """A window [start, end) (s, scenario time) during which `pursuer` neither sends nor receives shares."""
 
     pursuer: PursuerIdent
-    start: NonNegative
-    end: Positive
+    start: NonNegativeDuration
+    end: Duration
 
     @model_validator(mode="after")
     def _ordered(self) -> "SwarmBlackout":
@@ -60,8 +61,8 @@ class SwarmLinkConfig(_Strict):
 
     radius: Annotated[float, Field(gt=0.0, allow_inf_nan=True)] = math.inf
     loss_probability: Annotated[float, Field(ge=0.0, le=1.0)] = 0.0
-    latency_s: NonNegative = 0.0
-    jitter_s: NonNegative = 0.0
+    latency_s: NonNegativeDuration = 0.0
+    jitter_s: NonNegativeDuration = 0.0
     blackouts: Annotated[tuple[SwarmBlackout, ...], FROM_ARRAY] = ()
     seed: Annotated[int, Field(ge=0)] | None = None
 
@@ -87,13 +88,13 @@ class CircumnavigationConfig(_Strict):
     max_acceleration (m/s^2). altitude_offset: m, height of the orbit plane above the target (0 = the
     horizontal plane through the target, the 3-D extension of the planar seed)."""
 
-    g1: Positive = 1.2
-    g2: Positive = 1.0
-    g3: Positive = 0.4
-    alpha: Positive = 1.0
-    velocity_gain: Positive = 2.0
-    max_acceleration: Positive = 4.0
-    altitude_offset: float = 0.0
+    g1: Gain = 1.2
+    g2: Gain = 1.0
+    g3: Gain = 0.4
+    alpha: Gain = 1.0
+    velocity_gain: Gain = 2.0
+    max_acceleration: Acceleration = 4.0
+    altitude_offset: PositionComponent = 0.0
 
 
 class StandoffConfig(_Strict):
@@ -107,17 +108,17 @@ class StandoffConfig(_Strict):
     error). max_vertical_speed (m/s) and max_vertical_acceleration (m/s^2): the vertical profile's limits.
     velocity_gain (1/s) and max_acceleration (m/s^2): how the quadrotor tracks the field's velocity."""
 
-    radius: Positive = 20.0
-    inner_radius: Positive = 5.0
-    height: float = 10.0
-    speed: Positive = 8.0
-    min_speed: NonNegative = 2.0
-    max_speed: Positive = 15.0
-    phase_gain: Positive = 1.0
-    max_vertical_speed: Positive = 3.0
-    max_vertical_acceleration: Positive = 1.0
-    velocity_gain: Positive = 2.0
-    max_acceleration: Positive = 4.0
+    radius: Distance = 20.0
+    inner_radius: Distance = 5.0
+    height: PositionComponent = 10.0
+    speed: Speed = 8.0
+    min_speed: NonNegativeSpeed = 2.0
+    max_speed: Speed = 15.0
+    phase_gain: Gain = 1.0
+    max_vertical_speed: Speed = 3.0
+    max_vertical_acceleration: Acceleration = 1.0
+    velocity_gain: Gain = 2.0
+    max_acceleration: Acceleration = 4.0
 
     @model_validator(mode="after")
     def _consistent(self) -> "StandoffConfig":
@@ -137,12 +138,12 @@ class TriangulationConfig(_Strict):
     0.01 s). process_noise: q of Q = q I6. measurement_noise: R = r I (m^2, the triangulated position).
     initial_std: P0 = initial_std^2 I6."""
 
-    k1: Positive = 4.0
-    k2: Positive = 0.12
-    switch_time: NonNegative = 25.0
-    process_noise: Positive = 0.2
-    measurement_noise: Positive = 1.0
-    initial_std: Positive = 1.0
+    k1: Gain = 4.0
+    k2: Gain = 0.12
+    switch_time: NonNegativeDuration = 25.0
+    process_noise: Annotated[float, Field(gt=0.0, le=2500.0)] = 0.2
+    measurement_noise: Annotated[float, Field(gt=0.0, le=MAX_DISTANCE_M**2)] = 1.0
+    initial_std: Distance = 1.0
 
 
 class FusionConfig(_Strict):
@@ -174,10 +175,10 @@ class SwarmConfig(_Strict):
     pursuers: Annotated[tuple[SwarmPursuerConfig, ...], FROM_ARRAY, Field(min_length=1, max_length=MAX_PURSUERS)]
     guidance: Literal["hng", "circumnavigation", "standoff"] = "hng"
     estimator: Literal["own", "shared_bearings", "triangulation_kf", "fusion"] = "own"
-    min_separation: Positive = 2.0
-    share_rate_hz: Positive | None = None
+    min_separation: Distance = 2.0
+    share_rate_hz: Rate | None = None
     weave_min_angle_deg: Annotated[float, Field(gt=0.0, le=90.0)] = 15.0
-    neighbour_timeout_s: Positive = 1.0
+    neighbour_timeout_s: Duration = 1.0
     circumnavigation: CircumnavigationConfig = CircumnavigationConfig()
     standoff: StandoffConfig = StandoffConfig()
     triangulation: TriangulationConfig = TriangulationConfig()

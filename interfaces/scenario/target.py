@@ -8,15 +8,35 @@ from typing import Annotated, Literal
 
 from pydantic import AfterValidator, Field, model_validator
 
-from interfaces.scenario.common import FROM_ARRAY, NonNegative, Positive, Vector3, _Strict, _finite_vector
+from interfaces.scenario.common import (FROM_ARRAY, MAX_ACCELERATION_M_S2, MAX_DURATION_S, MAX_SPEED_M_S, Acceleration,
+                                        Distance, Duration, NonNegativeDuration, NonNegativeSpeed, Position, Speed,
+                                        Velocity, _Strict, _finite_vector)
+
+
+#: Bounds of [target] segments: a segment lasts at most a day (s); accelerations up to 50 m/s^2 (5 g, beyond any
+#: small drone); speeds and climb rates up to 100 m/s; turn rates up to 3 rad/s (a full turn in about 2 s); at most
+#: 10000 segments (a longer plan is a recorded track: [target.trajectory]).
+MAX_SEGMENT_DURATION = MAX_DURATION_S
+MAX_SEGMENT_ACCELERATION = MAX_ACCELERATION_M_S2
+MAX_SEGMENT_SPEED = MAX_SPEED_M_S
+MAX_TURN_RATE = 3.0
+MAX_SEGMENTS = 10000
+#: s: the latest end of a maneuver or pattern window: 1e6 s, as scenarios write "until the flight ends" (flights
+#: last at most MAX_DURATION_S).
+MAX_WINDOW_END_S = 1e6
+WindowEnd = Annotated[float, Field(gt=0.0, le=MAX_WINDOW_END_S)]
+#: rad/s: the fastest [target.circle] turn_rate, a full turn a second.
+MAX_CIRCLE_TURN_RATE = 2.0 * math.pi
+#: m/s^2: a signed lateral acceleration (+ turns right).
+LateralAcceleration = Annotated[float, Field(ge=-MAX_ACCELERATION_M_S2, le=MAX_ACCELERATION_M_S2)]
 
 
 class ManeuverConfig(_Strict):
     """A constant-speed horizontal turn: lateral acceleration (m/s^2, + = right turn in NED) from start to end (s)."""
 
-    start: NonNegative
-    end: NonNegative
-    lateral_acceleration: float
+    start: NonNegativeDuration
+    end: WindowEnd
+    lateral_acceleration: LateralAcceleration
 
     @model_validator(mode="after")
     def _ordered(self) -> "ManeuverConfig":
@@ -37,11 +57,11 @@ class CircleConfig(_Strict):
     The vertical velocity of initial_velocity is kept: with a climb it is a helix.
     """
 
-    radius: Positive | None = None
-    turn_rate: Positive | None = None
+    radius: Distance | None = None
+    turn_rate: Annotated[float, Field(gt=0.0, le=MAX_CIRCLE_TURN_RATE)] | None = None
     direction: TurnDirection = "right"
-    start: NonNegative = 0.0
-    end: Positive = 1e6
+    start: NonNegativeDuration = 0.0
+    end: WindowEnd = MAX_WINDOW_END_S
 
     @model_validator(mode="after")
     def _one_size(self) -> "CircleConfig":
@@ -57,11 +77,11 @@ class WeaveConfig(_Strict):
     alternating every half_period (s) from start to end (s); the first turn (to `direction`)
     lasts half_period / 2 so the heading swings symmetrically about the initial one."""
 
-    lateral_acceleration: Positive
-    half_period: Positive
+    lateral_acceleration: Acceleration
+    half_period: Duration
     direction: TurnDirection = "right"
-    start: NonNegative = 0.0
-    end: Positive = 3600.0
+    start: NonNegativeDuration = 0.0
+    end: WindowEnd = 3600.0
 
     @model_validator(mode="after")
     def _ordered(self) -> "WeaveConfig":
@@ -77,8 +97,8 @@ class TurnConfig(_Strict):
     start (s), at the initial horizontal speed; turn_back: the opposite turn right after it
     (the flight experiment's IX-B2 shape)."""
 
-    start: NonNegative
-    duration: Positive
+    start: NonNegativeDuration
+    duration: Duration
     angle_deg: Annotated[float, Field(gt=0.0, le=360.0)] = 90.0
     direction: TurnDirection = "right"
     turn_back: bool = False
@@ -87,15 +107,15 @@ class TurnConfig(_Strict):
 class SpeedChangeConfig(_Strict):
     """From start (s) on the stop-and-go target aims at speed (m/s; 0 = stop)."""
 
-    start: NonNegative
-    speed: NonNegative
+    start: NonNegativeDuration
+    speed: NonNegativeSpeed
 
 
 class StopAndGoConfig(_Strict):
     """[target.stop_and_go]: straight along initial_velocity's direction (its norm is the first
     speed), the speed following `schedule` at up to max_acceleration (m/s^2)."""
 
-    max_acceleration: Positive = 1.0
+    max_acceleration: Acceleration = 1.0
     schedule: Annotated[tuple[SpeedChangeConfig, ...], FROM_ARRAY, Field(min_length=1)]
 
     @model_validator(mode="after")
@@ -116,24 +136,14 @@ class SingerConfig(_Strict):
     update_period (s); speed kept within [0, max_speed] (m/s) and the acceleration normal to the
     velocity within max_lateral_acceleration (m/s^2). Drawn on its own stream of the flight's seed."""
 
-    time_constant: Positive = 5.0
-    sigma: Positive = 1.0
-    vertical_sigma: NonNegative = 0.0
-    max_speed: Positive = 10.0
-    max_lateral_acceleration: Positive = 2.0
+    time_constant: Duration = 5.0
+    sigma: Acceleration = 1.0
+    vertical_sigma: Annotated[float, Field(ge=0.0, le=MAX_ACCELERATION_M_S2)] = 0.0
+    max_speed: Speed = 10.0
+    max_lateral_acceleration: Acceleration = 2.0
     # At least 1 ms (1 kHz, twice the default physics rate): a shorter hold changes nothing a 500 Hz plant resolves,
     # and each update costs about 1 us of wall time, so 1e-300 s would never finish a flight.
     update_period: Annotated[float, Field(ge=MIN_SINGER_UPDATE_PERIOD, le=1.0)] = 0.02
-
-
-#: Bounds of [target] segments: a segment lasts at most a day (s); accelerations up to 50 m/s^2 (5 g, beyond any
-#: small drone); speeds and climb rates up to 100 m/s; turn rates up to 3 rad/s (a full turn in about 2 s); at most
-#: 10000 segments (a longer plan is a recorded track: [target.trajectory]).
-MAX_SEGMENT_DURATION = 86400.0
-MAX_SEGMENT_ACCELERATION = 50.0
-MAX_SEGMENT_SPEED = 100.0
-MAX_TURN_RATE = 3.0
-MAX_SEGMENTS = 10000
 
 
 def _bounded_speed(value: tuple[float, float, float]) -> tuple[float, float, float]:
@@ -301,8 +311,8 @@ class TargetConfig(_Strict):
     initial_velocity; after the last one the target holds its final velocity) or trajectory (a recorded
     track, [target.trajectory]; it gives the velocity, so initial_velocity is left out)."""
 
-    initial_position: Vector3
-    initial_velocity: Vector3 | None = None
+    initial_position: Position
+    initial_velocity: Velocity | None = None
     maneuvers: Annotated[tuple[ManeuverConfig, ...], FROM_ARRAY] = ()
     circle: CircleConfig | None = None
     weave: WeaveConfig | None = None
