@@ -189,12 +189,12 @@ def test_a_circling_target_the_default_loses_is_flagged_and_not_a_clean_success(
 
 
 def test_a_flight_that_never_sees_its_target_is_no_success(scenario_path):
-    """The Table I camera with its focal length typed in metres (8 instead of 0.008): a 1 mm field of view, no bearing
-    in 60 s, no estimate. The monitor had nothing to flag, so the verdict must not be "clean"."""
+    """The Table I camera behind a 1 m lens (the schema's longest; 0.008 m in Table I): a field of view of 0.6 deg,
+    no bearing in 60 s, no estimate. The monitor had nothing to flag, so the verdict must not be "clean"."""
     scenario, vehicle = load_scenario(scenario_path("constant_velocity"))
     document = scenario.model_dump()
     document["sensor"]["model"] = "camera"
-    document["sensor"]["camera"] = {**(document["sensor"].get("camera") or {}), "focal_length": 8.0}
+    document["sensor"]["camera"] = {**(document["sensor"].get("camera") or {}), "focal_length": 1.0}
     result = simulate(type(scenario).model_validate(document), vehicle)
     summary = result.summary
     assert summary["bearings_used"] == 0 and summary["bearings_out_of_view"] == 301  # 5 Hz for 60 s

@@ -340,7 +340,8 @@ def _vector(value, bound: float) -> bool:
 
 def _independently_valid(document) -> bool | None:
     """The documented rules read straight off the JSON document (plain Python and numpy, not the schema):
-    True valid, False invalid, None within a factor 2 of a covariance tolerance (either verdict is right)."""
+    True valid, False invalid, None within a factor 2 of a covariance tolerance or a section stamped after its
+    share by at most the documented 1e-6 s (either verdict is right)."""
     if type(document) is not dict or document.get("schema") != "bof.pursuer_share/1":
         return False
     allowed = {"schema", "sender", "seq", "stamp", "epoch", "position", "velocity", "bearing", "estimate"}
@@ -356,14 +357,14 @@ def _independently_valid(document) -> bool | None:
     if bearing is not None:
         if type(bearing) is not dict or set(bearing) != {"stamp", "direction", "position"}:
             return False
-        if not (_number(bearing["stamp"]) and 0 <= bearing["stamp"] <= stamp and _vector(bearing["direction"], 100)
+        if not (_number(bearing["stamp"]) and 0 <= bearing["stamp"] <= stamp + 2e-6 and _vector(bearing["direction"], 100)
                 and 0.01 <= math.hypot(*bearing["direction"]) <= 100 and _vector(bearing["position"], 1e6)):
             return False
     estimate = document.get("estimate")
     if estimate is not None:
         if type(estimate) is not dict or set(estimate) != {"stamp", "position", "velocity", "covariance"}:
             return False
-        if not (_number(estimate["stamp"]) and 0 <= estimate["stamp"] <= stamp and _vector(estimate["position"], 1e6)
+        if not (_number(estimate["stamp"]) and 0 <= estimate["stamp"] <= stamp + 2e-6 and _vector(estimate["position"], 1e6)
                 and _vector(estimate["velocity"], 1e3)):
             return False
         entries = estimate["covariance"]
@@ -383,6 +384,9 @@ def _independently_valid(document) -> bool | None:
             return False
         if asymmetry > 0.5e-9 * scale or not _factorises(symmetric + 0.5e-9 * scale * np.eye(6)):
             return None
+    # within a factor 2 of the 1e-6 s a section may follow its share (above, more than 2e-6 s is refused)
+    if any(section["stamp"] > stamp + 0.5e-6 for section in (bearing, estimate) if section is not None):
+        return None
     return True
 
 
