@@ -43,7 +43,7 @@ import numpy as np
 from companion.core._jit import ENABLED as kernels_compiled
 from companion.adapters.mavsdk_log import mavsdk_log_to
 from companion.adapters.mavsdk_vehicle import MavsdkVehicle, VehicleError
-from companion.adapters.recorder import RecentSamples, RunRecorder, TlogWriter
+from companion.adapters.recorder import RunRecorder, TlogWriter
 from companion.assembly import build_pipeline, build_sensor, pursuer_scenario
 from companion.console import configure_console, say
 from companion.core.state_history import StateHistory
@@ -104,13 +104,6 @@ def check_pursuer_id(scenario: Scenario, pursuer_id: int) -> None:
     if scenario.swarm is not None and len(swarm_companion_id(scenario.link.companion_id, pursuer_id)) > 64:
         raise ConfigError(f"[link] companion_id {scenario.link.companion_id!r} is too long to carry the pursuer id "
                           f"(ids are at most 64 characters)")
-
-
-def _percentiles(samples: RecentSamples) -> dict:
-    """p50/p99/max (ms) of the kept latency samples and how many there were in all; NaN figures when none."""
-    data = samples.values() if len(samples) else np.array([math.nan])
-    return {"p50": float(np.percentile(data, 50)), "p99": float(np.percentile(data, 99)), "max": float(np.max(data)),
-            "count": samples.count}
 
 
 class CompanionApp:
@@ -304,7 +297,7 @@ class CompanionApp:
     def summary(self) -> dict:
         mission, control = self.sequencer, self.follower
         return {
-            "latency_fix_to_estimator_ms": _percentiles(self.target_link.bearing_latencies_ms),
+            "latency_fix_to_estimator_ms": self.target_link.bearing_latencies_ms.percentiles(),
             "phase": mission.phase.value,
             "error": self.error,
             "engaged_at": mission.engaged_at,
@@ -312,7 +305,7 @@ class CompanionApp:
             "vehicle_link_losses": mission.vehicle_link_losses,
             "resumes": mission.resumes,
             "deadline_misses": control.deadline_misses,
-            "latency_fix_to_setpoint_ms": _percentiles(control.latencies_ms),
+            "latency_fix_to_setpoint_ms": control.latencies_ms.percentiles(),
             "link": self.target_link.health.as_dict(time.monotonic()),
             "vehicle_status_texts": self.vehicle.status_texts if self.vehicle is not None else [],
             "vehicle_status_texts_dropped": self.vehicle.status_texts_dropped if self.vehicle is not None else 0,

@@ -421,3 +421,9 @@ def test_recent_samples_keep_the_newest_values_in_order_and_count_them_all(capac
         reference.append(value)
     assert samples.count == len(values) and len(samples) == len(reference)
     assert samples.values().tolist() == list(reference)
+    figures = samples.percentiles()
+    assert figures["count"] == len(values)
+    if reference:
+        assert figures["p50"] == np.percentile(list(reference), 50) and figures["max"] == max(reference)
+    else:
+        assert np.isnan(figures["p50"]) and np.isnan(figures["max"])

@@ -12,13 +12,13 @@ sample is timed and reported in the companion's summary (``live_view.publish_us`
 
 from __future__ import annotations
 
-import collections
 import math
 import time
 from typing import Any, Mapping
 
 import numpy as np
 
+from companion.adapters.recorder import RecentSamples
 from interfaces.flight_channels import FlightChannels, covariance_from_upper, quaternion_wxyz, range_sigma
 
 #: The scene (ellipsoid, bearing ray, path traces) and the world -> ned transform are refreshed at these
@@ -48,7 +48,7 @@ class LiveView:
         self.server = foxglove.start_server(name="bearing-follow companion", host=host, port=port,
                                             context=self.channels.context)
         self.host, self.port = host, self.server.port
-        self.costs_us: collections.deque[float] = collections.deque(maxlen=COST_SAMPLES)
+        self.costs_us = RecentSamples(COST_SAMPLES)
         self.published = 0
         self._next_scene = -math.inf
         self._next_frames = -math.inf
@@ -117,10 +117,7 @@ class LiveView:
 
     def summary(self) -> dict:
         """Where it served and what publishing cost the control loop: p50 / p99 / max, us per sample."""
-        costs = np.array(self.costs_us) if self.costs_us else np.array([math.nan])
-        return {"url": self.url, "samples_published": self.published,
-                "publish_us": {"p50": float(np.percentile(costs, 50)), "p99": float(np.percentile(costs, 99)),
-                               "max": float(np.max(costs)), "count": len(self.costs_us)}}
+        return {"url": self.url, "samples_published": self.published, "publish_us": self.costs_us.percentiles()}
 
     def close(self) -> None:
         self.server.stop()

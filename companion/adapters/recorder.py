@@ -79,6 +79,12 @@ class RecentSamples:
         start = self.count % len(self._ring)
         return np.concatenate([self._ring[start:], self._ring[:start]])
 
+    def percentiles(self) -> dict:
+        """p50 / p99 / max of the kept values and how many were added in all; NaN figures when none."""
+        data = self.values() if len(self) else np.array([np.nan])
+        return {"p50": float(np.percentile(data, 50)), "p99": float(np.percentile(data, 99)), "max": float(np.max(data)),
+                "count": self.count}
+
 
 class RunRecorder:
     """Opens the run folder's files (interfaces.records writers: every line flushed as written)."""
