@@ -92,6 +92,7 @@ class Follower:
         due = self.target_link.due_bearings(sample.state.time)
         self._awaiting_setpoint.extend(fix for fix, _ in due)
         bearings = [bearing for _, bearing in due]
+        self.pipeline.link_contested(sample.state.time, self.target_link.validator.contested)
         if self.swarm is not None:
             self.swarm.own_bearings(bearings)
             neighbours, shared = self.swarm.step_inputs(sample.state.time)

@@ -71,6 +71,8 @@ class LinkHealth:
             "rejected": dict(self.rejected),
             "bearings_used": self.bearings_used,
             "bearings_dropped": dict(self.bearings_dropped),
+            "contested": self.validator.contested,
+            "contests": self.validator.contest_count_total,
             "last_seq": self.validator.last_seq,
             "last_stamp": self.validator.last_stamp,
             "last_fix_age_wall": None if self.last_received_wall is None else round(now_wall - self.last_received_wall, 3),

@@ -58,7 +58,8 @@ Any change of fields is a new schema version.
   aborting, landing, done, failed), ``pursuer`` {``position``, ``velocity``} (NED m,
   m/s), ``link`` {``received``, ``accepted``, ``rejected`` (count by reason),
   ``bearings_used``, ``bearings_dropped`` (count by reason), ``last_seq``,
-  ``last_stamp`` (s), ``last_fix_age_wall`` (wall s)}, ``setpoints_sent``, and once
+  ``last_stamp`` (s), ``last_fix_age_wall`` (wall s), ``contested`` (the track is held: two
+  sources in the target's epoch), ``contests`` (holds so far)}, ``setpoints_sent``, and once
   there is one: ``track`` {``mode``, ``bearing_age`` (s)}, ``observability``
   {``log_det``, ``min_eigenvalue``, ``spread``, ``count``}, ``health`` (the filter-health
   monitor, companion.core.health) {``state`` (``"ok"`` or ``"suspect"``), ``reasons``
@@ -225,7 +226,8 @@ FRAMES = get_args(Frame)
 CommandName = Literal["abort", "resume", "start"]
 COMMANDS = get_args(CommandName)
 #: The filter-health monitor's reasons (companion.core.health.REASONS; interfaces imports no companion code).
-HealthReason = Literal["nis", "range_uncertain", "behind_sensor", "range_implausible", "range_unobservable"]
+HealthReason = Literal["nis", "range_uncertain", "behind_sensor", "range_implausible", "range_unobservable",
+                       "link_contested"]
 HEALTH_REASONS = get_args(HealthReason)
 REASONS = frozenset({"too_large", "not_utf8", "not_json", "not_object", "missing_field", "wrong_schema",
                      "unknown_field", "wrong_type", "not_finite", "bad_sender", "bad_frame", "unknown_command",
@@ -554,6 +556,8 @@ class LinkState(_Declared):
     last_seq: Annotated[Seq | None, BeforeValidator(_plain)]
     last_stamp: Value  # s, simulated
     last_fix_age_wall: Value  # s, wall clock
+    contested: bool = False  # the validator holds the track: two sources in the target's epoch
+    contests: Count = 0  # holds so far
 
 
 class TrackState(_Declared):

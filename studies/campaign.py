@@ -34,6 +34,12 @@ target's (studies.closed_loop.GenuineRecord):
   accepted one); attack_messages / attack_refused / attack_accepted_far: the attacker's messages
   delivered, those rejected (they appear in the reject counters), those accepted while more
   than 5 m off the genuine fix.
+Patient liars (`LIAR_PATTERNS`: patient_liar, patient_liar_altitude): a steady spoofer in the target's
+overheard epoch that republishes each genuine fix first, seq 1 ahead, drifting 0.5 m/s off (north, or
+down only), for 15 s from 30 s. Its lies are as plausible as the truth, so the validator holds the
+track (companion.core.fix_validator, "Two sources") and the pursuer stands off until the liar falls
+silent. Per flight: flagged_after, s from the first lie to the hold; verdict (never "clean").
+Targets: never closer than r_d / 2, flagged within FLAG_LIMIT s, no flight clean, no lie accepted far off.
 Attack targets, every flight: the target kept, never closer than r_d / 2, lockout <= LOCKOUT_LIMIT
 s, every attack message refused (none accepted far off). In SITL (no genuine/foreign split in
 the companion's log) lockout is the longest gap between accepted fixes less one fix period,
@@ -99,6 +105,14 @@ PATTERNS: dict[str, tuple[dict, str]] = {
     "spoof_close_sniffed": ({"spoof_rate_hz": 5.0, "spoof_from": 10.0, "spoof_epoch": "target", "spoof_seq_lead": 1,
                              "spoof_offset": [10.0, 0.0, 0.0]},
                             "the steady spoof 10 m off (plausible), in the target's own epoch, seq 1 ahead, first"),
+    "patient_liar": ({"spoof_rate_hz": 5.0, "spoof_from": ATTACK_AT, "spoof_epoch": "target", "spoof_seq_lead": 1,
+                      "spoof_offset": [0.0, 0.0, 0.0], "spoof_drift": [0.5, 0.0, 0.0], "spoof_duration": 15.0},
+                     "for 15 s from 30 s, each genuine fix republished first, seq 1 ahead, in the target's epoch, "
+                     "drifting 0.5 m/s north"),
+    "patient_liar_altitude": ({"spoof_rate_hz": 5.0, "spoof_from": ATTACK_AT, "spoof_epoch": "target",
+                               "spoof_seq_lead": 1, "spoof_offset": [0.0, 0.0, 0.0], "spoof_drift": [0.0, 0.0, 0.5],
+                               "spoof_duration": 15.0},
+                              "the patient liar drifting 0.5 m/s down only"),
 }
 #: The attack patterns and their targets (module docstring).
 ATTACK_PATTERNS = ("future_seq", "future_stamp", "replay", "target_restart", "spoof_burst", "spoof_steady",
@@ -117,6 +131,10 @@ INTRUDER_PATTERNS: dict[str, tuple[str, str | None, str]] = {
     "mavlink_unsigned_arm": ("arm", None, "SITL --secure: an unsigned arm + takeoff to 10 m on the plant's "
                                           "ground-station port, signing required"),
 }
+#: Liars whose fixes are as plausible as the genuine ones (module docstring): the track is held, not kept.
+LIAR_PATTERNS = ("patient_liar", "patient_liar_altitude")
+#: s: a liar must be flagged (the track held, the monitor suspect) within this long of its first fix.
+FLAG_LIMIT = 2.0
 TARGET_PATTERNS = ("blackout_1s", "blackout_2s", "blackout_5s", "blackout_10s", "loss_30", "bursty_2s")
 
 
@@ -190,7 +208,19 @@ def _fly(task: tuple[str, int, Scenario, VehicleConfig]) -> dict:
             "fixes_accepted": link.get("accepted", math.nan), "fixes_rejected": sum(link.get("rejected", {}).values()),
             "rejected_by_reason": json.dumps(link.get("rejected", {}), sort_keys=True),
             "degraded_entries": sum(1 for _, mode in modes if mode == "degraded"),
-            "reinitialized": result.summary.get("reinitializations", 0)}
+            "reinitialized": result.summary.get("reinitializations", 0),
+            "verdict": result.summary.get("verdict", ""), "clean": result.summary.get("verdict") == "clean",
+            "flagged_after": _flagged_after(link.get("contest_log", []), overrides)}
+
+
+def _flagged_after(contests: list[dict], overrides: dict) -> float:
+    """s from a steady spoofer's start (spoof_from) to the first hold of the track after it; NaN without a spoofer,
+    inf when the track was never held."""
+    if not overrides.get("spoof_rate_hz"):
+        return math.nan
+    start = overrides.get("spoof_from", 0.0)
+    held = [c["start"] - start for c in contests if c["start"] >= start - 1e-9]
+    return min(held) if held else math.inf
 
 
 #: pattern-table figure -> (results.csv column, statistic over the pattern's flights; NaN skipped)
@@ -200,6 +230,7 @@ PATTERN_FIGURES = {
     "reconverge_median": ("reconverge", "median"), "reconverge_max": ("reconverge", "max"),
     "lockout_max": ("lockout", "max"), "attack_messages": ("attack_messages", "sum"),
     "attack_refused": ("attack_refused", "sum"), "attack_accepted_far": ("attack_accepted_far", "sum"),
+    "flagged_after_max": ("flagged_after", "max"), "clean": ("clean", "sum"),
 }
 
 
@@ -216,6 +247,10 @@ def pattern_table(rows: list[dict], desired_range: float) -> list[dict]:
             entry["meets_targets"] = bool(kept == group["flights"] and entry["min_range"] >= 0.5 * desired_range
                                           and entry["lockout_max"] <= LOCKOUT_LIMIT
                                           and entry["attack_refused"] == entry["attack_messages"]
+                                          and entry["attack_accepted_far"] == 0)
+        if name in LIAR_PATTERNS:
+            entry["meets_targets"] = bool(entry["min_range"] >= 0.5 * desired_range
+                                          and entry["flagged_after_max"] <= FLAG_LIMIT and entry["clean"] == 0
                                           and entry["attack_accepted_far"] == 0)
         if name in TARGET_PATTERNS:
             reconverge_max = entry["reconverge_max"]
@@ -249,6 +284,17 @@ def markdown(table: list[dict], sitl_rows: list[dict], scenario: Scenario, seeds
             str(int(e["attack_accepted_far"])), "met" if e["meets_targets"] else "**missed**"))) for e in attacks]
         parts += ["", f"Attacks (targets: kept, min range >= r_d/2, lockout <= {LOCKOUT_LIMIT:g} s, every attack "
                       "message refused and counted):", "", reporting.markdown(lines, headers)]
+    liars = [e for e in table if e["pattern"] in LIAR_PATTERNS]
+    if liars:
+        headers = ["liar", "flights", "target kept", "min range (m)", "flagged after, max (s)", "longest genuine lockout, "
+                   "max (s)", "lies accepted", "flights called clean", "targets"]
+        lines = [dict(zip(headers, (
+            f"{e['pattern']} ({e['description']})", str(e["flights"]), f"{100 * e['kept_share']:.0f} %",
+            f(e["min_range"], 2), f(e["flagged_after_max"], 2), f(e["lockout_max"], 2),
+            str(int(e["attack_messages"] - e["attack_refused"])), str(int(e["clean"])),
+            "met" if e["meets_targets"] else "**missed**"))) for e in liars]
+        parts += ["", f"Patient liars (targets: never closer than r_d/2, the track held within {FLAG_LIMIT:g} s of the "
+                      "first lie, no flight called clean, no lie accepted > 5 m off):", "", reporting.markdown(lines, headers)]
     intruders = [r for r in sitl_rows if r["pattern"] in INTRUDER_PATTERNS]
     sitl_rows = [r for r in sitl_rows if r["pattern"] not in INTRUDER_PATTERNS]
     if intruders:
@@ -303,6 +349,16 @@ def _sitl_case(config: Path, name: str, folder: Path, speed: float, show_progres
                              blackout_windows(overrides), continuous=not overrides.get("blackouts"))
     link = summary["companion"]["link"]
     row = {"pattern": name, **metrics, "fixes_rejected": sum(link["rejected"].values()), "run_folder": str(run_folder)}
+    if name in LIAR_PATTERNS:
+        row.update(_sitl_attack_figures(Path(run_folder), scenario.sensor.rate_hz, scenario.sitl.home))
+        # The companion's validator and the target's fault log share the plant's clock.
+        held = [c["start"] - row["first_attack"] for c in link.get("contest_log", [])
+                if c["start"] >= row["first_attack"] - 1e-6]
+        row["flagged_after"] = min(held) if held else math.inf
+        row["verdict"] = (summary.get("flight") or {}).get("verdict", "")
+        row["meets_targets"] = bool(row["min_range"] >= 0.5 * scenario.guidance.desired_range
+                                    and row["flagged_after"] <= FLAG_LIMIT and row["verdict"] != "clean"
+                                    and row["attack_accepted_far"] == 0)
     if name in ATTACK_PATTERNS:
         row.update(_sitl_attack_figures(Path(run_folder), scenario.sensor.rate_hz, scenario.sitl.home))
         if "restart_at" in overrides:  # the restart's own silence is no rejection
@@ -428,9 +484,11 @@ def _sitl_attack_figures(run_folder: Path, rate_hz: float, home) -> dict:
     heard_until = max((r["sim_time"] for r in received if isinstance(r.get("sim_time"), float)), default=math.inf)
     events = _jsonl(run_folder / "target" / "faults.jsonl")
     attack = 0
+    first_attack = math.inf
     for e in events:
         if str(e.get("kind")).startswith("attack_") and e.get("time", 0.0) <= heard_until:
             attack += 1
+            first_attack = min(first_attack, float(e.get("time", math.inf)))
         elif e.get("kind") == "suppressed" and str(e.get("key")).startswith("attack_") and e["first"] <= heard_until:
             attack += e["count"]
     accepted = [r for r in received if r.get("verdict") == "accepted" and isinstance(r.get("stamp"), float)]
@@ -457,7 +515,7 @@ def _sitl_attack_figures(run_folder: Path, rate_hz: float, home) -> dict:
         distance = np.linalg.norm(link_schema.fix_to_ned(position, home) - link_schema.fix_to_ned(truth, home))
         far += int(not distance <= 5.0)
     return {"lockout": max(0.0, float(np.max(gaps)) - 1.0 / rate_hz), "attack_messages": attack,
-            "attack_accepted_far": far}
+            "attack_accepted_far": far, "first_attack": first_attack}
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -194,6 +194,7 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
                     bearings_out_of_view += 1
                 else:
                     bearings.append(bearing)
+            pipeline.link_contested(time, link.validator.contested)
         elif step % sensor_every == 0:
             # The camera sees through the vehicle's true attitude; outside its field of view no bearing comes.
             bearing = _measure(sensor, time, target.position - np.array(position), np.array(rotation).reshape(3, 3),
@@ -401,7 +402,8 @@ class InProcessLink:
     def summary(self) -> dict:
         return {"offered": self.offered, "genuine": self.genuine.summary(), "delivered": self.delivered, "accepted": self.validator.accepted,
                 "rejected": dict(self.validator.rejected), "faults": dict(self.faults.counters),
-                "reanchors": [(round(stamp, 3), rule) for stamp, rule in self.validator.reanchors]}
+                "reanchors": [(round(stamp, 3), rule) for stamp, rule in self.validator.reanchors],
+                "contests": self.validator.contest_count_total, "contest_log": list(self.validator.contests)}
 
 
 class GenuineRecord:

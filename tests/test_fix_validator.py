@@ -281,3 +281,115 @@ def test_a_liar_in_the_overheard_epoch_who_speaks_first_gets_one_fix_in_then_the
     assert verdicts["genuine"] == [True] * 40
     assert verdicts["liar"] == [True] + ["contested"] * 34
     assert validator.reanchors == [(pytest.approx(1.0), "conflict")]
+
+
+# --------------------------------------------------------------------------- two sources in one epoch
+# The reference is the protocol itself: one publisher sends each seq of its epoch once (copies are
+# byte-identical), in order; so two different fixes under one seq, or fresh fixes refused as out of
+# order at the publishing rate, are two sources, and a stream of one source never is.
+
+
+def _verdict(validator, seq, stamp, position, now, agrees=None):
+    try:
+        validator.check("target-1", seq, stamp, position, epoch=GENUINE_EPOCH, now=now, agrees=agrees)
+        return True
+    except FixRejected as error:
+        return error.reason
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.tuples(st.floats(-7, 7), st.floats(-7, 7)), st.integers(40, 150),
+       st.lists(st.sampled_from(["send", "lose", "duplicate", "swap"]), min_size=150, max_size=150))
+def test_one_publisher_is_never_taken_for_two_whatever_its_link_does(velocity, count, fates):
+    """Losses, duplicates and reordering of single fixes (one swap with the next fix at most every 5 fixes, a
+    link that reorders more loses the stream anyway) never hold the track, and the newest fix always gets in."""
+    velocity = np.array([*velocity, 0.0])
+    messages, last_swap = [], -10
+    k = 0
+    while k < count:
+        fate = fates[k]
+        fix = (k, k * PERIOD, _truth((0.0, 0.0, -20.0), velocity, k * PERIOD))
+        if fate == "swap" and k - last_swap >= 5 and k + 1 < count:
+            following = (k + 1, (k + 1) * PERIOD, _truth((0.0, 0.0, -20.0), velocity, (k + 1) * PERIOD))
+            messages += [following, fix]
+            last_swap, k = k, k + 2
+            continue
+        if fate != "lose":
+            messages += [fix, fix] if fate == "duplicate" else [fix]
+        k += 1
+    validator = FixValidator("target-1")
+    newest = -1
+    for seq, stamp, position in messages:
+        verdict = _verdict(validator, seq, stamp, position, now=stamp + 0.05)
+        if seq > newest:
+            assert verdict is True
+            newest = seq
+        assert not validator.contested
+    assert validator.contest_count_total == 0 and validator.contests == []
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.tuples(st.floats(-1, 1), st.floats(-1, 1), st.floats(-1, 1)), st.integers(1, 8), st.integers(5, 40),
+       st.integers(10, 60))
+def test_a_patient_liar_holds_the_track_within_two_seconds_and_never_steers_it(drift, lead, start, duration):
+    """A liar that republishes each genuine fix it hears first, seq `lead` ahead, with the next stamp, drifting
+    `drift` m/s off: plausible, first and self-consistent. The track is held (every fix refused, `contested`)
+    within 2 s of its first lie, no lie gets in after that, and once it falls silent the genuine fixes are
+    accepted again within contest_clear once the genuine stream has overtaken the liar's last seq (lead fix
+    periods) plus a fix period. agrees: None (the filter cannot tell them apart)."""
+    drift, truth = np.array(drift), lambda t: np.array([5.0 * t, 0.0, -20.0])
+    validator = FixValidator("target-1")
+    first_lie = start * PERIOD
+    held_at = None
+    lies_in_after_hold = 0
+    back_at = None
+    for k in range(start + duration + 30):
+        t = k * PERIOD
+        lying = start <= k < start + duration
+        if lying:
+            lie = truth(t - PERIOD) + drift * (t - first_lie)
+            accepted = _verdict(validator, k - 1 + lead, t, lie, now=t) is True
+            lies_in_after_hold += int(accepted and held_at is not None)
+        genuine = _verdict(validator, k, t, truth(t), now=t)
+        if validator.contested and held_at is None:
+            held_at = t
+        if k >= start + duration and genuine is True and back_at is None:
+            back_at = t
+    assert held_at is not None and held_at - first_lie <= 2.0
+    assert lies_in_after_hold == 0
+    assert back_at is not None
+    assert back_at - (start + duration) * PERIOD <= validator.contest_clear + (lead + 1) * PERIOD + 1e-9
+    assert validator.contests[0]["proof"] in ("duplicate_seq", "stale_rate") and validator.contests[-1]["end"] is not None
+
+
+def test_one_colliding_message_does_not_hold_the_track():
+    """No single message may lock the genuine target out: one forged fix under the next seq gets in, the genuine
+    fix under that seq is refused stale, and the next genuine fix is accepted; no hold."""
+    validator = FixValidator("target-1")
+    truth = lambda t: np.array([5.0 * t, 0.0, -20.0])  # noqa: E731
+    for k in range(5):
+        assert _verdict(validator, k, k * PERIOD, truth(k * PERIOD), now=k * PERIOD) is True
+    assert _verdict(validator, 5, 1.0, truth(0.8) + [1.0, 0.0, 0.0], now=1.0) is True  # the forgery
+    assert _verdict(validator, 5, 1.0, truth(1.0), now=1.0) == "stale_seq"
+    assert _verdict(validator, 6, 1.2, truth(1.2), now=1.2) is True
+    assert not validator.contested and validator.contest_count_total == 0
+
+
+def test_the_filter_confirms_the_genuine_source_when_it_can_tell_them_apart():
+    """A liar far enough off for the predicted line of sight to tell (stub: agrees within 1 m of the truth) is
+    refuted at each proof: the genuine fix takes the reference back (rule "conflict"), no hold, and no two
+    genuine fixes in a row are refused. (A liar this close, within jump_margin, still gets its fixes in between:
+    docs/guide/faults.md, "what it cannot defend".)"""
+    truth = lambda t: np.array([5.0 * t, 0.0, -20.0])  # noqa: E731
+    agrees = lambda position, stamp: bool(np.linalg.norm(position - truth(stamp)) < 1.0)  # noqa: E731
+    validator = FixValidator("target-1")
+    verdicts = []
+    for k in range(20):
+        t = k * PERIOD
+        if k >= 5:
+            _verdict(validator, k, t, truth(t - PERIOD) + [3.0, 0.0, 0.0], now=t, agrees=agrees)
+        verdicts.append(_verdict(validator, k, t, truth(t), now=t, agrees=agrees))
+    assert not validator.contested and validator.contest_count_total == 0
+    refused_runs = "".join("." if v is True else "x" for v in verdicts).split(".")
+    assert max(len(run) for run in refused_runs) <= 1  # never two genuine fixes in a row refused
+    assert "conflict" in {rule for _, rule in validator.reanchors}

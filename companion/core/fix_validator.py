@@ -163,13 +163,40 @@ class FixValidator:
     bound, no longer interleaves with the genuine track. The liar's first fix, accepted before
     the conflict showed, is the price.
 
+    Two sources, whatever they say: a patient liar republishes each genuine fix a little ahead
+    (seq + 1, the next stamp, a slow drift) and is plausible, first and self-consistent. A single
+    publisher never sends two different fixes under one seq of one epoch, and never has its fresh
+    fixes refused as out of order at the rate it publishes. So either, for fixes plausible against the
+    reference (a far-off one cannot take the track and is refused as before), is proof of a second source
+    in the epoch: a fix whose seq an accepted fix of the reference's epoch already carried with
+    another stamp or position (``duplicate_seq``, twice within contest_window s, so that no single
+    message holds the track; an exact copy, a duplicate or a replay, proves nothing), or at least contest_count fresh, out-of-order fixes (not copies) within contest_window
+    s that are at least contest_share of the fixes accepted meanwhile (``stale_rate``). On proof
+    the filter arbitrates as above; when it cannot tell the two apart (both agree with the
+    prediction: the lie is close), the track is held: every fix is refused ``contested``, from
+    every epoch, so the estimator is fed by neither source and the pipeline flies its safe
+    standoff. The hold ends when one source is confirmed: by the prediction (a new proof that the
+    filter can arbitrate), by the other going silent (contest_clear s of fresh, in-order fixes
+    with no new proof: the survivor becomes the reference, rule "contest_cleared"), or by the
+    held epoch falling silent for silence s. Authentication (TLS, upstream of this check) is the
+    third confirmation: with it an outsider cannot speak at all. On a plain link any peer that
+    hears the target can therefore hold the track (the pursuer stands off), but not steer it.
+    `contested` says whether the track is held now; `contests` lists the holds.
+
     target_sender: expected sender id. max_target_speed: m/s. jump_margin: m. policy:
     freshness and order (FreshnessPolicy). silence: s. reanchor_after: fixes. epoch_switch: s.
+    contest_window: s; contest_count: fixes; contest_share: dimensionless; contest_clear: s.
     """
+
+    #: Accepted fixes of the reference's epoch remembered for the duplicate_seq proof.
+    SEEN = 256
+    #: Holds kept in `contests` (the count goes on in `contest_count_total`).
+    MAX_CONTESTS = 100
 
     def __init__(self, target_sender: str, max_target_speed: float = 30.0, jump_margin: float = 5.0,
                  policy: FreshnessPolicy | None = None, silence: float = 2.0, reanchor_after: int = 3,
-                 max_candidates: int = 4, epoch_switch: float = 0.5) -> None:
+                 max_candidates: int = 4, epoch_switch: float = 0.5, contest_window: float = 2.0,
+                 contest_count: int = 5, contest_share: float = 0.8, contest_clear: float = 2.0) -> None:
         self.target_sender = target_sender
         self.max_target_speed = float(max_target_speed)
         self.jump_margin = float(jump_margin)
@@ -192,6 +219,24 @@ class FixValidator:
         self._previous: tuple[int, float] = (-1, -math.inf)  # (seq, stamp) accepted before the reference, same epoch
         self._previous_position: np.ndarray | None = None
         self.contested_speed = 10.0  # m/s: velocity change allowed per second of extrapolation in a contested epoch
+        if not (contest_window > 0 and contest_count >= 1 and 0 <= contest_share <= 1 and contest_clear > 0):
+            raise ValueError("need contest_window > 0, contest_count >= 1, 0 <= contest_share <= 1, contest_clear > 0")
+        self.contest_window = float(contest_window)
+        self.contest_count = int(contest_count)
+        self.contest_share = float(contest_share)
+        self.contest_clear = float(contest_clear)
+        self._seen: collections.OrderedDict[int, tuple[float, np.ndarray]] = collections.OrderedDict()
+        self._stale: collections.deque[float] = collections.deque()  # clock of fresh out-of-order fixes (not copies)
+        self._collisions: collections.deque[float] = collections.deque()  # clock of duplicate_seq collisions
+        self._accepts: collections.deque[float] = collections.deque()  # clock of accepted fixes, same window
+        self._hold: _Hold | None = None
+        self.contests: list[dict] = []  # {"start", "end" (None while held), "proof", "ended"} in the clock of `now`
+        self.contest_count_total = 0
+
+    @property
+    def contested(self) -> bool:
+        """Whether the track is held now: two sources proven in one epoch and neither confirmed (class docstring)."""
+        return self._hold is not None
 
     @property
     def epochs_held(self) -> int:
@@ -226,9 +271,16 @@ class FixValidator:
         if sender != self.target_sender:
             raise FixRejected("wrong_sender", f"sender {sender!r}, expected {self.target_sender!r}")
         key = (sender, epoch)
+        clock = stamp if now is None else now
+        if self._hold is not None:
+            return self._while_held(key, epoch, seq, stamp, position, now, clock, agrees)
         try:
             held = self._order.check(key, seq, stamp, now)
         except FixRejected as error:
+            if error.reason in ("stale_seq", "stale_stamp") and epoch == self.last_epoch:
+                proof = self._second_source(seq, stamp, position, clock)
+                if proof is not None:
+                    return self._contest(key, error, proof, seq, stamp, position, now, clock, agrees)
             if error.reason in ("stale_seq", "stale_stamp") and self._conflicts(epoch, seq, stamp, position):
                 return self._arbitrate(key, error, seq, stamp, position, now, agrees)
             raise
@@ -252,9 +304,128 @@ class FixValidator:
             reanchor = True
         self.accepted += 1
         self._order.accept(key, seq, stamp)
-        self._last_accept_time = stamp if now is None else now
+        self._last_accept_time = clock
         if reanchor or self.last_stamp is None or stamp > self.last_stamp:  # the reference never goes back in time
             self._set_reference(epoch, seq, stamp, position)
+        self._remember(epoch, seq, stamp, position, clock)
+        return position
+
+    # ----------------------------------------------------------------------------- two sources in one epoch
+
+    def _remember(self, epoch: int | None, seq: int, stamp: float, position: np.ndarray, clock: float) -> None:
+        """Keep an accepted fix of the reference's epoch for the duplicate_seq proof (SEEN of them)."""
+        if epoch != self.last_epoch:
+            return
+        self._seen[seq] = (stamp, position)
+        self._seen.move_to_end(seq)
+        while len(self._seen) > self.SEEN:
+            self._seen.popitem(last=False)
+        self._accepts.append(clock)
+        _trim(self._accepts, clock - self.contest_window)
+
+    def _second_source(self, seq: int, stamp: float, position: np.ndarray, clock: float) -> tuple | None:
+        """A fresh, out-of-order fix of the reference's epoch: the proof it gives of a second source, or None.
+
+        ("duplicate_seq", stamp, position of the accepted fix it collides with) or ("stale_rate", the reference's
+        stamp and position): see the class docstring."""
+        if self.last_position is None or not self._plausible(position, stamp, self.last_position, self.last_stamp):
+            return None  # a fix that could not be the target's anyway: refused as it is, it cannot take the track
+        seen = self._seen.get(seq)
+        if seen is not None:
+            if _same_fix(seen, stamp, position):
+                return None  # a copy (duplicate, replay): one source
+            # One collision is one message, which alone must not hold the genuine track: the second within
+            # contest_window is the proof.
+            self._collisions.append(clock)
+            _trim(self._collisions, clock - self.contest_window)
+            return ("duplicate_seq", seen[0], seen[1]) if len(self._collisions) >= 2 else None
+        if any(_same_fix(other, stamp, position) for other in self._seen.values()):
+            return None  # a replay of an accepted fix under another seq is no second publisher either
+        self._stale.append(clock)
+        _trim(self._stale, clock - self.contest_window)
+        _trim(self._accepts, clock - self.contest_window)
+        if len(self._stale) >= max(self.contest_count, self.contest_share * len(self._accepts)):
+            return ("stale_rate", self.last_stamp, self.last_position)
+        return None
+
+    def _contest(self, key: tuple, error: FixRejected, proof: tuple, seq: int, stamp: float, position: np.ndarray,
+                 now: float | None, clock: float, agrees: Agreement | None) -> np.ndarray:
+        """Proof of two sources: the filter arbitrates (the new fix replaces the reference, rule "conflict"; or the
+        reference stays and the new one is refused), else the track is held (class docstring)."""
+        rule, other_stamp, other_position = proof
+        verdict = _arbitration(agrees, position, stamp, other_position, other_stamp)
+        self._order.contested.add(key)  # from now on fixes far off the reference's track are refused
+        if verdict == "new":
+            self._take(key, seq, stamp, position, clock, "conflict")
+            return position
+        if verdict == "reference":
+            raise FixRejected("contested", f"epoch {key[1]} carries two sources ({rule}); the filter sides with the reference")
+        self._hold = _Hold(key, clock, clock, clock, (seq, stamp, position), {seq: (stamp, position)})
+        self.contest_count_total += 1
+        self.contests.append({"start": clock, "end": None, "proof": rule, "ended": None})
+        del self.contests[:-self.MAX_CONTESTS]
+        raise FixRejected("contested", f"epoch {key[1]} carries two sources ({rule}); the track is held")
+
+    def _take(self, key: tuple, seq: int, stamp: float, position: np.ndarray, clock: float, rule: str) -> None:
+        """Make the fix the reference (a confirmed source) and accept it."""
+        self._order.reset(key, seq, stamp)
+        if key not in self._order.states:
+            self._order.accept(key, seq, stamp)
+        self.reanchored += 1
+        self.reanchors.append((stamp, rule))
+        self.accepted += 1
+        self._last_accept_time = clock
+        self._seen.clear()
+        self._stale.clear()
+        self._collisions.clear()
+        self._previous, self._previous_position = (-1, -math.inf), None
+        self.last_seq, self.last_stamp, self.last_position, self.last_epoch = seq, stamp, position, key[1]
+        self._remember(key[1], seq, stamp, position, clock)
+
+    def _end_hold(self, clock: float, how: str) -> None:
+        self._hold = None
+        if self.contests and self.contests[-1]["end"] is None:
+            self.contests[-1].update(end=clock, ended=how)
+
+    def _while_held(self, key: tuple, epoch: int | None, seq: int, stamp: float, position: np.ndarray,
+                    now: float | None, clock: float, agrees: Agreement | None) -> np.ndarray:
+        """A fix while the track is held: watched for a new proof, refused until one source is confirmed."""
+        hold = self._hold
+        if clock - hold.last_seen >= self.silence:
+            self._end_hold(clock, "silence")  # the held epoch fell silent: the usual rules again
+            return self._check(key[0], epoch, seq, stamp, position, now, agrees)
+        policy = self.policy
+        if now is not None and stamp > now + policy.max_future_skew:
+            raise FixRejected("future_stamp", f"stamp {stamp:.3f} s is {stamp - now:.3f} s ahead of now")
+        if now is not None and stamp < now - policy.max_age:
+            raise FixRejected("too_old", f"stamp {stamp:.3f} s is {now - stamp:.3f} s old")
+        if key != hold.key:
+            raise FixRejected("contested", f"epoch {epoch} while the track is held (two sources in epoch {hold.key[1]})")
+        hold.last_seen = clock
+        last_seq, last_stamp, last_position = hold.latest
+        other = hold.seen.get(seq)
+        if other is not None and _same_fix(other, stamp, position):
+            raise FixRejected("contested", f"a copy of seq {seq} while the track is held")
+        if (other is not None or seq <= last_seq or stamp <= last_stamp
+                or not self._plausible(position, stamp, last_position, last_stamp)):
+            hold.last_evidence = clock  # the second source still speaks (out of order, or off the other's track)
+            other_stamp, other_position = other if other is not None else (last_stamp, last_position)
+            if _arbitration(agrees, position, stamp, other_position, other_stamp) == "new":
+                self._end_hold(clock, "prediction")
+                self._take(key, seq, stamp, position, clock, "conflict")
+                return position
+            raise FixRejected("contested", f"epoch {epoch} still carries two sources; the track is held")
+        if seq - last_seq > policy.max_rate_hz * (stamp - last_stamp) + policy.seq_slack:
+            raise FixRejected("seq_jump", f"seq {last_seq} -> {seq} in {stamp - last_stamp:.3f} s")
+        hold.latest = (seq, stamp, position)
+        hold.seen[seq] = (stamp, position)
+        if len(hold.seen) > self.SEEN:
+            hold.seen.pop(next(iter(hold.seen)))
+        if clock - hold.last_evidence < self.contest_clear:
+            raise FixRejected("contested", f"epoch {epoch} carried two sources {clock - hold.last_evidence:.2f} s ago; "
+                                           "the track is held")
+        self._end_hold(clock, "other_silent")
+        self._take(key, seq, stamp, position, clock, "contest_cleared")
         return position
 
     def _set_reference(self, epoch: int | None, seq: int, stamp: float, position: np.ndarray) -> None:
@@ -292,7 +463,9 @@ class FixValidator:
         self.reanchors.append((stamp, "conflict"))
         self.accepted += 1
         self._last_accept_time = stamp if now is None else now
+        self._seen.pop(self.last_seq, None)  # the refuted fix proves nothing more
         self.last_seq, self.last_stamp, self.last_position = seq, stamp, position  # the previous fix stays
+        self._remember(self.last_epoch, seq, stamp, position, self._last_accept_time)
         return position
 
     def _candidate(self, epoch: int | None, seq: int, stamp: float, position: np.ndarray, now: float | None,
@@ -315,6 +488,43 @@ class FixValidator:
         if agrees is not None and agrees(position, stamp) is True and agrees(self.last_position, self.last_stamp) is False:
             return "prediction"
         return None
+
+
+@dataclass
+class _Hold:
+    """A held track (FixValidator, "Two sources"): the held (sender, epoch), clock s of its start, of the last proof
+    and of the last fix heard, the newest in-order fix heard (seq, stamp, position) and the fixes heard by seq."""
+
+    key: tuple
+    start: float
+    last_evidence: float
+    last_seen: float
+    latest: tuple
+    seen: dict
+
+
+def _same_fix(seen: tuple[float, np.ndarray], stamp: float, position: np.ndarray) -> bool:
+    """Whether (stamp s, NED position m) is the remembered fix itself (a copy), within float noise."""
+    return abs(seen[0] - stamp) <= 1e-9 and bool(np.all(np.abs(seen[1] - position) <= 1e-6))
+
+
+def _trim(times: collections.deque, before: float) -> None:
+    while times and times[0] < before:
+        times.popleft()
+
+
+def _arbitration(agrees: Agreement | None, position: np.ndarray, stamp: float, other_position: np.ndarray,
+                 other_stamp: float) -> str | None:
+    """"new" when the filter's prediction agrees with the new fix and not with the other, "reference" when the
+    reverse, None when it cannot tell them apart (or cannot say)."""
+    if agrees is None:
+        return None
+    new, old = agrees(position, stamp), agrees(other_position, other_stamp)
+    if new is True and old is False:
+        return "new"
+    if new is False and old is True:
+        return "reference"
+    return None
 
 
 class CommandValidator:

@@ -36,6 +36,10 @@ Indicators, evaluated at every estimator correction k (a bearing used):
   lambda~^T (p^_T - p) <= 0 with lambda~ the measured bearing, or the estimator had to
   restart on the bearing because its prediction was behind it (CorrectionReport.reinitialized).
 - ``range_implausible``: r^ outside [min_range, max_range] (m).
+- ``link_contested``: the target link's fix validator holds the track because two sources speak in
+  the target's epoch (companion.core.fix_validator, "Two sources"): no fix feeds the estimator until
+  one is confirmed, so the estimate only coasts. Told by the harness (`link_contested`), counted at
+  once and kept raised while the hold lasts; the flight is not clean even when the estimate stayed good.
 - ``range_unobservable``: the pursuer has been slower than `slow_speed` for
   `unobservable_time` s (and, when `min_fim_eigenvalue` is set, the windowed FIM's smallest
   eigenvalue, 1/m^2, eq. (7), stayed below it meanwhile). HNG's weave (eq. (14)) scales with
@@ -82,7 +86,7 @@ class HealthState(str, enum.Enum):
 
 
 #: Every reason the monitor can give, in the order it reports them.
-REASONS = ("nis", "range_uncertain", "behind_sensor", "range_implausible", "range_unobservable")
+REASONS = ("nis", "range_uncertain", "behind_sensor", "range_implausible", "range_unobservable", "link_contested")
 
 
 
@@ -312,6 +316,25 @@ class HealthMonitor:
         self.report = HealthReport(0.0, HealthState.OK)
         self.transitions: list[tuple[float, HealthState, tuple[str, ...]]] = []
         self._episode: set[str] = set()
+        self._link_contested = False
+
+    def link_contested(self, time: float, contested: bool) -> HealthReport:
+        """The link's fix validator holds the track (contested True) or no longer does, at `time` s. While it
+        holds, no correction comes to update the verdict, so the monitor says SUSPECT (reason link_contested) at
+        once; once the hold ends, OK comes back clear_after s later at the earliest, as for any reason."""
+        self._link_contested = bool(contested)
+        self._last_raised = time
+        if contested:
+            self._since.setdefault("link_contested", time)
+            reasons = self._hold(time, ["link_contested"])
+            report = self.report
+            if report.state is not HealthState.SUSPECT:
+                self.transitions.append((time, HealthState.SUSPECT, reasons))
+                self._episode.clear()
+            self._episode.update(reasons)
+            self.report = _health_report(time, HealthState.SUSPECT, reasons, ("link_contested",), report.nis,
+                                         report.nis_ratio, report.range_estimate, report.relative_range_std)
+        return self.report
 
     @property
     def state(self) -> HealthState:
@@ -405,6 +428,8 @@ class HealthMonitor:
         else:
             self._slow_unobservable_since = None
 
+        if self._link_contested:
+            raised.append("link_contested")
         reasons = self._hold(time, raised)
         if raised:
             self._last_raised = time
@@ -435,7 +460,7 @@ class HealthMonitor:
             if reason not in self._since:
                 continue
             # range_unobservable already waited unobservable_time; cheirality needs no persistence.
-            wait = 0.0 if reason in ("behind_sensor", "range_unobservable") else self.config.flag_after
+            wait = 0.0 if reason in ("behind_sensor", "range_unobservable", "link_contested") else self.config.flag_after
             if time - self._since[reason] >= wait:
                 held.append(reason)
         return tuple(held)

@@ -298,6 +298,7 @@ class FollowingPipeline:
         self.weaving = True
         self.cooperating = False
         self.law_changes: list[tuple[float, str]] = []
+        self.link_held = False
         self.envelope_record = EnvelopeRecord()
 
     @property
@@ -515,8 +516,25 @@ class FollowingPipeline:
         angle = float(np.arccos(cosine))  # numpy's arccos (its SIMD routine where it has one)
         return angle <= self.dropout.gate_sigma * angular_std
 
+    def link_contested(self, time: float, contested: bool) -> None:
+        """The target link's fix validator holds the track (two sources in the target's epoch, neither confirmed:
+        companion.core.fix_validator) or no longer does, at `time` s; both harnesses call it when that changes.
+        While held no bearing comes, the health monitor says SUSPECT (link_contested) and the pursuer flies
+        the safe behaviour (TrackMode.DEGRADED: the dropout policy's safe range on the predicted line of sight)
+        at once rather than coast on an estimate the first lies may have touched."""
+        contested = bool(contested)
+        if contested == self.link_held:
+            return
+        self.link_held = contested
+        self._health_report = self.health.link_contested(time, contested)
+        if self._engaged_at is not None:
+            self._update_mode(time)
+
     def _update_mode(self, time: float) -> None:
         if self._last_bearing_time is None:
+            return
+        if self.link_held:
+            self._set_mode(time, TrackMode.DEGRADED)
             return
         gap = time - self._last_bearing_time
         estimate = self.estimator.estimate

@@ -6,7 +6,8 @@ from typing import Annotated, Literal, get_args
 
 from pydantic import Field, model_validator
 
-from interfaces.scenario.common import FROM_ARRAY, Duration, NonNegativeDuration, Position, Probability, _Strict
+from interfaces.scenario.common import (FROM_ARRAY, Duration, NonNegativeDuration, Position, Probability, Velocity,
+                                        _Strict)
 
 
 SenderName = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")]
@@ -104,7 +105,8 @@ class FaultsConfig(_Strict):
     again, back to back. restart_at: the genuine publisher restarts (silent restart_gap_s,
     then a new epoch, seq from 0). spoof_burst_at: spoof_burst_count fixes as the target,
     spoof_offset m (NED) off, 20 ms apart. spoof_rate_hz (> 0: on, from spoof_from s): a
-    steady spoofer as the target at that rate, spoof_offset m off the genuine track. The
+    steady spoofer as the target at that rate, spoof_offset m off the genuine track (plus spoof_drift m/s x the
+    time since spoof_from). The
     spoofer's seq is the genuine one + spoof_seq_lead; its epoch is its own (spoof_epoch =
     "own") or the genuine one it overheard ("target").
     """
@@ -138,7 +140,12 @@ class FaultsConfig(_Strict):
     spoof_burst_count: Annotated[int, Field(ge=1, le=1000)] = 3
     spoof_rate_hz: Annotated[float, Field(ge=0.0, le=MAX_ATTACK_RATE_HZ)] = 0.0
     spoof_from: NonNegativeDuration = 0.0
+    spoof_duration: Duration | None = None
+    """s the steady spoofer speaks from spoof_from (None: to the end of the flight)."""
     spoof_offset: Position = (30.0, 0.0, 0.0)
+    spoof_drift: Velocity = (0.0, 0.0, 0.0)
+    """m/s, NED: the steady spoofer's offset grows by this much per second from spoof_from (a patient liar:
+    spoof_offset 0, a slow drift, spoof_epoch "target", spoof_seq_lead 1)."""
     spoof_seq_lead: Annotated[int, Field(ge=0, le=2**62)] = 2**40
     spoof_epoch: Literal["own", "target"] = "own"
     mavlink: MavlinkFaultsConfig = MavlinkFaultsConfig()

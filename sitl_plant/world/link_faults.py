@@ -96,8 +96,9 @@ once; one event per message, kind ``attack_<name>``). They need a fix that decod
 * ``spoof_burst_at``: ``spoof_burst_count`` fixes as the target's sender, at the latest
   genuine position + ``spoof_offset`` (NED m), stamped now + 20 ms x k.
 * ``spoof_rate_hz`` > 0: a steady spoofer as the target's sender from scenario time
-  ``spoof_from`` on, at ticks k / spoof_rate_hz of simulated time: the latest genuine
-  position + ``spoof_offset``, the tick as stamp (a plausible-looking track beside the real one).
+  ``spoof_from`` on (for ``spoof_duration`` s, or to the end), at ticks k / spoof_rate_hz of simulated time: the latest genuine
+  position + ``spoof_offset`` (+ ``spoof_drift`` m/s x the time since ``spoof_from``: a patient liar
+  drifting slowly off the genuine track), the tick as stamp (a plausible-looking track beside the real one).
 
 The spoofer's seq is the latest genuine seq + ``spoof_seq_lead`` (then +1 per message at
 least); its epoch is its own (``spoof_epoch = "own"``, drawn once) or the genuine one it
@@ -338,6 +339,8 @@ class LinkFaults:
         self._spoof_next: int | None = None
         # spoof_offset as np.array gives it (float64; an integer component converted as numpy converts it), as floats
         self._spoof_offset = tuple(np.array(config.spoof_offset).astype(float).tolist())
+        drift = tuple(float(v) for v in config.spoof_drift)
+        self._spoof_drift = drift if any(drift) else None
 
     @property
     def enabled(self) -> bool:
@@ -650,11 +653,15 @@ class LinkFaults:
     def _spoofed(self, stamp: float) -> TargetFix:
         """The spoofer's fix stamped `stamp` (s): the latest genuine fix moved by spoof_offset, as the target."""
         config, template = self.config, self._attack_template
+        offset = self._spoof_offset
+        if self._spoof_drift is not None:  # a drifting liar: spoof_offset + spoof_drift x (time since spoof_from)
+            elapsed = max(stamp - (self._scenario_offset + config.spoof_from), 0.0)
+            offset = tuple(o + d * elapsed for o, d in zip(offset, self._spoof_drift))
         if template.frame == "geodetic":
-            position = ned_to_geodetic(np.array(config.spoof_offset), template.position)
+            position = ned_to_geodetic(np.array(offset), template.position)
         else:
             # np.array(template.position) + np.array(spoof_offset), element by element: the same float64 sums
-            north, east, down = self._spoof_offset
+            north, east, down = offset
             first, second, third = template.position
             position = (first + north, second + east, third + down)
         if config.spoof_epoch == "target":
@@ -676,7 +683,10 @@ class LinkFaults:
             return
         if self._spoof_next is None:
             self._spoof_next = math.ceil(max(now, start) * rate - TIME_TOLERANCE * rate)
+        duration = self.config.spoof_duration
         while self._spoof_next / rate <= now + TIME_TOLERANCE:
             tick = max(self._spoof_next / rate, 0.0)
+            if duration is not None and tick > start + duration + TIME_TOLERANCE:
+                return  # the spoofer has gone quiet
             self._spoof_next += 1
             self._send_attack(now, "attack_spoof", self._spoofed(tick), tick)
