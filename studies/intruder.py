@@ -19,6 +19,9 @@ time for stamps, m NED for offsets):
 * ``future-stamp``: one fix stamped 1e6 s after the target's latest fix.
 * ``replay``: genuine fix payloads recorded earlier, re-sent verbatim.
 * ``burst``: 3 back-to-back fixes 30 m off the target, seq far (1e6) ahead.
+* ``patient-liar`` / ``patient-liar-altitude``: the steady spoof in the genuine epoch, seq 1 ahead, its offset
+  drifting 0.5 m/s north (or down) without bound: each lie as plausible as the truth and first. The companion
+  should hold the track (every fix refused ``contested``, health ``link_contested``) and stand off.
 * ``steady-spoof``: a spoofed fix at the fix rate for a duration, on a track drifting away
   from the target (1 m/s up to 30 m) with the next seqs.
 * ``abort``: an unauthenticated ``abort`` on ``bof/companion/<id>/command``.
@@ -864,7 +867,11 @@ def _delta(after: dict, before: dict) -> dict:
 
 # --- command line ----------------------------------------------------------------------------
 
-ZENOH_ATTACKS = ("future-seq", "future-stamp", "replay", "burst", "steady-spoof", "abort", "unknown-peer", "zenoh-flood")
+#: The patient liars: a steady spoof in the genuine epoch, seq 1 ahead, 10 ms after each genuine fix it hears, its
+#: offset drifting at this velocity (NED m/s) without bound: as plausible as the truth, and first.
+PATIENT_LIARS = {"patient-liar": (0.5, 0.0, 0.0), "patient-liar-altitude": (0.0, 0.0, 0.5)}
+ZENOH_ATTACKS = ("future-seq", "future-stamp", "replay", "burst", "steady-spoof", *PATIENT_LIARS, "abort", "unknown-peer",
+                 "zenoh-flood")
 MAVLINK_ATTACKS = ("arm", "mavlink-flood")
 
 
@@ -958,6 +965,10 @@ def run_zenoh_attack(args: AttackOptions, endpoints: SitlEndpoints) -> dict:
                                    epoch=args.epoch)
             elif args.attack == "steady-spoof":
                 sent = spoof_steady(session, observer.latest_genuine, rate_hz=args.rate or fix_rate, duration=args.duration,
+                                    seq_lead=args.seq_lead if args.seq_lead is not None else 1, epoch=args.epoch)
+            elif args.attack in PATIENT_LIARS:
+                sent = spoof_steady(session, observer.latest_genuine, rate_hz=args.rate or fix_rate, duration=args.duration,
+                                    drift=PATIENT_LIARS[args.attack], max_offset=math.inf,
                                     seq_lead=args.seq_lead if args.seq_lead is not None else 1, epoch=args.epoch)
             elif args.attack == "abort":
                 sent = send_abort(session, companion_id, stamp=ref.stamp)

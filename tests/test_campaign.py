@@ -75,6 +75,25 @@ def test_every_attack_leaves_the_flight_kept_and_the_intruder_refused_and_counte
     assert row["reanchors"] == slipped  # the conflict rule, once
 
 
+@pytest.mark.parametrize("name", campaign.LIAR_PATTERNS)
+def test_a_patient_liar_holds_the_track_and_the_flight_is_not_called_clean(name, scenario_path):
+    """The patient liar (republishing each genuine fix first, seq 1 ahead, drifting 0.5 m/s, for 15 s): flagged
+    (the track held) within 2 s of its first lie, never closer than r_d / 2, no lie accepted far off, the pursuer
+    standing off (degraded) meanwhile, the flight's verdict not clean, and the genuine fixes accepted again once
+    it falls silent."""
+    scenario, vehicle = load_scenario(scenario_path("constant_velocity"))
+    overrides = campaign.PATTERNS[name][0]
+    row = campaign._fly((name, 2, campaign.with_faults(scenario, overrides), vehicle))
+    assert row["flagged_after"] <= campaign.FLAG_LIMIT
+    assert row["min_range"] >= 0.5 * scenario.guidance.desired_range
+    assert row["attack_accepted_far"] == 0 and row["verdict"] != "clean"
+    assert row["degraded_entries"] >= 1
+    # held from the first proof to 2 s after the liar's last fix (contest_clear), then the genuine target again
+    assert row["lockout"] <= overrides["spoof_duration"] + 2.0 + 0.5
+    assert row["kept"]
+    assert json.loads(row["rejected_by_reason"]).get("contested", 0) >= 5 * overrides["spoof_duration"]
+
+
 @pytest.mark.parametrize("speed", ["0", "nan", "100"])
 def test_a_sitl_speed_bof_sitl_would_refuse_is_refused_before_any_flight(tmp_path, capsys, speed):
     # --sitl-speed 0 used to fly every in-process flight, then die dividing by zero in the SITL case and lose the report

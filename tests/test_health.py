@@ -142,6 +142,22 @@ def test_hysteresis_needs_persistence_to_flag_and_quiet_to_clear():
     assert [state for _, state, _ in monitor.transitions] == [HealthState.SUSPECT, HealthState.OK]
 
 
+def test_a_held_link_is_suspect_at_once_and_clears_only_clear_after_its_end():
+    """link_contested: told by the harness, it needs no correction to flag (none comes while the track is held)
+    and no persistence; OK comes back clear_after s after the hold ends, as for any reason."""
+    monitor = HealthMonitor(HealthConfig(clear_after=3.0))
+    for k in range(10):
+        assert monitor.update(k / 10, **FRONT).state is HealthState.OK
+    report = monitor.link_contested(1.0, True)
+    assert report.state is HealthState.SUSPECT and report.reasons == ("link_contested",)
+    assert monitor.transitions[-1][:2] == (1.0, HealthState.SUSPECT)
+    monitor.link_contested(4.0, False)
+    states = [(t, monitor.update(t, **FRONT).state) for t in np.arange(4.1, 9.0, 0.1)]
+    assert all(state is HealthState.SUSPECT for t, state in states if t < 6.95)
+    assert all(state is HealthState.OK for t, state in states if t > 7.05)
+    assert "link_contested" not in monitor.report.reasons
+
+
 def test_the_payload_reasons_are_the_monitors():
     assert link.HEALTH_REASONS == REASONS
 

@@ -460,8 +460,9 @@ class HealthMonitor:
             if reason not in self._since:
                 continue
             # range_unobservable already waited unobservable_time; cheirality needs no persistence.
-            wait = 0.0 if reason in ("behind_sensor", "range_unobservable", "link_contested") else self.config.flag_after
-            if time - self._since[reason] >= wait:
+            wait = 0.0 if reason in ("behind_sensor", "range_unobservable") else self.config.flag_after
+            # link_contested counts at once, also at a correction whose bearing is stamped before the hold began
+            if reason == "link_contested" or time - self._since[reason] >= wait:
                 held.append(reason)
         return tuple(held)
 
