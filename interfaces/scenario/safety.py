@@ -65,7 +65,8 @@ class SafetyConfig(_Strict):
     tilt_margin_deg: Annotated[float, Field(ge=0.0, lt=20.0)] = 3.0
 
 
-HealthReasonName = Literal["nis", "range_uncertain", "behind_sensor", "range_implausible", "range_unobservable"]
+HealthReasonName = Literal["nis", "range_uncertain", "behind_sensor", "range_implausible", "range_unobservable",
+                           "link_contested"]
 
 
 class HealthSection(_Strict):
