@@ -25,6 +25,7 @@ import time
 def _burn(parent: int) -> None:
     """Spin until the parent is gone (checked every ~0.2 s of work)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides when burners stop
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # (the parent's handler came with the fork)
     value = 1.0
     while os.getppid() == parent:
         deadline = time.monotonic() + 0.2
