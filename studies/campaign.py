@@ -210,16 +210,14 @@ def _fly(task: tuple[str, int, Scenario, VehicleConfig]) -> dict:
             "degraded_entries": sum(1 for _, mode in modes if mode == "degraded"),
             "reinitialized": result.summary.get("reinitializations", 0),
             "verdict": result.summary.get("verdict", ""), "clean": result.summary.get("verdict") == "clean",
-            "flagged_after": _flagged_after(link.get("contest_log", []), overrides)}
+            "flagged_after": (_flagged_after(link.get("contest_log", []), overrides.get("spoof_from", 0.0))
+                              if overrides.get("spoof_rate_hz") else math.nan)}
 
 
-def _flagged_after(contests: list[dict], overrides: dict) -> float:
-    """s from a steady spoofer's start (spoof_from) to the first hold of the track after it; NaN without a spoofer,
-    inf when the track was never held."""
-    if not overrides.get("spoof_rate_hz"):
-        return math.nan
-    start = overrides.get("spoof_from", 0.0)
-    held = [c["start"] - start for c in contests if c["start"] >= start - 1e-9]
+def _flagged_after(contests: list[dict], start: float) -> float:
+    """s from an attack's start (in the validator's clock) to the first hold of the track at or after it (the
+    validator's contest log); inf when the track was never held."""
+    held = [c["start"] - start for c in contests if c["start"] >= start - 1e-6]
     return min(held) if held else math.inf
 
 
@@ -352,9 +350,7 @@ def _sitl_case(config: Path, name: str, folder: Path, speed: float, show_progres
     if name in LIAR_PATTERNS:
         row.update(_sitl_attack_figures(Path(run_folder), scenario.sensor.rate_hz, scenario.sitl.home))
         # The companion's validator and the target's fault log share the plant's clock.
-        held = [c["start"] - row["first_attack"] for c in link.get("contest_log", [])
-                if c["start"] >= row["first_attack"] - 1e-6]
-        row["flagged_after"] = min(held) if held else math.inf
+        row["flagged_after"] = _flagged_after(link.get("contest_log", []), row["first_attack"])
         row["verdict"] = (summary.get("flight") or {}).get("verdict", "")
         row["meets_targets"] = bool(row["min_range"] >= 0.5 * scenario.guidance.desired_range
                                     and row["flagged_after"] <= FLAG_LIMIT and row["verdict"] != "clean"

@@ -75,12 +75,7 @@ class _Order:
 
     def check(self, key: tuple, seq: int, stamp: float, now: float | None) -> tuple[int, float] | None:
         """FixRejected (freshness, order) or the key's (last seq, last stamp) (None: an epoch not held)."""
-        policy = self.policy
-        if now is not None:
-            if stamp > now + policy.max_future_skew:
-                raise FixRejected("future_stamp", f"stamp {stamp:.3f} s is {stamp - now:.3f} s ahead of now")
-            if stamp < now - policy.max_age:
-                raise FixRejected("too_old", f"stamp {stamp:.3f} s is {now - stamp:.3f} s old")
+        self.check_fresh(stamp, now)
         last = self.states.get(key)
         if last is not None:
             last_seq, last_stamp = last
@@ -88,9 +83,23 @@ class _Order:
                 raise FixRejected("stale_seq", f"seq {seq} after {last_seq}")
             if stamp <= last_stamp:
                 raise FixRejected("stale_stamp", f"stamp {stamp} after {last_stamp}")
-            if seq - last_seq > policy.max_rate_hz * (stamp - last_stamp) + policy.seq_slack:
-                raise FixRejected("seq_jump", f"seq {last_seq} -> {seq} in {stamp - last_stamp:.3f} s")
+            self.check_rate(last_seq, last_stamp, seq, stamp)
         return last
+
+    def check_fresh(self, stamp: float, now: float | None) -> None:
+        """FixRejected future_stamp / too_old for a stamp outside [now - max_age, now + max_future_skew]."""
+        policy = self.policy
+        if now is not None:
+            if stamp > now + policy.max_future_skew:
+                raise FixRejected("future_stamp", f"stamp {stamp:.3f} s is {stamp - now:.3f} s ahead of now")
+            if stamp < now - policy.max_age:
+                raise FixRejected("too_old", f"stamp {stamp:.3f} s is {now - stamp:.3f} s old")
+
+    def check_rate(self, last_seq: int, last_stamp: float, seq: int, stamp: float) -> None:
+        """FixRejected seq_jump when seq advanced faster than the policy allows since (last_seq, last_stamp)."""
+        policy = self.policy
+        if seq - last_seq > policy.max_rate_hz * (stamp - last_stamp) + policy.seq_slack:
+            raise FixRejected("seq_jump", f"seq {last_seq} -> {seq} in {stamp - last_stamp:.3f} s")
 
     def reset(self, key: tuple, seq: int, stamp: float) -> None:
         """Make (seq, stamp) the key's last accepted message, even if an accepted forgery was ahead of it."""
@@ -280,7 +289,7 @@ class FixValidator:
             if error.reason in ("stale_seq", "stale_stamp") and epoch == self.last_epoch:
                 proof = self._second_source(seq, stamp, position, clock)
                 if proof is not None:
-                    return self._contest(key, error, proof, seq, stamp, position, now, clock, agrees)
+                    return self._contest(key, proof, seq, stamp, position, clock, agrees)
             if error.reason in ("stale_seq", "stale_stamp") and self._conflicts(epoch, seq, stamp, position):
                 return self._arbitrate(key, error, seq, stamp, position, now, agrees)
             raise
@@ -348,8 +357,8 @@ class FixValidator:
             return ("stale_rate", self.last_stamp, self.last_position)
         return None
 
-    def _contest(self, key: tuple, error: FixRejected, proof: tuple, seq: int, stamp: float, position: np.ndarray,
-                 now: float | None, clock: float, agrees: Agreement | None) -> np.ndarray:
+    def _contest(self, key: tuple, proof: tuple, seq: int, stamp: float, position: np.ndarray, clock: float,
+                 agrees: Agreement | None) -> np.ndarray:
         """Proof of two sources: the filter arbitrates (the new fix replaces the reference, rule "conflict"; or the
         reference stays and the new one is refused), else the track is held (class docstring)."""
         rule, other_stamp, other_position = proof
@@ -394,11 +403,7 @@ class FixValidator:
         if clock - hold.last_seen >= self.silence:
             self._end_hold(clock, "silence")  # the held epoch fell silent: the usual rules again
             return self._check(key[0], epoch, seq, stamp, position, now, agrees)
-        policy = self.policy
-        if now is not None and stamp > now + policy.max_future_skew:
-            raise FixRejected("future_stamp", f"stamp {stamp:.3f} s is {stamp - now:.3f} s ahead of now")
-        if now is not None and stamp < now - policy.max_age:
-            raise FixRejected("too_old", f"stamp {stamp:.3f} s is {now - stamp:.3f} s old")
+        self._order.check_fresh(stamp, now)
         if key != hold.key:
             raise FixRejected("contested", f"epoch {epoch} while the track is held (two sources in epoch {hold.key[1]})")
         hold.last_seen = clock
@@ -415,8 +420,7 @@ class FixValidator:
                 self._take(key, seq, stamp, position, clock, "conflict")
                 return position
             raise FixRejected("contested", f"epoch {epoch} still carries two sources; the track is held")
-        if seq - last_seq > policy.max_rate_hz * (stamp - last_stamp) + policy.seq_slack:
-            raise FixRejected("seq_jump", f"seq {last_seq} -> {seq} in {stamp - last_stamp:.3f} s")
+        self._order.check_rate(last_seq, last_stamp, seq, stamp)
         hold.latest = (seq, stamp, position)
         hold.seen[seq] = (stamp, position)
         if len(hold.seen) > self.SEEN:
@@ -456,7 +460,7 @@ class FixValidator:
                    now: float | None, agrees: Agreement | None) -> np.ndarray:
         """Two sources in one epoch: the filter decides whether `position` replaces the reference; else `error`."""
         self._order.contested.add(key)
-        if agrees is None or not (agrees(position, stamp) is True and agrees(self.last_position, self.last_stamp) is False):
+        if _arbitration(agrees, position, stamp, self.last_position, self.last_stamp) != "new":
             raise error
         self._order.reset(key, seq, stamp)
         self.reanchored += 1
@@ -485,7 +489,7 @@ class FixValidator:
         clock = stamp if now is None else now
         if self._last_accept_time is not None and clock - self._last_accept_time >= self.silence:
             return "silence"
-        if agrees is not None and agrees(position, stamp) is True and agrees(self.last_position, self.last_stamp) is False:
+        if _arbitration(agrees, position, stamp, self.last_position, self.last_stamp) == "new":
             return "prediction"
         return None
 
