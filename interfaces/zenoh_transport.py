@@ -265,6 +265,12 @@ def check_namespace(namespace: str) -> str:
     return namespace
 
 
+#: How often a connect endpoint that is not up (yet, or again) is tried, ms: from 200 ms, doubling, at most every
+#: second (Zenoh's own default starts at 1 s and backs off to 4 s, so a peer started a moment before the one it
+#: connects to, or cut off for a few seconds, waited up to 4 s longer to join).
+CONNECT_RETRY = {"period_init_ms": 200, "period_max_ms": 1000, "period_increase_factor": 2}
+
+
 def zenoh_config(mode: Literal["peer", "client", "router"] = "peer", listen: Iterable[str] = (),
                  connect: Iterable[str] = (), multicast_scouting: bool = False, *,
                  allow_remote_listen: bool = False, overrides: dict[str, str] | None = None,
@@ -319,6 +325,7 @@ def zenoh_config(mode: Literal["peer", "client", "router"] = "peer", listen: Ite
         config.insert_json5("mode", json.dumps(mode))
         config.insert_json5("listen/endpoints", json.dumps(listen))
         config.insert_json5("connect/endpoints", json.dumps(connect))
+        config.insert_json5("connect/retry", json.dumps(CONNECT_RETRY))
         config.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast_scouting)))
         if tls is not None:
             config.insert_json5("transport/link/protocols", json.dumps(["tls"]))

@@ -404,7 +404,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--mavlink-blackout", type=float, nargs=2, action="append", default=None,
                         metavar=("START", "DURATION"),
                         help="fault injection: the companion link goes silent both ways from START for DURATION "
-                             "simulated seconds (adds to [faults.mavlink] blackouts); repeatable")
+                             "simulated seconds, START counted from the vehicle's first switch to Offboard (when the "
+                             "companion takes control; adds to [faults.mavlink] blackouts); repeatable")
     parser.add_argument("--no-faults", action="store_true", help="ignore the scenario's [faults.mavlink] blackouts")
     return parser
 

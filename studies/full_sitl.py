@@ -162,6 +162,8 @@ def _progress(state: link.CompanionState | None) -> str:
 #: Wall-clock seconds the children need to start and the companion to connect, arm and take off at any speed;
 #: --timeout must leave at least this plus the flight's own duration / speed factor.
 STARTUP_ALLOWANCE = 20.0
+#: Wall-clock seconds each child may take to print its ready line (they start together and share the cores).
+STARTUP_TIMEOUT = 60.0
 
 
 def check_faults(scenario: Scenario, target_faults: list[str] | None) -> None:
@@ -301,11 +303,15 @@ class SingleRun:
         code = 1
         stopped: Stopped | None = None
         try:
-            self.plant.start(stop=options.stop)
-            self.target.start(stop=options.stop)
+            # All three start at once, so their start-up overlaps (the target and the companion find the plant's
+            # Zenoh listener whenever it is up); the ground station joins once the plant listens.
+            for child in (self.plant, self.target, self.companion):
+                child.spawn()
+            self.plant.wait_ready(STARTUP_TIMEOUT, options.stop)
             self.station = GroundStation(network.endpoint, self.scenario, network.ground_station_tls(),
                                          namespace=network.namespace)
-            self.companion.start(stop=options.stop)
+            self.target.wait_ready(STARTUP_TIMEOUT, options.stop)
+            self.companion.wait_ready(STARTUP_TIMEOUT, options.stop)
             stopped = watch(lambda: self.companion.running, self._tick, budget, options.stop)
             code = self.companion.process.returncode if stopped is None else 1
         except Interrupted as signal_stop:

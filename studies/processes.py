@@ -205,15 +205,24 @@ class ChildProcess:
     def start(self, timeout: float = 30.0, stop: StopSignals | None = None) -> "ChildProcess":
         """Start it (own session, death signal; see the module) and wait for its ready line; `stop`: give up
         waiting (Interrupted) when a stop signal arrives."""
+        self.spawn()
+        self.wait_ready(timeout, stop)
+        return self
+
+    def spawn(self) -> "ChildProcess":
+        """Start it (own session, death signal; see the module) without waiting for its ready line."""
         self.log_path.parent.mkdir(parents=True, exist_ok=True)
         self._log = self.log_path.open("w")
         env = dict(os.environ if self.env is None else self.env)
         env.setdefault("PYTHONUNBUFFERED", "1")
         self.process = subprocess.Popen(with_death_signal(self.command), stdout=self._log, stderr=subprocess.STDOUT,
                                         env=env, start_new_session=True)
+        return self
+
+    def wait_ready(self, timeout: float = 30.0, stop: StopSignals | None = None) -> None:
+        """Block until it has printed its ready line (at once when it has none); see `wait_for_line`."""
         if self.ready is not None:
             self.wait_for_line(self.ready, timeout, stop)
-        return self
 
     def output(self) -> str:
         return self.log_path.read_text(errors="replace") if self.log_path.exists() else ""
@@ -326,6 +335,18 @@ def plant_command(config: Path | None = None, speed_factor: float | None = None,
         if value is not None:
             command += [flag, str(value)]
     return command + list(extra or [])
+
+
+def start_together(children, stop: StopSignals | None = None, timeout: float = 60.0) -> None:
+    """Start every child at once, then wait (up to `timeout` wall s in all) for each one's ready line, in order:
+    their imports and set-up overlap instead of adding up. Children that talk to one another must find each other
+    whichever is up first (Zenoh peers retry their connect endpoints; MAVLink over UDP needs no connection)."""
+    children = list(children)
+    for child in children:
+        child.spawn()
+    deadline = time.monotonic() + timeout
+    for child in children:
+        child.wait_ready(max(1.0, deadline - time.monotonic()), stop)
 
 
 def start_plant(log_dir: Path, config: Path | None = None, speed_factor: float = 1.0,

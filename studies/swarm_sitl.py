@@ -50,7 +50,7 @@ from interfaces import zenoh_transport
 from interfaces.records import write_json
 from interfaces.scenario import ConfigError, Scenario, VehicleConfig, pursuer_starts
 from studies.metrics import outcome_lines, rms, summarize, termination_name, write_summary
-from studies.processes import ChildProcess, Interrupted, StopSignals, free_port, stop_all
+from studies.processes import ChildProcess, Interrupted, StopSignals, free_port, start_together, stop_all
 from studies.flight_mcap import write_sitl_mcap
 from studies.sitl_runs import (SitlOptions, live_args, Stopped, ZenohNetwork, fail_on_early_exit, flight_series, interp,
                                make_run_folder, read_csv, read_json, run_termination, watch)
@@ -221,19 +221,6 @@ def swarm_geometry(folder: Path, count: int, summary_window: float, rate_hz: flo
     return out
 
 
-def _start_together(children, stop: StopSignals | None, timeout: float = 60.0) -> None:
-    """Start every child at once, then wait (up to `timeout` wall s in all) for each one's ready line."""
-    children = list(children)
-    ready = [child.ready for child in children]
-    for child in children:
-        child.ready = None
-        child.start(stop=stop)
-    deadline = time.monotonic() + timeout
-    for child, line in zip(children, ready):
-        child.ready = line
-        child.wait_for_line(line, max(1.0, deadline - time.monotonic()), stop)
-
-
 def check_swarm_run(scenario: Scenario, abort_after: float | None) -> None:
     """ConfigError (one line) for what a swarm SITL run does not do."""
     if scenario.swarm is None:
@@ -369,11 +356,11 @@ class SwarmRun:
         # about a second of one another, as the in-process pursuers all start at once.
         for plant in self.plants.values():
             plant.command += ["--clock-anchor", f"{self.anchor:.6f}"]
-        _start_together(self.plants.values(), stop)
+        start_together(self.plants.values(), stop)
         self.target.start(stop=stop)
         self.station = SwarmGroundStation(self.network.endpoint, self.scenario, self.network.ground_station_tls(),
                                           self.network.namespace)
-        _start_together(self.companions.values(), stop)
+        start_together(self.companions.values(), stop)
 
     def _tick(self) -> None:
         """One look as the ground station: sample the children's CPU, start the target once every companion still

@@ -313,6 +313,33 @@ def test_offboard_without_setpoints_is_temporarily_rejected_then_accepted_with_t
     assert h.autopilot.mode == OFFBOARD
 
 
+def test_companion_link_blackouts_count_from_the_first_switch_to_offboard(harness) -> None:
+    """[faults.mavlink] windows are s after the companion took control: none applies before Offboard; inside one
+    nothing reaches the companion (the ground-station link keeps its telemetry) and the offboard-loss failsafe acts."""
+    h = harness()
+    h.hover()
+    h.vehicle.companion_blackouts = [(2.0, 3.0)]
+    h.step(4.0)  # in Hold, long after 2-3 s of plant time: no window yet
+    assert len(h.companion.take("HEARTBEAT")) >= 3
+    h.setpoint()
+    h.command_long(mavlink.MAV_CMD_DO_SET_MODE, CUSTOM, MainMode.OFFBOARD)
+    engaged = h.autopilot.first_offboard_time
+    assert h.autopilot.mode == OFFBOARD and engaged == pytest.approx(h.autopilot.time)
+    h.companion.take()
+    h.gcs.take()
+    for _ in range(200):  # 4 s at 50 Hz; the setpoints of the window are dropped with the link
+        h.setpoint()
+        h.step(0.02)
+    def after(client: Client) -> np.ndarray:
+        return np.array([time for time, _, message in client.received if message.get_type() == "HEARTBEAT"]) - engaged
+    companion, gcs = after(h.companion), after(h.gcs)
+    assert not np.any((companion >= 2.0) & (companion < 3.0)), companion
+    assert np.any((companion > 1.0) & (companion < 2.0)) and np.any(companion >= 3.0)
+    assert np.any((gcs >= 2.0) & (gcs < 3.0))
+    assert h.vehicle.links[0].dropped_silenced > 0
+    assert h.autopilot.failsafe_active and h.autopilot.mode != OFFBOARD  # COM_OF_LOSS_T = 1 s inside the window
+
+
 @pytest.mark.parametrize(
     "command, params",
     [

@@ -65,8 +65,10 @@ class BurstLossConfig(_Strict):
 class MavlinkFaultsConfig(_Strict):
     """Faults of the companion <-> vehicle MAVLink link (applied by the plant).
 
-    blackouts: windows, s of simulated time since the plant started, during which
-    the link is silent both ways.
+    blackouts: windows during which the link is silent both ways; start is s of simulated
+    time after the vehicle first switched to Offboard (the companion took control and
+    began following), so a window falls at the same point of the following whatever the
+    take-off took.
     """
 
     blackouts: Annotated[tuple[BlackoutWindow, ...], FROM_ARRAY] = ()

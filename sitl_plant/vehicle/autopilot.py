@@ -158,6 +158,9 @@ class Autopilot:
         self._takeoff_started = 0.0
         self._takeoff_start_z = 0.0
         self._land_started = 0.0
+        #: Simulated time (s) the vehicle first entered Offboard, None before: the companion took control then, and
+        #: the companion-link blackouts of [faults.mavlink] count from it.
+        self.first_offboard_time: float | None = None
         self._land_start_speed = 0.0  # m/s NED, vertical speed when Land began
         self._offboard_quaternion: tuple[float, float, float, float] | None = None
         self._offboard_thrust: float | None = None
@@ -358,6 +361,8 @@ class Autopilot:
             self._say(Severity.INFO, f"Flight mode: {mode.name}")
         if mode == OFFBOARD:
             self.failsafe_active = False
+            if self.first_offboard_time is None:
+                self.first_offboard_time = self.time
 
     def _capture_hold(self) -> None:
         position = self.state.position

@@ -181,7 +181,8 @@ class MavlinkVehicle(MavlinkParameters, MavlinkCommands, MavlinkStreams):
         self._last_armed = autopilot.armed
         self.on_odometry_sent: Callable[[int], None] | None = None
         self._builder_table = self._builders()
-        #: Fault injection: (start, end) windows of simulated time when the companion link is down both ways.
+        #: Fault injection: (start, end) windows, simulated s after the vehicle first entered Offboard, when the
+        #: companion link is down both ways.
         self.companion_blackouts: list[tuple[float, float]] = []
 
     # --------------------------------------------------------------- helpers
@@ -271,11 +272,16 @@ class MavlinkVehicle(MavlinkParameters, MavlinkCommands, MavlinkStreams):
         return handled
 
     def _update_blackouts(self) -> None:
-        now = self.autopilot.time
+        """Silence the companion link inside `companion_blackouts`: (start, end) windows, s after the vehicle first
+        entered Offboard (when the companion took control; no window applies before)."""
+        engaged = self.autopilot.first_offboard_time
+        if engaged is None:
+            return
+        since = self.autopilot.time - engaged
         for link in self.links:
             if link.name != "companion":
                 continue
-            silenced = any(start <= now < end for start, end in self.companion_blackouts)
+            silenced = any(start <= since < end for start, end in self.companion_blackouts)
             if silenced != link.silenced:
                 link.silenced = silenced
                 self._event("fault", f"mavlink blackout {'start' if silenced else 'end'} on the {link.name} link")
