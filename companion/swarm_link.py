@@ -18,7 +18,8 @@ What studies.swarm does between its in-process pursuers, done by one networked c
   rate allows, SEQ_RATE_FACTOR x plus SEQ_SLACK: a forged seq cannot lock the sender out for longer than
   the future-stamp skew allows); ``queue_full`` (more than MAX_HELD shares held for their delivery time).
 * an accepted share then meets [swarm.link] (interfaces.neighbour_link.NeighbourLink) as that module
-  says a companion uses it: transmit(share stamp, sender, us, share position, our newest position).
+  says a companion uses it: transmit(share stamp on the windows' clock, sender, us, share position, our newest
+  position), the windows' clock counting from this pursuer's start of following (`_scenario_time`).
   Dropped (blackout, out_of_radius, loss): counted in `link_dropped`. Delivered: held until our vehicle
   clock reaches the delivery time, then applied: the sender becomes a neighbour (NeighbourState at the
   share's stamp; a share older than the one already applied from that sender updates nothing) and its
@@ -53,6 +54,9 @@ from interfaces.neighbour_link import NeighbourLink
 from interfaces.records import AggregatingLog, JsonLinesLog
 from interfaces.scenario import Scenario, share_rate_hz
 
+#: The [swarm.link] time of a share received before this pursuer began following, s: before every window (their
+#: starts are >= 0), finite as NeighbourLink needs it.
+BEFORE_FOLLOWING = -1.0
 #: Shares held for their simulated delivery time at most (a flood cannot grow the queue).
 MAX_HELD = 256
 #: swarm_rx.jsonl: records per key written in full before only counts are.
@@ -253,7 +257,8 @@ class SwarmLink:
         self._last_seq[share.sender] = (share.epoch, share.seq, share.stamp)
         self.accepted += 1
         here = self.own_position()
-        delivery = self.link.transmit(share.stamp, share.sender, self.ident, np.array(share.position),
+        sent_at = self._scenario_time(share.stamp)
+        delivery = self.link.transmit(sent_at, share.sender, self.ident, np.array(share.position),
                                       np.array(share.position) if here is None else here)
         record = {"sim_time": now, "sender": share.sender, "seq": share.seq, "stamp": share.stamp,
                   "bearing": share.bearing is not None}
@@ -261,9 +266,18 @@ class SwarmLink:
             self.link_dropped[delivery.reason] += 1
             self._record(f"dropped:{delivery.reason}", {"verdict": "dropped", "reason": delivery.reason, **record})
             return
-        self._record(f"accepted:{share.sender}", {"verdict": "accepted", "deliver_at": delivery.time, **record})
-        heapq.heappush(self._held, (delivery.time, self._order, share))
+        deliver_at = share.stamp + (delivery.time - sent_at)  # the link's delay, on the vehicle clock
+        self._record(f"accepted:{share.sender}", {"verdict": "accepted", "deliver_at": deliver_at, **record})
+        heapq.heappush(self._held, (deliver_at, self._order, share))
         self._order += 1
+
+    def _scenario_time(self, stamp: float) -> float:
+        """Vehicle time `stamp` (s) on the clock of the [swarm.link] windows: s since this pursuer began following,
+        as the in-process pursuers all start following at scenario time 0 (so a window falls at the same point of
+        the following however long the take-off took); before it engaged, BEFORE_FOLLOWING (no window applies)."""
+        pipeline = self.pipeline()
+        engaged = None if pipeline is None else pipeline.engaged_at
+        return BEFORE_FOLLOWING if engaged is None else stamp - engaged
 
     def _apply(self, share: link.PursuerShare) -> None:
         self.applied += 1

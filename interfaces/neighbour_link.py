@@ -12,7 +12,8 @@ neighbour's share, with the same decisions:
         deliver_at(delivery.time, share)          # the harness queues it; a companion holds it until then
     link.counters                                 # Counter: offered, delivered, blackout, out_of_radius, loss
 
-A companion calls it on receipt with the share's own stamp as the time, the share's position as the
+A companion calls it on receipt with the share's own stamp as the time (counted from the companion's own start of
+following, which is scenario time 0 for the in-process pursuers), the share's position as the
 sender's and its own latest position as the receiver's, and uses the share once its clock reaches the
 delivery time (the real network's delay comes on top). `NeighbourLink.from_scenario` builds it from a
 scenario's [swarm].
