@@ -284,6 +284,34 @@ def test_land_descends_at_MPC_LAND_SPEED_and_lands() -> None:
     assert ap.on_ground and ap.state.position[2] == 0.0
 
 
+def test_land_from_height_slows_down_as_px4_does() -> None:
+    """PX4's slow landing: MPC_Z_V_AUTO_DN (1.5 m/s) above MPC_LAND_ALT1 (10 m), MPC_LAND_SPEED (0.7 m/s) below
+    MPC_LAND_ALT2 (5 m), the speed linear in the height between them; the descent time is their closed form."""
+    ap = armed_after_ready(7)
+    assert ap.takeoff(20.0) == CommandResult.ACCEPTED
+    tick_until(ap, lambda a: a.mode == HOLD, 30.0, "takeoff complete")
+    ap.run(3.5)
+    value = ap.parameters.value
+    fast, slow, high, low = (value(name) for name in ("MPC_Z_V_AUTO_DN", "MPC_LAND_SPEED", "MPC_LAND_ALT1",
+                                                      "MPC_LAND_ALT2"))
+    assert (fast, slow, high, low) == (1.5, 0.7, 10.0, 5.0)  # PX4's defaults
+    ap.land()
+    started = ap.time
+    samples = []
+    while not ap.on_ground and ap.time - started < 60.0:
+        ap.tick()
+        samples.append((ap.time, -float(ap.state.position[2]), -float(ap.state.velocity[2])))
+    t, height, climb = np.array(samples).T
+    assert ap.on_ground
+    for band, expected in (((11.0, 18.0), fast), ((0.5, 4.5), slow), ((7.4, 7.6), slow + (fast - slow) * 0.5)):
+        inside = (height > band[0]) & (height < band[1])
+        assert -climb[inside] == pytest.approx(np.full(inside.sum(), expected), abs=0.08), band
+    # dt = dh / v(h): (20 - 10) / fast + (10 - 5) ln(fast / slow) / (fast - slow) + 5 / slow, plus the ramp
+    # from the hover at VERTICAL_ACCELERATION (fast / 2 / a of lag) and the touchdown.
+    closed_form = (20.0 - high) / fast + (high - low) * math.log(fast / slow) / (fast - slow) + low / slow
+    assert ap.time - started == pytest.approx(closed_form + fast / (2 * 2.0), abs=0.5)
+
+
 def test_land_speed_follows_the_parameter() -> None:
     ap = hovering(altitude=3.0)
     ap.parameters.set("MPC_LAND_SPEED", 1.2)

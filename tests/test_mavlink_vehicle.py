@@ -619,7 +619,7 @@ def test_param_request_list_returns_every_parameter_once(harness) -> None:
     table = h.autopilot.parameters
     h.send(h.mav.param_request_list_encode(1, 1))
     values = h.companion.take("PARAM_VALUE")
-    assert len(values) == len(table) == 25
+    assert len(values) == len(table) == 28
     assert sorted(v.param_index for v in values) == list(range(len(table)))
     assert {v.param_count for v in values} == {len(table)}
     by_name = {v.param_id: v for v in values}

@@ -157,11 +157,11 @@ class Autopilot:
         self._takeoff_altitude = 0.0  # NED z of the takeoff target
         self._takeoff_started = 0.0
         self._takeoff_start_z = 0.0
-        self._land_started = 0.0
+        self._land_command = 0.0  # m/s NED, Land's commanded descent speed (slewed at VERTICAL_ACCELERATION)
+        self._land_command_time = 0.0  # simulated s it was last updated
         #: Simulated time (s) the vehicle first entered Offboard, None before: the companion took control then, and
         #: the companion-link blackouts of [faults.mavlink] count from it.
         self.first_offboard_time: float | None = None
-        self._land_start_speed = 0.0  # m/s NED, vertical speed when Land began
         self._offboard_quaternion: tuple[float, float, float, float] | None = None
         self._offboard_thrust: float | None = None
         self._offboard_trajectory: OffboardTrajectory | None = None
@@ -355,8 +355,8 @@ class Autopilot:
     def _set_mode(self, mode: FlightMode) -> None:
         if mode != self.mode:
             if mode == LAND:
-                self._land_started = self.time
-                self._land_start_speed = float(self.vehicle.quadrotor._s[5])
+                self._land_command = float(self.vehicle.quadrotor._s[5])  # from the vertical speed it has
+                self._land_command_time = self.time
             self.mode = mode
             self._say(Severity.INFO, f"Flight mode: {mode.name}")
         if mode == OFFBOARD:
@@ -463,8 +463,8 @@ class Autopilot:
         return self._fly(self._automatic_setpoint(now))
 
     def _automatic_setpoint(self, now: float) -> TrajectorySetpoint:
-        """The setpoint of Takeoff (a trapezoidal climb at MPC_TKO_SPEED), Land (MPC_LAND_SPEED down over
-        the held point) and Hold/Position (the held point)."""
+        """The setpoint of Takeoff (a trapezoidal climb at MPC_TKO_SPEED), Land (down over the held point at
+        `land_descent_speed`) and Hold/Position (the held point)."""
         position = self._hold_position.copy()
         velocity = np.full(3, np.nan)
         acceleration = np.full(3, np.nan)
@@ -474,17 +474,31 @@ class Autopilot:
                 VERTICAL_ACCELERATION, now - self._takeoff_started)
             position[2], velocity[2], acceleration[2] = self._takeoff_start_z - climbed, -speed, -accel
         elif self.mode == LAND:
-            # From the vertical speed Land started with to MPC_LAND_SPEED at VERTICAL_ACCELERATION.
+            # From the vertical speed Land started with to the descent speed of the height, at VERTICAL_ACCELERATION.
             position[2] = np.nan
-            land_speed = self.parameters.value("MPC_LAND_SPEED")
-            change = VERTICAL_ACCELERATION * (now - self._land_started)
-            gap = land_speed - self._land_start_speed
+            wanted = self.land_descent_speed(-float(self.vehicle.quadrotor._s[2]))
+            change = VERTICAL_ACCELERATION * max(0.0, now - self._land_command_time)
+            gap = wanted - self._land_command
+            self._land_command_time = now
             if abs(gap) <= change:
-                velocity[2] = land_speed
+                self._land_command = wanted
             else:
-                velocity[2] = self._land_start_speed + math.copysign(change, gap)
+                self._land_command += math.copysign(change, gap)
                 acceleration[2] = math.copysign(VERTICAL_ACCELERATION, gap)
+            velocity[2] = self._land_command
         return TrajectorySetpoint(position, velocity, acceleration, self._hold_yaw)
+
+    def land_descent_speed(self, height: float) -> float:
+        """Land's descent speed (m/s, down) at `height` m above the ground, as PX4's slow landing: MPC_Z_V_AUTO_DN
+        above MPC_LAND_ALT1, MPC_LAND_SPEED below MPC_LAND_ALT2, linear in the height between the two."""
+        value = self.parameters.value
+        fast, slow = value("MPC_Z_V_AUTO_DN"), value("MPC_LAND_SPEED")
+        low, high = value("MPC_LAND_ALT2"), value("MPC_LAND_ALT1")
+        if height <= low or high <= low:
+            return slow
+        if height >= high:
+            return fast
+        return slow + (fast - slow) * (height - low) / (high - low)
 
     def _trajectory_setpoint(self, setpoint: OffboardTrajectory) -> TrajectorySetpoint:
         """An offboard position/velocity/acceleration setpoint; yaw held when not given."""
