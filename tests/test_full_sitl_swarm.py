@@ -239,11 +239,13 @@ def test_a_share_link_blackout_of_one_pursuer_is_survived_and_recovered(flown):
     assert set(dropped[2]) == {"blackout"} and abs(dropped[2]["blackout"] - 2 * rate * (end - start)) <= 4, dropped
     for k in (1, 3):
         assert set(dropped[k]) == {"blackout"} and abs(dropped[k]["blackout"] - rate * (end - start)) <= 2, dropped
-    # The windows count from each companion's start of following; the logs are in simulated time.
+    # The windows count from each companion's start of following (its pipeline's first bearing, up to a bearing
+    # period before the first setpoint the summary's engaged_at records); the logs are in simulated time.
     engaged = [entry["companion"]["engaged_at"] for entry in summary["pursuers"]]
+    period = 1.0 / rate
     laws = summary["pursuers"][1]["law_changes"]
-    fallback = [t for t, law in laws if law == "lone" and engaged[1] + start < t < engaged[1] + end]
-    back = [t for t, law in laws if law == "cooperative" and t >= engaged[1] + end]
+    fallback = [t for t, law in laws if law == "lone" and engaged[1] + start - period < t < engaged[1] + end]
+    back = [t for t, law in laws if law == "cooperative" and t >= engaged[1] + end - period]
     assert fallback and back, (laws, engaged)
     tracks = [_track(folder, k) for k in range(1, COUNT + 1)]
     grid = np.arange(max(t[0] for t, _ in tracks), min(t[-1] for t, _ in tracks), 0.02)
