@@ -92,11 +92,11 @@ def _warm_up_setpoint() -> None:
     without a heading fallback, so that no setpoint in flight waits for the compiler."""
     from companion.core.attitude import (VehicleLimits, attitude_setpoint, attitude_setpoint_after, collective_thrust,
                                          desired_rotation, limit_specific_force)
+    from companion.core.geometry import relative_terms_kernel as _relative_terms
     from companion.core.geometry import rotation_from_x_axis_to
     from companion.core.guidance import (_NO_EXCITATION, HelicalNavigationGuidance, RangeController, RangeExcitation,
                                          _excitation_terms_kernel, _tracking_command_kernel, _tracking_terms_kernel,
                                          saturation)
-    from companion.core.pipeline import _relative_terms
 
     limits = VehicleLimits(2.0 / 3.0, max_tilt=0.6, gravity=9.81, mass=1.0)
     los = np.array([0.8, -0.36, -0.48])

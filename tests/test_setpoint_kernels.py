@@ -1,4 +1,5 @@
-"""The control tick's compiled form (HNG's compiled tick: the tracking kernels of guidance.py and attitude.py)
+"""The control tick's compiled form (control_chain.COMPILED_TRACKING's HNG tick: the tracking kernels of guidance.py
+and attitude.py)
 flies what the law objects' methods fly, a subclass flies its own law, and the warm-up compiles every setpoint
 kernel. What each kernel computes is checked against the paper's equations in tests/test_attitude.py,
 tests/test_guidance.py, tests/test_geometry.py and tests/test_excitation.py; a whole flight compiled against the
@@ -12,9 +13,11 @@ import numpy as np
 from bitwise import assert_same
 
 from companion import warmup
-from companion.core import _jit, attitude, guidance
+from companion.core import _jit, attitude, control_chain, guidance
 from companion.core.attitude import VehicleLimits
+from companion.core.control_chain import COMPILED_TRACKING, TickInputs, Tracking, compiled_hng_tracking
 from companion.core.guidance import HelicalNavigationGuidance, RangeController
+from companion.core.messages import TargetEstimate
 
 python = _jit.python_function
 
@@ -36,30 +39,31 @@ def _flights(names=("constant_velocity_dropout", "stop_and_go"), seed=3, unguard
 
 
 def _count_compiled_ticks(monkeypatch) -> dict[bool, int]:
-    """Count guidance._tracking_command_kernel's calls (HNG's compiled tick), by whether it made the setpoint."""
+    """Count the tracking command kernel's calls by the compiled tick (control_chain.compiled_hng_tracking), by
+    whether it made the setpoint."""
     calls = {True: 0, False: 0}
-    command_kernel = guidance._tracking_command_kernel
+    command_kernel = control_chain._tracking_command_kernel
 
     def counted(*args):
         calls[args[7]] += 1  # with_setpoint
         return command_kernel(*args)
 
-    monkeypatch.setattr(guidance, "_tracking_command_kernel", counted)
+    monkeypatch.setattr(control_chain, "_tracking_command_kernel", counted)
     return calls
 
 
 def test_the_compiled_tick_is_the_methods_tick(monkeypatch):
-    """FollowingPipeline._compute_setpoint with HNG's compiled tick (HelicalNavigationGuidance.compiled_tick: the
-    two tracking kernels) against the same pipeline without it (the law objects' methods, then the adjustments):
+    """FollowingPipeline._compute_setpoint with HNG's compiled tick (control_chain.compiled_hng_tracking: the two
+    tracking kernels) against the same pipeline without it (the law objects' methods, then the adjustments):
     whole flights with dropouts (coasting, degraded, blends) and the health actions, every series bit for bit,
-    with the compiled tick taken away from the class. The compiled tick runs, with the setpoint in its kernel
+    with the compiled tick taken out of COMPILED_TRACKING. The compiled tick runs, with the setpoint in its kernel
     (the flight without the safety envelope) and without (a blend or the envelope: the adjustments then follow
     it)."""
     calls = _count_compiled_ticks(monkeypatch)
     compiled = _flights()
     assert calls[True] > 100 and calls[False] > 0
     counted_so_far = dict(calls)
-    monkeypatch.delattr(HelicalNavigationGuidance, "compiled_tick")
+    monkeypatch.delitem(COMPILED_TRACKING, HelicalNavigationGuidance)
     methods = _flights()
     assert calls == counted_so_far  # the methods only
     for fast, slow in zip(compiled, methods):
@@ -69,8 +73,8 @@ def test_the_compiled_tick_is_the_methods_tick(monkeypatch):
 
 
 def test_a_subclass_flies_its_own_law(monkeypatch):
-    """A law's compiled form belongs to the class that declares it: a subclass of HNG (which may change the law)
-    flies through its own methods, never its parent's compiled tick. An unchanged subclass flies the same flight
+    """A compiled tick belongs to the exact class it is registered for: a subclass of HNG (which may change the
+    law) flies through its own methods, never its parent's compiled tick. An unchanged subclass flies the same flight
     bit for bit; one whose acceleration is a pure pursuit (c_Z = c_Y = 0: HNG's own reduction, eq. (14)) has its
     method called on every control tick and flies a different flight."""
     from companion import assembly
@@ -111,16 +115,22 @@ def test_the_compiled_tick_needs_exactly_the_range_controller():
         pass
 
     law = HelicalNavigationGuidance(3.0, 1.0, 1.0)
-    arguments = (1.0, np.array([10.0, 0.0, -5.0]), np.zeros(3), np.eye(6), np.zeros(3), np.array([1.0, 0.0, 0.0]),
-                 None, False, VehicleLimits(0.5, max_tilt=0.5, gravity=9.81, mass=1.0).setpoint_terms, True, None)
-    assert law.compiled_tick(Other(8.0), *arguments) is None
-    tick = law.compiled_tick(RangeController(8.0), *arguments)
-    assert tick is not None and len(tick) == 7 and tick[6] is not None and tick[1] is None  # a setpoint, no level
+    estimate = TargetEstimate(1.0, np.array([10.0, 0.0, -5.0]), np.zeros(3), np.eye(6))
+    tick = TickInputs(1.0, 1.0, estimate, np.zeros(3), np.array([1.0, 0.0, 0.0]))
+    terms = VehicleLimits(0.5, max_tilt=0.5, gravity=9.81, mass=1.0).setpoint_terms
+    assert compiled_hng_tracking(Tracking(law, Other(8.0)), tick, terms, True, None) is None
+    parts, command, setpoint = compiled_hng_tracking(Tracking(law, RangeController(8.0)), tick, terms, True, None)
+    assert setpoint is not None and parts.excitation_level is None  # a setpoint, no excitation
+    np.testing.assert_array_equal(command, parts.lateral + parts.longitudinal)
+    # The methods' command of the same tick.
+    methods = Tracking(law, RangeController(8.0)).command(tick)
+    assert_same(methods.lateral, parts.lateral, "lateral")
+    assert_same(methods.longitudinal, parts.longitudinal, "longitudinal")
 
 
 def test_warm_up_compiles_the_setpoint_kernels():
     warmup.warm_up()
-    from companion.core.pipeline import _relative_terms
+    from companion.core.geometry import relative_terms_kernel as _relative_terms
     kernels = (attitude._setpoint_kernel, attitude._rotation_kernel, attitude._thrust_kernel,
                attitude._limited_acceleration_kernel, guidance._helical_acceleration_kernel,
                guidance._virtual_los_kernel, guidance._excitation_acceleration_kernel, guidance._range_ratio_terms,

@@ -13,7 +13,7 @@ from typing import Protocol
 import numpy as np
 
 from companion.core._jit import jit
-from companion.core.attitude import _IDENTITY, _setpoint_after_into_kernel
+from companion.core.attitude import _setpoint_after_into_kernel
 from companion.core.geometry import (E_X, clip_kernel, cross, cross_kernel, relative_range_std_kernel,
                                      relative_terms_kernel, rotation_about_y_kernel, rotation_about_z_kernel,
                                      rotation_from_unit_x_axis_to, rotation_from_x_axis_to, unit, unit_kernel)
@@ -29,10 +29,8 @@ class LateralGuidance(Protocol):
     `includes_range_control = True` is a complete command (the PD controller of
     section VIII-C1): the pipeline then adds no range-controller term.
 
-    A law may also declare a compiled form of the whole usual tick with the range controller,
-    `compiled_tick` (HelicalNavigationGuidance.compiled_tick: the same arithmetic as its methods, in
-    fewer kernel calls). The pipeline takes it only from the class that declares it, so a subclass that
-    changes the law flies through its own methods; laws without one fly through their methods.
+    companion.core.control_chain may hold a compiled implementation of the tracking tick for a law's
+    exact class (COMPILED_TRACKING: HNG's); every other law, subclasses included, flies its methods.
     """
 
     def acceleration(self, engaged_time: float, velocity: np.ndarray, los: np.ndarray, range_estimate: float,
@@ -96,49 +94,6 @@ class HelicalNavigationGuidance:
         first read and kept: the law is frozen)."""
         return (float(self.navigation_gain), float(self.c_z), float(self.c_y), float(self.weave_frequency),
                 bool(self.scale_with_range))
-
-    def compiled_tick(self, controller: RangeController, engaged_time: float, target_position: np.ndarray,
-                      target_velocity: np.ndarray, covariance: np.ndarray, position: np.ndarray,
-                      velocity: np.ndarray, excitation: RangeExcitation | None, suspect: bool,
-                      setpoint_terms: tuple[float, ...], with_setpoint: bool,
-                      previous_rotation: np.ndarray | None) -> tuple | None:
-        """This law's compiled form for the pipeline's control tick: a_d = a_HN (+ a_X) + a_RC, eq. (13), with
-        a_HN of eq. (14) (acceleration), the excitation's a_X at its level when `excitation` is given
-        (RangeExcitation, on the estimate's covariance (6, 6) and the health verdict `suspect`) and the range
-        controller's a_RC of eq. (15)-(19) (RangeController.acceleration), on the line of sight of the estimate
-        (target position m and velocity m/s, (3,)) from the pursuer (position, velocity, (3,)); when
-        `with_setpoint`, also the setpoint of eq. (21)-(22) for that command (attitude_setpoint_after, under the
-        limits' setpoint_terms (VehicleLimits.setpoint_terms); previous_rotation: the last R_d (3, 3) for the
-        heading fallback, None for none). The same kernels the objects' methods call, in two calls around sigma(xi1) (saturation: numpy's
-        arctan): _tracking_terms and _tracking_command.
-
-        Returns (r^ (m), the excitation level s (None when no excitation is flown), lambda, a_lat (a_HN + a_X),
-        a_RC, a_d = a_lat + a_RC (float64 (3,), m/s^2), and when with_setpoint the setpoint's parts of eq. (21)-(22):
-        (R_d (3, 3), the flown a_d (3,), thrust T N, normalised thrust), else None): a plain tuple, which costs
-        less to build than a named one at every control tick.
-
-        None when `controller` is not exactly a RangeController: this form computes that controller's
-        arithmetic, which a subclass may change. The pipeline takes a law's compiled form only from the class
-        that declares it, so a subclass of this law that changes it flies its own methods."""
-        if type(controller) is not RangeController:
-            return None
-        desired_range, gain, limit = controller.kernel_terms
-        los = np.empty(3)
-        lateral = np.empty(3)
-        terms = _tracking_terms_kernel(
-            target_position, target_velocity, position, velocity, engaged_time, self.kernel_terms, excitation is not None,
-            covariance, suspect, _NO_EXCITATION if excitation is None else excitation.kernel_terms, desired_range,
-            (los, lateral))
-        range_estimate, level, range_error = terms[0], terms[1], terms[7]
-        longitudinal = np.empty(3)
-        command = np.empty(3)
-        rotation = np.empty((3, 3))
-        flown = np.empty(3)
-        thrust, thrust_normalized = _tracking_command_kernel(
-            terms[2:], saturation(range_error, limit), gain, limit, los, lateral, (longitudinal, command, rotation, flown),
-            with_setpoint, _IDENTITY if previous_rotation is None else previous_rotation, setpoint_terms)
-        return (range_estimate, None if excitation is None else level, los, lateral, longitudinal, command,
-                (rotation, flown, float(thrust), float(thrust_normalized)) if with_setpoint else None)
 
 
 def _virtual_los(engaged_time, los, range_estimate, c_z, c_y, weave_frequency, scale_with_range):

@@ -15,11 +15,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from companion.core.attitude import VehicleLimits, attitude_setpoint_after, limit_specific_force
-from companion.core.cooperative_guidance import CooperativeContext, SeparationFilter, neighbours_make_range_observable
+from companion.core.control_chain import COMPILED_TRACKING, CompleteLaw, SafeHold, TickInputs, Tracking
+from companion.core.cooperative_guidance import SeparationFilter, neighbours_make_range_observable
 from companion.core.estimators import CorrectionReport, InitialGuess, TargetEstimator
 from companion.core._jit import jit
-from companion.core.geometry import E_X, all_finite, clip_kernel, norm, relative_terms_kernel as _relative_terms
-from companion.core.guidance import LateralGuidance, RangeController, RangeExcitation, _excitation_terms_kernel
+from companion.core.geometry import E_X, all_finite, clip_kernel, norm
+from companion.core.guidance import LateralGuidance, RangeController, RangeExcitation
 from companion.core.health import (
     HealthAction,
     HealthActionConfig,
@@ -294,6 +295,13 @@ class FollowingPipeline:
         self.health_reinitializations = 0
         self._process_noise_boost = 1.0
         self.cooperation = cooperation
+        # The laws the supervisor chooses from (companion.core.control_chain), built once.
+        self._single = Tracking(lateral_guidance, range_controller, "single")
+        self._steady = (None if cooperation is None or cooperation.steady_guidance is None
+                        else Tracking(cooperation.steady_guidance, range_controller, "steady"))
+        self._cooperative = None if cooperation is None or cooperation.law is None else CompleteLaw(cooperation.law, "cooperative")
+        self._lone = None if cooperation is None or cooperation.lone_law is None else CompleteLaw(cooperation.lone_law, "lone")
+        self._safe_hold = SafeHold(self._safe_controller)
         self._neighbours: tuple = ()
         self.weaving = True
         self.cooperating = False
@@ -560,16 +568,6 @@ class FollowingPipeline:
             self.mode_changes.append((time, mode))
             self._blend_until = time + self.dropout.blend_time
 
-    def _excitation_term(self, time: float, lateral: np.ndarray, relative_position: np.ndarray, los: np.ndarray,
-                         covariance: np.ndarray, excitation: RangeExcitation, suspect: bool) -> np.ndarray:
-        """The lateral command a_lat (m/s^2, (3,)) plus a_X of `excitation` at the level set by rho = sigma_r / r^
-        (geometry.relative_range_std of dp and the covariance's P_pp) and the health verdict (`suspect`: the
-        last verdict judged the estimate suspect): guidance._excitation_terms, one kernel."""
-        assert self._engaged_at is not None
-        self.excitation_level, lateral = _excitation_terms_kernel(
-            time - self._engaged_at, lateral, relative_position, covariance, los, suspect, *excitation.kernel_terms)
-        return lateral
-
     def _estimate_at(self, time: float) -> TargetEstimate:
         """The estimator's estimate carried to `time` (s) at constant velocity (TargetEstimate.extrapolated); the
         last one is kept while the estimate and the time are the same, since a bearing's FIM, health check and
@@ -599,28 +597,28 @@ class FollowingPipeline:
         acceleration = np.asarray(acceleration, dtype=float)
         return acceleration if acceleration.shape == (3,) and all_finite(acceleration) else None
 
-    def _choose_law(self, time: float, pursuer: PursuerState, target_position: np.ndarray, neighbours: tuple) -> str:
-        """'cooperative', 'lone' (the cooperative law's own layer, no neighbour heard), 'steady' (lateral law
-        without weave) or 'single' (the configured laws); a change
-        is recorded in law_changes and blended like a change of mode (max_jerk for blend_time)."""
+    def _choose_law(self, time: float, pursuer: PursuerState, target_position: np.ndarray,
+                    neighbours: tuple) -> Tracking | CompleteLaw:
+        """The law of this tick (companion.core.control_chain): the cooperative law ('cooperative', a neighbour
+        heard), its own layer ('lone', the cooperative law's, nobody heard), the lateral law without weave ('steady',
+        a neighbour's line of sight gives a baseline) or the configured laws ('single'); a change is recorded (by
+        name) in law_changes and blended like a change of mode (max_jerk for blend_time)."""
         cooperation = self.cooperation
-        law = "single"
-        if cooperation is not None and not neighbours and cooperation.law is not None and cooperation.lone_law is not None:
-            law = "lone"
-        elif cooperation is not None and neighbours:
-            if cooperation.law is not None:
-                law = "cooperative"
-            elif cooperation.weave_min_angle is not None and neighbours_make_range_observable(
-                    pursuer.position, target_position, [n.position for n in neighbours],
-                    cooperation.weave_min_angle):
-                law = "steady"
-        self.cooperating = law == "cooperative"
-        weaving = law == "single"
-        current = self.law_changes[-1][1] if self.law_changes else "single"
-        if law != current:
-            self.law_changes.append((time, law))
+        law = self._single
+        if not neighbours:
+            if self._cooperative is not None and self._lone is not None:
+                law = self._lone
+        elif self._cooperative is not None:
+            law = self._cooperative
+        elif self._steady is not None and cooperation.weave_min_angle is not None and neighbours_make_range_observable(
+                pursuer.position, target_position, [n.position for n in neighbours], cooperation.weave_min_angle):
+            law = self._steady
+        self.cooperating = law is self._cooperative
+        current = self.law_changes[-1][1] if self.law_changes else self._single.name
+        if law.name != current:
+            self.law_changes.append((time, law.name))
             self._blend_until = time + self.dropout.blend_time
-        self.weaving = weaving
+        self.weaving = law is self._single
         return law
 
     def _excitation_in_force(self) -> RangeExcitation | None:
@@ -634,71 +632,46 @@ class FollowingPipeline:
         return None
 
     def _compute_setpoint(self, time: float, pursuer: PursuerState) -> None:
+        """One control tick's chain (companion.core.control_chain): the supervisor's law (the safe hold in the
+        degraded mode), then keep-off, blend, the safety envelope and separation, then the attitude mapping."""
         assert self._engaged_at is not None
         estimate = self._estimate_at(time)
         neighbours = self._neighbours_at(time)
-        law = self._choose_law(time, pursuer, estimate.position, neighbours)
+        chosen = self._choose_law(time, pursuer, estimate.position, neighbours)
+        law = self._safe_hold if self.mode == TrackMode.DEGRADED else chosen
         cooperation = self.cooperation
         # The command's adjustments this tick, decided before the command (none depends on it). Keep off
         # min_range: in any mode but tracking, while recovering (the estimate is judged wrong, so its range cannot
-        # be trusted to close on) and under a cooperative law, which does not weave (its range may never have been
-        # observable). Blend: within blend_time of a change of mode or law. Separate: with neighbours heard.
+        # be trusted to close on) and under a law that does not make the range observable (a cooperative law does
+        # not weave: its range may never have been). Blend: within blend_time of a change of mode or law.
+        # Separate: with neighbours heard.
         keep_off = (self.mode != TrackMode.TRACKING or self.health_action is HealthAction.RECOVERING
-                    or law in ("cooperative", "lone"))
+                    or not chosen.observes_range)
         blend = self._last_command is not None and time < self._blend_until
         separate = cooperation is not None and cooperation.separation is not None and bool(neighbours)
-        lateral_law = cooperation.steady_guidance if law == "steady" else self.lateral_guidance
-        measured_los = self.los_source == "measurement" and self._last_bearing is not None
-        tick = None
         report = self._health_report
-        suspect = report is not None and report.state == HealthState.SUSPECT
-        excitation = self._excitation_in_force()
-        if law in ("single", "steady") and self.mode != TrackMode.DEGRADED and not measured_los:
-            # The law's compiled form, when its class declares one (a subclass that changes the law does not
-            # inherit its parent's): the same arithmetic as the methods below, and the setpoint with it when
-            # the command needs no adjustment.
-            compiled_tick = type(lateral_law).__dict__.get("compiled_tick")
-            if compiled_tick is not None:
-                previous = self._setpoint
-                tick = compiled_tick(
-                    lateral_law, self.range_controller, time - self._engaged_at, estimate.position,
-                    estimate.velocity, estimate.covariance, np.asarray(pursuer.position, dtype=float),
-                    np.asarray(pursuer.velocity, dtype=float), excitation, suspect, self.limits.setpoint_terms,
-                    not (keep_off or blend or separate or self.envelope is not None),
-                    None if previous is None else previous.rotation)
-        if tick is not None:
-            range_estimate, level, los, lateral, longitudinal, command, compiled_setpoint = tick
-            if level is not None:
-                self.excitation_level = level
-        else:  # a law without a compiled form, the degraded mode, a cooperative law or a measured line of sight
-            relative_position, relative_velocity, range_estimate, los = _relative_terms(
-                estimate.position, estimate.velocity, np.asarray(pursuer.position, dtype=float),
-                np.asarray(pursuer.velocity, dtype=float))
-            if measured_los:
-                los = self._last_bearing
-            if self.mode == TrackMode.DEGRADED:
-                # Safe behaviour: no weave; hold safe_range on the predicted line of sight.
-                lateral = np.zeros(3)
-                longitudinal = self._safe_controller.acceleration(relative_position, relative_velocity, los, lateral)
-            elif law in ("cooperative", "lone"):
-                # A complete law on the estimate (seed 002 / seed 004): no range-controller term.
-                complete = cooperation.law if law == "cooperative" else cooperation.lone_law
-                lateral = complete.acceleration(CooperativeContext(
-                    time, pursuer.position, pursuer.velocity, estimate.position, estimate.velocity, neighbours,
-                    self._target_acceleration()))
-                longitudinal = np.zeros(3)
-            else:
-                lateral = lateral_law.acceleration(time - self._engaged_at, pursuer.velocity, los, range_estimate,
-                                                   relative_velocity)
-                if getattr(lateral_law, "includes_range_control", False):
-                    longitudinal = np.zeros(3)  # a complete law (PD controller): no range-controller term
-                else:
-                    if excitation is not None:
-                        lateral = self._excitation_term(time, lateral, relative_position, los, estimate.covariance,
-                                                        excitation, suspect)
-                    longitudinal = self.range_controller.acceleration(relative_position, relative_velocity, los,
-                                                                      lateral)
-            command = lateral + longitudinal
+        tick = fast_frozen(
+            TickInputs, time=time, engaged_time=time - self._engaged_at, estimate=estimate,
+            position=np.asarray(pursuer.position, dtype=float), velocity=np.asarray(pursuer.velocity, dtype=float),
+            measured_los=self._last_bearing if self.los_source == "measurement" else None,
+            excitation=self._excitation_in_force(), suspect=report is not None and report.state == HealthState.SUSPECT,
+            neighbours=neighbours, target_acceleration=self._target_acceleration() if isinstance(law, CompleteLaw) else None)
+        compiled = COMPILED_TRACKING.get(type(law.lateral)) if isinstance(law, Tracking) else None
+        outcome = None
+        if compiled is not None:
+            # The tracking law and, when no limiter acts, the attitude mapping in kernels: the same arithmetic.
+            previous = self._setpoint
+            outcome = compiled(law, tick, self.limits.setpoint_terms,
+                               not (keep_off or blend or separate or self.envelope is not None),
+                               None if previous is None else previous.rotation)
+        if outcome is not None:
+            parts, command, compiled_setpoint = outcome
+        else:
+            parts, compiled_setpoint = law.command(tick), None
+            command = parts.lateral + parts.longitudinal
+        if parts.excitation_level is not None:
+            self.excitation_level = parts.excitation_level
+        lateral, longitudinal, los, range_estimate = parts.lateral, parts.longitudinal, parts.los, parts.range_estimate
         if keep_off:
             range_std = float(np.sqrt(max(los @ estimate.covariance[:3, :3] @ los, 0.0)))
             closing = float(command @ los)
@@ -720,7 +693,7 @@ class FollowingPipeline:
             # Last, so that no mode, law or blend can undo it.
             command = cooperation.separation.filter(pursuer.position, pursuer.velocity, command, neighbours)
         self._last_command = command
-        if tick is not None and compiled_setpoint is not None:  # the compiled tick's setpoint of this same command
+        if compiled_setpoint is not None:  # the compiled tick's setpoint of this same command
             rotation, flown, thrust, thrust_normalized = compiled_setpoint
             self._setpoint = fast_frozen(AttitudeSetpoint, time=time, rotation=rotation,
                                          thrust_normalized=thrust_normalized, thrust=thrust, acceleration=flown)
