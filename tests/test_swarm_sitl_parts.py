@@ -96,10 +96,11 @@ def test_plants_given_one_anchor_share_one_clock(tmp_path, capsys):
         codes = stop_all(children)
     assert codes == [0, 0], [c.output() for c in children]
     ends = [json.loads((tmp_path / f"p{i}" / "stats.json").read_text())["sim_time"] for i in range(2)]
-    # Each stops within the stop wave (<= ~0.2 s wall here) after `stopped`; a simulated clock started at
-    # its own launch would differ by the 0.6 s x speed = 2.4 s between the launches.
+    # Each stops within the stop wave (<= ~0.2 s wall here) after `stopped`, and may run up to about 0.1 s of wall
+    # time behind the anchor's clock on a loaded machine (it catches up, it does not slip); a simulated clock
+    # started at its own launch would differ by the 0.6 s x speed = 2.4 s between the launches.
     for end in ends:
-        assert (stopped - anchor) * speed - 0.1 <= end <= (stopped - anchor + 1.0) * speed
+        assert (stopped - anchor - 0.125) * speed <= end <= (stopped - anchor + 1.0) * speed
     assert abs(ends[0] - ends[1]) < 0.6 * speed / 2
 
 
