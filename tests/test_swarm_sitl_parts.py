@@ -96,12 +96,14 @@ def test_plants_given_one_anchor_share_one_clock(tmp_path, capsys):
         codes = stop_all(children)
     assert codes == [0, 0], [c.output() for c in children]
     ends = [json.loads((tmp_path / f"p{i}" / "stats.json").read_text())["sim_time"] for i in range(2)]
-    # Each stops within the stop wave (<= ~0.2 s wall here) after `stopped`, and may run up to about 0.1 s of wall
-    # time behind the anchor's clock on a loaded machine (it catches up, it does not slip); a simulated clock
-    # started at its own launch would differ by the 0.6 s x speed = 2.4 s between the launches.
+    # Each stops within the stop wave (<= ~0.2 s wall here) after `stopped`. A plant launched after the anchor
+    # catches up with its clock, which on a loaded machine (a cold compile on the other core) was seen to take up
+    # to 0.9 s of wall time more: at the stop it may still be that far behind. What tells the two clocks apart is
+    # their agreement: a simulated clock started at its own launch would differ by 0.6 s x speed = 2.4 s.
+    print(f"plants' simulated time at the stop {ends}, the anchor's {(stopped - anchor) * speed:.3f} s")
     for end in ends:
-        assert (stopped - anchor - 0.125) * speed <= end <= (stopped - anchor + 1.0) * speed
-    assert abs(ends[0] - ends[1]) < 0.6 * speed / 2
+        assert (stopped - anchor - 1.0) * speed <= end <= (stopped - anchor + 1.0) * speed, ends
+    assert abs(ends[0] - ends[1]) < 0.6 * speed / 2, ends
 
 
 def test_a_neighbours_bearing_older_than_the_newest_one_used_corrects_without_breaking_the_pipeline():
