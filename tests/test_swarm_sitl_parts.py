@@ -89,17 +89,31 @@ def test_plants_given_one_anchor_share_one_clock(tmp_path, capsys):
                                  "--clock-anchor", f"{anchor:.6f}"])
         children.append(ChildProcess(command, tmp_path / f"p{index}.out", ready="sitl-plant ready").start(30.0))
         time.sleep(0.6)
+
+    def caught_up() -> bool:
+        """Both plants' stats.json (written every second) at most 0.5 s of wall time behind the anchor's clock:
+        a plant launched after the anchor (its start-up is seconds on a loaded machine) catches up first."""
+        clock = (time.monotonic() - anchor) * speed
+        try:
+            times = [json.loads((tmp_path / f"p{i}" / "stats.json").read_text())["sim_time"] for i in range(2)]
+        except (OSError, ValueError, KeyError):
+            return False
+        return all(t >= clock - 0.5 * speed - speed for t in times)  # the file is up to 1 s old
+
     try:
-        time.sleep(2.5)
+        deadline = time.monotonic() + 30.0
+        while not caught_up() and time.monotonic() < deadline:
+            time.sleep(0.2)
+        time.sleep(1.5)
     finally:
         stopped = time.monotonic()
         codes = stop_all(children)
     assert codes == [0, 0], [c.output() for c in children]
     ends = [json.loads((tmp_path / f"p{i}" / "stats.json").read_text())["sim_time"] for i in range(2)]
-    # Each stops within the stop wave (<= ~0.2 s wall here) after `stopped`. A plant launched after the anchor
-    # catches up with its clock, which on a loaded machine (a cold compile on the other core) was seen to take up
-    # to 0.9 s of wall time more: at the stop it may still be that far behind. What tells the two clocks apart is
-    # their agreement: a simulated clock started at its own launch would differ by 0.6 s x speed = 2.4 s.
+    # Each stops within the stop wave (<= ~0.2 s wall here) after `stopped`, once both had caught up with the
+    # anchor's clock (within 1 s of wall time: a loaded machine may still hold one back). What tells the two clocks
+    # apart is their agreement: a simulated clock started at its own launch would differ by 0.6 s x speed = 2.4 s,
+    # and would never catch up with the anchor's (the wait above would time out and the bounds below fail).
     print(f"plants' simulated time at the stop {ends}, the anchor's {(stopped - anchor) * speed:.3f} s")
     for end in ends:
         assert (stopped - anchor - 1.0) * speed <= end <= (stopped - anchor + 1.0) * speed, ends
