@@ -56,6 +56,7 @@ from companion.target_link import TargetLink
 from companion.warmup import warm_up as warm_up_kernels
 from interfaces import link_schema as link
 from interfaces import zenoh_transport
+from interfaces.shutdown import BACKSTOP_MARGIN_S, arm_kill_backstop
 from interfaces.cli import (LIVE_PORT, CommandParser, add_zenoh_security_arguments, live_port, output_folder,
                            scenario_file, seed_argument)
 from interfaces.scenario import (DEFAULT_SCENARIO, MAX_PURSUERS, ConfigError, LinkConfig, Scenario, VehicleConfig,
@@ -515,6 +516,7 @@ def main(argv: list[str] | None = None) -> int:
             guard = threading.Timer(HARD_EXIT_AFTER, hard_exit, (signum,))
             guard.daemon = True
             guard.start()
+            arm_kill_backstop(HARD_EXIT_AFTER + BACKSTOP_MARGIN_S)  # if even that timer cannot run
         app.request_stop(signum)
 
     async def run() -> int:

@@ -6,16 +6,25 @@ the same instant, when the owner was SIGKILLed and the kernel's death signal rea
 would leave the process running for ever, holding its ports. `arm_exit_deadline` starts a daemon timer when
 the stop is asked; if the process is still there when it fires, it flushes what it can and leaves with
 os._exit(128 + signal number). Logs written line by line (JsonLinesLog, CsvLog) are already on disk.
+
+The timer is Python code: it cannot run while the main thread blocks inside a C call that keeps the
+interpreter lock. So the same call also sets the kernel's alarm (`arm_kill_backstop`, SIGALRM at its default
+action, which ends the process without running any Python) BACKSTOP_MARGIN_S later: the process ends even then,
+with the signal SIGALRM instead of an exit code.
 """
 
 from __future__ import annotations
 
 import os
+import signal
 import sys
 import threading
 
 #: s between the stop request and the forced exit: far above an orderly stop (well under a second).
 EXIT_DEADLINE_S = 5.0
+
+#: s after the deadline at which the kernel's alarm ends a process whose deadline timer could not run.
+BACKSTOP_MARGIN_S = 2.0
 
 _armed: threading.Timer | None = None
 
@@ -38,3 +47,14 @@ def arm_exit_deadline(name: str, signum: int, seconds: float = EXIT_DEADLINE_S) 
     _armed = threading.Timer(seconds, _expire, (name, int(signum)))
     _armed.daemon = True
     _armed.start()
+    arm_kill_backstop(seconds + BACKSTOP_MARGIN_S)
+
+
+def arm_kill_backstop(seconds: float) -> None:
+    """Have the kernel end this process `seconds` from now (SIGALRM at its default action), whatever its threads
+    are doing, unless it has exited by then. Replaces an earlier alarm. Call it from the main thread."""
+    try:
+        signal.signal(signal.SIGALRM, signal.SIG_DFL)  # nobody's handler: the kernel's default, termination
+    except ValueError:  # not the main thread: the disposition is left as it is (Python's default is SIG_DFL)
+        pass
+    signal.setitimer(signal.ITIMER_REAL, seconds)

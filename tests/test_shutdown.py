@@ -3,6 +3,7 @@ with 128 + the signal number; one that stops in time is not touched."""
 
 from __future__ import annotations
 
+import signal
 import subprocess
 import sys
 
@@ -14,6 +15,19 @@ def stop(signum, frame):
 signal.signal(signal.SIGTERM, stop)
 print("ready", flush=True)
 threading.Event().wait()  # a close that never returns
+"""
+
+#: A stop that blocks inside a C call holding the interpreter lock (the regular expression engine backtracking
+#: for ever): no Python thread, the deadline's timer included, can run again.
+HOLDS_THE_LOCK = """
+import re, signal
+from interfaces.shutdown import arm_exit_deadline
+def stop(signum, frame):
+    arm_exit_deadline("holds", signum, seconds=0.5)
+    re.match(r"(a+)+$", "a" * 64 + "b")
+signal.signal(signal.SIGTERM, stop)
+print("ready", flush=True)
+signal.pause()
 """
 
 STOPS = """
@@ -46,6 +60,11 @@ def _run(source: str) -> int:
 def test_a_hanging_stop_is_ended_by_the_deadline():
     # it waits for ever otherwise: only the deadline can end it, with 128 + SIGTERM
     assert _run(HANGS) == 128 + 15
+
+
+def test_a_stop_that_holds_the_interpreter_lock_is_ended_by_the_kernel_alarm():
+    # the deadline's timer cannot run; the kernel's SIGALRM (default action) ends the process regardless
+    assert _run(HOLDS_THE_LOCK) == -signal.SIGALRM
 
 
 def test_an_orderly_stop_keeps_its_own_exit_code():
