@@ -80,7 +80,11 @@ def test_follows_at_the_desired_range_with_a_small_range_estimation_error(flown)
     flight = summary["flight"]
     assert flight["range_error_rms"] < 0.5, flight
     assert flight["range_estimation_error_rms"] < 0.5, flight
-    assert math.isfinite(flight["convergence_time"]) and flight["convergence_time"] < 30.0, flight
+    # converged for good (both errors under 1 m from then on) before the summary's window, the last 20 s: about
+    # 15 s after engaging on an idle or busy machine, later when the CPU is contended hard enough that setpoints
+    # leave late (the summary counts them); a flight that never converges, or only inside the window, fails
+    window_start = flight["duration"] - flight["summary_window"]
+    assert math.isfinite(flight["convergence_time"]) and flight["convergence_time"] < window_start, flight
     assert flight["min_range"] > 0.5 * flight["desired_range"]
     for name in ("trajectory.png", "errors.png", "link.png", "summary.json"):
         assert (folder / name).stat().st_size > 0
@@ -158,11 +162,12 @@ def test_telemetry_log_and_zenoh_log_are_complete(flown):
     assert len(records) == summary["companion"]["link"]["received"]
     refused = collections.Counter(r["reason"] for r in records if r["verdict"] != "accepted")
     assert set(refused) <= {"no_clock", "future_stamp"}, refused
-    # A future_stamp refusal of the genuine target is the companion's clock lagging on a loaded machine: its fixes
-    # are then at most a few fix periods ahead (a forged or offset stamp would be far ahead, or all of them).
+    # A future_stamp refusal of the genuine target is the companion's vehicle clock (its newest odometry) lagging on
+    # a loaded machine: a delay in wall seconds, so SPEED times that in simulated seconds. Bounded by a 0.5 s stall
+    # of the odometry path and 5 % of the fixes; a forged or offset stamp would be far ahead, or all of them.
     ahead = [float(re.search(r"is ([0-9.]+) s ahead", r["detail"]).group(1)) for r in records
              if r["verdict"] != "accepted" and r["reason"] == "future_stamp"]
-    assert all(value <= 1.0 for value in ahead) and len(ahead) <= 0.05 * len(records), ahead
+    assert all(value <= 0.5 * SPEED for value in ahead) and len(ahead) <= 0.05 * len(records), ahead
     seqs = [r["seq"] for r in records if r["verdict"] == "accepted"]
     assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)
 
