@@ -38,7 +38,7 @@ kernels.warm_up()
 #: one after another on one worker, while the other worker takes the tests that only compute; so no two
 #: real-time flights ever share the machine with each other, only with one computing test at a time.
 REAL_TIME_FILES = frozenset({
-    "test_campaign.py", "test_cli_types.py", "test_companion_app.py", "test_companion_console.py",
+    "test_campaign.py", "test_companion_app.py", "test_companion_console.py",
     "test_companion_precompile.py", "test_config_hostile.py", "test_full_sitl.py", "test_full_sitl_swarm.py",
     "test_intruder.py", "test_link.py",
     "test_mavlink_signing.py", "test_mavlink_vehicle.py", "test_mission.py", "test_plant_standalone.py",

@@ -19,10 +19,10 @@ from interfaces.scenario import load_scenario
 from studies import full_sitl, sitl_runs
 from studies.processes import free_port
 
-#: Simulated s per wall s. Seven processes at 2x take most of two cores, and the test suite runs a computing
-#: test on the other worker meanwhile (tests/conftest.py): at 1x they need about half of that, so the plants
-#: keep the shared clock. The module's 65 s flight then takes about 2 min of wall time.
-SPEED = 1.0
+#: Simulated s per wall s. Seven processes at 2x take most of two cores; the module has the machine to itself
+#: (tests/conftest.py EXCLUSIVE_FILES), and at 1.5x the seven need about three quarters of it, so the plants keep
+#: the shared clock with room for a busy machine's other work. The module's 65 s flight takes about 1.5 min.
+SPEED = 1.5
 CONFIG = Path(__file__).resolve().parent.parent / "config" / "scenarios" / "swarm_circumnavigation.toml"
 SCENARIO, _ = load_scenario(CONFIG)
 COUNT = SCENARIO.swarm.count
@@ -175,9 +175,17 @@ def test_sigterm_mid_flight_stops_all_seven_children_and_writes_every_summary(tm
 
     out = tmp_path / "runs"
     log = (tmp_path / "bof-sitl.out").open("w")
+    # The signal must find every companion following: on a busy machine one may engage a minute after the others,
+    # which by then would have flown the shipped 60 s and landed. So the scenario is flown for 10 min here; the
+    # signal ends it as soon as all three follow.
+    vehicle = CONFIG.parent.parent / "vehicles" / "paper_table1.toml"
+    text = CONFIG.read_text().replace('vehicle = "../vehicles/paper_table1.toml"', f'vehicle = "{vehicle}"')
+    assert "duration = 60.0" in text
+    config = tmp_path / "swarm_long.toml"
+    config.write_text(text.replace("duration = 60.0", "duration = 600.0"))
     # At 2x: nothing here judges the flight, and the seven processes take off in half the wall time (they need
     # about 0.8 of a core at 2x, and the module has the machine to itself).
-    process = subprocess.Popen([sys.executable, "-m", "studies.full_sitl", str(CONFIG), "--speed-factor", "2", "--out",
+    process = subprocess.Popen([sys.executable, "-m", "studies.full_sitl", str(config), "--speed-factor", "2", "--out",
                                 str(out), "--no-plots", "--quiet", "--gcs-port", str(free_port())],
                                stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
     children: list[int] = []
