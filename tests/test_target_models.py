@@ -203,7 +203,7 @@ def test_singer_speed_and_lateral_acceleration_stay_within_bounds(seed, sigma, t
                      singer={"time_constant": tau, "sigma": sigma, "vertical_sigma": vertical, "update_period": period})
     model = target_from_config(config, seed)
     # sample between and on the updates, including just after them where the speed may be lowest
-    for time in np.arange(offset * period, 60.0, 0.37 * period):
+    for time in np.arange(offset * period, 30.0, 0.37 * period):
         model.advance_to(float(time))
         velocity, acceleration = np.asarray(model.velocity), model.acceleration
         speed_now = float(np.linalg.norm(velocity))
