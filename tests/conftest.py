@@ -43,8 +43,8 @@ REAL_TIME_FILES = frozenset({
     "test_intruder.py", "test_link.py",
     "test_mavlink_signing.py", "test_mavlink_vehicle.py", "test_mission.py", "test_plant_standalone.py",
     "test_shutdown.py", "test_signals.py", "test_sitl_cli.py", "test_sitl_malformed.py", "test_sitl_mavsdk.py",
-    "test_study_interrupts.py", "test_swarm_schema.py", "test_swarm_sitl_parts.py", "test_target_sim.py",
-    "test_zenoh_namespace.py", "test_zenoh_security.py",
+    "test_study_interrupts.py", "test_swarm_schema.py", "test_swarm_sitl_parts.py", "test_swarm_sitl_signals.py",
+    "test_target_sim.py", "test_zenoh_namespace.py", "test_zenoh_security.py",
 })
 
 
