@@ -438,7 +438,7 @@ def test_togvf_three_pursuers_reach_the_circle_with_equal_spacing(case):
     law = StandoffTrackingGuidance(standoff_radius=8.0, min_turn_radius=2.0, speed=speed, min_speed=1.0,
                                    max_speed=max_speed, phase_gain=1.0, standoff_height=3.0, max_acceleration=15.0)
     starts = np.array([[12.0, 3.0, -6.0], [-4.0, 11.0, -1.0], [1.0, -14.0, -3.0]])
-    log = _double_integrator_swarm(law, None, starts, 90.0, 0.01, scale > 0.0, target_scale=scale)
+    log = _double_integrator_swarm(law, None, starts, 90.0, 0.02, scale > 0.0, target_scale=scale)
     late = [entry for entry in log if entry[0] >= 70.0]
     radius = max(abs(horizontal_radius(p, target) - 8.0) for _, ps, target in late for p in ps)
     height = max(abs((target[2] - p[2]) - 3.0) for _, ps, target in late for p in ps)
