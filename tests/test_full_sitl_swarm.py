@@ -15,17 +15,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from interfaces.scenario import load_scenario
 from studies import full_sitl, sitl_runs
 from studies.processes import free_port
+from tests.swarm_config import COUNT, SCENARIO, scenario_copy
 
-#: Simulated s per wall s. Seven processes at 2x take most of two cores; the module has the machine to itself
-#: (tests/conftest.py EXCLUSIVE_FILES), and at 1.5x the seven need about three quarters of it, so the plants keep
-#: the shared clock with room for a busy machine's other work. The module's 65 s flight takes about 1.5 min.
+#: Simulated s per wall s. Seven processes at 2x take most of two cores and at 1x about half; the module has the
+#: machine to itself (tests/conftest.py EXCLUSIVE_FILES), and at 1.5x the plants keep the shared clock even with
+#: a CPU burner beside them. The module's 65 s flight then takes about 2 min of wall time.
 SPEED = 1.5
-CONFIG = Path(__file__).resolve().parent.parent / "config" / "scenarios" / "swarm_circumnavigation.toml"
-SCENARIO, _ = load_scenario(CONFIG)
-COUNT = SCENARIO.swarm.count
 
 
 #: [swarm.link] blackout of pursuer 2 in the module's flight, s into the following (each companion counts from its
@@ -42,12 +39,8 @@ def flown(tmp_path_factory):
     """One flight for the module: --secure (mutual TLS, access control, MAVLink signing) with a share-link
     blackout of pursuer 2, so the checks of a whole flight and of the blackout's survival share one flight."""
     out = tmp_path_factory.mktemp("swarm-sitl")
-    vehicle = CONFIG.parent.parent / "vehicles" / "paper_table1.toml"
-    text = CONFIG.read_text().replace('vehicle = "../vehicles/paper_table1.toml"', f'vehicle = "{vehicle}"')
-    path = out / "swarm_blackout.toml"
-    assert "duration = 60.0" in text
-    text = text.replace("duration = 60.0", f"duration = {DURATION}")
-    path.write_text(text + f"blackouts = [{{pursuer = 2, start = {BLACKOUT[0]}, end = {BLACKOUT[1]}}}]\n")
+    path = scenario_copy(out / "swarm_blackout.toml", DURATION,
+                         f"blackouts = [{{pursuer = 2, start = {BLACKOUT[0]}, end = {BLACKOUT[1]}}}]\n")
     code, folder, summary = full_sitl.run(path, out / "runs", SPEED, seed=1, timeout=300.0, plots=True, quiet=True,
                                           gcs_port=free_port(), secure=True)
     return code, folder, summary

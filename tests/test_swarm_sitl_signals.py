@@ -7,13 +7,9 @@ so this runs beside a computing test like the other real-time files.
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
-from interfaces.scenario import load_scenario
 from studies.processes import free_port
-
-CONFIG = Path(__file__).resolve().parent.parent / "config" / "scenarios" / "swarm_circumnavigation.toml"
-COUNT = load_scenario(CONFIG)[0].swarm.count
+from tests.swarm_config import COUNT, scenario_copy
 
 
 def test_sigterm_mid_flight_stops_all_seven_children_and_writes_every_summary(tmp_path):
@@ -33,11 +29,7 @@ def test_sigterm_mid_flight_stops_all_seven_children_and_writes_every_summary(tm
     # The signal must find every companion following: on a busy machine one may engage a minute after the others,
     # which by then would have flown the shipped 60 s and landed. So the scenario is flown for 10 min here; the
     # signal ends it as soon as all three follow.
-    vehicle = CONFIG.parent.parent / "vehicles" / "paper_table1.toml"
-    text = CONFIG.read_text().replace('vehicle = "../vehicles/paper_table1.toml"', f'vehicle = "{vehicle}"')
-    assert "duration = 60.0" in text
-    config = tmp_path / "swarm_long.toml"
-    config.write_text(text.replace("duration = 60.0", "duration = 600.0"))
+    config = scenario_copy(tmp_path / "swarm_long.toml", 600.0)
     # At 2x: nothing here judges the flight, and the seven processes take off in half the wall time (they need
     # about 0.8 of a core at 2x; a computing test may run beside them, and a companion that engages late only
     # delays the signal).
