@@ -4,7 +4,8 @@
 
 Runs `bof-sitl` (the scenario's [simulation] duration set to --duration simulated seconds at
 --speed-factor, so the companion follows that long) as a child in its own process group. Once the
-companion follows, it floods for --duration / --speed-factor wall seconds, from this process:
+companion follows, it floods from this process for as long as the companion follows (so a machine that cannot keep
+--speed-factor still floods the whole flight):
 * MAVLink (studies.intruder.mavlink_flood): --mavlink-rate datagrams/s of garbage and valid but
   unwanted messages to the plant's ground-station socket (read from the run's plant/stats.json);
 * Zenoh (studies.intruder.zenoh_flood): --zenoh-rate messages/s of malformed and well-formed but
@@ -14,7 +15,8 @@ bof-sitl and every descendant), the run folder's total size in bytes and the com
 counters (from its state on Zenoh).
 
 Output (soak-<time>/ in --out): soak.csv (one row per sample), soak.json (per process: max and last
-RSS, RSS growth over the last half of the samples and its least-squares slope; log bytes first, last,
+RSS, RSS growth over the last half of following in simulated time (at most its last 30 minutes) and its
+least-squares slope; log bytes first, last,
 growth over the last half; the companion's deadline misses and reject counts and the plant's late
 ticks, slips and MAVLink rejects, from the run's summaries; what the floods sent), the scenario it
 flew, bof-sitl.out and the run folder. Every child is stopped on any exit (SIGINT, then SIGTERM,
@@ -44,6 +46,9 @@ from interfaces.overrides import format_assignment  # noqa: E402
 from interfaces.records import CsvLog, write_json  # noqa: E402
 from interfaces.scenario import DEFAULT_SCENARIO, load_scenario  # noqa: E402
 from studies import intruder  # noqa: E402
+
+#: s of simulated time: the longest stretch at the end of following whose memory growth is judged
+JUDGED_S = 1800.0
 
 ROLES = (("sitl_plant.world.target_publisher", "target"), ("sitl_plant.sitl", "plant"), ("companion", "companion"),
          ("bof-sitl", "bof-sitl"), ("studies.full_sitl", "bof-sitl"))
@@ -185,10 +190,17 @@ def _slope_per_min(times: list[float], values: list[float]) -> float | None:
 def summarize(samples: list[dict], pids: dict[str, list[int]], run: Path | None) -> dict:
     """soak.json's figures from the samples (see the module docstring)."""
     out: dict = {"samples": len(samples), "processes": {}}
-    half = samples[len(samples) // 2:] if samples else []
+    following = [s for s in samples if s.get("phase") == "following" and s.get("sim_time") not in (None, "")]
+    if following:  # the last half of following in simulated time, at most its last 30 minutes
+        span = following[-1]["sim_time"] - following[0]["sim_time"]
+        start = following[-1]["sim_time"] - min(span / 2.0, JUDGED_S)
+        half = [s for s in following if s["sim_time"] >= start]
+    else:
+        half = samples[len(samples) // 2:]
+    out["judged_sim_time_s"] = [half[0].get("sim_time"), half[-1].get("sim_time")] if half else None
     for name in pids:
         series = [(s["wall_s"], s[f"rss_kb_{name}"]) for s in samples if s.get(f"rss_kb_{name}") not in (None, "")]
-        tail = [(t, v) for t, v in series if half and t >= half[0]["wall_s"]]
+        tail = [(t, v) for t, v in series if half and half[0]["wall_s"] <= t <= half[-1]["wall_s"]]
         out["processes"][name] = {
             "max_rss_kb": max((v for _, v in series), default=None),
             "last_rss_kb": series[-1][1] if series else None,
@@ -238,7 +250,8 @@ def main(argv: list[str] | None = None) -> int:
     folder = args.out / f"soak-{time.strftime('%Y%m%d-%H%M%S')}"
     folder.mkdir(parents=True)
     config = soak_scenario(args.config, args.duration, folder / "scenario.toml")
-    wall = args.duration / args.speed_factor  # s of following, and of flooding
+    wall = args.duration / args.speed_factor  # s of following at the asked speed
+    flood_limit = 10.0 * wall + 600.0  # wall s; the floods end when following does, long before this
     command = [sys.executable, "-m", "studies.full_sitl", str(config), "--speed-factor", f"{args.speed_factor:g}",
                "--out", str(folder / "runs"), "--no-plots", "--timeout", str(wall + 300.0)]
     log = (folder / "bof-sitl.out").open("w")
@@ -279,12 +292,12 @@ def main(argv: list[str] | None = None) -> int:
                     try:
                         floods["zenoh"] = intruder.zenoh_flood(session, scenario.link.target_sender,
                                                                scenario.link.companion_id, rate_hz=args.zenoh_rate,
-                                                               duration=wall, stop=stop).summary()
+                                                               duration=flood_limit, stop=stop).summary()
                     finally:
                         session.close()
 
                 def mavlink_flood() -> None:
-                    result = intruder.mavlink_flood(*endpoints.gcs, rate_hz=args.mavlink_rate, duration=wall,
+                    result = intruder.mavlink_flood(*endpoints.gcs, rate_hz=args.mavlink_rate, duration=flood_limit,
                                                     stop=stop)
                     floods["mavlink"] = {"sent": result.sent, "notes": result.notes, "target": list(endpoints.gcs)}
 
@@ -292,6 +305,9 @@ def main(argv: list[str] | None = None) -> int:
                            threading.Thread(target=mavlink_flood, daemon=True)]
                 for thread in threads:
                     thread.start()
+            if (flood_started is not None and not stop.is_set() and watcher.latest is not None
+                    and watcher.latest.phase != "following"):
+                stop.set()  # following ended: so do the floods
             now = time.monotonic()
             if not samples or now - started >= samples[-1]["wall_s"] + args.sample:
                 live = {process.pid: (_stat(process.pid) or (0, 0))[1], **descendants(process.pid)}
