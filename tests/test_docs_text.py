@@ -5,8 +5,9 @@ docs/, and the comments and string literals (docstrings, help texts, messages) o
 companion/ interfaces/ sitl_plant/ studies/ tests/ benchmarks/ docs/, and fails naming file:line for:
 
 * an issue number: "issue 16", "issues 13", "issue-14", "#16" in prose;
-* a commit hash: 7 to 40 hex digits, at least one a-f letter and one digit, in backticks or after the
-  word "commit" (hex constants in code are code, not text, and are not read);
+* a commit hash: 7 to 40 hex digits, at least one a-f letter and one digit, in backticks, in parentheses or
+  after "commit", "main", "at", "of", "since", "before" or "after" (hex constants in code are code, not text, and
+  are not read);
 * work-session talk: "this stop", "last stop", "at filing", "was filed", "the issue's", "this issue".
 
 `BOF_DOCS_TEXT_ROOT=/path/to/checkout` points the test at another tree (to check that it finds the
@@ -30,7 +31,8 @@ HEX = r"(?=[0-9a-f]*[a-f])(?=[0-9a-f]*[0-9])[0-9a-f]{7,40}"
 PATTERNS = {
     "issue number": re.compile(r"\bissues?[ -]#?\d+\b", re.IGNORECASE),
     "issue reference #N": re.compile(r"(?<![\w&/#])#\d{1,3}\b"),
-    "commit hash": re.compile(r"`" + HEX + r"`|\b(?:commit|main)\s+" + HEX + r"\b|\(" + HEX + r"\)"),
+    "commit hash": re.compile(r"`" + HEX + r"`|\b(?:commit|main|at|of|since|before|after)\s+" + HEX + r"\b|\("
+                              + HEX + r"\)"),
     "work-session talk": re.compile(r"\b(?:this|last|previous|second) stop\b|\bat filing\b|\bwas filed\b"
                                     r"|\b(?:the|this) issue's\b|\bthis issue\b", re.IGNORECASE),
 }
@@ -85,10 +87,11 @@ def findings(root: Path = ROOT) -> list[str]:
 
 def test_the_patterns_catch_what_they_are_for():
     caught = ["the share link (issue 15)", "see #16 for that", "measured at `b5cc200`", "as of commit 1c852b6",
+              "the reference is its code at 1c852b6", "simulate_swarm of 1c852b6",
               "the code at the start of this stop", "about 25 min at filing", "when issue 13 was filed",
               "the issue's targets", "the fixes of this issue"]
     left = ["PKCS#8 keys", "a 0x7f mask", "seed 004 eq. (21)", "`deadbeef` is no hash (no digit)",
-            "`1234567` is a number", "the stop signal", "issued 10 commands"]
+            "`1234567` is a number", "the stop signal", "issued 10 commands", "a namespace of bof-sitl-0a1b2c3d"]
     for text in caught:
         assert any(pattern.search(text) for pattern in PATTERNS.values()), text
     for text in left:

@@ -1,8 +1,7 @@
-"""The in-process swarm harness's bookkeeping (studies/swarm.py) against the per-tick code it replaced.
+"""The in-process swarm harness's bookkeeping (studies/swarm.py) against the figure's definition, tick by tick.
 
-_closest_separation computes the separation figure of all ticks at once; the reference is a VERBATIM COPY of the
-per-tick lines of simulate_swarm at 1c852b6 (np.linalg.norm of the tick's pair offsets, np.min over the pairs,
-min() folded over the ticks), run tick by tick. Positions are drawn at random, NaNs and coincident pursuers among
+_closest_separation computes the separation figure of all ticks at once; the reference computes it one tick at a
+time (np.linalg.norm of the tick's pair offsets, np.min over the pairs, min() folded over the ticks). Positions are drawn at random, NaNs and coincident pursuers among
 them; the figure must be the same float, bit for bit.
 """
 
