@@ -111,7 +111,7 @@ class CompanionApp:
     """One companion run: builds the parts, connects them, `await app.run()` returns the process exit code."""
 
     def __init__(self, scenario: Scenario, vehicle_config: VehicleConfig, log_dir: Path, mavlink_url: str | None = None,
-                 zenoh_connect: tuple[str, ...] | None = None, zenoh_listen: tuple[str, ...] | None = None,
+                 *, zenoh_connect: tuple[str, ...] | None = None, zenoh_listen: tuple[str, ...] | None = None,
                  seed: int | None = None, zenoh_tls: "zenoh_transport.Identity | None" = None,
                  zenoh_namespace: str | None = None, pursuer_id: int = 1, zenoh_insecure: bool = False) -> None:
         check_pursuer_id(scenario, pursuer_id)
@@ -481,9 +481,9 @@ def main(argv: list[str] | None = None) -> int:
     if kernels_compiled:
         say(f"companion: kernels ready in {time.perf_counter() - started:.1f} s (numba; `companion --precompile` "
             "fills the cache ahead of a flight)")
-    app = CompanionApp(scenario, vehicle_config, log_dir, args.mavlink, args.zenoh_connect, args.zenoh_listen, args.seed,
-                       zenoh_tls=zenoh_tls, zenoh_namespace=args.zenoh_namespace, pursuer_id=args.pursuer_id,
-                       zenoh_insecure=args.insecure)
+    app = CompanionApp(scenario, vehicle_config, log_dir, args.mavlink, zenoh_connect=args.zenoh_connect,
+                       zenoh_listen=args.zenoh_listen, seed=args.seed, zenoh_tls=zenoh_tls,
+                       zenoh_namespace=args.zenoh_namespace, pursuer_id=args.pursuer_id, zenoh_insecure=args.insecure)
     if args.live is not None:
         from companion.adapters.live_view import LiveView
 

@@ -98,7 +98,7 @@ class TargetLink:
 
     def __init__(self, target_sender: str, home: Sequence[float], sensor: BearingSensor, rng: np.random.Generator,
                  history: StateHistory, recorder: RunRecorder, clock: Callable[[], float | None],
-                 wants_bearings: Callable[[], bool], validator: FixValidator | None = None,
+                 wants_bearings: Callable[[], bool], *, validator: FixValidator | None = None,
                  pipeline: Callable[[], object | None] = lambda: None) -> None:
         self.key = link.target_fix_key(target_sender)
         self.validator = validator if validator is not None else FixValidator(target_sender)

@@ -169,7 +169,8 @@ def _warm_up_diagnostics() -> None:
         observability.add(0.6 * k, np.array([0.6, 0.8, 0.0]) if k % 2 else los, 20.0)
         observability.measure()
         observability.add_and_measure(0.6 * k + 0.3, los, 20.0)
-    HealthMonitor().update(0.0, los, np.zeros(3), np.ones(3), 20.0 * los, np.eye(6), across @ np.ones(3),
-                           1e-4 * across, 2, False, 100.0)
+    HealthMonitor().update(0.0, los, np.zeros(3), np.ones(3), 20.0 * los, np.eye(6), innovation=across @ np.ones(3),
+                           innovation_covariance=1e-4 * across, innovation_dof=2, reinitialized=False,
+                           fim_min_eigenvalue=100.0)
     relative_range_std(20.0 * los, np.eye(3))
     _gate_terms(20.0 * los, 20.0, los, np.eye(3), 0.01)

@@ -56,7 +56,7 @@ MAX_LAG = 0.25
 def build_vehicle(
     scenario: PlantScenario,
     vehicle: VehicleConfig,
-    speed_factor: float | None = None,
+    *, speed_factor: float | None = None,
     companion_port: int | None = None,
     gcs_port: int | None = None,
     seed: int | None = None,
@@ -436,9 +436,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f"sitl-plant: warning: --signing-key {args.signing_key} is readable by others (chmod 600 it)",
                   file=sys.stderr, flush=True)
         log = RunLog(args.log_dir, args.log_rate, args.latency_log)
-        vehicle = build_vehicle(scenario, vehicle_config, args.speed_factor, args.companion_port, args.gcs_port,
-                                args.seed, on_event=log.event, signing_key=key, sign_cfg=args.mav_sign_cfg,
-                                system_id=args.system_id, pursuer_id=args.pursuer_id)
+        vehicle = build_vehicle(scenario, vehicle_config, speed_factor=args.speed_factor,
+                                companion_port=args.companion_port, gcs_port=args.gcs_port, seed=args.seed, on_event=log.event,
+                                signing_key=key, sign_cfg=args.mav_sign_cfg, system_id=args.system_id,
+                                pursuer_id=args.pursuer_id)
     except ConfigError as error:
         if log is not None:
             log.close()

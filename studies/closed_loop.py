@@ -175,7 +175,8 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
             # attitude loop, e.g. a tiny inertia against long arms, gave 1e196 m/s or NaN within one tick). Logged
             # with the last tick's commands; the companion's vector maths never sees a state it cannot use.
             termination = Termination.OUT_OF_CONTROL
-            _log_row(log, time, position, velocity, rotation, target, output, pipeline.estimator, estimate_values, [])
+            _log_row(log, time, position, velocity, rotation, target, output, pipeline.estimator,
+                     estimate_values=estimate_values, bearings=[])
             break
         measured_position, measured_velocity = autopilot.measured_state()
         pursuer = pursuer_state(time, measured_position, measured_velocity)  # PursuerState(...), see there
@@ -223,7 +224,8 @@ def simulate(scenario: Scenario, vehicle: VehicleConfig, seed: int | None = None
         down_z = rotation[8]
         if down_z < 0.0 or speed_squared > max_speed_squared:
             termination = Termination.OUT_OF_CONTROL
-        _log_row(log, time, position, velocity, rotation, target, output, pipeline.estimator, estimate_values, bearings)
+        _log_row(log, time, position, velocity, rotation, target, output, pipeline.estimator,
+                 estimate_values=estimate_values, bearings=bearings)
         if termination is not Termination.COMPLETED or index == last_index:
             break
         gap = (event_steps[index + 1] - step) * dt
@@ -466,7 +468,7 @@ _NAN2, _NAN3, _NAN4, _NAN6, _NAN7 = ((math.nan,) * n for n in (2, 3, 4, 6, 7))
 
 
 def _log_row(log: FlightLog, time: float, position, velocity, rotation, target: TargetMotion, output,
-             estimator: object = None, estimate_values: list[float] | None = None, bearings=()) -> None:
+             estimator: object = None, *, estimate_values: list[float] | None = None, bearings=()) -> None:
     """One row of the flight log, the columns in FlightLog._WIDTHS's order, written into its preallocated
     table in one assignment (a column at a time costs a numpy call each, a keyword append a dict as well).
     position, velocity: the true ones (3 numbers each); rotation: the true body FRD -> NED rotation, its 9

@@ -679,7 +679,7 @@ class Observer:
             raise ValueError("geodetic fixes need the scenario's home to compare with the pursuer")
         return geodetic_to_ned(fix.position, self.home)
 
-    def row(self, attack: str, sent: int, start: float, end: float, desired_range: float = 8.0,
+    def row(self, attack: str, sent: int, start: float, end: float, *, desired_range: float = 8.0,
             refused_baseline: link.CompanionState | None = None, notes: Sequence[str] = (),
             spoofed: Sequence[bytes] = (), rx_log: Path | None = None) -> Row:
         """The table row of an attack that started at monotonic time `start`, observed until `end`.
@@ -980,7 +980,8 @@ def run_zenoh_attack(args: AttackOptions, endpoints: SitlEndpoints) -> dict:
         time.sleep(args.observe)
         ours = set(sent.payloads)
         delivered = sum(1 for _, _, p in list(observer.fixes) if p in ours)
-        row = observer.row(args.attack, sent.count, start, time.monotonic(), desired_range, baseline,
+        row = observer.row(args.attack, sent.count, start, time.monotonic(), desired_range=desired_range,
+                           refused_baseline=baseline,
                            notes=[f"schema {link.TARGET_FIX_SCHEMA}", f"matched {sent.matched}",
                                   f"delivered to observer {delivered}"], spoofed=sent.payloads,
                            rx_log=endpoints.run / "companion" / "zenoh_rx.jsonl" if endpoints.run else None)

@@ -131,7 +131,7 @@ def _seconds_where(time: np.ndarray, condition: np.ndarray) -> float:
 
 
 def truth_outcome(time: np.ndarray, range_: np.ndarray, tilt_deg: np.ndarray, estimation_rms: float,
-                  estimated: bool, flown: bool, desired_range: float, divergence_rms: float,
+                  *, estimated: bool, flown: bool, desired_range: float, divergence_rms: float,
                   tilt_limit_deg: float, suspect_at_end: bool) -> dict:
     """What the truth says about a simulated flight (summary.json's "truth"), beside the monitor's verdict.
 
@@ -286,10 +286,10 @@ def summarize(series: dict[str, np.ndarray], scenario: Scenario, termination: en
     termination = honest_termination(termination, divergence)
     estimated = bool(np.isfinite(estimation_error[window]).any())
     estimation_rms = rms(estimation_error[window])
-    truth = truth_outcome(time, series["range"], series["pursuer_tilt"], estimation_rms, estimated,
-                          termination.name in FLOWN, scenario.guidance.desired_range,
-                          scenario.simulation.divergence_rms, vehicle.max_tilt_deg,
-                          divergence is not None and divergence["at_end"])
+    truth = truth_outcome(time, series["range"], series["pursuer_tilt"], estimation_rms, estimated=estimated,
+                          flown=termination.name in FLOWN, desired_range=scenario.guidance.desired_range,
+                          divergence_rms=scenario.simulation.divergence_rms, tilt_limit_deg=vehicle.max_tilt_deg,
+                          suspect_at_end=divergence is not None and divergence["at_end"])
     return {
         "scenario": scenario.name,
         "termination": termination_name(termination),

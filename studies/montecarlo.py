@@ -212,7 +212,7 @@ def parse_case(text: str) -> tuple[str, dict[str, Any]]:
 
 def build_tasks(scenarios: list[tuple[Scenario, VehicleConfig]], estimators: list[str], guidance: list[str],
                 cases: list[tuple[str, dict[str, Any]]], runs: int, initial_box: tuple[float, ...] | None,
-                divergence_threshold: float, duration: float | None = None,
+                divergence_threshold: float, *, duration: float | None = None,
                 windows: tuple[tuple[float, float], ...] = (), base_overrides: dict[str, Any] | None = None) -> list[FlightTask]:
     """Every (scenario, estimator, guidance, case, seed) combination, resolved and validated up front.
 
@@ -525,8 +525,9 @@ def main(argv: list[str] | None = None) -> int:
         late = [f"{start:g}:{stop:g}" for start, stop in windows if stop > shortest + 1e-9]
         if late:  # its column would be empty (NaN) for every flight that ends before it
             raise ValueError(f"--error-window {', '.join(late)} ends after the shortest flight ({shortest:g} s)")
-        tasks = build_tasks(scenarios, estimators, guidance, cases, runs, box, args.divergence_threshold, args.duration,
-                            tuple(windows), dict(study.overrides) if study else None)
+        tasks = build_tasks(scenarios, estimators, guidance, cases, runs, box, args.divergence_threshold,
+                            duration=args.duration, windows=tuple(windows),
+                            base_overrides=dict(study.overrides) if study else None)
     except (ConfigError, ValueError) as error:
         print(f"bof-montecarlo: {error}", file=sys.stderr)
         return 2

@@ -86,7 +86,7 @@ def figure3(initial: np.ndarray, path: Path) -> PlacementResult:
     The plane is drawn (orange, arrow into the allowed side x > -1)."""
     planes = [Plane(gain=1.0, **BACK_PLANE)]
     result = optimize_placement(
-        initial, planes, K_G, K_M, DT, duration=max(SNAPSHOT_TIMES), record_times=SNAPSHOT_TIMES
+        initial, planes, k_g=K_G, k_m=K_M, dt=DT, duration=max(SNAPSHOT_TIMES), record_times=SNAPSHOT_TIMES
     )
     figure = plt.figure(figsize=(12.0, 3.6))
     for index, (when, positions, velocities) in enumerate(zip(result.times, result.positions, result.velocities)):
@@ -107,7 +107,7 @@ def figure4(initial: np.ndarray, path: Path) -> tuple[PlacementResult, Placement
     cases = ([strong_back], [strong_back, TOP_PLANE, BOTTOM_PLANE])
     duration = max(SNAPSHOT_TIMES)
     results = tuple(
-        optimize_placement(initial, planes, K_G, K_M, DT, duration=duration, record_times=[duration])
+        optimize_placement(initial, planes, k_g=K_G, k_m=K_M, dt=DT, duration=duration, record_times=[duration])
         for planes in cases
     )
     figure = plt.figure(figsize=(8.0, 4.0))

@@ -126,8 +126,9 @@ def test_the_shared_nis_bounds_cache_is_bounded(monkeypatch):
 
 def _update(monitor, time, innovation, innovation_covariance, dof, reinitialized=False):
     los = np.array([0.8, -0.36, -0.48])
-    return monitor.update(time, los, np.zeros(3), np.ones(3), 20.0 * los, np.eye(6), innovation, innovation_covariance,
-                          dof, reinitialized, None)
+    return monitor.update(time, los, np.zeros(3), np.ones(3), 20.0 * los, np.eye(6), innovation=innovation,
+                          innovation_covariance=innovation_covariance, innovation_dof=dof, reinitialized=reinitialized,
+                          fim_min_eigenvalue=None)
 
 
 def test_update_takes_the_nis_as_normalized_innovation_squared_gives_it():

@@ -207,7 +207,7 @@ def short_flight():
        arm_length=_range("vehicle.arm_length"), max_tilt_deg=_range("vehicle.max_tilt_deg"),
        pursuer_position=_vector("pursuer.initial_position"), pursuer_velocity=_vector("pursuer.initial_velocity"),
        target_position=_vector("target.initial_position"), target_velocity=_vector("target.initial_velocity"))
-def test_any_accepted_airframe_and_start_flies_to_a_clean_termination(short_flight, mass, gravity, inertia, arm_length,
+def test_any_accepted_airframe_and_start_flies_to_a_clean_termination(short_flight, *, mass, gravity, inertia, arm_length,
                                                                        max_tilt_deg, pursuer_position, pursuer_velocity,
                                                                        target_position, target_velocity):
     """Two seconds in process with values drawn across the accepted ranges: the flight may end out of control,

@@ -177,10 +177,8 @@ def test_the_separation_cases_reach_every_branch():
         normals, bounds = np.empty((len(neighbours), 3)), np.empty(len(neighbours))
         repelled = command.copy()
         threatening = _separation_kernel(own, velocity, repelled, np.array([n.position for n in neighbours]).reshape(-1, 3),
-                                         np.array([n.velocity for n in neighbours]).reshape(-1, 3), guard.min_separation,
-                                         guard._influence, guard.repulsion_gain, guard.braking_acceleration,
-                                         guard.max_acceleration, guard.horizon, 2.0 if guard.reciprocal else 1.0,
-                                         normals, bounds)
+                                         np.array([n.velocity for n in neighbours]).reshape(-1, 3),
+                                         guard._kernel_terms(), normals, bounds)
         seen.add("repelled" if not np.array_equal(repelled, command) else "not repelled")
         seen.add("threatened" if threatening else "not threatened")
         if threatening and float(np.linalg.norm(guard.filter(own, velocity, command, neighbours))) > 0.0:
@@ -195,8 +193,8 @@ def test_the_separation_cases_reach_every_branch():
 @FUZZ
 @given(contexts(), st.floats(0.0, 200.0))
 def test_the_pipelines_moved_neighbours_are_what_the_constructor_builds(context, time):
-    """FollowingPipeline._neighbours_at builds checked neighbours with fast_frozen; the reference is its code at
-    1c852b6 (the NeighbourState constructor)."""
+    """FollowingPipeline._neighbours_at builds checked neighbours with fast_frozen; the reference builds them with
+    the NeighbourState constructor, each moved at constant velocity to `time`."""
     from companion.core.pipeline import FollowingPipeline
 
     holder = object.__new__(FollowingPipeline)  # only the neighbours are needed

@@ -21,7 +21,7 @@ DESIRED = 8.0
 
 
 def _pipeline(policy: DropoutPolicy | None = None) -> FollowingPipeline:
-    estimator = UPLKF(0.02, 0.04 * np.eye(3), 1e-4 * np.eye(3), GainProjection.PREDICTED, 0.0)
+    estimator = UPLKF(0.02, 0.04 * np.eye(3), 1e-4 * np.eye(3), GainProjection.PREDICTED, pursuer_position_std=0.0)
     return FollowingPipeline(estimator, HelicalNavigationGuidance(3.0, 3.5, 3.5), RangeController(DESIRED),
                              vehicle_limits(table1_vehicle(), 1.0 / 1.5), InitialGuess(50.0, 30.0, np.zeros(3), 5.0), 0.05, dropout=policy)
 

@@ -451,6 +451,7 @@ class Run:
 
 def circling_run(
     form: GainProjection,
+    *,
     seed: int,
     estimator_period: float = 0.02,
     bearing_every: int = 1,

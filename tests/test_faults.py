@@ -421,7 +421,7 @@ def test_target_publisher_applies_the_dropout_scenario_on_the_clock(tmp_path):
     sent: list[bytes] = []
     fault_log = FaultLog(tmp_path)
     target = TargetPublisher(TargetTruth(scenario.target), FixSchedule(RATE), sent.append, TargetLog(None, "ned"),
-                             "target-1", "ned", HOME, 0.0, np.random.default_rng(0), duration=40.0,
+                             "target-1", "ned", HOME, 0.0, rng=np.random.default_rng(0), duration=40.0,
                              faults=LinkFaults(scenario.faults, fault_rng(scenario.faults, 1)), fault_log=fault_log)
     for seq in range(2001):
         target.on_clock_payload(encode_clock(ClockTick("plant", seq, seq * 0.02)))
@@ -551,7 +551,7 @@ def test_each_target_publisher_process_has_its_own_epoch_and_counts_seq_from_zer
     for _ in range(2):  # a publisher, then the same publisher restarted
         sent: list[bytes] = []
         target = TargetPublisher(TargetTruth(scenario.target), FixSchedule(RATE), sent.append, TargetLog(None, "ned"),
-                                 "target-1", "ned", HOME, 0.0, np.random.default_rng(0), duration=2.0)
+                                 "target-1", "ned", HOME, 0.0, rng=np.random.default_rng(0), duration=2.0)
         for seq in range(101):
             target.on_clock_payload(encode_clock(ClockTick("plant", seq, seq * 0.02)))
         fixes = [decode_target_fix(payload) for payload in sent]
@@ -566,7 +566,7 @@ def test_the_target_refuses_a_start_command_outside_its_clock_window():
 
     scenario, _ = load_scenario(SCENARIOS_DIR / "constant_velocity.toml")
     target = TargetPublisher(TargetTruth(scenario.target, start_time=math.inf), FixSchedule(RATE), lambda payload: None,
-                             TargetLog(None, "ned"), "target-1", "ned", HOME, 0.0, np.random.default_rng(0))
+                             TargetLog(None, "ned"), "target-1", "ned", HOME, 0.0, rng=np.random.default_rng(0))
     target.on_clock_payload(encode_clock(ClockTick("plant", 0, 10.0)))
     target.on_command_payload(encode_command(Command("gcs", 0, 10.0 + 1e6, "start", epoch=1)))
     target.on_command_payload(encode_command(Command("gcs", 1, 7.0, "start", epoch=1)))

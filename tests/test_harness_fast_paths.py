@@ -133,9 +133,9 @@ def test_a_log_row_holds_each_column_by_its_definition(numbers, outputs, sources
     bearings = [_bearing(numbers[k:k + 3], 0 if kind == "own" else 2) for k, kind in zip((1, 13), sources)]
     arguments = (numbers[9], numbers[0:3], tuple(numbers[3:6]), tuple(numbers[10:19]), target, output, estimator)
     log = FlightLog(3)
-    _log_row(log, *arguments, None, bearings)
+    _log_row(log, *arguments, estimate_values=None, bearings=bearings)
     values = None if output.estimate is None else output.estimate.position.tolist() + output.estimate.velocity.tolist()
-    _log_row(log, *arguments, values, bearings)
+    _log_row(log, *arguments, estimate_values=values, bearings=bearings)
     expected = _expected_columns(*arguments, bearings)
     assert log.rows == 2 and log._table[0].tobytes() == log._table[1].tobytes()
     for key, column in log._data.items():
@@ -190,8 +190,9 @@ def _payloads(data):
     return stream
 
 
-def _old_check(intake, payload, now=None, agrees=None):
-    """companion.fix_intake.FixIntake.check as of 1c852b6 (before it was split in decode and check_decoded), verbatim."""
+def _check_in_one_piece(intake, payload, now=None, agrees=None):
+    """A fix intake's check in one piece, from the public parts: the link schema's decoder (a refusal counted by the
+    validator), the fix's position in NED, then the validator's check."""
     from companion.core.fix_validator import FixRejected
     from interfaces import link_schema
 
@@ -209,8 +210,8 @@ def _old_check(intake, payload, now=None, agrees=None):
 @given(st.data())
 def test_decode_then_check_decoded_is_check(data):
     """The in-process link decodes a payload once (FixIntake.decode, then check_decoded): the same fixes, positions
-    and refusals, counted the same, as FixIntake.check did on the payload (twin intakes fed the same stream; the
-    reference is the old check, verbatim), and check is still that."""
+    and refusals, counted the same, as decoding and checking in one piece (twin intakes fed the same stream; the
+    reference is `_check_in_one_piece`, built from the schema's decoder and the validator), and check is still that."""
     from companion.core.fix_validator import FixRejected, FixValidator
     from companion.fix_intake import FixIntake
 
@@ -227,7 +228,7 @@ def test_decode_then_check_decoded_is_check(data):
         return split.check_decoded(split.decode(payload), now=now)
 
     for now, payload in _payloads(data):
-        expected = outcome(_old_check, whole, payload, now=now)
+        expected = outcome(_check_in_one_piece, whole, payload, now=now)
         assert outcome(decoded_once, payload, now) == expected
         assert outcome(current.check, payload, now=now) == expected
     for intake in (split, current):

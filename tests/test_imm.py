@@ -221,8 +221,8 @@ GUESS = InitialGuess(30.0, 30.0, np.zeros(3), 5.0)
 def test_one_model_imm_is_the_uplkf(every):
     """An IMM with only the constant-velocity model is the u-PLKF, bit for bit, on the same bearings."""
     bearings = _bearings(5, 2000, every)
-    reference = _run(UPLKF(PERIOD, 0.04 * np.eye(3), SIGMA, GainProjection.PREDICTED, 0.1), bearings, GUESS)
-    imm = IMMEstimator(PERIOD, [MotionModel("cv", 0.0, 0.04)], SIGMA, GainProjection.PREDICTED, 0.1)
+    reference = _run(UPLKF(PERIOD, 0.04 * np.eye(3), SIGMA, GainProjection.PREDICTED, pursuer_position_std=0.1), bearings, GUESS)
+    imm = IMMEstimator(PERIOD, [MotionModel("cv", 0.0, 0.04)], SIGMA, GainProjection.PREDICTED, pursuer_position_std=0.1)
     estimate = _run(imm, bearings, GUESS)
     np.testing.assert_array_equal(estimate.position, reference.position)
     np.testing.assert_array_equal(estimate.covariance, reference.covariance)
@@ -232,8 +232,8 @@ def test_one_model_imm_is_the_uplkf(every):
 def test_imm_that_never_switches_from_certain_cv_is_the_uplkf():
     """p_ii = 1 with all the probability on the constant-velocity model: the turn models never take part."""
     bearings = _bearings(6, 1500, 5, target_turn=0.2)
-    reference = _run(UPLKF(PERIOD, 0.04 * np.eye(3), SIGMA, GainProjection.PREDICTED, 0.1), bearings, GUESS)
-    imm = IMMEstimator(PERIOD, standard_models([0.2], 0.04, 0.04), SIGMA, GainProjection.PREDICTED, 0.1,
+    reference = _run(UPLKF(PERIOD, 0.04 * np.eye(3), SIGMA, GainProjection.PREDICTED, pursuer_position_std=0.1), bearings, GUESS)
+    imm = IMMEstimator(PERIOD, standard_models([0.2], 0.04, 0.04), SIGMA, GainProjection.PREDICTED, pursuer_position_std=0.1,
                        stay_probability=1.0, initial_probabilities=[1.0, 0.0, 0.0])
     estimate = _run(imm, bearings, GUESS)
     np.testing.assert_allclose(estimate.position, reference.position, rtol=1e-12, atol=1e-9)
@@ -247,7 +247,7 @@ def test_imm_that_never_switches_from_certain_cv_is_the_uplkf():
        every=st.sampled_from([1, 10]), stay=st.floats(0.5, 1.0))
 def test_model_probabilities_stay_a_distribution(seed, turn, noise, every, stay):
     bearings = _bearings(seed, 600, every, target_turn=turn, noise=noise)
-    imm = IMMEstimator(PERIOD, standard_models([0.1, 0.3], 0.04, 0.1), SIGMA, GainProjection.PREDICTED, 0.1,
+    imm = IMMEstimator(PERIOD, standard_models([0.1, 0.3], 0.04, 0.1), SIGMA, GainProjection.PREDICTED, pursuer_position_std=0.1,
                        stay_probability=stay)
 
     def check(estimator):
@@ -263,7 +263,7 @@ def test_the_matching_turn_model_wins_on_a_circling_target(turn, winner):
     """Noise-free bearings of a target circling at 0.2 rad/s (or flying straight) seen from a weaving
     pursuer: after 20 s the model of the true motion carries most of the probability."""
     bearings = _bearings(1, 1500, 5, target_turn=turn, noise=0.0)
-    imm = IMMEstimator(PERIOD, standard_models([0.2], 0.04, 0.04), SIGMA, GainProjection.PREDICTED, 0.0)
+    imm = IMMEstimator(PERIOD, standard_models([0.2], 0.04, 0.04), SIGMA, GainProjection.PREDICTED, pursuer_position_std=0.0)
     history = []
     _run(imm, bearings, InitialGuess(40.0, 10.0, np.array([5.0, 0.0, 0.0]), 2.0),
          lambda e: history.append(e.model_probabilities) if e.time >= 20.0 else None)
@@ -292,7 +292,7 @@ def test_restart_behind_the_sensor_is_taken_at_the_imm_level():
 
 def test_combined_report_is_rank_two_and_feeds_the_monitor():
     bearings = _bearings(2, 400, 5, target_turn=0.2)
-    imm = IMMEstimator(PERIOD, standard_models([0.2], 0.04, 0.04), SIGMA, GainProjection.PREDICTED, 0.1)
+    imm = IMMEstimator(PERIOD, standard_models([0.2], 0.04, 0.04), SIGMA, GainProjection.PREDICTED, pursuer_position_std=0.1)
     reports = []
     imm.initialize_on_bearing(bearings[0][1], GUESS)
     ticks = 0

@@ -172,7 +172,7 @@ class Harness:
         p = list(params) + [0.0] * (7 - len(params))
         self.send(self.mav.command_long_encode(target[0], target[1], command, 0, *p), link)
 
-    def command_int(self, command: int, p1=0.0, p2=0.0, p3=0.0, p4=0.0, x=0, y=0, z=0.0, link: int = 0) -> None:
+    def command_int(self, command: int, p1=0.0, p2=0.0, p3=0.0, p4=0.0, *, x=0, y=0, z=0.0, link: int = 0) -> None:
         self.send(self.mav.command_int_encode(1, 1, mavlink.MAV_FRAME_GLOBAL, command, 0, 0, p1, p2, p3, p4, x, y, z), link)
 
     def setpoint(self, q=LEVEL, thrust=HOVER, type_mask=RATES_IGNORED, rates=(0.0, 0.0, 0.0), link: int = 0) -> None:

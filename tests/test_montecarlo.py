@@ -335,7 +335,7 @@ def test_the_parent_compiles_the_kernels_before_starting_workers():
     if plant_jit.ENABLED:
         assert kernels.advance_steps.signatures and kernels.rk4_step.signatures
     if estimator_jit.ENABLED:
-        # the kernels Python calls (a kernel only other kernels call, such as _correct_kernel, gets no signature of
+        # the kernels Python calls (a kernel only other kernels call, such as _correct_with, gets no signature of
         # its own when its callers come from numba's cache, so it says nothing about what was compiled)
         assert (estimators._correct_into.signatures and estimators._predict_kernel.signatures
                 and imm._imm_correction.signatures and imm._predict_models.signatures

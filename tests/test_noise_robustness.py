@@ -27,8 +27,8 @@ def _estimators(sigma: float, range_noise_std: float) -> dict:
     """Every estimator kind, told a bearing noise sigma that need not match the sensor's."""
     q, sigma_matrix = 0.04 * np.eye(3), sigma**2 * np.eye(3)
     return {
-        "uplkf_predicted": UPLKF(PERIOD, q, sigma_matrix, GainProjection.PREDICTED, 0.1),
-        "uplkf_measured": UPLKF(PERIOD, q, sigma_matrix, GainProjection.MEASURED, 0.1),
+        "uplkf_predicted": UPLKF(PERIOD, q, sigma_matrix, GainProjection.PREDICTED, pursuer_position_std=0.1),
+        "uplkf_measured": UPLKF(PERIOD, q, sigma_matrix, GainProjection.MEASURED, pursuer_position_std=0.1),
         "ekf": AzElEKF(PERIOD, q, sigma_matrix, 0.1),
         "msc_ekf": MSCEKF(PERIOD, q, sigma_matrix, 0.1),
         "ekf_rae": RangeAzElEKF(PERIOD, sigma_matrix, max(range_noise_std, 0.1), pursuer_position_std=0.1),

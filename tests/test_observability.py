@@ -99,7 +99,7 @@ def test_particles_never_cross_planes():
 def test_fig3_configuration_converges_to_revolving_circle():
     rng = np.random.default_rng(1)
     initial = random_placement(10, rng, [BACK_PLANE])
-    result = optimize_placement(initial, [BACK_PLANE], 1.0, 5.0, 1e-3, duration=10.0, record_times=[10.0])
+    result = optimize_placement(initial, [BACK_PLANE], k_g=1.0, k_m=5.0, dt=1e-3, duration=10.0, record_times=[10.0])
     assert 10 / math.sqrt(3.0) < result.final_g_norm < 10 / math.sqrt(2.0)
     centred = result.final_bearings - result.final_bearings.mean(axis=0)
     singular_values = np.linalg.svd(centred, compute_uv=False)

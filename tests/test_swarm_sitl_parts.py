@@ -66,7 +66,8 @@ def test_each_plant_starts_at_its_pursuers_start_with_its_system_id():
     scenario, vehicle = load_plant_scenario(SWARM)
     expected = {1: (0.0, 0.0), 2: (80.0, -60.0), 3: (70.0, 10.0)}  # the file's [[swarm.pursuers]]
     for ident, start in expected.items():
-        plant = build_vehicle(scenario, vehicle, 1.0, free_port(), free_port(), system_id=40 + ident, pursuer_id=ident)
+        plant = build_vehicle(scenario, vehicle, speed_factor=1.0, companion_port=free_port(), gcs_port=free_port(),
+                              system_id=40 + ident, pursuer_id=ident)
         try:
             np.testing.assert_allclose(plant.autopilot.state.position[:2], start)
             assert plant.system_id == 40 + ident

@@ -138,7 +138,7 @@ def test_truth_hovers_before_the_start_time_then_flies_the_scenario():
 def test_publisher_counts_bad_clocks_and_handles_restarts_and_jumps(tmp_path):
     sent: list[bytes] = []
     target = TargetPublisher(TargetTruth(_target_config()), FixSchedule(5.0), sent.append, TargetLog(tmp_path, "ned"),
-                             "target-1", "ned", (47.0, 8.0, 400.0), 0.0, np.random.default_rng(0), duration=100.0)
+                             "target-1", "ned", (47.0, 8.0, 400.0), 0.0, rng=np.random.default_rng(0), duration=100.0)
 
     def tick(stamp: float, sender: str = "plant", seq: int = 0) -> None:
         target.on_clock_payload(encode_clock(ClockTick(sender, seq, stamp)))

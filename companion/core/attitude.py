@@ -182,11 +182,13 @@ def _setpoint_after(acceleration, los, previous_rotation, gravity, max_specific_
                             tan_max_tilt, mass, hover_thrust_normalized)
 
 
-def _setpoint_after_into(acceleration, los, previous_rotation, gravity, max_specific_force, max_specific_force_squared,
-                         horizontal_margin, min_vertical, tan_max_tilt, mass, hover_thrust_normalized, rotation_out,
-                         flown_out):
+def _setpoint_after_into(acceleration, los, previous_rotation, setpoint_terms, rotation_out, flown_out):
     """_setpoint_after (eq. (21)-(22)) writing R_d into rotation_out (3, 3) and the flown a_d into flown_out (3,);
-    returns (T N, normalised thrust) (a kernel's new arrays cost the caller more than filling its own)."""
+    returns (T N, normalised thrust) (a kernel's new arrays cost the caller more than filling its own).
+    setpoint_terms: the limits as VehicleLimits.setpoint_terms gives them (gravity, max_specific_force,
+    max_specific_force_squared, horizontal_margin, min_vertical, tan_max_tilt, mass, hover_thrust_normalized)."""
+    (gravity, max_specific_force, max_specific_force_squared, horizontal_margin, min_vertical, tan_max_tilt, mass,
+     hover_thrust_normalized) = setpoint_terms
     flown, rotation, thrust, thrust_normalized = _setpoint_after_kernel(
         acceleration, los, previous_rotation, gravity, max_specific_force, max_specific_force_squared,
         horizontal_margin, min_vertical, tan_max_tilt, mass, hover_thrust_normalized)
@@ -234,7 +236,7 @@ def attitude_setpoint_after(time: float, acceleration: np.ndarray, los: np.ndarr
     rotation = np.empty((3, 3))
     flown = np.empty(3)
     thrust, thrust_normalized = _setpoint_after_into_kernel(
-        acceleration, los, _IDENTITY if previous is None else previous.rotation, *limits.setpoint_terms, rotation,
+        acceleration, los, _IDENTITY if previous is None else previous.rotation, limits.setpoint_terms, rotation,
         flown)
     return fast_frozen(AttitudeSetpoint, time=time, rotation=rotation, thrust_normalized=float(thrust_normalized),
                        thrust=float(thrust), acceleration=flown)

@@ -326,7 +326,7 @@ class TriangulationKalmanEstimator:
 
     def __init__(self, period: float, process_noise: float | np.ndarray = SEED_002_PROCESS_NOISE,
                  measurement_noise: float | np.ndarray | None = SEED_002_MEASUREMENT_NOISE,
-                 bearing_noise_std: float = 0.01, min_angle: float = DEFAULT_MIN_ANGLE,
+                 *, bearing_noise_std: float = 0.01, min_angle: float = DEFAULT_MIN_ANGLE,
                  max_pair_age_s: float = 0.25, acceleration_std: float = 1.0, compensate_age: bool = True,
                  max_time_offset_s: float = 1.0, gate_probability: float | None = None) -> None:
         if not period > 0.0:

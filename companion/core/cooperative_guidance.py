@@ -367,53 +367,51 @@ class CircumnavigationGuidance:
     def _velocity_after(self, context: CooperativeContext, horizon: float) -> np.ndarray:
         """desired_velocity(context.advanced(horizon)), the advance done in the kernel (horizon s; 0: none)."""
         velocity = np.empty(3)
-        if not _circumnavigation_velocity_kernel(
-                context.own_position, context.own_velocity, context.target_position, context.target_velocity,
-                context.neighbour_positions, context.neighbour_velocities, float(horizon), self.g1, self.g2,
-                self.g3, self.alpha, self.desired_radius, self._turn_acceleration, self.altitude_offset,
-                self.vertical_gain, self.max_relative_speed, velocity):
+        if not _circumnavigation_velocity_kernel(_vehicles(context), float(horizon), self._law_terms(), velocity):
             raise ValueError(f"the context advanced by {horizon!r} s is not finite")
         return velocity
+
+    def _law_terms(self) -> tuple[float, ...]:
+        """(g1, g2, g3, alpha, D*, a_turn, altitude_offset, k_z, max_relative_speed): the law's parameters as
+        _circumnavigation_velocity_kernel takes them."""
+        return (self.g1, self.g2, self.g3, self.alpha, self.desired_radius, self._turn_acceleration,
+                self.altitude_offset, self.vertical_gain, self.max_relative_speed)
 
     def acceleration(self, context: CooperativeContext) -> np.ndarray:
         """Acceleration command, m/s^2, shape (3,) NED: k_v (u - v) + du/dt (+ a^_T), norm <= max_acceleration
         (_tracking_acceleration's, in one kernel: _circumnavigation_acceleration_kernel)."""
         command = np.empty(3)
         if not _circumnavigation_acceleration_kernel(
-                context.own_position, context.own_velocity, context.target_position, context.target_velocity,
-                context.neighbour_positions, context.neighbour_velocities,
+                _vehicles(context),
                 _NO_ACCELERATION if context.target_acceleration is None else context.target_acceleration,
-                self.g1, self.g2, self.g3, self.alpha, self.desired_radius, self._turn_acceleration,
-                self.altitude_offset, self.vertical_gain, self.max_relative_speed, self.velocity_gain,
-                self.feedforward_horizon, self.max_acceleration, command):
+                self._law_terms(), (self.velocity_gain, self.feedforward_horizon, self.max_acceleration), command):
             raise ValueError(f"the context advanced by +-{self.feedforward_horizon!r} s is not finite")
         return command
 
 
+def _vehicles(context: CooperativeContext) -> tuple:
+    """(own_position, own_velocity, target_position, target_velocity, neighbour_positions, neighbour_velocities) of
+    `context`: the vehicles as the circumnavigation kernels take them."""
+    return (context.own_position, context.own_velocity, context.target_position, context.target_velocity,
+            context.neighbour_positions, context.neighbour_velocities)
+
+
 @jit
-def _circumnavigation_acceleration_kernel(own_position: np.ndarray, own_velocity: np.ndarray,
-                                          target_position: np.ndarray, target_velocity: np.ndarray,
-                                          neighbour_positions: np.ndarray, neighbour_velocities: np.ndarray,
-                                          target_acceleration: np.ndarray, g1: float, g2: float, g3: float,
-                                          alpha: float, desired_radius: float, turn_acceleration: float,
-                                          altitude_offset: float, vertical_gain: float, max_relative_speed: float,
-                                          velocity_gain: float, feedforward_horizon: float, max_acceleration: float,
-                                          out: np.ndarray) -> bool:
+def _circumnavigation_acceleration_kernel(vehicles: tuple, target_acceleration: np.ndarray, law: tuple,
+                                          tracking: tuple, out: np.ndarray) -> bool:
     """CircumnavigationGuidance.acceleration into out (m/s^2, (3,)): _tracking_acceleration over
     _circumnavigation_velocity_kernel (u now, and with every vehicle moved by +-feedforward_horizon s when it is
-    > 0), then _tracking_kernel. False (out unset) where a moved context is not finite. target_acceleration:
-    (3,), or empty for none."""
+    > 0), then _tracking_kernel. False (out unset) where a moved context is not finite. vehicles and law: as
+    _circumnavigation_velocity_kernel takes them; target_acceleration: (3,), or empty for none; tracking =
+    (velocity_gain k_v 1/s, feedforward_horizon tau s, max_acceleration m/s^2)."""
+    velocity_gain, feedforward_horizon, max_acceleration = tracking
+    own_velocity = vehicles[1]
     u, ahead, behind = np.empty(3), np.empty(3), np.empty(3)
-    arguments = (g1, g2, g3, alpha, desired_radius, turn_acceleration, altitude_offset, vertical_gain,
-                 max_relative_speed)
-    if not _circumnavigation_velocity_kernel(own_position, own_velocity, target_position, target_velocity,
-                                             neighbour_positions, neighbour_velocities, 0.0, *arguments, u):
+    if not _circumnavigation_velocity_kernel(vehicles, 0.0, law, u):
         return False
     if feedforward_horizon > 0.0:
         for horizon, velocity in ((feedforward_horizon, ahead), (-feedforward_horizon, behind)):
-            if not _circumnavigation_velocity_kernel(own_position, own_velocity, target_position, target_velocity,
-                                                     neighbour_positions, neighbour_velocities, horizon, *arguments,
-                                                     velocity):
+            if not _circumnavigation_velocity_kernel(vehicles, horizon, law, velocity):
                 return False
     _tracking_kernel(u, ahead, behind, own_velocity, velocity_gain, feedforward_horizon, target_acceleration,
                      max_acceleration, out)
@@ -421,16 +419,14 @@ def _circumnavigation_acceleration_kernel(own_position: np.ndarray, own_velocity
 
 
 @jit
-def _circumnavigation_velocity_kernel(own_position: np.ndarray, own_velocity: np.ndarray, target_position: np.ndarray,
-                                      target_velocity: np.ndarray, neighbour_positions: np.ndarray,
-                                      neighbour_velocities: np.ndarray, horizon: float, g1: float, g2: float,
-                                      g3: float, alpha: float, desired_radius: float, turn_acceleration: float,
-                                      altitude_offset: float, vertical_gain: float, max_relative_speed: float,
-                                      out: np.ndarray) -> bool:
+def _circumnavigation_velocity_kernel(vehicles: tuple, horizon: float, law: tuple, out: np.ndarray) -> bool:
     """CircumnavigationGuidance's desired velocity u = v^_T + seed 002 eq. (10) (horizontal) + vertical hold,
     m/s, into out (3,), for every vehicle moved at constant velocity by `horizon` s first (as
     CooperativeContext.advanced; not moved when horizon is 0). False (out unset) if a moved position is not
-    finite (where `advanced` raises). Positions m, velocities m/s, NED, float64 (3,); the neighbours' (k, 3).
+    finite (where `advanced` raises). vehicles = (own_position, own_velocity, target_position, target_velocity,
+    neighbour_positions, neighbour_velocities) (`_vehicles`): positions m, velocities m/s, NED, float64 (3,); the
+    neighbours' (k, 3). law = (g1, g2, g3, alpha, desired_radius, turn_acceleration, altitude_offset,
+    vertical_gain, max_relative_speed) (CircumnavigationGuidance._law_terms).
 
     D = |planar offset to the target|; phi its unit vector (phase 0, east, directly above the target);
     phi_bar = phi rotated by pi/2 clockwise seen from above; Delta = the CCW gap to the nearest neighbour ahead
@@ -438,6 +434,9 @@ def _circumnavigation_velocity_kernel(own_position: np.ndarray, own_velocity: np
     u_h = g1 (D - D*) phi + tangential phi_bar; u_down = k_z (z_T - altitude_offset - z); |u - v^_T| capped at
     max_relative_speed. The arithmetic of the class's law in the order it was written with numpy arrays (norms as
     sqrt(x @ x), elementwise products and sums), so compiled or not it gives the same bits."""
+    own_position, own_velocity, target_position, target_velocity, neighbour_positions, neighbour_velocities = vehicles
+    (g1, g2, g3, alpha, desired_radius, turn_acceleration, altitude_offset, vertical_gain,
+     max_relative_speed) = law
     own = own_position
     target = target_position
     neighbours = neighbour_positions
@@ -677,6 +676,12 @@ class StandoffTrackingGuidance:
         down = math.copysign(self.vertical_speed(altitude_error), altitude_error)  # above H -> descend (+down)
         return _ned(scale * relative + target_horizontal, down + float(context.target_velocity[2]))
 
+    def _law_terms(self) -> tuple[float, ...]:
+        """(g1, g2, g3, alpha, D*, a_turn, altitude_offset, k_z, max_relative_speed): the law's parameters as
+        _circumnavigation_velocity_kernel takes them."""
+        return (self.g1, self.g2, self.g3, self.alpha, self.desired_radius, self._turn_acceleration,
+                self.altitude_offset, self.vertical_gain, self.max_relative_speed)
+
     def acceleration(self, context: CooperativeContext) -> np.ndarray:
         """Acceleration command, m/s^2, shape (3,) NED: k_v (u - v) + du/dt (+ a^_T), norm <= max_acceleration."""
         return _tracking_acceleration(self._velocity_after, context, self.velocity_gain,
@@ -767,9 +772,8 @@ class SeparationFilter:
         # the repulsion (part 1) into command, the threatening neighbours' normals and bounds (part 2)
         threatening = _separation_kernel(
             position, velocity, command, np.array([n.position for n in neighbours], dtype=float).reshape(count, 3),
-            np.array([n.velocity for n in neighbours], dtype=float).reshape(count, 3), self.min_separation,
-            self._influence, self.repulsion_gain, self.braking_acceleration, self.max_acceleration, self.horizon,
-            2.0 if self.reciprocal else 1.0, normals, bounds)
+            np.array([n.velocity for n in neighbours], dtype=float).reshape(count, 3), self._kernel_terms(),
+            normals, bounds)
         if not threatening:
             return _saturate(command, self.max_acceleration)
         active = list(zip(normals[:threatening], bounds[:threatening].tolist()))
@@ -781,6 +785,12 @@ class SeparationFilter:
         return self._limit_keeping_constraints(command, active)
 
     __call__ = filter
+
+    def _kernel_terms(self) -> tuple[float, ...]:
+        """(min_separation, influence, repulsion_gain, braking_acceleration, max_acceleration, horizon, sharing c):
+        the filter's parameters as _separation_kernel takes them."""
+        return (self.min_separation, self._influence, self.repulsion_gain, self.braking_acceleration,
+                self.max_acceleration, self.horizon, 2.0 if self.reciprocal else 1.0)
 
     def _limit_keeping_constraints(self, command: np.ndarray, active: list[tuple[np.ndarray, float]]) -> np.ndarray:
         """|a| <= max_acceleration, shrinking the part of the command outside the constrained directions first."""
@@ -813,16 +823,18 @@ def _trigger_margin(closing_speed: float, max_acceleration: float, braking_accel
 
 @jit
 def _separation_kernel(position: np.ndarray, velocity: np.ndarray, command: np.ndarray,
-                       neighbour_positions: np.ndarray, neighbour_velocities: np.ndarray, min_separation: float,
-                       influence: float, repulsion_gain: float, braking_acceleration: float, max_acceleration: float,
-                       horizon: float, sharing: float, normals: np.ndarray, bounds: np.ndarray) -> int:
+                       neighbour_positions: np.ndarray, neighbour_velocities: np.ndarray, terms: tuple,
+                       normals: np.ndarray, bounds: np.ndarray) -> int:
     """SeparationFilter.filter's parts 1 and 2 up to the constraints (its docstring): the repulsion of every
     neighbour inside the influence distance subtracted from `command` (m/s^2, (3,), in place), then the threatening
     neighbours' unit normals n (into normals, (k, 3)) and bounds on a . n (-a_b when closing, else 0; into bounds,
     (k,)), in the neighbours' order; returns how many are threatening. position m, velocity m/s, (3,); the
-    neighbours' (k, 3); a neighbour at the pursuer's own position (d <= eps) is skipped. sharing: c of the braking
-    margin (2 reciprocal, 1 not). The arithmetic of the filter as it was written over numpy arrays (norms and dot
-    products as x @ y, max/min as Python's), so compiled or not it gives the same bits."""
+    neighbours' (k, 3); a neighbour at the pursuer's own position (d <= eps) is skipped. terms = (min_separation,
+    influence, repulsion_gain, braking_acceleration, max_acceleration, horizon, sharing) (SeparationFilter.
+    _kernel_terms; sharing: c of the braking margin, 2 reciprocal, 1 not). The arithmetic of the filter as it was
+    written over numpy arrays (norms and dot products as x @ y, max/min as Python's), so compiled or not it gives
+    the same bits."""
+    min_separation, influence, repulsion_gain, braking_acceleration, max_acceleration, horizon, sharing = terms
     count = neighbour_positions.shape[0]
     offsets, units, relatives = np.empty((count, 3)), np.empty((count, 3)), np.empty((count, 3))
     distances, closings = np.empty(count), np.empty(count)

@@ -467,37 +467,6 @@ def _predict_with(transition: np.ndarray, discrete_process_noise: np.ndarray, sc
     np.add(full, noise, covariance)
 
 
-@jit
-def _correct_kernel(state: np.ndarray, covariance: np.ndarray, relative: np.ndarray, predicted_range: float,
-                    direction: np.ndarray, reference: np.ndarray, use_reference: bool, use_predicted: bool, lead: float,
-                    late: bool, measurement_noise: np.ndarray, add_position_noise: bool, position_variance: float,
-                    lead_noise: np.ndarray, pursuer_position: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Measurement update with one bearing, eq. (6) and section IV-C (`UPLKF.correct`'s arithmetic), in place.
-
-        K_k = P^-_k H^T (H P^-_k H^T + V_k Sigma V_k^T)^+,   V_k = r^- P_lambda,
-        x_k = x^-_k - K_k H_k x^-_k,   P_k = (I - K_k H) P^-_k   (Joseph form if that is not PSD)
-
-    with H_k x^-_k = P_lambda~ (p^-_T - p) and H = [P_lambda, 0] from the gain's line of sight (H = P_lambda [I, tau I]
-    for a bearing tau = `lead` s off the filter's time, when `late`).
-
-    state: x^- (6,), covariance: P^- (6, 6), overwritten with x_k and P_k. relative: p^-_T - p (3,), m, at the
-    bearing's time, and predicted_range its length, m. direction: the unit bearing of the residual (3,).
-    reference: the own position the gain's line of sight starts from (3,), m (OwnPositionTracker), when
-    use_reference; else p. use_predicted: the PREDICTED gain (from that line of sight; False takes `direction`).
-    measurement_noise: Sigma (3, 3). add_position_noise, position_variance: sigma_p^2 P, m^2. lead_noise: the
-    late bearing's target-motion covariance (3, 3), m^2. pursuer_position: p (3,), m, the bearing's position.
-    Returns the pseudo-measurement innovation y = P_lambda~ (p^-_T - p) (3,), its covariance S (3, 3) and S^+."""
-    work = _correction_work()
-    measured_projection = work[2][_MEASURED_PROJECTION]
-    _measured_projection_into(direction, measured_projection, work[0][_UNIT])
-    innovation, innovation_covariance = np.empty(3), np.empty((3, 3))
-    innovation_inverse = _correct_with(
-        state, covariance, relative, predicted_range, direction, measured_projection, reference, use_reference,
-        use_predicted, lead, late, measurement_noise, add_position_noise, position_variance, lead_noise,
-        pursuer_position, innovation, innovation_covariance, work)
-    return innovation, innovation_covariance, innovation_inverse
-
-
 @jit_inline
 def _measured_projection_into(direction: np.ndarray, out: np.ndarray, unit: np.ndarray) -> None:
     """P_lambda~ = I - u u^T, u = direction / |direction| (`_projector(_unit_vector(direction))`'s arithmetic: the
@@ -525,15 +494,32 @@ def _correction_work() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, 
 
 
 @jit_inline
-def _correct_with(state: np.ndarray, covariance: np.ndarray, relative: np.ndarray, predicted_range: float,
-                  direction: np.ndarray, measured_projection: np.ndarray, reference: np.ndarray, use_reference: bool,
-                  use_predicted: bool, lead: float, late: bool, measurement_noise: np.ndarray, add_position_noise: bool,
-                  position_variance: float, lead_noise: np.ndarray, pursuer_position: np.ndarray, innovation: np.ndarray,
-                  innovation_covariance: np.ndarray, work: tuple) -> np.ndarray:
-    """`_correct_kernel`'s update (the same operations on the same operands in the same order) without an array per step: measured_projection P_lambda~ (3, 3) given (the same for
-    every model of an IMM: `_measured_projection_into`), the innovation y (3,) and its covariance S (3, 3) written
-    into the caller's `innovation` and `innovation_covariance`, every intermediate in `work` (`_correction_work`).
-    Returns S^+ (3, 3), a view into `work` (valid until its next use)."""
+def _correct_with(state: np.ndarray, covariance: np.ndarray, bearing: tuple, measured_projection: np.ndarray,
+                  noises: tuple, scalars: tuple, switches: tuple, outputs: tuple, work: tuple) -> np.ndarray:
+    """Measurement update with one bearing, eq. (6) and section IV-C (`UPLKF.correct`'s arithmetic), in place.
+
+        K_k = P^-_k H^T (H P^-_k H^T + V_k Sigma V_k^T)^+,   V_k = r^- P_lambda,
+        x_k = x^-_k - K_k H_k x^-_k,   P_k = (I - K_k H) P^-_k   (Joseph form if that is not PSD)
+
+    with H_k x^-_k = P_lambda~ (p^-_T - p) and H = [P_lambda, 0] from the gain's line of sight (H = P_lambda [I, tau I]
+    for a bearing tau = `lead` s off the filter's time, when `late`).
+
+    state: x^- (6,), covariance: P^- (6, 6), overwritten with x_k and P_k. bearing = (relative: p^-_T - p (3,), m,
+    at the bearing's time; direction: the unit bearing of the residual (3,); reference: the own position the gain's
+    line of sight starts from (3,), m (OwnPositionTracker), when use_reference, else p; pursuer_position: p (3,),
+    m, the bearing's position). measured_projection: P_lambda~ (3, 3) (the same for every model of an IMM:
+    `_measured_projection_into`). noises = (measurement_noise: Sigma (3, 3); lead_noise: the late bearing's
+    target-motion covariance (3, 3), m^2). scalars = (predicted_range: |relative|, m; lead: tau, s;
+    position_variance: sigma_p^2, m^2, added as sigma_p^2 P when add_position_noise). switches = (use_reference;
+    use_predicted: the PREDICTED gain, from the gain's line of sight (False takes `direction`); late;
+    add_position_noise). outputs = (innovation, innovation_covariance): the pseudo-measurement innovation
+    y = P_lambda~ (p^-_T - p) (3,) and its covariance S (3, 3) are written there; every intermediate lives in
+    `work` (`_correction_work`). Returns S^+ (3, 3), a view into `work` (valid until its next use)."""
+    relative, direction, reference, pursuer_position = bearing
+    measurement_noise, lead_noise = noises
+    predicted_range, lead, position_variance = scalars
+    use_reference, use_predicted, late, add_position_noise = switches
+    innovation, innovation_covariance = outputs
     vectors, rows, small, tall, wide, square = work
     gain_relative, gain_range = relative, predicted_range
     if use_reference:
@@ -632,24 +618,20 @@ def _limit_range_in_place(target_position: np.ndarray, pursuer_position: np.ndar
 
 
 @jit
-def _correct_into(state: np.ndarray, covariance: np.ndarray, relative: np.ndarray, predicted_range: float,
-                  direction: np.ndarray, reference: np.ndarray, use_reference: bool, use_predicted: bool, lead: float,
-                  late: bool, measurement_noise: np.ndarray, add_position_noise: bool, position_variance: float,
-                  lead_noise: np.ndarray, pursuer_position: np.ndarray, with_nis: bool, innovation: np.ndarray,
-                  innovation_covariance: np.ndarray) -> float:
-    """`_correct_kernel` (its arguments first, the same update in place) with the innovation y (3,) and its
-    covariance S (3, 3) written into `innovation` and `innovation_covariance` (arguments rather than results: numba
-    boxes every array it returns), and the NIS y^T S^+ y (`_normalized_innovation_squared`) returned when with_nis
-    (NaN otherwise): UPLKF.correct's one kernel call."""
+def _correct_into(state: np.ndarray, covariance: np.ndarray, bearing: tuple, noises: tuple, scalars: tuple,
+                  switches: tuple, with_nis: bool, outputs: tuple) -> float:
+    """UPLKF.correct's one kernel call: `_correct_with` on its own scratch, P_lambda~ formed from the bearing's
+    direction, the innovation y (3,) and its covariance S (3, 3) written into outputs = (innovation,
+    innovation_covariance) (arguments rather than results: numba boxes every array it returns), and the NIS
+    y^T S^+ y (`_normalized_innovation_squared`) returned when with_nis (NaN otherwise). bearing, noises, scalars,
+    switches: as `_correct_with` takes them."""
     work = _correction_work()
     measured_projection = work[2][_MEASURED_PROJECTION]
-    _measured_projection_into(direction, measured_projection, work[0][_UNIT])
-    innovation_inverse = _correct_with(
-        state, covariance, relative, predicted_range, direction, measured_projection, reference, use_reference,
-        use_predicted, lead, late, measurement_noise, add_position_noise, position_variance, lead_noise,
-        pursuer_position, innovation, innovation_covariance, work)
+    _measured_projection_into(bearing[1], measured_projection, work[0][_UNIT])
+    innovation_inverse = _correct_with(state, covariance, bearing, measured_projection, noises, scalars, switches,
+                                       outputs, work)
     if with_nis:
-        return _normalized_innovation_squared(innovation, innovation_inverse)
+        return _normalized_innovation_squared(outputs[0], innovation_inverse)
     return math.nan
 
 
@@ -1015,7 +997,7 @@ class UPLKF:
         process_noise: np.ndarray,
         measurement_noise: np.ndarray,
         gain_projection: GainProjection = GainProjection.MEASURED,
-        pursuer_position_std: float = 0.0,
+        *, pursuer_position_std: float = 0.0,
         restart_when_behind: bool = True,
         adaptive_noise: AdaptiveNoiseSettings | None = None,
         transition: np.ndarray | None = None,
@@ -1177,7 +1159,7 @@ class UPLKF:
         return 1.0 if self._adaptive_noise is None else self._adaptive_noise._scale
 
     def correct(self, bearing: BearingMeasurement) -> CorrectionReport:
-        """Measurement update with one bearing, eq. (6) and section IV-C (`_correct_kernel`)."""
+        """Measurement update with one bearing, eq. (6) and section IV-C (`_correct_with`)."""
         state, covariance = self._require_state()
         # The bearing may fall between estimator ticks (the networked app receives them
         # at arbitrary times): compare it with the prior mean carried to its time stamp.
@@ -1198,16 +1180,16 @@ class UPLKF:
         position_std = self.pursuer_position_std
         innovation, innovation_covariance = np.empty(3), np.empty((3, 3))
         nis = _correct_into(
-            state, covariance, relative, predicted_range, direction, pursuer_position if reference is None else reference,
-            reference is not None, use_predicted, lead, late, self.measurement_noise, position_std > 0.0,
-            position_std**2, lead_noise, pursuer_position, self._adaptive_noise is not None, innovation,
-            innovation_covariance)
+            state, covariance, (relative, direction, pursuer_position if reference is None else reference,
+                                pursuer_position), (self.measurement_noise, lead_noise),
+            (predicted_range, lead, position_std**2), (reference is not None, use_predicted, late, position_std > 0.0),
+            self._adaptive_noise is not None, (innovation, innovation_covariance))
         self._note_innovation(bearing, nis)
         return _correction_report(innovation_angle, use_predicted, innovation, innovation_covariance, 2)
 
     def _correction_inputs(self, bearing: BearingMeasurement, lead: float,
                            direction: np.ndarray) -> tuple[np.ndarray | None, np.ndarray, bool, np.ndarray]:
-        """What `_correct_kernel` needs beyond the prior and the bearing: (the own position the gain's line of
+        """What `_correct_with` needs beyond the prior and the bearing: (the own position the gain's line of
         sight starts from (3,) (OwnPositionTracker; None without one), the residual's unit bearing (3,), whether
         the bearing is late, the late bearing's noise (3, 3)). Feeds the own-position tracker with this bearing's
         position (so once per correction that is not a restart)."""

@@ -202,7 +202,7 @@ class FixValidator:
     #: Holds kept in `contests` (the count goes on in `contest_count_total`).
     MAX_CONTESTS = 100
 
-    def __init__(self, target_sender: str, max_target_speed: float = 30.0, jump_margin: float = 5.0,
+    def __init__(self, target_sender: str, *, max_target_speed: float = 30.0, jump_margin: float = 5.0,
                  policy: FreshnessPolicy | None = None, silence: float = 2.0, reanchor_after: int = 3,
                  max_candidates: int = 4, epoch_switch: float = 0.5, contest_window: float = 2.0,
                  contest_count: int = 5, contest_share: float = 0.8, contest_clear: float = 2.0) -> None:

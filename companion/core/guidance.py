@@ -438,7 +438,7 @@ def _tracking_command(range_terms, sigma, gain, saturation_limit, los, lateral, 
     command_out[:] = lateral + longitudinal
     if not with_setpoint:
         return math.nan, math.nan
-    return _setpoint_after_into_kernel(command_out, los, previous_rotation, *setpoint_terms, rotation_out, flown_out)
+    return _setpoint_after_into_kernel(command_out, los, previous_rotation, setpoint_terms, rotation_out, flown_out)
 
 
 _tracking_terms_kernel = jit(_tracking_terms)

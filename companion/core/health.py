@@ -366,7 +366,7 @@ class HealthMonitor:
         pursuer_velocity: np.ndarray,
         estimate_position: np.ndarray,
         estimate_covariance: np.ndarray,
-        innovation: np.ndarray | None = None,
+        *, innovation: np.ndarray | None = None,
         innovation_covariance: np.ndarray | None = None,
         innovation_dof: int = 0,
         reinitialized: bool = False,

@@ -494,46 +494,31 @@ def _prior_lines_of_sight(states: np.ndarray, weights: np.ndarray, lead: float, 
 
 
 @jit
-def _imm_correct_kernel(states: np.ndarray, covariances: np.ndarray, model_relative: np.ndarray, ranges: np.ndarray,
-                        model_ranges: np.ndarray, direction: np.ndarray, references: np.ndarray, use_reference: bool,
-                        lead: float, late: bool, measurement_noises: np.ndarray, add_position_noise: bool, position_variance: float,
-                        lead_noises: np.ndarray, pursuer_position: np.ndarray, weights: np.ndarray,
-                        relative: np.ndarray, predicted_range: float, stay_probability: float, stay_time: float,
-                        interval: float, with_nis: bool, nis: np.ndarray, probabilities: np.ndarray
-                        ) -> tuple[np.ndarray, np.ndarray]:
+def _imm_correct_into(states: np.ndarray, covariances: np.ndarray, weights: np.ndarray, pursuer_position: np.ndarray,
+                      direction: np.ndarray, references: np.ndarray, noises: tuple, lines_of_sight: tuple,
+                      outputs: tuple, scalars: np.ndarray, switches: np.ndarray, predicted_range: float) -> None:
     """One IMM correction of models with the PREDICTED gain, none restarting (IMMEstimator.correct), in place on
     the stacked states (n, 6) and covariances (n, 6, 6):
 
-    every model's u-PLKF correction (eq. (6), section IV-C: `_correct_kernel`), their likelihoods (seed 004
-    eq. (20), `_rank2_log_likelihoods_kernel`, the kernel of each S_j its model's predicted line of sight), the
-    combined innovation for the health monitor (`_combined_innovation`), the model probabilities (eq. (21),
-    `_posterior_probabilities`) and the mixing for the next cycle (eqs. (17)-(19), `_mix_into`).
+    every model's u-PLKF correction (eq. (6), section IV-C: `_correct_with`, one scratch for all of them and the
+    bearing's measured projection formed once, the same for every model), their likelihoods (seed 004 eq. (20),
+    `_rank2_log_likelihoods_into`, the kernel of each S_j its model's predicted line of sight), the combined
+    innovation for the health monitor (`_combined_innovation_into`), the model probabilities (eq. (21),
+    `_posterior_probabilities_into`) and the mixing for the next cycle (eqs. (17)-(19), `_mix_in_place`).
 
-    The per-model inputs are `_correct_kernel`'s, stacked (references (n, 3), or (1, 3) for one reference every
-    model takes (the model filters' shared OwnPositionTracker); measurement_noises and lead_noises (n, 3, 3)); model_relative (n, 3), ranges and model_ranges (n,) as `_prior_lines_of_sight` gives them; weights: c (n,); relative and predicted_range: the combined line of
-    sight; stay_probability, stay_time, interval: the Markov matrix p_ij over the interval since the last
-    correction (`_markov_matrix_over`). Writes each model's NIS y_j^T S_j^+ y_j into nis (n,) (when with_nis; left
-    alone otherwise), mu into probabilities (n,) and the next c into weights (n,) (after every use of the old c),
-    the caller's arrays; returns the combined innovation (3,) and covariance (3, 3)."""
-    innovation, innovation_covariance = np.empty(3), np.empty((3, 3))
-    _imm_correct_into(states, covariances, model_relative, ranges, model_ranges, direction, references, use_reference,
-                      lead, late, measurement_noises, add_position_noise, position_variance, lead_noises,
-                      pursuer_position, weights, relative, predicted_range, stay_probability, stay_time, interval,
-                      with_nis, nis, probabilities, innovation, innovation_covariance)
-    return innovation, innovation_covariance
-
-
-@jit
-def _imm_correct_into(states: np.ndarray, covariances: np.ndarray, model_relative: np.ndarray, ranges: np.ndarray,
-                      model_ranges: np.ndarray, direction: np.ndarray, references: np.ndarray, use_reference: bool,
-                      lead: float, late: bool, measurement_noises: np.ndarray, add_position_noise: bool,
-                      position_variance: float, lead_noises: np.ndarray, pursuer_position: np.ndarray,
-                      weights: np.ndarray, relative: np.ndarray, predicted_range: float, stay_probability: float,
-                      stay_time: float, interval: float, with_nis: bool, nis: np.ndarray, probabilities: np.ndarray,
-                      innovation: np.ndarray, innovation_covariance: np.ndarray) -> None:
-    """`_imm_correct_kernel` with the combined innovation (3,) and covariance (3, 3) written into the caller's
-    `innovation` and `innovation_covariance`: the same steps, one scratch for every model's correction
-    (`_correct_with`) and the bearing's measured projection formed once (the same for every model)."""
+    weights: c (n,), the next c written into it (after every use of the old c); pursuer_position and the unit
+    bearing direction (3,); references: the own positions the gains start from, (n, 3), or (1, 3) for one every
+    model takes (the model filters' shared OwnPositionTracker). noises, lines_of_sight, outputs, scalars and
+    switches as `_imm_correction` takes them (lines_of_sight as `_prior_lines_of_sight` wrote them; each model's NIS
+    y_j^T S_j^+ y_j written into nis when the _WITH_NIS switch is on, left alone otherwise; mu into probabilities;
+    the combined innovation (3,) and covariance (3, 3) into innovation and innovation_covariance); predicted_range:
+    the combined line of sight's length, m. The Markov matrix p_ij is over the interval since the last correction
+    (`_markov_matrix_over`)."""
+    measurement_noises, lead_noises = noises
+    model_relative, ranges, model_ranges, relative = lines_of_sight
+    nis, probabilities, innovation, innovation_covariance = outputs
+    lead, position_variance = scalars[_LEAD], scalars[_POSITION_VARIANCE]
+    switches_j = (switches[_USE_REFERENCE], True, switches[_LATE], switches[_ADD_POSITION_NOISE])
     count = states.shape[0]
     per_model = np.empty(count * (3 + 9 + 3 + 1))
     innovations = per_model[0:3 * count].reshape(count, 3)
@@ -544,20 +529,19 @@ def _imm_correct_into(states: np.ndarray, covariances: np.ndarray, model_relativ
     measured_projection = work[2][_MEASURED_PROJECTION]
     _measured_projection_into(direction, measured_projection, work[0][_UNIT])
     for j in range(count):
+        bearing = (model_relative[j], direction, references[j if references.shape[0] > 1 else 0], pursuer_position)
         innovation_inverse = _correct_with(
-            states[j], covariances[j], model_relative[j], model_ranges[j], direction, measured_projection,
-            references[j if references.shape[0] > 1 else 0], use_reference, True, lead, late, measurement_noises[j],
-            add_position_noise, position_variance, lead_noises[j], pursuer_position, innovations[j],
-            innovation_covariances[j], work)
-        if with_nis:
+            states[j], covariances[j], bearing, measured_projection, (measurement_noises[j], lead_noises[j]),
+            (model_ranges[j], lead, position_variance), switches_j, (innovations[j], innovation_covariances[j]), work)
+        if switches[_WITH_NIS]:
             nis[j] = _normalized_innovation_squared(innovations[j], innovation_inverse)
     np.divide(model_relative, ranges[:, None], null_directions)
     _rank2_log_likelihoods_into(innovations, innovation_covariances, ranges, null_directions, log_likelihoods)
     _combined_innovation_into(weights, innovations, innovation_covariances, relative, predicted_range, innovation,
                               innovation_covariance)
     _posterior_probabilities_into(log_likelihoods, weights, probabilities)
-    _mix_in_place(probabilities, _markov_matrix_over(count, stay_probability, stay_time, interval), states,
-                  covariances, weights)
+    _mix_in_place(probabilities, _markov_matrix_over(count, scalars[_STAY_PROBABILITY], scalars[_STAY_TIME],
+                                                     scalars[_INTERVAL]), states, covariances, weights)
 
 
 _CORRECTED, _RESTART, _MODEL_BY_MODEL, _NEEDS_REFERENCES = 0, 1, 2, 3
@@ -595,8 +579,8 @@ def _imm_correction(states: np.ndarray, covariances: np.ndarray, weights: np.nda
     given (not have_references: `_NEEDS_REFERENCES`), which leave the states alone: the own position the gains start
     from (the model filters' shared OwnPositionTracker's usual step, `_own_position_step` on `track` over track_dt s
     with its acceleration_psd and track_std, its prediction written into `prediction` and taken as every model's
-    reference, with the track_step switch; else `references` as `_imm_correct_kernel` takes them) and every step of
-    the IMM cycle (`_imm_correct_kernel`: the models' u-PLKF corrections, eq. (6), their likelihoods, seed 004 eq.
+    reference, with the track_step switch; else `references` as `_imm_correct_into` takes them) and every step of
+    the IMM cycle (`_imm_correct_into`: the models' u-PLKF corrections, eq. (6), their likelihoods, seed 004 eq.
     (20), the model probabilities, eq. (21), the mixing, eqs. (17)-(19)), the combined innovation and its covariance
     written into outputs (`_CORRECTED`). Returns the combined prior's range, its clipped cosine to the bearing and
     what it did."""
@@ -617,13 +601,8 @@ def _imm_correction(states: np.ndarray, covariances: np.ndarray, weights: np.nda
         _own_position_step(track, scalars[_TRACK_DT], scalars[_ACCELERATION_PSD], scalars[_TRACK_STD],
                            pursuer_position, prediction)
         references = prediction.reshape(1, 3)
-    measurement_noises, lead_noises = noises
-    nis, probabilities, innovation, innovation_covariance = outputs
-    _imm_correct_into(states, covariances, model_relative, ranges, model_ranges, direction, references,
-                      switches[_USE_REFERENCE], lead, switches[_LATE], measurement_noises, switches[_ADD_POSITION_NOISE],
-                      scalars[_POSITION_VARIANCE], lead_noises, pursuer_position, weights, relative, predicted_range,
-                      scalars[_STAY_PROBABILITY], scalars[_STAY_TIME], scalars[_INTERVAL], switches[_WITH_NIS], nis,
-                      probabilities, innovation, innovation_covariance)
+    _imm_correct_into(states, covariances, weights, pursuer_position, direction, references, noises, lines_of_sight,
+                      outputs, scalars, switches, predicted_range)
     return predicted_range, cos_angle, _CORRECTED
 
 
@@ -649,7 +628,7 @@ class IMMEstimator:
         models: Sequence[MotionModel],
         measurement_noise: np.ndarray,
         gain_projection: GainProjection = GainProjection.PREDICTED,
-        pursuer_position_std: float = 0.0,
+        *, pursuer_position_std: float = 0.0,
         restart_when_behind: bool = True,
         stay_probability: float = 0.98,
         stay_time: float = 1.0,
@@ -672,8 +651,10 @@ class IMMEstimator:
         for j, model in enumerate(self.models):
             a, b = coordinated_turn_matrices(self.period, model.turn_rate)
             process_noise = model.process_noise * np.eye(3)
-            model_filter = UPLKF(self.period, process_noise, measurement_noise, gain_projection, pursuer_position_std,
-                                 restart_when_behind, adaptive_noise, transition=a, discrete_process_noise=b @ process_noise @ b.T)
+            model_filter = UPLKF(self.period, process_noise, measurement_noise, gain_projection,
+                                 pursuer_position_std=pursuer_position_std, restart_when_behind=restart_when_behind,
+                                 adaptive_noise=adaptive_noise, transition=a,
+                                 discrete_process_noise=b @ process_noise @ b.T)
             self.filters.append(model_filter)
         self._bind_storage()
         # one record of the sets of the model filters' process-noise factors (estimators.NoiseChanges), theirs and
@@ -699,7 +680,7 @@ class IMMEstimator:
         # the prior lines of sight of a correction (`_prior_lines_of_sight` writes them): p^-_T,j - p (n, 3), their
         # lengths twice (n,) (as summed by the IMM, as by each model filter), the combined p^-_T - p (3,)
         self._lines_of_sight = (np.empty((count, 3)), np.empty(count), np.empty(count), np.empty(3))
-        self._nis = np.zeros(count)  # each model's NIS of the last correction (`_imm_correct_kernel` writes it)
+        self._nis = np.zeros(count)  # each model's NIS of the last correction (`_imm_correct_into` writes it)
         # each model filter's adaptive scale and boost for `_predict_models` and its adaptive noise (None: off), as
         # collected when the count of `_noise_changes` was `_noise_count` (`_collect_noise_factors`)
         self._scales, self._boosts = np.ones(count), np.ones(count)

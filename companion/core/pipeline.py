@@ -153,8 +153,8 @@ class PipelineOutput:
     health_reinitialized: bool = False
 
 
-def _output(time, setpoint, new_setpoint, estimate, guidance, correction, mode, bearing_age, gated_out, reinitialized,
-            observability, health, health_action, process_noise_boost, health_reinitialized) -> PipelineOutput:
+def _output(time, *, setpoint, new_setpoint, estimate, guidance, correction, mode, bearing_age, gated_out,
+            reinitialized, observability, health, health_action, process_noise_boost, health_reinitialized) -> PipelineOutput:
     """PipelineOutput(...), every field given in order, without the frozen dataclass's object.__setattr__ per
     field (one is built at every step; by keyword, which is cheaper than pairing names and values)."""
     return fast_frozen(PipelineOutput, time=time, setpoint=setpoint, new_setpoint=new_setpoint, estimate=estimate,
@@ -240,7 +240,7 @@ class FollowingPipeline:
         limits: VehicleLimits,
         initial_guess: InitialGuess,
         control_period: float,
-        los_source: str = "estimate",
+        *, los_source: str = "estimate",
         dropout: DropoutPolicy | None = None,
         observability_window: float = 5.0,
         health: HealthMonitor | None = None,
@@ -388,10 +388,11 @@ class FollowingPipeline:
             self._control_ticks = math.floor((time - self._engaged_at) / self.control_period + _TIME_EPS) + 1
             new_setpoint = True
         age = time - self._last_bearing_time if self._last_bearing_time is not None else 0.0
-        return _output(time, self._setpoint, new_setpoint, self.estimator.estimate, self._guidance, correction,
-                       self.mode, age, gated_out, reinitialized, self._observability_measure,
-                       self._health_report, self.health_action, self._process_noise_boost,
-                       health_reinitialized)
+        return _output(time, setpoint=self._setpoint, new_setpoint=new_setpoint, estimate=self.estimator.estimate,
+                       guidance=self._guidance, correction=correction, mode=self.mode, bearing_age=age,
+                       gated_out=gated_out, reinitialized=reinitialized, observability=self._observability_measure,
+                       health=self._health_report, health_action=self.health_action,
+                       process_noise_boost=self._process_noise_boost, health_reinitialized=health_reinitialized)
 
     def step_all(self, time: float, pursuer: PursuerState, bearings) -> PipelineOutput:
         """step() once per bearing (in the order given; one step without a bearing when there is none), all at
@@ -414,9 +415,10 @@ class FollowingPipeline:
         fim = self._observability_measure
         self._health_report = self.health.update(
             bearing.time, bearing.unit_direction, bearing.pursuer_position, pursuer.velocity,
-            estimate.position, estimate.covariance, correction.innovation, correction.innovation_covariance,
-            correction.innovation_dof, correction.reinitialized,
-            None if fim is None else float(fim["min_eigenvalue"]))
+            estimate.position, estimate.covariance, innovation=correction.innovation,
+            innovation_covariance=correction.innovation_covariance, innovation_dof=correction.innovation_dof,
+            reinitialized=correction.reinitialized,
+            fim_min_eigenvalue=None if fim is None else float(fim["min_eigenvalue"]))
 
     def _act_on_health(self, bearing: BearingMeasurement, correction: CorrectionReport) -> bool:
         """The policy's actions for the verdict just made; True when it restarted the estimator."""

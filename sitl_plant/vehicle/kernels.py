@@ -114,18 +114,19 @@ def rotor_wrench(w1: float, w2: float, w3: float, w4: float, k: PlantConstants) 
 
 @jit
 def rigid_body_rhs(
-    vx: float, vy: float, vz: float,
-    qw: float, qx: float, qy: float, qz: float,
-    wx: float, wy: float, wz: float,
-    thrust: float, tx: float, ty: float, tz: float,
-    k: PlantConstants,
+    v: tuple[float, float, float], q: Quat, omega: tuple[float, float, float], wrench: Wrench, k: PlantConstants,
 ) -> tuple[float, float, float, float, float, float, float, float, float, float]:
     """Rigid-body right-hand side, eq. (20b)-(20d) plus drag: (v', q', omega') as a 10-tuple.
 
-    p' = v (eq. (20a)) is left to the integrator. Scalar arguments instead of a state vector
-    because this runs four times per plant step and, in plain Python, packing and unpacking
-    sequences would dominate its cost.
+    v: velocity (m/s, NED), q: attitude quaternion (w, x, y, z), omega: body rates (rad/s, FRD), wrench:
+    (thrust N, body torque N m) as `rotor_wrench` gives it. p' = v (eq. (20a)) is left to the integrator.
+    Tuples of floats rather than arrays: this runs four times per plant step, and in plain Python
+    array indexing would dominate its cost.
     """
+    vx, vy, vz = v
+    qw, qx, qy, qz = q
+    wx, wy, wz = omega
+    thrust, tx, ty, tz = wrench
     # k = plant_constants: (g, 1/m, C_d/m, 1/J_x, 1/J_y, 1/J_z, J_z - J_y, J_x - J_z, J_y - J_x, ...),
     # indexed where used (cheaper than unpacking all twelve in plain Python).
     drag_per_mass = k[2]
@@ -176,28 +177,28 @@ def rk4_step(
     px, py, pz, vx, vy, vz, qw, qx, qy, qz, wx, wy, wz = s
     hh = 0.5 * h
     a1x, a1y, a1z, q1w, q1x, q1y, q1z, o1x, o1y, o1z = rigid_body_rhs(
-        vx, vy, vz, qw, qx, qy, qz, wx, wy, wz, t0, x0, y0, z0, k
+        (vx, vy, vz), (qw, qx, qy, qz), (wx, wy, wz), (t0, x0, y0, z0), k
     )
     v2x, v2y, v2z = vx + hh * a1x, vy + hh * a1y, vz + hh * a1z
     a2x, a2y, a2z, q2w, q2x, q2y, q2z, o2x, o2y, o2z = rigid_body_rhs(
-        v2x, v2y, v2z,
-        qw + hh * q1w, qx + hh * q1x, qy + hh * q1y, qz + hh * q1z,
-        wx + hh * o1x, wy + hh * o1y, wz + hh * o1z,
-        tm, xm, ym, zm, k,
+        (v2x, v2y, v2z),
+        (qw + hh * q1w, qx + hh * q1x, qy + hh * q1y, qz + hh * q1z),
+        (wx + hh * o1x, wy + hh * o1y, wz + hh * o1z),
+        (tm, xm, ym, zm), k,
     )
     v3x, v3y, v3z = vx + hh * a2x, vy + hh * a2y, vz + hh * a2z
     a3x, a3y, a3z, q3w, q3x, q3y, q3z, o3x, o3y, o3z = rigid_body_rhs(
-        v3x, v3y, v3z,
-        qw + hh * q2w, qx + hh * q2x, qy + hh * q2y, qz + hh * q2z,
-        wx + hh * o2x, wy + hh * o2y, wz + hh * o2z,
-        tm, xm, ym, zm, k,
+        (v3x, v3y, v3z),
+        (qw + hh * q2w, qx + hh * q2x, qy + hh * q2y, qz + hh * q2z),
+        (wx + hh * o2x, wy + hh * o2y, wz + hh * o2z),
+        (tm, xm, ym, zm), k,
     )
     v4x, v4y, v4z = vx + h * a3x, vy + h * a3y, vz + h * a3z
     a4x, a4y, a4z, q4w, q4x, q4y, q4z, o4x, o4y, o4z = rigid_body_rhs(
-        v4x, v4y, v4z,
-        qw + h * q3w, qx + h * q3x, qy + h * q3y, qz + h * q3z,
-        wx + h * o3x, wy + h * o3y, wz + h * o3z,
-        te, xe, ye, ze, k,
+        (v4x, v4y, v4z),
+        (qw + h * q3w, qx + h * q3x, qy + h * q3y, qz + h * q3z),
+        (wx + h * o3x, wy + h * o3y, wz + h * o3z),
+        (te, xe, ye, ze), k,
     )
     h6 = h / 6.0
     qw += h6 * (q1w + 2.0 * (q2w + q3w) + q4w)
@@ -428,7 +429,7 @@ def warm_up() -> None:
     k, c, m = (1.0,) * 12, (1.0,) * 5, (1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
     s: State = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     w = q = (1.0, 0.0, 0.0, 0.0)
-    rigid_body_rhs(*s[3:13], *rotor_wrench(*w, k), k)
+    rigid_body_rhs(s[3:6], s[6:10], s[10:13], rotor_wrench(*w, k), k)
     rk4_step(0.002, 0.9, 0.8, s, w, 1.0, 1.0, 1.0, 1.0, k)
     error_quaternion(q, q)
     attitude_torque(q, ZERO3, q, ZERO3, ZERO3, True, c)

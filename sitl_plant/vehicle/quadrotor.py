@@ -265,7 +265,7 @@ class Quadrotor:
     def acceleration(self) -> np.ndarray:
         """Inertial acceleration dv/dt at the current state (gravity, thrust, drag), m/s^2, (3,) NED."""
         k = self._k
-        return np.array(kernels.rigid_body_rhs(*self._s[3:13], *kernels.rotor_wrench(*self._w, k), k)[0:3])
+        return np.array(kernels.rigid_body_rhs(self._s[3:6], self._s[6:10], self._s[10:13], kernels.rotor_wrench(*self._w, k), k)[0:3])
 
     def step(self, dt: float, rotor_speed_command: np.ndarray) -> None:
         """Advance one RK4 step of dt seconds holding rotor_speed_command (rad/s, shape (4,)).

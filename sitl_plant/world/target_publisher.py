@@ -181,7 +181,7 @@ class TargetPublisher:
     """
 
     def __init__(self, truth: TargetTruth, schedule: FixSchedule, send, log: TargetLog, sender: str, frame: str,
-                 home: tuple[float, float, float], noise_std: float, rng: np.random.Generator,
+                 home: tuple[float, float, float], noise_std: float, *, rng: np.random.Generator,
                  duration: float | None = None, faults: LinkFaults | None = None,
                  fault_log: FaultLog | None = None, epoch: int | None = None) -> None:
         self.truth = truth
@@ -417,8 +417,8 @@ def main(argv: list[str] | None = None) -> int:
         fixes = publisher(session, key)
         start_time = math.inf if args.wait_for_start else args.start_time
         target = TargetPublisher(TargetTruth(scenario.target, start_time, seed), FixSchedule(args.rate), fixes.put, log,
-                                 args.sender, args.frame, home, args.noise_std, np.random.default_rng(seed),
-                                 args.duration, faults, fault_log)
+                                 args.sender, args.frame, home, args.noise_std, rng=np.random.default_rng(seed),
+                                 duration=args.duration, faults=faults, fault_log=fault_log)
         clock = session.declare_subscriber(CLOCK_KEY, on_clock)
         commands = session.declare_subscriber(target_command_key(args.sender), on_command)
         listen = args.zenoh_listen or ["tcp/127.0.0.1:0" if tls is None else "tls/127.0.0.1:0"]
