@@ -168,7 +168,7 @@ def test_fast_frozen_builds_what_each_constructor_builds():
 
 @pytest.mark.parametrize("helper", ["pipeline._output", "health._health_report"])
 def test_the_message_helpers_are_the_constructors_with_the_same_arguments(helper):
-    """pipeline._output(*values) builds PipelineOutput(*values), health._health_report(*values) HealthReport(*values):
+    """pipeline._output(values) builds PipelineOutput(*values), health._health_report(values) HealthReport(*values):
     the same fields in the dataclass's order (a helper whose parameters were in another order, or missed a field
     added to the class, would fail here)."""
     import dataclasses
@@ -183,7 +183,10 @@ def test_the_message_helpers_are_the_constructors_with_the_same_arguments(helper
     names = [field.name for field in dataclasses.fields(cls)]
     assert list(inspect.signature(function).parameters) == names
     values = [object() for _ in names]  # distinct objects: any mix-up of two fields shows
-    built, constructed = function(*values), cls(*values)
+    parameters = inspect.signature(function).parameters.values()
+    positional = [value for p, value in zip(parameters, values) if p.kind is not p.KEYWORD_ONLY]
+    keywords = {p.name: value for p, value in zip(parameters, values) if p.kind is p.KEYWORD_ONLY}
+    built, constructed = function(*positional, **keywords), cls(*values)
     assert type(built) is cls and vars(built).keys() == vars(constructed).keys()
     for name in names:
         assert getattr(built, name) is getattr(constructed, name)
