@@ -324,12 +324,15 @@ class CompanionApp:
         }
 
     def _swarm_summary(self) -> dict | None:
-        """The share link's figures and the pipeline's law changes ([swarm] only; None otherwise)."""
+        """The share link's figures, the pipeline's law changes and following_since, the vehicle time (s) of the
+        pipeline's first bearing in following: the origin of the [swarm.link] windows' clock ([swarm] only; None
+        otherwise)."""
         if self.swarm is None:
             return None
         pipeline = self.follower.pipeline
         return {**self.swarm.summary(),
-                "law_changes": [] if pipeline is None else [(round(t, 3), law) for t, law in pipeline.law_changes]}
+                "law_changes": [] if pipeline is None else [(round(t, 3), law) for t, law in pipeline.law_changes],
+                "following_since": None if pipeline is None else pipeline.engaged_at}
 
     async def _shutdown(self, tlog: TlogWriter) -> None:
         """Logs and summary first (nothing is lost if a library then hangs on close), then MAVSDK

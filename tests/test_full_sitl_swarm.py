@@ -169,19 +169,21 @@ def test_a_share_link_blackout_of_one_pursuer_is_survived_and_recovered(flown):
     assert set(dropped[2]) == {"blackout"} and abs(dropped[2]["blackout"] - 2 * rate * (end - start)) <= 4, dropped
     for k in (1, 3):
         assert set(dropped[k]) == {"blackout"} and abs(dropped[k]["blackout"] - rate * (end - start)) <= 2, dropped
-    # The windows count from each companion's start of following (its pipeline's first bearing, up to a bearing
-    # period before the first setpoint the summary's engaged_at records); the logs are in simulated time.
+    # The windows count from each companion's start of following (its pipeline's first bearing, `following_since`:
+    # before the first setpoint the summary's engaged_at records, by more on a busy machine); simulated time.
     engaged = [entry["companion"]["engaged_at"] for entry in summary["pursuers"]]
-    period = 1.0 / rate
+    since = [entry["companion"]["swarm"]["following_since"] for entry in summary["pursuers"]]
+    assert all(s <= e for s, e in zip(since, engaged)), (since, engaged)
     laws = summary["pursuers"][1]["law_changes"]
-    fallback = [t for t, law in laws if law == "lone" and engaged[1] + start - period < t < engaged[1] + end]
-    back = [t for t, law in laws if law == "cooperative" and t >= engaged[1] + end - period]
-    assert fallback and back, (laws, engaged)
+    rounding = 1e-3  # s: the law changes are logged to the millisecond
+    fallback = [t for t, law in laws if law == "lone" and since[1] + start - rounding < t < since[1] + end]
+    back = [t for t, law in laws if law == "cooperative" and t >= since[1] + end - rounding]
+    assert fallback and back, (laws, since)
     tracks = [_track(folder, k) for k in range(1, COUNT + 1)]
     grid = np.arange(max(t[0] for t, _ in tracks), min(t[-1] for t, _ in tracks), 0.02)
     at = [np.column_stack([np.interp(grid, t, p[:, i]) for i in range(3)]) for t, p in tracks]
     closest = np.min([np.linalg.norm(at[i] - at[j], axis=1) for i in range(COUNT) for j in range(i + 1, COUNT)], axis=0)
-    outside = (grid < min(engaged) + start) | (grid > max(engaged) + end + SCENARIO.swarm.neighbour_timeout_s)
+    outside = (grid < min(since) + start) | (grid > max(since) + end + SCENARIO.swarm.neighbour_timeout_s)
     assert float(np.min(closest[outside])) > SCENARIO.swarm.min_separation
     assert float(np.min(closest)) > SCENARIO.swarm.min_separation
     print(f"closest pursuers during the blackout: {float(np.min(closest[~outside])):.2f} m, outside it: "
