@@ -56,7 +56,8 @@ MAX_LAG = 0.25
 def build_vehicle(
     scenario: PlantScenario,
     vehicle: VehicleConfig,
-    *, speed_factor: float | None = None,
+    *,
+    speed_factor: float | None = None,
     companion_port: int | None = None,
     gcs_port: int | None = None,
     seed: int | None = None,

@@ -301,7 +301,8 @@ def _step(
 def optimize_placement(
     initial: np.ndarray,
     planes: Sequence[Plane] = (),
-    *, k_g: float = 1.0,
+    *,
+    k_g: float = 1.0,
     k_m: float = 5.0,
     dt: float = 1e-3,
     steps: int | None = None,

@@ -115,7 +115,8 @@ class Autopilot:
     def __init__(
         self,
         params: QuadrotorParams,
-        *, start_position: tuple[float, float] = (0.0, 0.0),
+        *,
+        start_position: tuple[float, float] = (0.0, 0.0),
         yaw: float = 0.0,
         tick_rate_hz: float = 250.0,
         physics_rate_hz: float = 500.0,
