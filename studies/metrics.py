@@ -207,8 +207,9 @@ def outcome_lines(flight: dict, who: str = "") -> list[str]:
              "no_estimate": "NO ESTIMATE over the summary window",
              "failed": "FAILED: the flight did not fly as asked"}
     monitor = flight.get("monitor_verdict", flight.get("verdict"))
-    note = ("  (the monitor missed it)" if truth["monitor_missed"] else
-            "  (the monitor's false alarm)" if truth["monitor_false_alarm"] else "")
+    judged = monitor not in ("failed", "no_estimate")  # those words come from the flight, not from the monitor
+    note = ("  (the monitor missed it)" if judged and truth["monitor_missed"] else
+            "  (the monitor's false alarm)" if judged and truth["monitor_false_alarm"] else "")
     half, limit = truth["half_desired_range"], truth["tilt_limit_deg"]
     return [
         f"outcome (truth{', ' + who if who else ''}): {words.get(truth['outcome'], truth['outcome'])}; monitor verdict: {monitor}{note}",

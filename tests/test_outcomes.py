@@ -352,6 +352,18 @@ def test_the_closing_block_reads_a_summary_json_with_nulls(loaded, tmp_path):
     assert lines[3] == "  max tilt 40.0 deg  BREACHED (limit 35 deg, 60.0 s above)"
 
 
+def test_the_closing_block_blames_no_monitor_for_a_flight_that_did_not_fly(loaded):
+    """A flight the autopilot's failsafe ended early whose estimate was off: the truth says FAILED and the verdict
+    is "failed" (from the termination); the monitor judged nothing, so the line says nothing of a miss."""
+    from studies.metrics import outcome_lines
+
+    scenario, vehicle = loaded
+    summary = summarize(_series(_at_rd(scenario), np.full(TIME.shape, 5.0)), scenario, Termination.FAILSAFE, vehicle)
+    assert summary["truth"]["outcome"] == "failed" and summary["truth"]["monitor_missed"]
+    line = outcome_lines(summary)[0]
+    assert line == "outcome (truth): FAILED: the flight did not fly as asked; monitor verdict: failed"
+
+
 def test_bof_sim_exits_1_when_any_pursuer_of_a_swarm_is_judged_bad(tmp_path, capsys):
     """swarm_turning with a divergence limit of 1 cm (its pursuers' RMS is 0.15-0.19 m at seed 1): every pursuer
     diverged by that limit, so the command fails, and each pursuer's closing block says so."""
