@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from companion.core.attitude import VehicleLimits
-from interfaces.derived_defaults import (SAFETY_BRAKING_SHARE, SAFETY_MAX_BRAKING_SHARE, dropout_min_range,
+from interfaces.derived_defaults import (EXCITED_LAWS, SAFETY_BRAKING_SHARE, SAFETY_MAX_BRAKING_SHARE, dropout_min_range,
                                          dropout_safe_range, health_min_range)
 from interfaces.scenario import (ConfigError, EstimatorConfig, GuidanceConfig, PursuerStart, Scenario, SensorConfig,
                                  VehicleConfig)
@@ -184,10 +184,10 @@ def build_range_controller(scenario: Scenario) -> RangeController:
 
 
 def build_excitation(scenario: Scenario) -> RangeExcitation | None:
-    """[guidance] excitation: None for 'none' (the paper's law, the pipeline's default path), else the
-    RangeExcitation with the lateral law's navigation gain as the damping it cancels."""
+    """[guidance] excitation (its default for the law when left out): None for 'none' (the paper's law
+    unchanged), else the RangeExcitation with the lateral law's navigation gain as the damping it cancels."""
     g = scenario.guidance
-    if g.excitation == "none":
+    if g.effective_excitation == "none":
         return None
     return RangeExcitation(g.excitation_speed, g.navigation_gain, g.excitation_frequency, g.excitation_low,
                            g.excitation_high)
@@ -381,7 +381,7 @@ def build_action_excitation(scenario: Scenario) -> RangeExcitation | None:
     excitation_frequency, the lateral law's gain as its damping, [health] excitation_low/high as its
     thresholds. None for lateral laws it was not designed for (only 'hng' and 'ppg')."""
     g, h = scenario.guidance, scenario.health
-    if g.law not in ("hng", "ppg") or not h.act or not h.excite:
+    if g.law not in EXCITED_LAWS or not h.act or not h.excite:
         return None
     return RangeExcitation(g.excitation_speed, g.navigation_gain, g.excitation_frequency, h.excitation_low,
                            h.excitation_high)

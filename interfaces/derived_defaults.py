@@ -17,6 +17,9 @@ DROPOUT_MIN_RANGE_FACTOR = 0.5
 SAFETY_BRAKING_SHARE = 0.5
 #: ... and the envelope brakes with at most this share of it (or the planned braking, if larger).
 SAFETY_MAX_BRAKING_SHARE = 0.9
+#: [guidance] excitation: the lateral laws the range excitation serves (its design cancels their N P v damping);
+#: for them it is on ('uncertainty') unless a scenario says 'none', for the others off.
+EXCITED_LAWS = ("hng", "ppg")
 
 
 def health_min_range(desired_range: float) -> float:
@@ -32,3 +35,8 @@ def dropout_safe_range(desired_range: float) -> float:
 def dropout_min_range(desired_range: float) -> float:
     """[dropout] min_range's default for a desired range r_d, m."""
     return DROPOUT_MIN_RANGE_FACTOR * desired_range
+
+
+def default_excitation(law: str) -> str:
+    """[guidance] excitation's default for a lateral law: 'uncertainty' for EXCITED_LAWS, 'none' for the others."""
+    return "uncertainty" if law in EXCITED_LAWS else "none"

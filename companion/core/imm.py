@@ -78,37 +78,97 @@ class MotionModel:
     name: for logs ("cv", "ct+0.30", ...). turn_rate: omega, rad/s, about the NED down axis
     (0: eq. (1)'s constant velocity; > 0 a right turn seen from above). process_noise: q,
     (m/s^2)^2, the target acceleration variance per axis of this model (Q = q I).
+    along_track_noise: q_a, (m/s^2)^2; when > 0 the acceleration variance along the model's own
+    velocity estimate, q staying across it (a target that changes speed but not direction;
+    `speed_change_noise`), recomputed at every prediction. 0 (default): Q = q I.
     """
 
     name: str
     turn_rate: float
     process_noise: float
+    along_track_noise: float = 0.0
 
 
 def standard_models(turn_rates: Sequence[float], cv_process_noise: float, turn_process_noise: float,
                     manoeuvre_acceleration: float | None = None) -> list[MotionModel]:
     """Constant velocity first, then a right (+omega) and a left (-omega) coordinated turn per
     turn rate (rad/s, each > 0): seed 004's straight / right / left set for one rate; then, when
-    manoeuvre_acceleration (m/s^2) is given, a manoeuvre model (`manoeuvre_model`)."""
+    manoeuvre_acceleration (m/s^2) is given, the speed-change model (`manoeuvre_model`) with the
+    constant-velocity model's q across its track."""
     models = [MotionModel("cv", 0.0, cv_process_noise)]
     for rate in turn_rates:
         models.append(MotionModel(f"ct+{rate:g}", float(rate), turn_process_noise))
         models.append(MotionModel(f"ct-{rate:g}", -float(rate), turn_process_noise))
     if manoeuvre_acceleration is not None:
-        models.append(manoeuvre_model(manoeuvre_acceleration))
+        models.append(manoeuvre_model(manoeuvre_acceleration, cv_process_noise))
     return models
 
 
-def manoeuvre_model(max_acceleration: float) -> MotionModel:
-    """The model of a target changing speed or direction: white-noise acceleration whose per-axis standard
-    deviation is a third of the target's largest acceleration a_max (m/s^2; a_max its 3-sigma bound),
-    q = (a_max / 3)^2. Bar-Shalom, Li and Kirubarajan (2001, section 6.3.2) give 0.5 a_max to a_max for a
-    filter alone; inside an IMM beside a quiet model the manoeuvre model needs only to cover the
-    acceleration, and a larger q lets it explain the pursuer's own weave as target motion (the range
-    then no longer shows in the bearings)."""
+#: The share of the target's largest acceleration a_max taken as the speed-change model's along-track standard
+#: deviation: sigma_a = 2 a_max / 3, inside Bar-Shalom, Li and Kirubarajan's 0.5 a_max to a_max for a
+#: white-noise-acceleration model (2001, section 6.3.2).
+MANOEUVRE_SHARE = 2.0 / 3.0
+
+#: m/s: the speed below which the speed-change model no longer knows the direction of its track, so its acceleration
+#: variance blends to q_a on every axis (`speed_change_noise`): a hovering target may leave in any direction.
+HOVER_SPEED = 1.0
+
+
+def manoeuvre_model(max_acceleration: float, cross_process_noise: float) -> MotionModel:
+    """The model of a target that changes speed (takes off, dashes, brakes): white-noise acceleration of variance
+    q_a = (MANOEUVRE_SHARE a_max)^2 along its own velocity and cross_process_noise ((m/s^2)^2) across it, a_max
+    the target's largest acceleration (m/s^2). Across its track the model is as quiet as the constant-velocity
+    model: an isotropic q_a would explain the pursuer's own weave as target motion, and the range would no
+    longer show in the bearings (measured: the weave and the tight orbits diverged with it). Along the line of
+    sight of a pursuer behind its target, a speed change moves the target only along the bearing, which the
+    pursuer's weave tells apart from a range error."""
     if not (math.isfinite(max_acceleration) and max_acceleration > 0.0):
         raise ValueError(f"the manoeuvre model needs a finite max_acceleration > 0, got {max_acceleration!r}")
-    return MotionModel("manoeuvre", 0.0, (max_acceleration / 3.0) ** 2)
+    if not (math.isfinite(cross_process_noise) and cross_process_noise >= 0.0):
+        raise ValueError(f"the manoeuvre model needs a finite cross_process_noise >= 0, got {cross_process_noise!r}")
+    return MotionModel("speed", 0.0, cross_process_noise, (MANOEUVRE_SHARE * max_acceleration) ** 2)
+
+
+def speed_change_noise(velocity: np.ndarray, along: float, across: float) -> np.ndarray:
+    """The speed-change model's acceleration covariance (3, 3), (m/s^2)^2, for its velocity estimate v (3,), m/s:
+
+        Q_a = across I + (along - across) [(1 - s) I + s v v^T / |v|^2],   s = |v|^2 / (|v|^2 + v_0^2),
+
+    v_0 = HOVER_SPEED: along its track `along`, across it `across`, and isotropic `along` for a target at rest."""
+    out = np.empty((3, 3))
+    _speed_change_noise_into(np.asarray(velocity, dtype=float), float(along), float(across), out)
+    return out
+
+
+@jit_inline
+def _speed_change_noise_into(velocity: np.ndarray, along: float, across: float, out: np.ndarray) -> None:
+    """`speed_change_noise` into out (3, 3): (across + w (1 - s)) I + (w / (|v|^2 + v_0^2)) v v^T, w = along - across
+    (s / |v|^2 written out, so a target at rest needs no division by its speed)."""
+    speed_squared = float(np.dot(velocity, velocity))
+    spread = along - across
+    denominator = speed_squared + HOVER_SPEED * HOVER_SPEED
+    diagonal = across + spread * HOVER_SPEED * HOVER_SPEED / denominator
+    factor = spread / denominator
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = factor * velocity[i] * velocity[j]
+        out[i, i] += diagonal
+
+
+@jit
+def _speed_change_noises_into(indices: np.ndarray, states: np.ndarray, along: np.ndarray, across: np.ndarray,
+                              inputs: np.ndarray, discrete_process_noises: np.ndarray) -> None:
+    """For each speed-change model j in indices: Q_d,j = B_j Q_a(v_j) B_j^T (`speed_change_noise` of its velocity
+    states[j, 3:], along[j] and across[j]; B_j (6, 3), inputs[j]) into discrete_process_noises[j] (6, 6)."""
+    acceleration, product = np.empty((3, 3)), np.empty((6, 3))
+    for j in indices:
+        _speed_change_noise_into(states[j, 3:], along[j], across[j], acceleration)
+        np.dot(inputs[j], acceleration, product)
+        noise = discrete_process_noises[j]
+        for row in range(6):
+            for column in range(6):
+                noise[row, column] = (product[row, 0] * inputs[j, column, 0] + product[row, 1] * inputs[j, column, 1]
+                                      + product[row, 2] * inputs[j, column, 2])
 
 
 @jit
@@ -649,9 +709,12 @@ class IMMEstimator:
         self._states = np.zeros((count, 6))  # x^j, the model filters' own storage (UPLKF._use_storage)
         self._covariances = np.zeros((count, 6, 6))  # P^j
         self.filters: list[UPLKF] = []
+        inputs = np.zeros((count, 6, 3))  # B_j, for the speed-change models' Q_d at every prediction
         for j, model in enumerate(self.models):
             a, b = coordinated_turn_matrices(self.period, model.turn_rate)
-            process_noise = model.process_noise * np.eye(3)
+            inputs[j] = b
+            # a speed-change model's filter keeps its largest variance as Q (what a late bearing's lead noise reads)
+            process_noise = max(model.process_noise, model.along_track_noise) * np.eye(3)
             model_filter = UPLKF(self.period, process_noise, measurement_noise, gain_projection,
                                  pursuer_position_std=pursuer_position_std, restart_when_behind=restart_when_behind,
                                  adaptive_noise=adaptive_noise, transition=a,
@@ -676,6 +739,10 @@ class IMMEstimator:
         self._transitions = np.array([model_filter._a for model_filter in self.filters])
         self._discrete_process_noises = np.array([model_filter._q_discrete for model_filter in self.filters])
         self._measurement_noises = np.array([model_filter.measurement_noise for model_filter in self.filters])
+        # the speed-change models (MotionModel.along_track_noise > 0): their indices, q_a, q and B
+        along = np.array([model.along_track_noise for model in self.models], dtype=float)
+        self._speed_models = np.flatnonzero(along > 0.0)
+        self._speed_noise_terms = (along, np.array([model.process_noise for model in self.models], dtype=float), inputs)
         self._no_references, self._no_lead_noises = np.zeros((count, 3)), np.zeros((count, 3, 3))  # not used / zero
         self._no_track = np.zeros(9), np.zeros(3)  # `_imm_correction`'s track and prediction without a tracker's step
         # the prior lines of sight of a correction (`_prior_lines_of_sight` writes them): p^-_T,j - p (n, 3), their
@@ -829,11 +896,17 @@ class IMMEstimator:
         """Each model filter's own time update over one period (all in one `_predict_models` call)."""
         self._snapshot = None
         filters = self.filters
+        if not self._started:
+            self._require_states()
+        if self._speed_models.size:
+            along, across, inputs = self._speed_noise_terms
+            _speed_change_noises_into(self._speed_models, self._states, along, across, inputs,
+                                      self._discrete_process_noises)
+            if len(filters) == 1:
+                filters[0]._q_discrete[:, :] = self._discrete_process_noises[0]
         if len(filters) == 1:
             filters[0].predict()
             return
-        if not self._started:
-            self._require_states()
         if self._noise_count != self._noise_changes.count:  # a scale or a boost may have changed since
             self._collect_noise_factors()
         _predict_models(self._transitions, self._discrete_process_noises, self._scales, self._boosts, self._states,

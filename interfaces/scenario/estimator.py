@@ -48,17 +48,17 @@ class EstimatorConfig(_Strict):
     adaptive_relax_time_constant: Duration = 10.0
     """s, of its return to 1 while the mean is below 1."""
     adaptive_nis_threshold: float = Field(3.0, gt=1.0, le=MAX_GAIN)
-    imm_turn_rates: Annotated[tuple[float, ...], FROM_ARRAY] = (0.2,)
+    imm_turn_rates: Annotated[tuple[float, ...], FROM_ARRAY] = (0.2, 0.4)
     """kind 'imm' only: omega, rad/s, of the coordinated-turn models (docs/explanation/estimation.md, "IMM estimator"); each rate
     gives a right (+omega) and a left (-omega) model beside the constant-velocity one. Each in
     (0, IMM_MAX_TURN_RATE]; an empty list leaves the constant-velocity model alone (the u-PLKF)."""
     imm_turn_process_noise: ProcessNoise = 0.04
     """kind 'imm' only: q of the turn models, (m/s^2)^2 per axis (the constant-velocity model uses process_noise)."""
-    imm_manoeuvre_model: bool = False
-    """kind 'imm' only: add the manoeuvre model (white-noise acceleration, q = (target_max_acceleration / 3)^2
-    per axis) for a target that changes speed: hovers, dashes, brakes. False (default): the constant-velocity
-    and turn models alone; with the safety envelope the manoeuvre model lost weaving and tightly circling
-    targets that the default set keeps (docs/safety.md)."""
+    imm_manoeuvre_model: bool = True
+    """kind 'imm' only: add the speed-change model for a target that hovers, dashes and brakes: white-noise
+    acceleration of std 2/3 target_max_acceleration along the model's own velocity (on every axis while it
+    is slower than 1 m/s) and process_noise across it (companion.core.imm.manoeuvre_model). False: the
+    constant-velocity and turn models alone."""
     target_max_acceleration: Annotated[float, Field(gt=0.0, le=30.0)] = 3.0
     """m/s^2: the largest acceleration (or braking) the followed target is expected to have: the IMM's
     manoeuvre model's noise, and the braking the safety envelope plans for ([safety])."""

@@ -6,6 +6,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
+from interfaces.derived_defaults import EXCITED_LAWS, default_excitation
 from interfaces.scenario.common import Distance, Gain, NonNegativeGain, Rate, Speed, _Strict
 
 
@@ -50,17 +51,23 @@ class GuidanceConfig(_Strict):
     # sight at excitation_speed (m/s, angular rate excitation_frequency rad/s) while the relative
     # range std sigma_r / r^ is above excitation_low (full above excitation_high) or the health
     # monitor says suspect. Only for 'hng' and 'ppg' (its design cancels their N P v damping).
-    excitation: Literal["none", "uncertainty"] = "none"
-    excitation_speed: Speed = 1.0
+    # Left out: 'uncertainty' for 'hng' and 'ppg', 'none' for the other laws (`effective_excitation`).
+    excitation: Literal["none", "uncertainty"] | None = None
+    excitation_speed: Speed = 4.0
     excitation_frequency: Gain = 0.5
     excitation_low: Annotated[float, Field(ge=0.0, le=MAX_RELATIVE_STD)] = 0.05
     excitation_high: Annotated[float, Field(gt=0.0, le=MAX_RELATIVE_STD)] = 0.15
 
     @model_validator(mode="after")
     def _excitation_consistent(self) -> "GuidanceConfig":
-        if self.excitation != "none":
-            if self.law not in ("hng", "ppg"):
+        if self.effective_excitation != "none":
+            if self.law not in EXCITED_LAWS:
                 raise ValueError(f"excitation = {self.excitation!r} needs law 'hng' or 'ppg', not {self.law!r}")
             if self.excitation_low >= self.excitation_high:
                 raise ValueError("excitation_low must be below excitation_high")
         return self
+
+    @property
+    def effective_excitation(self) -> str:
+        """excitation, or its default for the law when left out (interfaces.derived_defaults.default_excitation)."""
+        return default_excitation(self.law) if self.excitation is None else self.excitation
