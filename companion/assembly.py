@@ -255,7 +255,8 @@ def safety_envelope(scenario: Scenario, vehicle: VehicleConfig) -> SafetyEnvelop
                               reaction_time=settings.reaction_time, velocity_gain=settings.velocity_gain,
                               max_yaw_rate=math.radians(settings.max_yaw_rate_deg),
                               untrusted_range_share=settings.untrusted_range_share,
-                              tilt_margin=math.radians(settings.tilt_margin_deg))
+                              tilt_margin=math.radians(settings.tilt_margin_deg),
+                              estimate_latency=settings.estimate_latency)
     except ValueError as error:
         raise ConfigError(f"safety: {error}") from None
 

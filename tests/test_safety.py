@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -81,6 +82,57 @@ def test_a_point_mass_closing_on_a_hovering_target_never_passes_min_range(start_
         velocity += acceleration * dt
         closest = min(closest, target - position)
     assert closest >= 4.0 - 0.05, closest
+
+
+def _follow_a_braking_target(rule: SafetyEnvelope, speed: float, latency: float, braking: float) -> float:
+    """The closest a point mass comes to a target it follows at 8 m, both at `speed`, when the target brakes to a
+    stop at `braking` m/s^2 after 2 s. The envelope sees the target as a filter that lags by `latency` s would:
+    its state `latency` s ago carried on at constant velocity. The follower asks to close at 1 m/s^2 for good."""
+    dt = 0.01
+    los = np.array([1.0, 0.0, 0.0])
+    position, velocity = 0.0, speed
+    history: list[tuple[float, float]] = []  # the target's (position, speed) at every step
+    target, target_speed = 8.0, speed
+    closest = target - position
+    lag_steps = round(latency / dt)
+    for step in range(int(20.0 / dt)):
+        history.append((target, target_speed))
+        seen_position, seen_speed = history[max(0, step - lag_steps)]
+        seen = seen_position + seen_speed * min(step, lag_steps) * dt
+        command = np.array([1.0, 0.0, 0.0])
+        limited = rule.limit_closing(command, los, np.array([velocity, 0.0, 0.0]), seen - position, 0.0, seen_speed,
+                                     0.0, True)
+        acceleration = float((command if limited is None else limited)[0])
+        position += velocity * dt + 0.5 * acceleration * dt * dt
+        velocity += acceleration * dt
+        if step * dt >= 2.0:
+            slowed = max(target_speed - braking * dt, 0.0)
+            target += 0.5 * (target_speed + slowed) * dt
+            target_speed = slowed
+        else:
+            target += target_speed * dt
+        closest = min(closest, target - position)
+    return closest
+
+
+@settings(max_examples=40, deadline=None)
+@given(speed=st.floats(1.0, 6.0), latency=st.floats(0.2, 1.0), braking=st.floats(1.0, 3.0))
+def test_a_follower_whose_estimate_lags_a_braking_target_stops_short_of_min_range(speed: float, latency: float,
+                                                                                    braking: float) -> None:
+    """RSS with a late view of the target: a target that brakes at up to a_T is seen braking only `latency` s
+    later. With estimate_latency at least that lag the follower never comes closer than min_range (4 m), from
+    8 m behind at any speed it can follow there; it falls back instead (the gap it keeps grows with speed)."""
+    rule = envelope(speed_sigmas=0.0, reaction_time=0.1, estimate_latency=latency, max_braking_acceleration=6.0)
+    assert _follow_a_braking_target(rule, speed, latency, braking) >= 4.0 - 0.05
+
+
+def test_without_the_latency_term_a_lagging_estimate_lets_the_follower_too_close() -> None:
+    """The same target braking at a_T = 3 m/s^2 from 5 m/s, seen 1 s late: the rule that credits the target's
+    whole stopping distance from the lagging estimate (estimate_latency 0) lets the follower inside min_range."""
+    late = envelope(speed_sigmas=0.0, reaction_time=0.1, estimate_latency=0.0, max_braking_acceleration=6.0)
+    aware = dataclasses.replace(late, estimate_latency=1.0)
+    assert _follow_a_braking_target(late, 5.0, 1.0, 3.0) < 4.0 - 0.5
+    assert _follow_a_braking_target(aware, 5.0, 1.0, 3.0) >= 4.0 - 0.05
 
 
 @given(previous=st.floats(-math.pi, math.pi), wanted=st.floats(-math.pi, math.pi), interval=st.floats(0.01, 0.5),

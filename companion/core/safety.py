@@ -11,11 +11,15 @@ command after the law (and before the vehicle's own limits), with two rules:
    no faster than it can stop before min_range even if the target starts braking now at the
    largest deceleration a target can have (a_T):
 
-       gap = r_p - r_min + max(u_T, 0)^2 / (2 a_T)                    (target's stopping distance)
+       gap = r_p - r_min + max(u_T, 0)^2 / (2 a_T) - max(u_T, 0) t_e  (target's stopping distance)
        u_max = sqrt((a_P t_r)^2 + 2 a_P gap) - a_P t_r   if gap > 0,    (own stopping distance,
        u_max = gain_retreat * gap                         otherwise     t_r of reaction)
 
-   plus min(u_T, 0) when the target comes towards us. While the pursuer's own closing speed
+   plus min(u_T, 0) when the target comes towards us. t_e is the estimate's latency: a filter sees a braking
+   target only some time after it began to brake (a constant-velocity prediction carries it on at u_T), so the
+   target may already have braked for t_e and stops u_T^2 / (2 a_T) beyond where it was t_e ago, that is
+   u_T t_e short of the credit counted from the estimate's present position. The same t_e is added to t_r:
+   the pursuer starts braking only once the estimate shows the target braking. While the pursuer's own closing speed
    u_P = v_P . lambda comes near u_max the command's line-of-sight component becomes
    min(a . lambda, k_v (u_max - u_P) + du_max/dt), bounded below by -a_max, the hardest braking the
    airframe flies (a_P < a_max keeps the rest for the lateral law while the envelope only plans).
@@ -79,6 +83,7 @@ class SafetyEnvelope:
     max_yaw_rate: float = math.radians(45.0)
     untrusted_range_share: float = 1.0
     tilt_margin: float = math.radians(3.0)
+    estimate_latency: float = 0.0
 
     def __post_init__(self) -> None:
         values = (self.min_range, self.target_max_acceleration, self.braking_acceleration, self.velocity_gain,
@@ -90,8 +95,9 @@ class SafetyEnvelope:
         for name in ("range_sigmas", "speed_sigmas"):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0.0):
                 raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)!r}")
-        if not (math.isfinite(self.reaction_time) and self.reaction_time >= 0.0):
-            raise ValueError(f"reaction_time must be finite and >= 0, got {self.reaction_time!r}")
+        for name in ("reaction_time", "estimate_latency"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0.0):
+                raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)!r}")
         if not (math.isfinite(self.tilt_margin) and 0.0 <= self.tilt_margin < math.radians(20.0)):
             raise ValueError(f"tilt_margin must be in [0, 20) deg, got {math.degrees(self.tilt_margin)!r} deg")
         if not 0.0 < self.untrusted_range_share <= 1.0:
@@ -126,8 +132,8 @@ class SafetyEnvelope:
             away = min(away, 0.0)
         gap = pessimistic_range - self.min_range
         if away > 0.0:
-            gap += away * away / (2.0 * self.target_max_acceleration)
-        braking, lag = self.braking_acceleration, self.reaction_time
+            gap += away * away / (2.0 * self.target_max_acceleration) - away * self.estimate_latency
+        braking, lag = self.braking_acceleration, self.reaction_time + self.estimate_latency
         if gap > 0.0:
             limit = math.sqrt((braking * lag) ** 2 + 2.0 * braking * gap) - braking * lag
         else:
@@ -153,7 +159,8 @@ class SafetyEnvelope:
         relative_closing = closing_speed - max(away, 0.0)
         braking = self.braking_acceleration
         if limit > 0.0:
-            feed_forward = braking * max(relative_closing, 0.0) / (limit + braking * self.reaction_time)
+            feed_forward = braking * max(relative_closing, 0.0) / (limit + braking * (self.reaction_time
+                                                                                     + self.estimate_latency))
             wanted = self.velocity_gain * (limit - closing_speed) - feed_forward
         else:
             wanted = self.velocity_gain * (limit - closing_speed) if closing_speed <= 0.0 else -self.max_braking_acceleration

@@ -63,6 +63,7 @@ class SafetyConfig(_Strict):
     max_yaw_rate_deg: Annotated[float, Field(gt=0.0, le=1000.0)] = 45.0
     untrusted_range_share: Annotated[float, Field(gt=0.0, le=1.0)] = 1.0
     tilt_margin_deg: Annotated[float, Field(ge=0.0, lt=20.0)] = 3.0
+    estimate_latency: Annotated[float, Field(ge=0.0, le=5.0)] = 0.0
 
 
 HealthReasonName = Literal["nis", "range_uncertain", "behind_sensor", "range_implausible", "range_unobservable",
