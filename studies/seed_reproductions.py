@@ -76,8 +76,8 @@ SEED002_UPLKF = {"swarm.estimator": "shared_bearings", "estimator.kind": "uplkf"
 #: The seed's Figs. 4-6 are noise-free; 0.01 rad (our sensor's usual noise) stands for that.
 SEED002_LOW_NOISE = {"sensor.noise_std": 0.01, "estimator.measurement_noise": 1e-4}
 SEED004_IMM = {"swarm.estimator": "shared_bearings"}
-SEED004_UPLKF = {"swarm.estimator": "shared_bearings", "estimator.kind": "uplkf", "estimator.imm_turn_rates": [0.2],
-                 "estimator.imm_stay_probability": 0.98}
+SEED004_UPLKF = {"swarm.estimator": "shared_bearings", "estimator.kind": "uplkf", "estimator.imm_turn_rates": [0.2, 0.4],
+                 "estimator.imm_stay_probability": 0.98, "estimator.imm_manoeuvre_model": True}
 
 #: Seed 002: the seed's gains (orbit 7.5 m/s on 5 m, 11 m/s^2: beyond the Table I quadrotor) and the scaled
 #: file (g2 = 0.5: 3.8 m/s, 2.8 m/s^2), each with the seed's own Kalman enhancement and with the u-PLKF fed

@@ -317,7 +317,9 @@ def _scenario(**estimator):
 def test_config_builds_the_imm():
     estimator = build_estimator(_scenario(kind="imm", imm_turn_rates=[0.1, 0.3]))
     assert isinstance(estimator, IMMEstimator)
-    assert estimator.model_names == ("cv", "ct+0.1", "ct-0.1", "ct+0.3", "ct-0.3")
+    assert estimator.model_names == ("cv", "ct+0.1", "ct-0.1", "ct+0.3", "ct-0.3", "speed")
+    without = build_estimator(_scenario(kind="imm", imm_turn_rates=[0.1, 0.3], imm_manoeuvre_model=False))
+    assert without.model_names == ("cv", "ct+0.1", "ct-0.1", "ct+0.3", "ct-0.3")
 
 
 @pytest.mark.parametrize("options", [

@@ -10,7 +10,9 @@ from studies.closed_loop import simulate
 
 def _fly(scenario_path, law: str):
     scenario, vehicle = load_scenario(scenario_path("constant_velocity"))
-    scenario = scenario.model_copy(update={"guidance": scenario.guidance.model_copy(update={"law": law})})
+    # the paper's laws as printed: without the range excitation that the defaults add to both
+    scenario = scenario.model_copy(update={"guidance": scenario.guidance.model_copy(update={"law": law,
+                                                                                            "excitation": "none"})})
     return simulate(scenario, vehicle, seed=1)
 
 

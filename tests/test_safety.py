@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from companion.core.attitude import VehicleLimits
-from companion.core.imm import manoeuvre_model
+from companion.core.imm import HOVER_SPEED, manoeuvre_model, speed_change_noise
 from companion.core.safety import SafetyEnvelope
 from interfaces.scenario import SCENARIOS_DIR, load_scenario
 from studies.closed_loop import simulate
@@ -174,11 +174,29 @@ def test_bad_envelope_parameters_are_refused(field: str, value: float) -> None:
         envelope(**{field: value})
 
 
-def test_the_manoeuvre_model_takes_a_max_as_its_three_sigma_bound() -> None:
-    model = manoeuvre_model(3.0)
-    assert model.turn_rate == 0.0 and model.process_noise == pytest.approx(1.0)
-    with pytest.raises(ValueError):
-        manoeuvre_model(0.0)
+def test_the_speed_change_model_takes_two_thirds_of_a_max_along_its_track() -> None:
+    model = manoeuvre_model(3.0, 0.04)
+    assert model.turn_rate == 0.0 and model.process_noise == 0.04 and model.along_track_noise == pytest.approx(4.0)
+    for bad in ((0.0, 0.04), (math.inf, 0.04), (3.0, -1.0)):
+        with pytest.raises(ValueError):
+            manoeuvre_model(*bad)
+
+
+@settings(max_examples=80, deadline=None)
+@given(velocity=st.tuples(*[st.floats(-20.0, 20.0)] * 3), across=st.floats(0.0, 1.0), extra=st.floats(0.0, 10.0))
+def test_the_speed_change_noise_is_along_the_track_and_quiet_across_it(velocity, across: float, extra: float) -> None:
+    """Q_a's eigen-decomposition (numpy's eigh): `along` with its eigenvector along v, and twice
+    across + (along - across) v_0^2 / (|v|^2 + v_0^2) across it (v_0 = 1 m/s): the acceleration variance the
+    model allows is along v for a moving target, isotropic `along` for one at rest."""
+    v = np.array(velocity)
+    along = across + extra
+    values, vectors = np.linalg.eigh(speed_change_noise(v, along, across))
+    speed_squared = float(v @ v)
+    lateral = across + extra * HOVER_SPEED**2 / (speed_squared + HOVER_SPEED**2)
+    assert sorted(values) == pytest.approx(sorted([along, lateral, lateral]), abs=1e-9 * (1.0 + along))
+    if speed_squared > 1e-6 and extra > 1e-3 and along - lateral > 1e-6 * along:
+        top = vectors[:, int(np.argmax(values))]
+        assert abs(float(top @ v)) / math.sqrt(speed_squared) == pytest.approx(1.0, abs=1e-6)
 
 
 def test_a_stop_and_go_flight_keeps_its_tilt_inside_the_airframes_limit_and_counts_the_envelope() -> None:
