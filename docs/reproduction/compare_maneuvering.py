@@ -2,8 +2,8 @@
 
     python docs/reproduction/compare_maneuvering.py NOW/results.csv BEFORE/results.csv
 
-NOW: `bof-montecarlo --study maneuvering` (the defaults); BEFORE: the same scenarios, seeds and bearing rates with
-`[safety] enabled = false` (cases named "<rate>-unguarded"). Prints one markdown line per scenario and bearing rate:
+NOW: `bof-montecarlo --study maneuvering` (the defaults); BEFORE: the same scenarios, seeds and bearing rates flown
+another way (cases named "<rate>-<anything>": the earlier defaults, or `[safety] enabled = false`). Prints one markdown line per scenario and bearing rate:
 flights diverged by truth (range-estimation RMS over the summary window > 2 m), the median and worst RMS, the
 flights closer than r_d / 2 and the closest approach over r_d, the flights above the tilt limit and the largest
 tilt, and the monitor's misses (diverged, not flagged at the end) and false alarms (flagged, not diverged).
@@ -42,13 +42,16 @@ def main(argv: list[str]) -> int:
     desired = 8.0  # every scenario of the study follows at r_d = 8 m
     print("| scenario | rate | diverged | RMS median | RMS worst | closer than r_d/2 | closest / r_d | tilt over limit | max tilt (deg) | missed / false alarms |")
     print("|---|---|---|---|---|---|---|---|---|---|")
-    for (scenario, rate), n in now.iterrows():
-        b = before.loc[(scenario, rate)]
+    counts = ["runs", "diverged", "breached", "tilted", "missed", "false_alarms"]
+    now[counts], before[counts] = now[counts].astype(int), before[counts].astype(int)
+    for n in now.itertuples():  # itertuples keeps each column's type (iterrows makes the counts floats)
+        scenario, rate = n.Index
+        b = next(before.loc[[(scenario, rate)]].itertuples())
         print(f"| {scenario} | {rate} | {n.diverged}/{n.runs} ({b.diverged}) | {cell(n.rms_median, b.rms_median, 2)} | "
               f"{cell(n.rms_worst, b.rms_worst, 2)} | {n.breached} ({b.breached}) | "
               f"{cell(n.closest / desired, b.closest / desired, 2)} | {n.tilted} ({b.tilted}) | "
               f"{cell(n.tilt_max, b.tilt_max, 1)} | {n.missed} / {n.false_alarms} ({b.missed} / {b.false_alarms}) |")
-    total_now, total_before = now.sum(), before.sum()
+    total_now, total_before = now[counts].sum(), before[counts].sum()
     print(f"\nall: diverged {total_now.diverged} ({total_before.diverged}) of {total_now.runs}; closer than r_d/2 "
           f"{total_now.breached} ({total_before.breached}); tilt over the limit {total_now.tilted} ({total_before.tilted}); "
           f"missed {total_now.missed} ({total_before.missed}), false alarms {total_now.false_alarms} "
