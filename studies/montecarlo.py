@@ -80,8 +80,9 @@ ESTIMATORS: dict[str, dict[str, Any]] = {
 PAPER_ESTIMATORS = ("uplkf", "uplkf_paper", "uplkf_optimal", "ekf", "msc_ekf", "ekf_rae")
 #: --estimators default outside a study: each scenario's own [estimator] (rows labelled with its kind)
 SCENARIO_ESTIMATOR = "scenario"
-#: The paper's comparisons fly the paper's system: the filter-health monitor reports but does not act
-PAPER_SYSTEM = {"health.act": False}
+#: The paper's comparisons fly the paper's system: the filter-health monitor reports but does not act, and the
+#: guidance laws fly as printed, without the range excitation the defaults add to HNG and PPG
+PAPER_SYSTEM = {"health.act": False, "guidance.excitation": "none"}
 #: guidance name -> scenario overrides
 GUIDANCE: dict[str, dict[str, Any]] = {
     "hng": {"guidance.law": "hng"},
