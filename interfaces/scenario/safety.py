@@ -89,7 +89,7 @@ class HealthSection(_Strict):
 
     nis_window: Duration = 5.0
     nis_probability: Annotated[float, Field(gt=0.0, lt=1.0)] = 0.999
-    nis_scale: Annotated[float, Field(ge=1.0, le=MAX_GAIN)] = 2.0
+    nis_scale: Annotated[float, Field(ge=1.0, le=MAX_GAIN)] = 1.5
     min_nis_samples: Annotated[int, Field(ge=1, le=100_000)] = 10
     max_relative_range_std: Annotated[float, Field(gt=0.0, le=100.0)] = 1.0
     max_range_std: Distance | None = 2.0
