@@ -45,7 +45,7 @@ PROCESS_NOISE = 0.04 * np.eye(3)
 MEASUREMENT_NOISE = 1e-4 * np.eye(3)
 LINE_OF_SIGHT = np.array([0.8, -0.4, -0.3]) / np.linalg.norm([0.8, -0.4, -0.3])
 RANGE = 47.0
-ISSUE_13_UPLKF_US = 33.3
+REFERENCE_UPLKF_US = 33.3
 """us: the u-PLKF's update (predict + correct) before the IMM and the kernels, the reference of the cost goal."""
 
 
@@ -100,13 +100,13 @@ def markdown_table(results: list[tuple[str, float, float]]) -> str:
     reference = next(p + c for name, p, c in results if name == "u-PLKF (predicted)")
     lines = [
         "| estimator | predict median us | correct median us | update (predict+correct) us | ratio to u-PLKF predicted"
-        f" | ratio to {ISSUE_13_UPLKF_US} us |",
+        f" | ratio to {REFERENCE_UPLKF_US} us |",
         "|---|---:|---:|---:|---:|---:|",
     ]
     for name, predict, correct in results:
         update = predict + correct
         lines.append(f"| {name} | {predict:.1f} | {correct:.1f} | {update:.1f} | {update / reference:.2f}"
-                     f" | {update / ISSUE_13_UPLKF_US:.2f} |")
+                     f" | {update / REFERENCE_UPLKF_US:.2f} |")
     return "\n".join(lines)
 
 
