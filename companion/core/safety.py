@@ -68,7 +68,8 @@ class SafetyEnvelope:
     is pulled down to the limit. retreat_gain: 1/s, the speed away per metre inside r_min.
     max_yaw_rate: rad/s, the heading's largest rate of turn. untrusted_range_share: the share of the
     pessimistic range counted on while the estimate is not trusted, in (0, 1]. tilt_margin: rad, kept
-    between the setpoints' tilt and the airframe's limit (`commanded_limits`).
+    between the setpoints' tilt and the airframe's limit (`commanded_limits`). estimate_latency: t_e, s, how long
+    the estimate may lag a target that starts braking (module docstring, rule 1; 0 counts on it at once).
     """
 
     min_range: float

@@ -51,7 +51,9 @@ class SafetyConfig(_Strict):
     max_yaw_rate_deg: deg/s, the setpoint heading's largest rate of turn. untrusted_range_share: the share of
     the pessimistic range counted on while the estimate is a prediction without bearings (degraded, reacquiring).
     tilt_margin_deg: deg, the setpoints' tilt limit is the airframe's max_tilt_deg less this. The
-    target's largest deceleration is [estimator] target_max_acceleration.
+    target's largest deceleration is [estimator] target_max_acceleration. estimate_latency: s the estimate may
+    lag a target that starts braking: taken off the target's credited stopping distance (u_T t_e) and added to
+    reaction_time; 0 (default) counts on the estimate showing the braking at once (docs/safety.md).
     """
 
     enabled: bool = True
