@@ -160,6 +160,18 @@ def test_the_excitation_is_on_by_default_for_the_laws_it_serves_and_none_turns_i
     off = with_overrides(scenario, {"guidance.excitation": "none"})
     assert build_excitation(off) is None
     assert build_pipeline(off, vehicle, 0.5).excitation is None
+    # A short flight: for a law the excitation does not serve, leaving the key out flies exactly as "none" written
+    # out; for HNG, leaving it out flies the excitation (the flight differs from the "none" one).
+    short = {"simulation.duration": 4.0, "simulation.summary_window": 4.0}
+    series = {}
+    flights = (("png", {"guidance.law": "png"}), ("png none", {"guidance.law": "png", "guidance.excitation": "none"}),
+               ("hng", {}), ("hng none", {"guidance.excitation": "none"}))
+    for name, overrides in flights:
+        series[name] = simulate(with_overrides(scenario, {**short, **overrides}), vehicle, 1).series
+    for key in ("pursuer_position", "command_acceleration", "estimate_position"):
+        assert np.array_equal(series["png"][key], series["png none"][key], equal_nan=True), key
+    assert not np.array_equal(series["hng"]["command_acceleration"], series["hng none"]["command_acceleration"],
+                              equal_nan=True)
 
 
 @pytest.mark.parametrize("fields, message", [
