@@ -344,8 +344,10 @@ def test_a_stop_and_go_target_is_flown_end_to_end_and_judged_by_the_truth(tmp_pa
     """The stop-and-go target (it brakes to a hover twice) through the real processes with every default, the
     safety envelope included. The flight runs to the end, the companion's envelope acts and reports it, the
     vehicle's own tilt (the plant's attitude loop, not the setpoint) stays within the airframe's 35 deg, and the
-    summary's truth block is consistent: r_d / 2 breached exactly when its closest approach is below 4 m, and a
-    flight that diverged or breached is never called a success, whatever the monitor said. Whether this flight
+    summary's truth block is consistent: r_d / 2 breached exactly when its closest approach is below 4 m, a
+    flight that diverged or breached is never called a success, and one that diverged never has the verdict
+    clean or recovered, whatever the monitor said (a breach with a good estimate keeps the monitor's verdict
+    beside the outcome envelope_breached: the verdict speaks of the estimate). Whether this flight
     keeps r_d / 2 is not asserted: the envelope trusts the estimate's sigma, and a confident wrong estimate
     still lets the pursuer arrive too fast (docs/safety.md, 'What it cannot do')."""
     code, folder, summary = full_sitl.run(scenario_path("stop_and_go"), tmp_path, SPEED, seed=1,
@@ -361,7 +363,9 @@ def test_a_stop_and_go_target_is_flown_end_to_end_and_judged_by_the_truth(tmp_pa
     assert truth["min_range_breached"] == (truth["min_range"] < 4.0)
     assert truth["tilt_exceeded"] is False
     if truth["diverged"] or truth["min_range_breached"]:
-        assert truth["outcome"] != "success" and flight["verdict"] not in ("clean", "recovered")
+        assert truth["outcome"] != "success"
+    if truth["diverged"]:  # the verdict is the monitor's word on the estimate, overruled by the truth's divergence
+        assert flight["verdict"] not in ("clean", "recovered")
 
 
 def test_flight_mcap_holds_the_whole_flight_in_plant_time(flown):
