@@ -132,26 +132,40 @@ def _seconds_where(time: np.ndarray, condition: np.ndarray) -> float:
 
 def truth_outcome(time: np.ndarray, range_: np.ndarray, tilt_deg: np.ndarray, estimation_rms: float,
                   *, estimated: bool, flown: bool, desired_range: float, divergence_rms: float,
-                  tilt_limit_deg: float, suspect_at_end: bool) -> dict:
+                  tilt_limit_deg: float, suspect_at_end: bool, estimation_error: np.ndarray | None = None,
+                  suspect: np.ndarray | None = None, window: np.ndarray | None = None) -> dict:
     """What the truth says about a simulated flight (summary.json's "truth"), beside the monitor's verdict.
 
     time (N,) s; range_ (N,) true |p_T - p|, m; tilt_deg (N,) the pursuer's tilt, deg; estimation_rms: the
     range-estimation error RMS over the summary window, m (NaN when the estimate was missing for part of it);
     estimated: any estimate over the window; flown: the termination is one of FLOWN; desired_range r_d, m;
     divergence_rms: threshold, m; tilt_limit_deg: the airframe's max_tilt_deg; suspect_at_end: the health monitor
-    called the estimate suspect at the last sample.
+    called the estimate suspect at the last sample. estimation_error (N,) m: the range-estimation error
+    |p^_T - p| - |p_T - p| (NaN where there was no estimate); suspect (N,) bool: the monitor's verdict at each sample;
+    window (N,) bool: the summary window. Without all three (a log without the monitor's verdicts) the monitor's
+    record while the estimate was wrong is not judged: its figures are 0 s and False.
 
     Returns range_estimation_error_rms (m), divergence_rms (m), diverged (an estimate was there and its RMS is not
     <= divergence_rms: a NaN RMS counts as diverged), min_range (m, the closest approach over the series),
     half_desired_range (r_d / 2, m), min_range_breached (min_range < r_d / 2), seconds_below_half_desired_range (s),
     max_tilt_deg (deg), tilt_limit_deg (deg), tilt_exceeded (max tilt > the limit), seconds_above_tilt_limit (s),
     monitor_missed (diverged, yet not suspect at the end), monitor_false_alarm (suspect at the end, yet not
-    diverged) and outcome, one word: "failed" (did not fly as asked), "no_estimate" (no estimate over the window),
+    diverged), seconds_estimate_wrong (s of the summary window with |range-estimation error| above divergence_rms),
+    seconds_wrong_flagged (of those, the seconds the monitor called the estimate suspect), monitor_silent_while_wrong
+    (diverged, and the monitor never called the estimate suspect while it was that far off: a miss while it
+    mattered, not only at the end) and outcome, one word: "failed" (did not fly as asked), "no_estimate" (no estimate over the window),
     "diverged", "envelope_breached" (closer than r_d / 2 or tilted past the limit), else "success"; the first that
     applies in that order (the flags say which others apply too).
     """
     half = 0.5 * desired_range
     diverged = bool(estimated and not estimation_rms <= divergence_rms)
+    wrong_seconds = flagged_seconds = 0.0
+    judged = estimation_error is not None and suspect is not None and window is not None
+    if judged:
+        with np.errstate(invalid="ignore"):
+            wrong = window & (np.abs(estimation_error) > divergence_rms)
+        wrong_seconds = _seconds_where(time, wrong)
+        flagged_seconds = _seconds_where(time, wrong & suspect)
     min_range = float(np.min(range_))
     max_tilt = float(np.max(tilt_deg))
     breached = bool(min_range < half)
@@ -181,6 +195,9 @@ def truth_outcome(time: np.ndarray, range_: np.ndarray, tilt_deg: np.ndarray, es
         "seconds_above_tilt_limit": _seconds_where(time, tilt_deg > tilt_limit_deg),
         "monitor_missed": bool(diverged and not suspect_at_end),
         "monitor_false_alarm": bool(suspect_at_end and not diverged),
+        "seconds_estimate_wrong": wrong_seconds,
+        "seconds_wrong_flagged": flagged_seconds,
+        "monitor_silent_while_wrong": bool(judged and diverged and flagged_seconds == 0.0),
     }
 
 
@@ -222,7 +239,21 @@ def outcome_lines(flight: dict, who: str = "") -> list[str]:
         f"  max tilt {truth['max_tilt_deg']:.1f} deg  "
         + (f"BREACHED (limit {limit:g} deg, {truth['seconds_above_tilt_limit']:.1f} s above)"
            if truth["tilt_exceeded"] else f"ok (limit {limit:g} deg)"),
-    ] + envelope_lines(flight)
+    ] + monitor_record_lines(flight) + envelope_lines(flight)
+
+
+def monitor_record_lines(flight: dict) -> list[str]:
+    """One line on what the monitor said while the estimate was off by more than the divergence limit in the
+    summary window (the truth's seconds_estimate_wrong and seconds_wrong_flagged); none when it never was, or for a
+    summary written before the truth carried them."""
+    truth = flight["truth"]
+    wrong = truth.get("seconds_estimate_wrong")
+    if not wrong:
+        return []
+    flagged = truth["seconds_wrong_flagged"]
+    silent = "  (SILENT while it was wrong)" if flagged == 0.0 else ""
+    return [f"  estimate more than {truth['divergence_rms']:g} m off for {wrong:.1f} s of the last "
+            f"{flight['summary_window']:g} s; the monitor flagged {flagged:.1f} s of them{silent}"]
 
 
 def envelope_lines(flight: dict) -> list[str]:
@@ -287,10 +318,14 @@ def summarize(series: dict[str, np.ndarray], scenario: Scenario, termination: en
     termination = honest_termination(termination, divergence)
     estimated = bool(np.isfinite(estimation_error[window]).any())
     estimation_rms = rms(estimation_error[window])
+    suspect = series.get("health_suspect")
     truth = truth_outcome(time, series["range"], series["pursuer_tilt"], estimation_rms, estimated=estimated,
                           flown=termination.name in FLOWN, desired_range=scenario.guidance.desired_range,
                           divergence_rms=scenario.simulation.divergence_rms, tilt_limit_deg=vehicle.max_tilt_deg,
-                          suspect_at_end=divergence is not None and divergence["at_end"])
+                          suspect_at_end=divergence is not None and divergence["at_end"],
+                          estimation_error=estimation_error, window=window,
+                          suspect=None if suspect is None
+                          else np.nan_to_num(np.asarray(suspect, dtype=float), nan=0.0) > 0.5)
     return {
         "scenario": scenario.name,
         "termination": termination_name(termination),

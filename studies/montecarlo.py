@@ -285,6 +285,11 @@ def fly(task: FlightTask) -> dict:
         "diverged_rms": summary["truth"]["diverged"],
         "breached_half_rd": summary["truth"]["min_range_breached"],
         "tilt_exceeded": summary["truth"]["tilt_exceeded"],
+        # the monitor while it mattered: seconds of the window with the estimate off by more than the limit, the
+        # seconds of those it said suspect, and a diverged flight it never flagged while so wrong
+        "wrong_s": summary["truth"]["seconds_estimate_wrong"],
+        "wrong_flagged_s": summary["truth"]["seconds_wrong_flagged"],
+        "silent_while_wrong": summary["truth"]["monitor_silent_while_wrong"],
         "final_error": final_error,
         "rms_error": summary["range_estimation_error_rms"],
         "final_range_error": final_range_error,
@@ -342,6 +347,8 @@ GROUP_FIGURES = {
     "runs": ("seed", "size"), "diverged": ("diverged", "sum"), "diverged_rms": ("diverged_rms", "sum"), "lost": ("lost", "sum"),
     "flagged": ("flagged", "sum"), "missed": ("missed", "sum"), "false_alarms": ("false_alarm", "sum"),
     "breached_half_rd": ("breached_half_rd", "sum"), "tilt_exceeded": ("tilt_exceeded", "sum"),
+    "silent_while_wrong": ("silent_while_wrong", "sum"), "wrong_s": ("wrong_s", "sum"),
+    "wrong_flagged_s": ("wrong_flagged_s", "sum"),
     "envelope_breaches": ("envelope_breached", "sum"),
     "final_error_median": ("final_error", "median"), "final_error_p90": ("final_error", lambda values: values.quantile(0.9)),
     "rms_error_median_kept": ("rms_error_kept", "median"), "range_error_rms_median": ("range_error_rms", "median"),
@@ -369,7 +376,7 @@ def group_table(rows: list[dict]) -> list[dict]:
 def markdown(table: list[dict], title: str, runs: int, threshold: float, executor: str) -> str:
     windows = [key[: -len("_median")] for key in (table[0] if table else {}) if key.startswith("error_")]
     headers = ["scenario", "estimator", "guidance", "case", "diverged", "diverged (RMS)", "lost", "flagged (missed / false)",
-               "breached r_d/2 / tilt (any)",
+               "breached r_d/2 / tilt (any)", "silent while wrong (flagged s / wrong s)",
                "final error median / p90",
                "RMS error median (kept)", "range error RMS median", "converged runs, median time (s)", "min range (m)",
                "max tilt (deg)", "log10 det FIM median",
@@ -380,6 +387,7 @@ def markdown(table: list[dict], title: str, runs: int, threshold: float, executo
         f"{e['diverged_rms']}/{e['runs']}", f"{e['lost']}/{e['runs']}",
         f"{e['flagged']}/{e['runs']} ({e['missed']} / {e['false_alarms']})",
         f"{e['breached_half_rd']} / {e['tilt_exceeded']} ({e['envelope_breaches']})",
+        f"{e['silent_while_wrong']} ({e['wrong_flagged_s']:.1f} / {e['wrong_s']:.1f})",
         f"{f(e['final_error_median'])} / {f(e['final_error_p90'])}", f(e["rms_error_median_kept"], 3),
         f(e["range_error_rms_median"], 3), f"{e['converged_runs']}, {f(e['convergence_time_median'], 1)}",
         f(e["min_range"]), f(e["max_tilt_deg"], 1), f(e["observability_log_det_median"], 1),
@@ -392,7 +400,10 @@ def markdown(table: list[dict], title: str, runs: int, threshold: float, executo
         "estimate suspect at the end of the flight, without truth; missed: diverged but not flagged; false: flagged "
         "but not diverged. diverged (RMS): range-estimation error RMS over the last summary window > the scenario's "
         "[simulation] divergence_rms (the truth bof-sim judges by). breached: flights whose closest approach came "
-        "under r_d / 2, flights tilted past the vehicle's max_tilt_deg, and (any) flights with either. "
+        "under r_d / 2, flights tilted past the vehicle's max_tilt_deg, and (any) flights with either. silent while "
+        "wrong: diverged (RMS) flights in which the monitor never said suspect while the range-estimation error was "
+        "above the limit in the summary window, with the seconds it did say so of all the seconds the error was above "
+        "it (summed over the runs). "
         "Error statistics in m; final error over all runs, "
         "RMS (last summary window) over the runs that did not diverge.", "",
         reporting.markdown(lines, headers)]) + "\n"

@@ -280,6 +280,71 @@ def test_bof_sim_help_states_the_exit_rule(capsys):
     assert "diverged by truth" in out and "r_d / 2" in out and "max_tilt_deg" in out
 
 
+# --- the monitor while the estimate was wrong ------------------------------------------------------------------------
+
+WINDOW_START = 400  # TIME[400] = 40 s: the first sample of the 20 s summary window (601 samples, 0.1 s apart)
+
+
+@settings(max_examples=60, deadline=None)
+@given(wrong=st.tuples(st.integers(WINDOW_START, 590), st.integers(10, 100)),
+       flagged=st.tuples(st.integers(0, 600), st.integers(0, 200)), error=st.floats(10.0, 50.0))
+def test_the_seconds_the_monitor_flagged_while_the_estimate_was_wrong(loaded, wrong, flagged, error):
+    """An error of `error` m over samples [a, a + n) inside the window (0.5 m elsewhere) and the monitor suspect over
+    samples [c, c + m): the estimate was wrong for 0.1 n s (every such sample holds until the next, 0.1 s) and
+    flagged for 0.1 x the overlap of the two runs of samples; at least 10 samples of 10 m or more put the window's
+    RMS above 2 m, so the flight diverged, and it was silent while wrong exactly when the runs do not overlap."""
+    scenario, vehicle = loaded
+    (a, n), (c, m) = wrong, flagged
+    n = min(n, 600 - a)  # the last sample (t = 60 s) holds for no time: keep the episode before it
+    if n < 10:
+        return
+    errors = np.full(N, 0.5)
+    errors[a:a + n] = error
+    suspect = np.zeros(N)
+    suspect[c:min(c + m, N)] = 1.0
+    truth = summarize(_series(_at_rd(scenario), errors, suspect=suspect), scenario, Termination.COMPLETED,
+                      vehicle)["truth"]
+    overlap = max(0, min(a + n, c + m, 600) - max(a, c))
+    assert truth["diverged"]
+    assert truth["seconds_estimate_wrong"] == pytest.approx(DT * n, abs=1e-9)
+    assert truth["seconds_wrong_flagged"] == pytest.approx(DT * overlap, abs=1e-9)
+    assert truth["monitor_silent_while_wrong"] is (overlap == 0)
+
+
+def test_a_wrong_estimate_before_the_window_or_within_the_limit_is_not_counted(loaded):
+    scenario, vehicle = loaded
+    errors = np.where(TIME < 39.0, 30.0, 1.9)  # far off before the window, within 2 m in it
+    truth = summarize(_series(_at_rd(scenario), errors, suspect=np.zeros(N)), scenario, Termination.COMPLETED,
+                      vehicle)["truth"]
+    assert truth["seconds_estimate_wrong"] == 0.0 and not truth["monitor_silent_while_wrong"]
+
+
+def test_without_the_monitors_record_its_silence_is_not_judged(loaded):
+    """A log without health_suspect (no monitor verdicts): the flight diverged, but nothing says what the monitor
+    said, so it is not called silent."""
+    scenario, vehicle = loaded
+    truth = summarize(_series(_at_rd(scenario), 3.0), scenario, Termination.COMPLETED, vehicle)["truth"]
+    assert truth["diverged"] and truth["seconds_estimate_wrong"] == 0.0
+    assert not truth["monitor_silent_while_wrong"]
+
+
+def test_the_closing_block_says_when_the_monitor_was_silent_while_wrong(loaded):
+    from studies.metrics import outcome_lines
+
+    scenario, vehicle = loaded
+    errors = np.where((TIME >= 45.0 - 1e-9) & (TIME < 50.0 - 1e-9), 12.0, 0.2)  # 5 s off by 12 m
+    silent = summarize(_series(_at_rd(scenario), errors, suspect=np.zeros(N)), scenario, Termination.COMPLETED,
+                       vehicle)
+    assert "  estimate more than 2 m off for 5.0 s of the last 20 s; the monitor flagged 0.0 s of them  (SILENT while " \
+           "it was wrong)" in outcome_lines(silent)
+    suspect = np.where(TIME >= 47.0 - 1e-9, 1.0, 0.0)  # from 47 s on: 3 s of the 5
+    heard = summarize(_series(_at_rd(scenario), errors, suspect=suspect), scenario, Termination.COMPLETED, vehicle)
+    assert "  estimate more than 2 m off for 5.0 s of the last 20 s; the monitor flagged 3.0 s of them" in \
+        outcome_lines(heard)
+    good = summarize(_series(_at_rd(scenario), 0.2, suspect=np.zeros(N)), scenario, Termination.COMPLETED, vehicle)
+    assert not any("off for" in line for line in outcome_lines(good))
+
+
 # --- bof-montecarlo's truth columns -----------------------------------------------------------------------------------
 
 def test_montecarlo_rows_and_table_count_divergence_and_breaches(tmp_path):
@@ -297,6 +362,10 @@ def test_montecarlo_rows_and_table_count_divergence_and_breaches(tmp_path):
         1, 1, 1, 1)
     report = (folder / "summary.md").read_text()
     assert "breached r_d/2 / tilt (any)" in report and "| 1 / 1 (1)" in report
+    # the monitor while wrong: the row's seconds as the flight's truth has them, summed in the group
+    assert float(row["wrong_flagged_s"]) <= float(row["wrong_s"])
+    assert group["wrong_s"] == pytest.approx(float(row["wrong_s"])) and "silent while wrong" in report
+    assert group["silent_while_wrong"] == (row["silent_while_wrong"] == "True")
 
 
 def test_montecarlo_group_counts_a_flight_breaching_both_once(loaded):

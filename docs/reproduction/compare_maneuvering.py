@@ -6,7 +6,9 @@ NOW: `bof-montecarlo --study maneuvering` (the defaults); BEFORE: the same scena
 another way (cases named "<rate>-<anything>": the earlier defaults, or `[safety] enabled = false`). Prints one markdown line per scenario and bearing rate:
 flights diverged by truth (range-estimation RMS over the summary window > 2 m), the median and worst RMS, the
 flights closer than r_d / 2 and the closest approach over r_d, the flights above the tilt limit and the largest
-tilt, and the monitor's misses (diverged, not flagged at the end) and false alarms (flagged, not diverged).
+tilt, and the monitor's misses (diverged, not flagged at the end) and false alarms (flagged, not diverged). The
+closing line adds, when both files have the column, the diverged flights in which the monitor never said suspect
+while the estimate was off by more than the limit (silent while wrong).
 """
 
 from __future__ import annotations
@@ -55,8 +57,19 @@ def main(argv: list[str]) -> int:
     print(f"\nall: diverged {total_now.diverged} ({total_before.diverged}) of {total_now.runs}; closer than r_d/2 "
           f"{total_now.breached} ({total_before.breached}); tilt over the limit {total_now.tilted} ({total_before.tilted}); "
           f"missed {total_now.missed} ({total_before.missed}), false alarms {total_now.false_alarms} "
-          f"({total_before.false_alarms})")
+          f"({total_before.false_alarms})" + silent_text(argv))
     return 0
+
+
+def silent_text(paths: list[str]) -> str:
+    """'; silent while wrong N (M)' from the two results.csv files, or '' when either lacks the column."""
+    counts = []
+    for path in paths:
+        rows = pd.read_csv(path)
+        if "silent_while_wrong" not in rows:
+            return ""
+        counts.append(int((rows["silent_while_wrong"].astype(str) == "True").sum()))
+    return f"; silent while wrong {counts[0]} ({counts[1]})"
 
 
 if __name__ == "__main__":
