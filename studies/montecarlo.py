@@ -25,8 +25,8 @@ rms_error over the scenario's summary window; diverged: the flight did not compl
 final_error > --divergence-threshold (default 2 m); lost: mean |range - r_d| over the last
 5 s > the same threshold (the guidance did not hold the following distance); flagged: the
 companion's truth-free health monitor (companion.core.health) judged the estimate suspect at
-the end of the flight (the group table counts the diverged flights it missed and its false
-alarms); diverged_rms: the range-estimation error RMS over the summary window > [simulation]
+the end of the flight (the group table counts the flights diverged by RMS, as below, that it missed and its false
+alarms, flagged but not diverged by RMS); diverged_rms: the range-estimation error RMS over the summary window > [simulation]
 divergence_rms (default 2 m: the truth's "diverged" of studies.metrics.summarize, which bof-sim and
 bof-sitl judge by); breached_half_rd: the closest approach over the flight < r_d / 2; tilt_exceeded:
 the max tilt > the vehicle's max_tilt_deg (the group table counts both, and the flights with either
@@ -364,7 +364,9 @@ def group_table(rows: list[dict]) -> list[dict]:
     (medians over the runs with a finite figure; the RMS error over the runs that did not diverge)."""
     windows = [key for key in rows[0] if key.startswith("error_")] if rows else []
     rows = [{**row, "rms_error_kept": math.nan if row["diverged"] else row["rms_error"],
-             "missed": row["diverged"] and not row["flagged"], "false_alarm": row["flagged"] and not row["diverged"],
+             # judged against the truth bof-sim judges by (the RMS over the summary window), as the flight's summary is
+             "missed": row["diverged_rms"] and not row["flagged"],
+             "false_alarm": row["flagged"] and not row["diverged_rms"],
              "envelope_breached": row["breached_half_rd"] or row["tilt_exceeded"]}
             for row in rows]
     figures = {**GROUP_FIGURES, **{f"{key}_median": (key, "median") for key in windows}}
@@ -397,8 +399,8 @@ def markdown(table: list[dict], title: str, runs: int, threshold: float, executo
         f"{runs} seeded runs per row (seeds 1..{runs}); executor: {executor}. diverged: did not complete, or mean "
         f"|range-estimation error| over the last {FINAL_WINDOW:g} s > {threshold:g} m. lost: mean |range - r_d| "
         f"over the last {FINAL_WINDOW:g} s > {threshold:g} m. flagged: the companion's health monitor judged the "
-        "estimate suspect at the end of the flight, without truth; missed: diverged but not flagged; false: flagged "
-        "but not diverged. diverged (RMS): range-estimation error RMS over the last summary window > the scenario's "
+        "estimate suspect at the end of the flight, without truth; missed: diverged (RMS) but not flagged; false: "
+        "flagged but not diverged (RMS). diverged (RMS): range-estimation error RMS over the last summary window > the scenario's "
         "[simulation] divergence_rms (the truth bof-sim judges by). breached: flights whose closest approach came "
         "under r_d / 2, flights tilted past the vehicle's max_tilt_deg, and (any) flights with either. silent while "
         "wrong: diverged (RMS) flights in which the monitor never said suspect while the range-estimation error was "

@@ -382,6 +382,20 @@ def test_montecarlo_group_counts_a_flight_breaching_both_once(loaded):
         2, 2, 3, 1)
 
 
+def test_montecarlo_counts_the_monitors_misses_against_the_rms_truth(loaded):
+    """The table's missed / false alarms judge the monitor's flag at the end against diverged_rms, the truth each
+    flight's summary and bof-sim judge by, not against the last-5-s mean (`diverged`): four flights, each pairing of
+    the two, none diverged by the last-5-s mean (judged by it, there would be no miss and two false alarms)."""
+    scenario, vehicle = loaded
+    base = montecarlo.with_overrides(scenario, {"simulation.duration": 8.0, "simulation.summary_window": 8.0})
+    labels = {"scenario": "s", "estimator": "uplkf", "guidance": "hng", "case": "c"}
+    row = montecarlo.fly(montecarlo.FlightTask(labels, base, vehicle, 1, 2.0))["row"]
+    pairs = [(True, True), (True, False), (False, True), (False, False)]  # (diverged_rms, flagged)
+    rows = [dict(row, seed=k + 1, diverged_rms=d, flagged=f, diverged=False) for k, (d, f) in enumerate(pairs)]
+    (entry,) = montecarlo.group_table(rows)
+    assert (entry["missed"], entry["false_alarms"], entry["flagged"]) == (1, 1, 2)
+
+
 # --- bof-sitl's exit status and the closing block from summary.json ---------------------------------------------------
 
 def _truth(**flags) -> dict:
