@@ -52,6 +52,11 @@ def convergence_time(time: np.ndarray, range_error: np.ndarray, estimation_error
     return float(time[np.nonzero(outside)[0][-1] + 1])
 
 
+def suspect_flags(suspect: np.ndarray) -> np.ndarray:
+    """The health series (N,) (1 SUSPECT, 0 OK, NaN before the monitor's first verdict) as bool: flagged or not."""
+    return np.nan_to_num(np.asarray(suspect, dtype=float), nan=0.0) > 0.5
+
+
 def suspected_divergence(time: np.ndarray, suspect: np.ndarray | None, window: np.ndarray) -> dict | None:
     """How long and how often the filter-health monitor (companion.core.health) called the estimate suspect.
 
@@ -64,7 +69,7 @@ def suspected_divergence(time: np.ndarray, suspect: np.ndarray | None, window: n
     """
     if suspect is None:
         return None
-    flagged = np.nan_to_num(np.asarray(suspect, dtype=float), nan=0.0) > 0.5
+    flagged = suspect_flags(suspect)
     held = np.diff(time, append=time[-1])
     starts = np.flatnonzero(flagged & ~np.concatenate([[False], flagged[:-1]]))
     ends = np.flatnonzero(~flagged[1:] & flagged[:-1])
@@ -324,8 +329,7 @@ def summarize(series: dict[str, np.ndarray], scenario: Scenario, termination: en
                           divergence_rms=scenario.simulation.divergence_rms, tilt_limit_deg=vehicle.max_tilt_deg,
                           suspect_at_end=divergence is not None and divergence["at_end"],
                           estimation_error=estimation_error, window=window,
-                          suspect=None if suspect is None
-                          else np.nan_to_num(np.asarray(suspect, dtype=float), nan=0.0) > 0.5)
+                          suspect=None if suspect is None else suspect_flags(suspect))
     return {
         "scenario": scenario.name,
         "termination": termination_name(termination),

@@ -295,9 +295,7 @@ def test_the_seconds_the_monitor_flagged_while_the_estimate_was_wrong(loaded, wr
     RMS above 2 m, so the flight diverged, and it was silent while wrong exactly when the runs do not overlap."""
     scenario, vehicle = loaded
     (a, n), (c, m) = wrong, flagged
-    n = min(n, 600 - a)  # the last sample (t = 60 s) holds for no time: keep the episode before it
-    if n < 10:
-        return
+    n = min(n, 600 - a)  # the last sample (t = 60 s) holds for no time: keep the episode before it (a <= 590: n >= 10)
     errors = np.full(N, 0.5)
     errors[a:a + n] = error
     suspect = np.zeros(N)

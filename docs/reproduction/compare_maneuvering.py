@@ -18,8 +18,8 @@ import sys
 import pandas as pd
 
 
-def figures(path: str) -> pd.DataFrame:
-    rows = pd.read_csv(path)
+def figures(rows: pd.DataFrame) -> pd.DataFrame:
+    rows = rows.copy()
     rows["rate"] = rows["case"].str.split("-").str[0]
     for column in ("diverged_rms", "breached_half_rd", "tilt_exceeded", "flagged"):
         rows[column] = rows[column].astype(str) == "True"
@@ -40,7 +40,8 @@ def main(argv: list[str]) -> int:
     if len(argv) != 2:
         print(__doc__.strip().splitlines()[2].strip(), file=sys.stderr)
         return 2
-    now, before = figures(argv[0]), figures(argv[1])
+    frames = [pd.read_csv(path) for path in argv]
+    now, before = figures(frames[0]), figures(frames[1])
     desired = 8.0  # every scenario of the study follows at r_d = 8 m
     print("| scenario | rate | diverged | RMS median | RMS worst | closer than r_d/2 | closest / r_d | tilt over limit | max tilt (deg) | missed / false alarms |")
     print("|---|---|---|---|---|---|---|---|---|---|")
@@ -57,19 +58,16 @@ def main(argv: list[str]) -> int:
     print(f"\nall: diverged {total_now.diverged} ({total_before.diverged}) of {total_now.runs}; closer than r_d/2 "
           f"{total_now.breached} ({total_before.breached}); tilt over the limit {total_now.tilted} ({total_before.tilted}); "
           f"missed {total_now.missed} ({total_before.missed}), false alarms {total_now.false_alarms} "
-          f"({total_before.false_alarms})" + silent_text(argv))
+          f"({total_before.false_alarms})" + silent_text(frames))
     return 0
 
 
-def silent_text(paths: list[str]) -> str:
-    """'; silent while wrong N (M)' from the two results.csv files, or '' when either lacks the column."""
-    counts = []
-    for path in paths:
-        rows = pd.read_csv(path)
-        if "silent_while_wrong" not in rows:
-            return ""
-        counts.append(int((rows["silent_while_wrong"].astype(str) == "True").sum()))
-    return f"; silent while wrong {counts[0]} ({counts[1]})"
+def silent_text(frames: list[pd.DataFrame]) -> str:
+    """'; silent while wrong N (M)' from the two results tables, or '' when either lacks the column."""
+    if any("silent_while_wrong" not in rows for rows in frames):
+        return ""
+    now, before = (int((rows["silent_while_wrong"].astype(str) == "True").sum()) for rows in frames)
+    return f"; silent while wrong {now} ({before})"
 
 
 if __name__ == "__main__":
