@@ -229,3 +229,60 @@ def test_the_heading_axis_points_exactly_along_the_heading_and_across_the_thrust
     yaw = Rotation.from_matrix(rotation).as_euler("ZYX")[0]
     assert math.remainder(yaw - heading_angle, 2 * math.pi) == pytest.approx(0.0, abs=1e-7)
     assert float(rotation[:, 0] @ heading) > 0.0
+
+
+@settings(max_examples=200)
+@given(seed=st.integers(0, 2**32 - 1), trusted=st.booleans(), range_estimate=st.floats(0.5, 80.0))
+def test_the_control_ticks_closing_rule_reads_sigma_r_and_sigma_v_along_the_line_of_sight(seed, trusted, range_estimate):
+    """The control tick's one-call closing rule is limit_closing with sigma_r = sqrt(l' P_pp l) and sigma_v =
+    sqrt(l' P_vv l) taken from the estimate's 6 x 6 covariance (numpy's einsum here) and the target's speed away
+    v_T . l: the same command, or no change where limit_closing leaves it."""
+    from companion.core.safety import _limit_closing_into_kernel
+
+    rng = np.random.default_rng(seed)
+    root = rng.normal(scale=rng.uniform(0.05, 3.0), size=(6, 6))
+    covariance = root @ root.T
+    los = rng.normal(size=3)
+    los /= np.linalg.norm(los)
+    command, pursuer, target = rng.normal(scale=4.0, size=(3, 3))
+    rule = envelope(reaction_time=0.3, estimate_latency=0.2)
+    range_std = math.sqrt(np.einsum("i,ij,j", los, covariance[:3, :3], los))
+    speed_std = math.sqrt(np.einsum("i,ij,j", los, covariance[3:, 3:], los))
+    expected = rule.limit_closing(command, los, pursuer, range_estimate, range_std, float(target @ los), speed_std,
+                                  trusted)
+    out = np.full(3, np.nan)
+    changed = _limit_closing_into_kernel(command, los, pursuer, covariance, target, range_estimate, trusted,
+                                         rule.kernel_terms, out)
+    assert changed == (expected is not None)
+    if changed:
+        np.testing.assert_allclose(out, expected, rtol=1e-9, atol=1e-9)
+    else:
+        assert np.all(np.isnan(out))  # left as it was
+
+
+@given(heading_angle=st.floats(-math.pi, math.pi), north=st.floats(-15.0, 15.0), east=st.floats(-15.0, 15.0),
+       down=st.floats(-15.0, 8.0))
+def test_the_setpoint_on_the_envelopes_heading_yaws_exactly_to_it_and_thrusts_along_the_flown_command(
+        heading_angle, north, east, down):
+    """The setpoint the control tick builds on the envelope's heading: scipy reads its yaw back as the heading,
+    its thrust axis is g e_Z minus the command as limit_specific_force flies it, and the flown command it
+    reports is that one."""
+    from scipy.spatial.transform import Rotation
+
+    from companion.core.attitude import limit_specific_force
+    from companion.core.safety import _heading_setpoint_into_kernel
+
+    limits = VehicleLimits(2.0 / 3.0, max_tilt=math.radians(35.0), gravity=G, mass=1.3)
+    heading = np.array([math.cos(heading_angle), math.sin(heading_angle), 0.0])
+    command = np.array([north, east, down])
+    rotation, flown = np.empty((3, 3)), np.empty(3)
+    thrust, normalized = _heading_setpoint_into_kernel(command, heading, np.eye(3), limits.setpoint_terms, rotation,
+                                                       flown)
+    expected = limit_specific_force(command, limits)
+    np.testing.assert_allclose(flown, expected, rtol=1e-12, atol=1e-12)
+    force = np.array([0.0, 0.0, G]) - expected
+    np.testing.assert_allclose(rotation[:, 2], force / np.linalg.norm(force), atol=1e-9)
+    yaw = Rotation.from_matrix(rotation).as_euler("ZYX")[0]
+    assert math.remainder(yaw - heading_angle, 2 * math.pi) == pytest.approx(0.0, abs=1e-7)
+    assert thrust == pytest.approx(limits.mass * np.linalg.norm(force), rel=1e-9)
+    assert 0.0 <= normalized <= 1.0

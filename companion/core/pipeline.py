@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.core.attitude import VehicleLimits, attitude_setpoint_after, limit_specific_force
+from companion.core.attitude import _IDENTITY, VehicleLimits, attitude_setpoint_after
 from companion.core.control_chain import COMPILED_TRACKING, CompleteLaw, SafeHold, TickInputs, Tracking
 from companion.core.cooperative_guidance import SeparationFilter, neighbours_make_range_observable
 from companion.core.estimators import CorrectionReport, InitialGuess, TargetEstimator
@@ -39,7 +39,8 @@ from companion.core.messages import (
     fast_frozen,
 )
 from companion.core.observability import WindowedObservability
-from companion.core.safety import EnvelopeRecord, SafetyEnvelope, heading_axis
+from companion.core.safety import (_NO_HEADING, EnvelopeRecord, SafetyEnvelope, _heading_into_kernel,
+                                   _heading_setpoint_into_kernel, _limit_closing_into_kernel)
 from interfaces.derived_defaults import dropout_min_range, dropout_safe_range, health_min_range
 
 _TIME_EPS = 1e-9
@@ -700,11 +701,17 @@ class FollowingPipeline:
             rotation, flown, thrust, thrust_normalized = compiled_setpoint
             self._setpoint = fast_frozen(AttitudeSetpoint, time=time, rotation=rotation,
                                          thrust_normalized=thrust_normalized, thrust=thrust, acceleration=flown)
+        elif heading is not None:  # the envelope's heading, exactly (safety.heading_axis)
+            previous = self._setpoint
+            rotation, flown = np.empty((3, 3)), np.empty(3)
+            thrust, thrust_normalized = _heading_setpoint_into_kernel(
+                command, heading, _IDENTITY if previous is None else previous.rotation, self.limits.setpoint_terms,
+                rotation, flown)
+            self._setpoint = fast_frozen(AttitudeSetpoint, time=time, rotation=rotation,
+                                         thrust_normalized=float(thrust_normalized), thrust=float(thrust),
+                                         acceleration=flown)
         else:  # heading fallback: the previous setpoint's r1
-            if heading is not None:  # the envelope's heading, exactly (safety.heading_axis)
-                heading = heading_axis(heading, limit_specific_force(command, self.limits), self.limits.gravity)
-            self._setpoint = attitude_setpoint_after(time, command, los if heading is None else heading, self.limits,
-                                                     self._setpoint)
+            self._setpoint = attitude_setpoint_after(time, command, los, self.limits, self._setpoint)
         self._guidance = fast_frozen(GuidanceTerms, lateral=lateral, longitudinal=longitudinal, los=los,
                                      range_estimate=range_estimate)
 
@@ -716,24 +723,22 @@ class FollowingPipeline:
         `trusted`. Counts the ticks it acted in envelope_record."""
         envelope, record = self.envelope, self.envelope_record
         heading_los = los
-        covariance = estimate.covariance
         if self._last_bearing is not None and time - self._last_bearing_time < self.dropout.coast_after:
             los = self._last_bearing  # the measured line of sight while fresh: a measurement, not the estimate
-        range_std = math.sqrt(max(float(los @ covariance[:3, :3] @ los), 0.0))
-        speed_std = math.sqrt(max(float(los @ covariance[3:, 3:] @ los), 0.0))
-        limited = envelope.limit_closing(command, los, np.asarray(pursuer.velocity, dtype=float), range_estimate,
-                                         range_std, float(estimate.velocity @ los), speed_std, trusted)
-        if limited is not None:
+        limited = np.empty(3)
+        if _limit_closing_into_kernel(command, los, np.asarray(pursuer.velocity, dtype=float), estimate.covariance,
+                                      estimate.velocity, float(range_estimate), trusted, envelope.kernel_terms, limited):
             command = limited
             record.closing_ticks += 1
             record.closing_seconds += self.control_period
         previous = self._setpoint
-        heading, limited = envelope.heading(heading_los, None if previous is None else previous.rotation[:, 0],
-                                            0.0 if previous is None else time - previous.time)
-        if limited:
+        heading = np.empty(3)
+        state = _heading_into_kernel(heading_los, _NO_HEADING if previous is None else previous.rotation[:, 0],
+                                     0.0 if previous is None else time - previous.time, envelope.max_yaw_rate, heading)
+        if state == 2:
             record.heading_ticks += 1
             record.heading_seconds += self.control_period
-        return command, heading
+        return command, (heading if state else None)
 
 
 @jit

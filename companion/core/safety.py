@@ -39,7 +39,8 @@ command after the law (and before the vehicle's own limits), with two rules:
    attitude loop overshoots a fast-moving tilt setpoint by a few degrees, and the limit is the
    airframe's, not the setpoint's.
 
-Plain numpy and math: a few scalar operations per control tick.
+The rules' arithmetic is in kernels (companion.core._jit: compiled with numba when installed, plain Python
+otherwise) that the envelope's methods and the control tick both call: a few scalar operations per tick.
 """
 
 from __future__ import annotations
@@ -50,7 +51,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.core.attitude import VehicleLimits
+from companion.core._jit import jit, remainder
+from companion.core.attitude import VehicleLimits, _limited_acceleration_kernel, _setpoint_after_into_kernel
+from companion.core.messages import once_property
 
 
 @dataclass(frozen=True)
@@ -112,34 +115,25 @@ class SafetyEnvelope:
             return limits
         return dataclasses.replace(limits, max_tilt=tilt)
 
+    @once_property
+    def kernel_terms(self) -> tuple[float, ...]:
+        """The closing-speed rule's parameters as its kernels take them (_closing_limit): (r_min, a_T, a_P, a_max,
+        k, k_v, t_r, velocity gain, retreat gain, untrusted share, t_e), floats (computed on the first read and
+        kept: the envelope is frozen)."""
+        return (float(self.min_range), float(self.target_max_acceleration), float(self.braking_acceleration),
+                float(self.max_braking_acceleration), float(self.range_sigmas), float(self.speed_sigmas),
+                float(self.reaction_time), float(self.velocity_gain), float(self.retreat_gain),
+                float(self.untrusted_range_share), float(self.estimate_latency))
+
     def closing_speed_limit(self, range_estimate: float, range_std: float, target_speed_away: float,
                             target_speed_std: float, trust_target_velocity: bool) -> float:
         """u_max, m/s (module docstring, rule 1): the largest speed along the line of sight towards the target
         that still stops the pursuer before min_range. range_estimate r^ and range_std sigma_r, m;
         target_speed_away v^_T . lambda and its std, m/s; trust_target_velocity False counts on
         untrusted_range_share of the pessimistic range and leaves out the target's stopping distance (its speed
-        counts only when it comes towards us)."""
-        return self._limit_and_target_speed(range_estimate, range_std, target_speed_away, target_speed_std,
-                                            trust_target_velocity)[0]
-
-    def _limit_and_target_speed(self, range_estimate: float, range_std: float, target_speed_away: float,
-                                target_speed_std: float, trusted: bool) -> tuple[float, float]:
-        """(u_max, the target's speed away from us as counted, m/s): `closing_speed_limit`'s arithmetic."""
-        k = self.range_sigmas
-        pessimistic_range = range_estimate - k * range_std
-        away = target_speed_away - self.speed_sigmas * target_speed_std
-        if not trusted:
-            pessimistic_range *= self.untrusted_range_share
-            away = min(away, 0.0)
-        gap = pessimistic_range - self.min_range
-        if away > 0.0:
-            gap += away * away / (2.0 * self.target_max_acceleration) - away * self.estimate_latency
-        braking, lag = self.braking_acceleration, self.reaction_time + self.estimate_latency
-        if gap > 0.0:
-            limit = math.sqrt((braking * lag) ** 2 + 2.0 * braking * gap) - braking * lag
-        else:
-            limit = self.retreat_gain * gap
-        return limit + min(away, 0.0), away
+        counts only when it comes towards us). The arithmetic is _closing_limit's."""
+        return _closing_limit_kernel(float(range_estimate), float(range_std), float(target_speed_away),
+                                     float(target_speed_std), bool(trust_target_velocity), self.kernel_terms)[0]
 
     def limit_closing(self, command: np.ndarray, los: np.ndarray, pursuer_velocity: np.ndarray, range_estimate: float,
                       range_std: float, target_speed_away: float, target_speed_std: float,
@@ -153,19 +147,12 @@ class SafetyEnvelope:
         The line-of-sight acceleration wanted is k_v (u_max - u_P) plus the limit's own rate: the gap shrinks at
         the closing speed relative to the target, u_P - u_T, and du_max/dgap = a_P / (u_max + a_P t_r), so
         du_max/dt = -(a_P / (u_max + a_P t_r)) (u_P - u_T). At u_P = u_max on a target at rest, with t_r = 0,
-        that is braking at exactly a_P, the profile u_max was built on."""
-        limit, away = self._limit_and_target_speed(range_estimate, range_std, target_speed_away, target_speed_std,
-                                                   trusted)
-        closing_speed = float(pursuer_velocity @ los)
-        relative_closing = closing_speed - max(away, 0.0)
-        braking = self.braking_acceleration
-        if limit > 0.0:
-            feed_forward = braking * max(relative_closing, 0.0) / (limit + braking * (self.reaction_time
-                                                                                     + self.estimate_latency))
-            wanted = self.velocity_gain * (limit - closing_speed) - feed_forward
-        else:
-            wanted = self.velocity_gain * (limit - closing_speed) if closing_speed <= 0.0 else -self.max_braking_acceleration
-        wanted = max(wanted, -self.max_braking_acceleration)
+        that is braking at exactly a_P, the profile u_max was built on. The arithmetic is _wanted_along's."""
+        command = np.asarray(command, dtype=float)
+        los = np.asarray(los, dtype=float)
+        wanted = _wanted_along_kernel(float(np.asarray(pursuer_velocity, dtype=float) @ los), float(range_estimate),
+                                      float(range_std), float(target_speed_away), float(target_speed_std),
+                                      bool(trusted), self.kernel_terms)
         along = float(command @ los)
         if along <= wanted:
             return None
@@ -178,25 +165,17 @@ class SafetyEnvelope:
         setpoint's heading at no more than max_yaw_rate x interval. While lambda is within VERTICAL_LOS of the
         vertical its horizontal direction is noise and the previous heading is held. (None, False) with no
         previous setpoint: lambda itself then. los: unit lambda (3,); previous_forward: the last R_d's first
-        column (3,); interval: s since that setpoint.
+        column (3,); interval: s since that setpoint. The arithmetic is _heading_into's.
 
         Horizontal rather than lambda itself: R_d's forward axis is the part of its heading vector across the
         thrust axis, and a line of sight nearly along the thrust axis (a target above a tilted pursuer) leaves
         that part to the tilt, so the heading swung with every change of the command and the attitude loop,
         chasing it, was left 150 deg off in yaw and 25 deg past the tilt it was asked for."""
-        horizontal = math.hypot(float(los[0]), float(los[1]))
-        if previous_forward is None or math.hypot(float(previous_forward[0]), float(previous_forward[1])) < 1e-6:
-            if horizontal < 1e-6:
-                return None, False
-            return np.array([float(los[0]) / horizontal, float(los[1]) / horizontal, 0.0]), False
-        current = math.atan2(float(previous_forward[1]), float(previous_forward[0]))
-        if horizontal < math.sin(VERTICAL_LOS):
-            return np.array([math.cos(current), math.sin(current), 0.0]), False
-        turn = math.remainder(math.atan2(float(los[1]), float(los[0])) - current, 2.0 * math.pi)
-        step = self.max_yaw_rate * max(interval, 0.0)
-        limited = abs(turn) > step
-        heading = current + (math.copysign(step, turn) if limited else turn)
-        return np.array([math.cos(heading), math.sin(heading), 0.0]), limited
+        heading = np.empty(3)
+        state = _heading_into_kernel(np.asarray(los, dtype=float),
+                                     _NO_HEADING if previous_forward is None else np.asarray(previous_forward, dtype=float),
+                                     float(interval), float(self.max_yaw_rate), heading)
+        return (None, False) if state == 0 else (heading, state == 2)
 
 
 #: rad: a line of sight closer than this to the vertical has no heading of its own (`SafetyEnvelope.heading`).
@@ -215,6 +194,111 @@ def heading_axis(heading: np.ndarray, flown_acceleration: np.ndarray, gravity: f
     x, y, z = north * fz, east * fz, -east * fy - north * fx
     length = math.sqrt(x * x + y * y + z * z)
     return np.array([x / length, y / length, z / length])
+
+
+_NO_HEADING = np.zeros(3)  # a previous heading that is none: _heading_into takes it as no previous setpoint
+
+
+def _closing_limit(range_estimate, range_std, target_speed_away, target_speed_std, trusted, terms):
+    """(u_max, the target's speed away from us as counted), m/s: rule 1 of the module docstring
+    (SafetyEnvelope.closing_speed_limit) on floats, `trusted` a bool and the envelope's kernel_terms."""
+    (min_range, target_max_acceleration, braking, _, range_sigmas, speed_sigmas, reaction_time, _, retreat_gain,
+     untrusted_range_share, estimate_latency) = terms
+    pessimistic_range = range_estimate - range_sigmas * range_std
+    away = target_speed_away - speed_sigmas * target_speed_std
+    if not trusted:
+        pessimistic_range *= untrusted_range_share
+        away = away if away < 0.0 else 0.0  # min(away, 0): a NaN stays NaN
+    gap = pessimistic_range - min_range
+    if away > 0.0:
+        gap += away * away / (2.0 * target_max_acceleration) - away * estimate_latency
+    lag = reaction_time + estimate_latency
+    if gap > 0.0:
+        limit = math.sqrt((braking * lag) * (braking * lag) + 2.0 * braking * gap) - braking * lag
+    else:
+        limit = retreat_gain * gap
+    return limit + (away if away < 0.0 else 0.0), away
+
+
+def _wanted_along(closing_speed, range_estimate, range_std, target_speed_away, target_speed_std, trusted, terms):
+    """The line-of-sight acceleration, m/s^2, that keeps the closing speed v_P . lambda = closing_speed (m/s) at
+    or brings it down to rule 1's u_max (SafetyEnvelope.limit_closing), never below -a_max; floats, `trusted` a
+    bool and the envelope's kernel_terms."""
+    limit, away = _closing_limit_kernel(range_estimate, range_std, target_speed_away, target_speed_std, trusted,
+                                        terms)
+    braking, max_braking, reaction_time, velocity_gain, estimate_latency = terms[2], terms[3], terms[6], terms[7], terms[10]
+    if limit > 0.0:
+        relative_closing = closing_speed - (away if away > 0.0 else 0.0)
+        feed_forward = (braking * (relative_closing if relative_closing > 0.0 else 0.0)
+                        / (limit + braking * (reaction_time + estimate_latency)))
+        wanted = velocity_gain * (limit - closing_speed) - feed_forward
+    else:
+        wanted = velocity_gain * (limit - closing_speed) if closing_speed <= 0.0 else -max_braking
+    return -max_braking if -max_braking > wanted else wanted  # max(wanted, -a_max): a NaN stays NaN
+
+
+def _limit_closing_into(command, los, pursuer_velocity, covariance, target_velocity, range_estimate, trusted, terms,
+                        out):
+    """The control tick's rule 1 in one call: sigma_r = sqrt(lambda^T P_pp lambda) and sigma_v = sqrt(lambda^T P_vv
+    lambda) from the estimate's covariance (6, 6), the target's speed away v^_T . lambda, and
+    SafetyEnvelope.limit_closing's command (_wanted_along) written into out (3,); returns whether it changed the
+    command (out is then the limited command; otherwise out is left as it was). command, los (unit), pursuer and
+    target velocity: float64 (3,); range_estimate r^ m; trusted: bool; terms: the envelope's kernel_terms."""
+    range_variance = los @ np.ascontiguousarray(covariance[:3, :3]) @ los
+    speed_variance = los @ np.ascontiguousarray(covariance[3:, 3:]) @ los
+    range_std = math.sqrt(0.0 if 0.0 > range_variance else range_variance)  # max(v, 0): a NaN stays NaN
+    speed_std = math.sqrt(0.0 if 0.0 > speed_variance else speed_variance)
+    wanted = _wanted_along_kernel(pursuer_velocity @ los, range_estimate, range_std, target_velocity @ los, speed_std,
+                                  trusted, terms)
+    along = command @ los
+    if along <= wanted:
+        return False
+    for axis in range(3):
+        out[axis] = command[axis] + (wanted - along) * los[axis]
+    return True
+
+
+def _heading_into(los, previous_forward, interval, max_yaw_rate, out):
+    """Rule 2 (SafetyEnvelope.heading) writing the heading into out (3,): 0 no heading (out untouched), 1 the
+    heading, 2 the heading, rate-limited short of lambda. los: unit lambda (3,); previous_forward: the last R_d's
+    first column (3,), zeros for none; interval s; max_yaw_rate rad/s."""
+    horizontal = math.hypot(los[0], los[1])
+    if math.hypot(previous_forward[0], previous_forward[1]) < 1e-6:
+        if horizontal < 1e-6:
+            return 0
+        out[0], out[1], out[2] = los[0] / horizontal, los[1] / horizontal, 0.0
+        return 1
+    current = math.atan2(previous_forward[1], previous_forward[0])
+    if horizontal < math.sin(VERTICAL_LOS):
+        out[0], out[1], out[2] = math.cos(current), math.sin(current), 0.0
+        return 1
+    turn = remainder(math.atan2(los[1], los[0]) - current, 2.0 * math.pi)
+    step = max_yaw_rate * (interval if interval > 0.0 else 0.0)
+    limited = abs(turn) > step
+    heading = current + (math.copysign(step, turn) if limited else turn)
+    out[0], out[1], out[2] = math.cos(heading), math.sin(heading), 0.0
+    return 2 if limited else 1
+
+
+def _heading_setpoint_into(command, heading, previous_rotation, setpoint_terms, rotation_out, flown_out):
+    """The setpoint of eq. (21)-(22) for `command` (m/s^2, (3,)) flown on the envelope's horizontal `heading` (unit
+    (3,)): R_d built on heading_axis (the heading across the thrust axis of the flown command) in place of lambda,
+    as attitude._setpoint_after_into writes it (rotation_out (3, 3), flown_out (3,)); returns (T N, normalised
+    thrust). setpoint_terms: VehicleLimits.setpoint_terms; previous_rotation: the last R_d (3, 3)."""
+    gravity, max_specific_force, max_specific_force_squared, horizontal_margin, min_vertical, tan_max_tilt = \
+        setpoint_terms[0], setpoint_terms[1], setpoint_terms[2], setpoint_terms[3], setpoint_terms[4], setpoint_terms[5]
+    flown = _limited_acceleration_kernel(command, gravity, max_specific_force, max_specific_force_squared,
+                                         horizontal_margin, min_vertical, tan_max_tilt)
+    axis = _heading_axis_kernel(heading, flown, gravity)
+    return _setpoint_after_into_kernel(command, axis, previous_rotation, setpoint_terms, rotation_out, flown_out)
+
+
+_closing_limit_kernel = jit(_closing_limit)
+_wanted_along_kernel = jit(_wanted_along)
+_limit_closing_into_kernel = jit(_limit_closing_into)
+_heading_into_kernel = jit(_heading_into)
+_heading_axis_kernel = jit(heading_axis)
+_heading_setpoint_into_kernel = jit(_heading_setpoint_into)
 
 
 @dataclass
