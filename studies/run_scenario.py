@@ -24,7 +24,6 @@ from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, load_sc
 from studies.closed_loop import SimulationResult, simulate
 from studies.flight_mcap import in_process_record, write_flight_mcap
 from studies.metrics import convergence_text, outcome_lines, suspect_warning, truth_failed, write_summary
-from studies.plots import plot_errors, plot_swarm_tracks, plot_trajectories
 from studies.processes import Interrupted, RaisingStopSignals
 from studies.swarm import SwarmResult, simulate_swarm
 
@@ -63,6 +62,8 @@ def write_run_folder(result: SimulationResult, folder: Path, plots: bool = True)
                 + ([f"{value:.4f}" for value in models[row]] if models is not None else [])
             )
     write_summary(folder / "summary.json", result.summary)
+    from studies.plots import plot_errors, plot_trajectories  # matplotlib only when plots are drawn
+
     title = f"{result.scenario.name} (seed {result.summary['seed']})"
     plot_trajectories(series, folder / "trajectory.png", title)
     plot_errors(series, result.scenario.guidance.desired_range, folder / "errors.png", title, result.summary)
@@ -111,6 +112,8 @@ def write_swarm_folder(result: SwarmResult, folder: Path, plots: bool = True) ->
                                                    for key, values in data.items()})
     write_summary(folder / "summary.json", result.summary)
     if plots:
+        from studies.plots import plot_errors, plot_swarm_tracks  # matplotlib only when plots are drawn
+
         title = f"{result.scenario.name} (seed {result.summary['seed']}, {len(result.series)} pursuers)"
         plot_swarm_tracks(result.series, folder / "tracks.png", title)
         plot_errors(result.series[1], result.scenario.guidance.desired_range, folder / "errors.png", f"{title}: pursuer 1")

@@ -16,8 +16,9 @@ import numpy as np
 import pytest
 from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
+from scipy.stats import chi2
 
-from companion.core.health import (REASONS, HealthConfig, HealthMonitor, HealthState,
+from companion.core.health import (REASONS, chi2_quantile, HealthConfig, HealthMonitor, HealthState,
                                    normalized_innovation_squared)
 from interfaces import link_schema as link
 from interfaces.scenario import load_scenario
@@ -360,3 +361,24 @@ def test_the_absolute_range_std_counts_only_once_the_range_has_converged(bound, 
         converged = converged or sigma <= bound
         assert ("range_uncertain" in report.raised) == (converged and sigma > bound)
         assert report.relative_range_std == pytest.approx(sigma / 10.0, rel=1e-9)
+
+
+@given(probability=st.floats(1e-6, 1.0 - 1e-9), dof=st.integers(1, 60))
+def test_the_chi2_quantile_is_scipy_stats_chi2_ppf(probability, dof):
+    """The monitor's and the fusion gate's chi^2 quantile is scipy.stats' chi2.ppf (the library it avoids importing
+    at start), and the chi^2 CDF brings it back to the probability."""
+    quantile = chi2_quantile(probability, dof)
+    assert quantile == pytest.approx(float(chi2.ppf(probability, dof)), rel=1e-13, abs=1e-300)
+    assert float(chi2.cdf(quantile, dof)) == pytest.approx(probability, rel=1e-9, abs=1e-12)
+
+
+def test_starting_the_companion_imports_neither_scipy_stats_nor_matplotlib():
+    """What the companion app and bof-sim load at start: no scipy.stats, scipy.optimize or matplotlib (each costs
+    0.1-0.5 s of start-up and none is needed to fly)."""
+    import subprocess
+    import sys
+
+    code = ("import sys, companion.app, studies.run_scenario; "
+            "print(sorted(m for m in ('scipy.stats', 'scipy.optimize', 'matplotlib') if m in sys.modules))")
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120)
+    assert loaded.stdout.strip() == "[]"

@@ -27,10 +27,9 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve
-from scipy.optimize import minimize_scalar
-from scipy.stats import chi2
 
 from companion.core.estimators import CorrectionReport, InitialGuess, MAX_RANGE, explicit_start
+from companion.core.health import chi2_quantile
 from companion.core.messages import BearingMeasurement, TargetEstimate
 
 # --------------------------------------------------------------------------------------------
@@ -348,7 +347,7 @@ class TriangulationKalmanEstimator:
         self.compensate_age = bool(compensate_age)
         self.max_time_offset_s = float(max_time_offset_s)
         self.gate_probability = gate_probability
-        self._gate = math.inf if gate_probability is None else float(chi2.ppf(gate_probability, 3))
+        self._gate = math.inf if gate_probability is None else chi2_quantile(gate_probability, 3)
         # last time stamp per source that went into a triangulation: a bearing is used at most once,
         # also when the pipeline hands the same bearing to initialize_on_bearing after correct
         self._consumed: dict[int, float] = {}
@@ -634,6 +633,8 @@ def _ci_pair(x1: np.ndarray, p1: np.ndarray, x2: np.ndarray, p2: np.ndarray) -> 
 
     def trace_for(omega: float) -> float:
         return float(np.trace(np.linalg.inv(omega * i1 + (1.0 - omega) * i2)))
+
+    from scipy.optimize import minimize_scalar  # here: only this fusion needs scipy.optimize (0.1 s to import)
 
     search = minimize_scalar(trace_for, bounds=(0.0, 1.0), method="bounded", options={"xatol": 1e-8})
     # The bounded search never evaluates the ends exactly; the optimum is at one when an input dominates.

@@ -63,7 +63,7 @@ when `HealthActionConfig.act` is on: while SUSPECT, inflate the estimator's proc
 bearing (remark 3) when the reasons say the range is wrong (rate-limited), and fly the
 range excitation (companion.core.guidance.RangeExcitation) at full level.
 
-numpy, and scipy.stats.chi2 for the chi^2 quantile.
+numpy, and scipy.special's inverse incomplete gamma function for the chi^2 quantile (`chi2_quantile`).
 """
 
 from __future__ import annotations
@@ -74,7 +74,7 @@ from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import gammaincinv
 
 from companion.core._jit import jit, symmetric_eigen
 from companion.core.geometry import relative_range_std_kernel
@@ -273,8 +273,15 @@ def _nis_bound(scale: float, probability: float, dof: int) -> float:
     if bound is None:
         if len(_NIS_BOUNDS) >= _NIS_BOUNDS_LIMIT:
             _NIS_BOUNDS.clear()
-        bound = _NIS_BOUNDS[key] = scale * float(chi2.ppf(probability, dof))
+        bound = _NIS_BOUNDS[key] = scale * chi2_quantile(probability, dof)
     return bound
+
+
+def chi2_quantile(probability: float, dof: float) -> float:
+    """The chi^2 distribution's quantile at `probability` for `dof` degrees of freedom: 2 P^-1(dof / 2, probability),
+    P^-1 the inverse of the regularised lower incomplete gamma function (scipy.special.gammaincinv). It is the
+    formula scipy.stats.chi2.ppf evaluates, without importing scipy.stats (about 0.4 s at every start)."""
+    return float(2.0 * gammaincinv(dof / 2.0, probability))
 
 
 @dataclass

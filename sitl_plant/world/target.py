@@ -30,7 +30,6 @@ from pathlib import Path
 from typing import Protocol
 
 import numpy as np
-from scipy.interpolate import CubicSpline
 
 from interfaces.scenario import TargetConfig
 from interfaces.trajectory import read_trajectory
@@ -486,6 +485,8 @@ class TrajectoryTarget:
         relative = times - times[0]
         if not 0.0 <= skip < relative[-1]:
             raise ValueError(f"skip {skip!r} s must be within the track's {relative[-1]:g} s")
+        from scipy.interpolate import CubicSpline  # here: only a recorded track needs scipy.interpolate
+
         self._spline = CubicSpline(relative, np.asarray(positions, dtype=float), axis=0)
         self._velocity_spline = self._spline.derivative(1)
         self._acceleration_spline = self._spline.derivative(2)
