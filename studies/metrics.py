@@ -157,8 +157,9 @@ def truth_outcome(time: np.ndarray, range_: np.ndarray, tilt_deg: np.ndarray, es
     monitor_missed (diverged, yet not suspect at the end), monitor_false_alarm (suspect at the end, yet not
     diverged), seconds_estimate_wrong (s of the summary window with |range-estimation error| above divergence_rms),
     seconds_wrong_flagged (of those, the seconds the monitor called the estimate suspect), monitor_silent_while_wrong
-    (diverged, and the monitor never called the estimate suspect while it was that far off: a miss while it
-    mattered, not only at the end) and outcome, one word: "failed" (did not fly as asked), "no_estimate" (no estimate over the window),
+    (diverged, off by more than the limit for some time of the window, and the monitor never called the estimate
+    suspect while it was that far off: a miss while it mattered, not only at the end; a flight without an estimate
+    to be off is not) and outcome, one word: "failed" (did not fly as asked), "no_estimate" (no estimate over the window),
     "diverged", "envelope_breached" (closer than r_d / 2 or tilted past the limit), else "success"; the first that
     applies in that order (the flags say which others apply too).
     """
@@ -202,7 +203,7 @@ def truth_outcome(time: np.ndarray, range_: np.ndarray, tilt_deg: np.ndarray, es
         "monitor_false_alarm": bool(suspect_at_end and not diverged),
         "seconds_estimate_wrong": wrong_seconds,
         "seconds_wrong_flagged": flagged_seconds,
-        "monitor_silent_while_wrong": bool(judged and diverged and flagged_seconds == 0.0),
+        "monitor_silent_while_wrong": bool(judged and diverged and wrong_seconds > 0.0 and flagged_seconds == 0.0),
     }
 
 

@@ -317,6 +317,17 @@ def test_a_wrong_estimate_before_the_window_or_within_the_limit_is_not_counted(l
     assert truth["seconds_estimate_wrong"] == 0.0 and not truth["monitor_silent_while_wrong"]
 
 
+def test_an_estimate_that_went_missing_is_diverged_but_the_monitor_was_not_silent_while_wrong(loaded):
+    """The estimate good until t = 50 s, then none (NaN) to the end: the flight counts as diverged, but no second of
+    the window had an estimate more than 2 m off, so the monitor cannot have been silent while it was wrong."""
+    scenario, vehicle = loaded
+    error = np.where(TIME >= 50.0, math.nan, 0.1)
+    truth = summarize(_series(_at_rd(scenario), error, suspect=np.zeros(N)), scenario, Termination.COMPLETED,
+                      vehicle)["truth"]
+    assert truth["diverged"] and truth["seconds_estimate_wrong"] == 0.0
+    assert not truth["monitor_silent_while_wrong"]
+
+
 def test_without_the_monitors_record_its_silence_is_not_judged(loaded):
     """A log without health_suspect (no monitor verdicts): the flight diverged, but nothing says what the monitor
     said, so it is not called silent."""
