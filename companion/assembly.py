@@ -360,7 +360,9 @@ def health_config(scenario: Scenario) -> HealthConfig:
                             min_nis_samples=h.min_nis_samples, max_relative_range_std=h.max_relative_range_std,
                             max_range_std=h.max_range_std,
                             min_range=min_range, max_range=h.max_range, slow_speed=h.slow_speed,
-                            unobservable_time=h.unobservable_time, flag_after=h.flag_after, clear_after=h.clear_after)
+                            unobservable_time=h.unobservable_time, flag_after=h.flag_after, clear_after=h.clear_after,
+                            speed_change_probability=h.speed_change_probability,
+                            speed_change_time=h.speed_change_time, speed_change_clear=h.speed_change_clear)
     except ValueError as error:
         raise ConfigError(f"health: {error}") from None
 

@@ -227,7 +227,7 @@ CommandName = Literal["abort", "resume", "start"]
 COMMANDS = get_args(CommandName)
 #: The filter-health monitor's reasons (companion.core.health.REASONS; interfaces imports no companion code).
 HealthReason = Literal["nis", "range_uncertain", "behind_sensor", "range_implausible", "range_unobservable",
-                       "link_contested"]
+                       "link_contested", "speed_change"]
 HEALTH_REASONS = get_args(HealthReason)
 REASONS = frozenset({"too_large", "not_utf8", "not_json", "not_object", "missing_field", "wrong_schema",
                      "unknown_field", "wrong_type", "not_finite", "bad_sender", "bad_frame", "unknown_command",

@@ -382,3 +382,36 @@ def test_starting_the_companion_imports_neither_scipy_stats_nor_matplotlib():
             "print(sorted(m for m in ('scipy.stats', 'scipy.optimize', 'matplotlib') if m in sys.modules))")
     loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120)
     assert loaded.stdout.strip() == "[]"
+
+
+@settings(max_examples=40, deadline=None)
+@given(threshold=st.floats(0.5, 0.99), hold=st.floats(0.2, 2.0), clear=st.floats(0.5, 5.0),
+       start=st.floats(1.0, 5.0), length=st.floats(2.5, 6.0))
+def test_a_speed_change_counts_after_its_hold_and_clears_its_own_time_after(threshold, hold, clear, start, length):
+    """The estimator's speed-change probability at or above the threshold from `start` for `length` s, below it
+    otherwise (corrections every 0.1 s): SUSPECT with the reason speed_change once it has held `hold` s since the
+    first correction that raised it, OK again `clear` s after the last (not clear_after s); never with the key
+    unset, whatever the probability."""
+    config = HealthConfig(speed_change_probability=threshold, speed_change_time=hold, speed_change_clear=clear,
+                          clear_after=30.0)
+    monitor, unset = HealthMonitor(config), HealthMonitor(HealthConfig())
+    times = np.arange(0, 160) / 10.0
+    raised = (times >= start - 1e-9) & (times < start + length - 1e-9)
+    states = []
+    for t, on in zip(times, raised):
+        probability = threshold if on else 0.5 * threshold
+        report = monitor.update(t, **FRONT, speed_change_probability=probability)
+        states.append((report.state, report.reasons))
+        assert unset.update(t, **FRONT, speed_change_probability=1.0).state is HealthState.OK
+    first, last = times[raised][0], times[raised][-1]  # the first and last corrections that raised it
+    for t, (state, reasons) in zip(times, states):
+        if first + hold + 0.1 - 1e-9 <= t <= last:  # counted by the correction after the hold at the latest
+            assert state is HealthState.SUSPECT and "speed_change" in reasons
+        elif t < first + hold - 0.1 or t >= last + clear + 0.1 - 1e-9:
+            assert state is HealthState.OK
+
+
+def test_the_speed_change_reason_needs_a_probability_in_0_1():
+    for bad in (0.0, 1.5, -0.1):
+        with pytest.raises(ValueError, match="speed_change_probability"):
+            HealthConfig(speed_change_probability=bad)

@@ -53,6 +53,14 @@ Indicators, evaluated at every estimator correction k (a bearing used):
   eigenvalue 200-2800 1/m^2 in the circling failures, about 300 in good constant-velocity
   flights; at 50 Hz about 3000 in both), so by default (None) the speed decides alone.
 
+- ``speed_change`` (off unless `speed_change_probability` is set): the estimator's speed-change models
+  (the IMM's, companion.core.imm) hold at least `speed_change_probability` of its model probability. The
+  target is changing speed, and until the pursuer's own motion separates the two, a target acceleration
+  along the line of sight looks to the bearings like a range error: measured, the range estimate of the
+  speed-change phases is where the monitor is otherwise silent while 2 m or more off (docs/reproduction.md,
+  section 5.10). It counts after `speed_change_time` s and, alone, clears `speed_change_clear` s after it
+  was last raised (the other reasons' clear_after would keep a braked and hovering target suspect for long).
+
 Hysteresis: a reason counts once its condition has held at every correction for
 `flag_after` s (`unobservable_time` for range_unobservable, at once for behind_sensor); the state becomes SUSPECT
 as soon as one reason counts, and goes back to OK only after no condition at all has been
@@ -89,7 +97,8 @@ class HealthState(str, enum.Enum):
 
 
 #: Every reason the monitor can give, in the order it reports them.
-REASONS = ("nis", "range_uncertain", "behind_sensor", "range_implausible", "range_unobservable", "link_contested")
+REASONS = ("nis", "range_uncertain", "behind_sensor", "range_implausible", "range_unobservable", "link_contested",
+           "speed_change")
 
 
 
@@ -193,7 +202,10 @@ class HealthConfig:
     slow_speed: m/s, pursuer speed below which a poorly observed range is suspicious.
     unobservable_time: s the range must stay poorly observed (and the pursuer slow) before
     it counts. flag_after: s a condition must hold before it counts. clear_after: s without
-    any condition before SUSPECT goes back to OK.
+    any condition before SUSPECT goes back to OK. speed_change_probability: the share of model
+    probability on the estimator's speed-change models that raises speed_change (None: not used);
+    speed_change_time: s it must hold before it counts; speed_change_clear: s after speed_change was
+    last raised before it alone no longer keeps the estimate SUSPECT.
     """
 
     nis_window: float = 5.0
@@ -209,6 +221,9 @@ class HealthConfig:
     unobservable_time: float = 5.0
     flag_after: float = 3.0
     clear_after: float = 10.0
+    speed_change_probability: float | None = None
+    speed_change_time: float = 0.5
+    speed_change_clear: float = 3.0
 
     def __post_init__(self) -> None:
         if self.nis_window <= 0.0 or not (0.0 < self.nis_probability < 1.0) or self.min_nis_samples < 1:
@@ -219,8 +234,12 @@ class HealthConfig:
             raise ValueError("need 0 <= min_range < max_range and max_relative_range_std > 0")
         if self.max_range_std is not None and not self.max_range_std > 0.0:
             raise ValueError("need max_range_std > 0 (or None)")
-        if min(self.flag_after, self.clear_after, self.unobservable_time) < 0.0:
-            raise ValueError("flag_after, clear_after and unobservable_time must be >= 0")
+        if min(self.flag_after, self.clear_after, self.unobservable_time, self.speed_change_time,
+               self.speed_change_clear) < 0.0:
+            raise ValueError("flag_after, clear_after, unobservable_time, speed_change_time and speed_change_clear "
+                             "must be >= 0")
+        if self.speed_change_probability is not None and not 0.0 < self.speed_change_probability <= 1.0:
+            raise ValueError(f"speed_change_probability must be in (0, 1] (or None), got {self.speed_change_probability!r}")
 
 
 @dataclass(frozen=True)
@@ -322,6 +341,7 @@ class HealthMonitor:
         self._bounds: dict[int, float] = {}
         self._since: dict[str, float] = {}
         self._last_raised: float | None = None
+        self._last_speed_change: float | None = None
         self._slow_unobservable_since: float | None = None
         self.report = HealthReport(0.0, HealthState.OK)
         self.transitions: list[tuple[float, HealthState, tuple[str, ...]]] = []
@@ -382,6 +402,7 @@ class HealthMonitor:
         innovation_dof: int = 0,
         reinitialized: bool = False,
         fim_min_eigenvalue: float | None = None,
+        speed_change_probability: float | None = None,
     ) -> HealthReport:
         """One correction's evidence in, the verdict out.
 
@@ -391,6 +412,8 @@ class HealthMonitor:
         innovation (m,) / innovation_covariance (m, m) / innovation_dof: as the estimator
         computed them, None when it has none. reinitialized: the estimator restarted on this
         bearing. fim_min_eigenvalue: smallest eigenvalue of the windowed FIM, 1/m^2, or None.
+        speed_change_probability: the estimator's model probability on its speed-change models after this
+        correction, or None when it has none.
         """
         config = self.config
         raised: list[str] = []
@@ -441,13 +464,18 @@ class HealthMonitor:
 
         if self._link_contested:
             raised.append("link_contested")
+        threshold = config.speed_change_probability
+        if threshold is not None and speed_change_probability is not None and speed_change_probability >= threshold:
+            raised.append("speed_change")
+            self._last_speed_change = time
         reasons = self._hold(time, raised)
-        if raised:
+        if raised and raised != ["speed_change"]:
             self._last_raised = time
         state = self.report.state
         if reasons:
             state = HealthState.SUSPECT
-        elif state is HealthState.SUSPECT and (self._last_raised is None or time - self._last_raised >= config.clear_after):
+        elif state is HealthState.SUSPECT and (self._last_raised is None or time - self._last_raised >= config.clear_after) \
+                and (self._last_speed_change is None or time - self._last_speed_change >= config.speed_change_clear):
             state = HealthState.OK
         if state is not self.report.state:
             self.transitions.append((time, state, reasons))
@@ -471,7 +499,8 @@ class HealthMonitor:
             if reason not in self._since:
                 continue
             # range_unobservable already waited unobservable_time; cheirality needs no persistence.
-            wait = 0.0 if reason in ("behind_sensor", "range_unobservable") else self.config.flag_after
+            wait = (0.0 if reason in ("behind_sensor", "range_unobservable")
+                    else self.config.speed_change_time if reason == "speed_change" else self.config.flag_after)
             # link_contested counts at once, also at a correction whose bearing is stamped before the hold began
             if reason == "link_contested" or time - self._since[reason] >= wait:
                 held.append(reason)

@@ -845,6 +845,14 @@ class IMMEstimator:
         return self._probabilities.copy()
 
     @property
+    def speed_change_probability(self) -> float | None:
+        """The model probability on the speed-change models (manoeuvre_model: along-track acceleration noise)
+        after the last correction; None when the model set has none."""
+        if not self._speed_models.size:
+            return None
+        return float(self._probabilities[self._speed_models].sum())
+
+    @property
     def model_names(self) -> tuple[str, ...]:
         return tuple(model.name for model in self.models)
 

@@ -420,7 +420,8 @@ class FollowingPipeline:
             estimate.position, estimate.covariance, innovation=correction.innovation,
             innovation_covariance=correction.innovation_covariance, innovation_dof=correction.innovation_dof,
             reinitialized=correction.reinitialized,
-            fim_min_eigenvalue=None if fim is None else float(fim["min_eigenvalue"]))
+            fim_min_eigenvalue=None if fim is None else float(fim["min_eigenvalue"]),
+            speed_change_probability=getattr(self.estimator, "speed_change_probability", None))
 
     def _act_on_health(self, bearing: BearingMeasurement, correction: CorrectionReport) -> bool:
         """The policy's actions for the verdict just made; True when it restarted the estimator."""

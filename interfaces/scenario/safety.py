@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated
 
 from pydantic import Field, model_validator
 
+from interfaces.link_schema import HealthReason
 from interfaces.scenario.common import (FROM_ARRAY, MAX_GAIN, Distance, Duration, NonNegativeDistance,
                                         NonNegativeDuration, NonNegativeSpeed, _Strict)
 
@@ -68,8 +69,7 @@ class SafetyConfig(_Strict):
     estimate_latency: Annotated[float, Field(ge=0.0, le=5.0)] = 0.0
 
 
-HealthReasonName = Literal["nis", "range_uncertain", "behind_sensor", "range_implausible", "range_unobservable",
-                           "link_contested"]
+HealthReasonName = HealthReason  # the monitor's reasons, as the link payloads name them
 
 
 class HealthSection(_Strict):
@@ -78,7 +78,9 @@ class HealthSection(_Strict):
     Monitor: nis_window s, nis_probability, nis_scale, min_nis_samples, max_relative_range_std,
     max_range_std m (sigma_r limit once the range has converged; a large value turns it off),
     min_range m (default guidance.desired_range / 4), max_range m, slow_speed m/s,
-    unobservable_time s, flag_after s, clear_after s. Actions while suspect: act (default true; false: the
+    unobservable_time s, flag_after s, clear_after s, speed_change_probability (the IMM's probability on its
+    speed-change models that raises the reason speed_change; unset: not used), speed_change_time s (how long it
+    must hold), speed_change_clear s (how long after it SUSPECT may clear when it was the only reason). Actions while suspect: act (default true; false: the
     monitor only reports), process_noise_boost (factor on Q, >= 1) relaxing back to 1 with
     boost_relax_time s once OK, reinitialize_reasons (restart on the bearing at the current range
     with an along-bearing std of reinitialize_relative_std x that range, at most every
@@ -101,6 +103,9 @@ class HealthSection(_Strict):
     unobservable_time: NonNegativeDuration = 5.0
     flag_after: NonNegativeDuration = 3.0
     clear_after: NonNegativeDuration = 10.0
+    speed_change_probability: Annotated[float, Field(gt=0.0, le=1.0)] | None = None
+    speed_change_time: NonNegativeDuration = 0.5
+    speed_change_clear: NonNegativeDuration = 3.0
     act: bool = True
     process_noise_boost: Annotated[float, Field(ge=1.0, le=MAX_GAIN)] = 30.0
     boost_relax_time: Duration = 5.0
