@@ -64,7 +64,7 @@ Indicators, evaluated at every estimator correction k (a bearing used):
 Hysteresis: a reason counts once its condition has held at every correction for
 `flag_after` s (`unobservable_time` for range_unobservable, at once for behind_sensor); the state becomes SUSPECT
 as soon as one reason counts, and goes back to OK only after no condition at all has been
-raised for `clear_after` s. The monitor itself only observes. What to do about its verdict
+raised for `clear_after` s (for speed_change, `speed_change_clear` s since it was last raised). The monitor itself only observes. What to do about its verdict
 is the HealthActionPolicy's (below), which the pipeline (companion.core.pipeline) applies
 when `HealthActionConfig.act` is on: while SUSPECT, inflate the estimator's process noise
 (its `process_noise_boost`, relaxing back to 1 once OK), restart the estimator on the
@@ -340,8 +340,7 @@ class HealthMonitor:
         self._range_converged = False
         self._bounds: dict[int, float] = {}
         self._since: dict[str, float] = {}
-        self._last_raised: float | None = None
-        self._last_speed_change: float | None = None
+        self._last_raised: dict[str, float] = {}  # reason -> the last time its condition was raised
         self._slow_unobservable_since: float | None = None
         self.report = HealthReport(0.0, HealthState.OK)
         self.transitions: list[tuple[float, HealthState, tuple[str, ...]]] = []
@@ -353,7 +352,7 @@ class HealthMonitor:
         holds, no correction comes to update the verdict, so the monitor says SUSPECT (reason link_contested) at
         once; once the hold ends, OK comes back clear_after s later at the earliest, as for any reason."""
         self._link_contested = bool(contested)
-        self._last_raised = time
+        self._last_raised["link_contested"] = time
         if contested:
             self._since.setdefault("link_contested", time)
             reasons = self._hold(time, ["link_contested"])
@@ -467,15 +466,14 @@ class HealthMonitor:
         threshold = config.speed_change_probability
         if threshold is not None and speed_change_probability is not None and speed_change_probability >= threshold:
             raised.append("speed_change")
-            self._last_speed_change = time
         reasons = self._hold(time, raised)
-        if raised and raised != ["speed_change"]:
-            self._last_raised = time
+        for reason in raised:
+            self._last_raised[reason] = time
         state = self.report.state
         if reasons:
             state = HealthState.SUSPECT
-        elif state is HealthState.SUSPECT and (self._last_raised is None or time - self._last_raised >= config.clear_after) \
-                and (self._last_speed_change is None or time - self._last_speed_change >= config.speed_change_clear):
+        elif state is HealthState.SUSPECT and all(time - last >= self._clear_time(reason)
+                                                  for reason, last in self._last_raised.items()):
             state = HealthState.OK
         if state is not self.report.state:
             self.transitions.append((time, state, reasons))
@@ -484,6 +482,10 @@ class HealthMonitor:
             self._episode.update(reasons)
         self.report = _health_report(time, state, reasons, tuple(raised), nis, nis_ratio, range_estimate, relative_std)
         return self.report
+
+    def _clear_time(self, reason: str) -> float:
+        """s after `reason` was last raised before it no longer keeps the state SUSPECT."""
+        return self.config.speed_change_clear if reason == "speed_change" else self.config.clear_after
 
     def _hold(self, time: float, raised: list[str]) -> tuple[str, ...]:
         """Reasons whose condition has held for flag_after s (behind_sensor counts at once)."""

@@ -226,7 +226,7 @@ def _wanted_along(closing_speed, range_estimate, range_std, target_speed_away, t
     bool and the envelope's kernel_terms."""
     limit, away = _closing_limit_kernel(range_estimate, range_std, target_speed_away, target_speed_std, trusted,
                                         terms)
-    braking, max_braking, reaction_time, velocity_gain, estimate_latency = terms[2], terms[3], terms[6], terms[7], terms[10]
+    _, _, braking, max_braking, _, _, reaction_time, velocity_gain, _, _, estimate_latency = terms
     if limit > 0.0:
         relative_closing = closing_speed - (away if away > 0.0 else 0.0)
         feed_forward = (braking * (relative_closing if relative_closing > 0.0 else 0.0)
