@@ -244,6 +244,10 @@ def safety_envelope(scenario: Scenario, vehicle: VehicleConfig) -> SafetyEnvelop
     settings = scenario.safety
     if not settings.enabled:
         return None
+    if settings.speed_change_latency > 0.0 and not (scenario.estimator.kind == "imm"
+                                                    and scenario.estimator.imm_manoeuvre_model):
+        raise ConfigError("safety: speed_change_latency needs the speed-change model: [estimator] kind = 'imm' with "
+                          f"imm_manoeuvre_model = true (got kind {scenario.estimator.kind!r})")
     tilt_limited = vehicle.gravity * math.tan(math.radians(vehicle.max_tilt_deg))
     braking = settings.braking_acceleration if settings.braking_acceleration is not None else SAFETY_BRAKING_SHARE * tilt_limited
     try:
@@ -256,7 +260,10 @@ def safety_envelope(scenario: Scenario, vehicle: VehicleConfig) -> SafetyEnvelop
                               max_yaw_rate=math.radians(settings.max_yaw_rate_deg),
                               untrusted_range_share=settings.untrusted_range_share,
                               tilt_margin=math.radians(settings.tilt_margin_deg),
-                              estimate_latency=settings.estimate_latency)
+                              estimate_latency=settings.estimate_latency,
+                              speed_change_latency=settings.speed_change_latency,
+                              speed_change_memory=settings.speed_change_memory,
+                              speed_change_trigger=settings.speed_change_trigger)
     except ValueError as error:
         raise ConfigError(f"safety: {error}") from None
 

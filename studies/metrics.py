@@ -270,8 +270,10 @@ def envelope_lines(flight: dict) -> list[str]:
         return []
     if not record["closing_ticks"] and not record["heading_ticks"]:
         return ["  safety envelope: never acted"]
+    headway = record.get("speed_change_seconds", 0.0)
     return [f"  safety envelope acted: closing speed limited {record['closing_seconds']:.1f} s, "
-            f"heading rate limited {record['heading_seconds']:.1f} s"]
+            f"heading rate limited {record['heading_seconds']:.1f} s"
+            + (f"; planned for a target changing speed {headway:.1f} s" if headway else "")]
 
 
 def suspect_warning(flight: dict, reasons: list[str] | tuple[str, ...] = ()) -> str | None:

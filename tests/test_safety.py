@@ -168,7 +168,9 @@ def test_the_setpoints_keep_the_tilt_margin() -> None:
 
 @pytest.mark.parametrize("field, value", [("min_range", 0.0), ("braking_acceleration", -1.0), ("range_sigmas", -1.0),
                                           ("max_braking_acceleration", 1.0), ("untrusted_range_share", 0.0),
-                                          ("tilt_margin", math.radians(25.0)), ("max_yaw_rate", math.nan)])
+                                          ("tilt_margin", math.radians(25.0)), ("max_yaw_rate", math.nan),
+                                          ("speed_change_latency", -0.5), ("speed_change_memory", math.inf),
+                                          ("speed_change_trigger", 0.0), ("speed_change_trigger", 1.5)])
 def test_bad_envelope_parameters_are_refused(field: str, value: float) -> None:
     with pytest.raises(ValueError):
         envelope(**{field: value})
@@ -286,3 +288,42 @@ def test_the_setpoint_on_the_envelopes_heading_yaws_exactly_to_it_and_thrusts_al
     assert math.remainder(yaw - heading_angle, 2 * math.pi) == pytest.approx(0.0, abs=1e-7)
     assert thrust == pytest.approx(limits.mass * np.linalg.norm(force), rel=1e-9)
     assert 0.0 <= normalized <= 1.0
+
+
+#: The range excitation the speed-change headway was measured with (docs/reproduction.md, section 5.11).
+ALWAYS_EXCITING = {"guidance.excitation_low": 0.01, "guidance.excitation_high": 0.03, "guidance.excitation_speed": 8.0}
+
+
+def test_the_headway_for_a_target_changing_speed_keeps_off_a_braking_target_and_leaves_a_steady_one_alone() -> None:
+    """speed_change_latency in flight. replay_csv's recorded target dashes to 6 m/s and brakes at up to 3 m/s^2
+    (config/trajectories/make_hover_legs.py): at 50 Hz, seed 9, without it the pursuer comes within r_d / 2 of the
+    braking target; with 1 s it never does, planning with it from the first dash on. A constant-velocity target
+    never trips it: its flight is the same to the bit."""
+    scenario, vehicle = load_scenario(SCENARIOS_DIR / "replay_csv.toml")
+    scenario = with_overrides(scenario, {"sensor.rate_hz": 50.0, **ALWAYS_EXCITING})
+    half = scenario.guidance.desired_range / 2.0
+    without = simulate(scenario, vehicle, 9)
+    assert without.summary["truth"]["min_range"] < half
+    assert without.summary["envelope"]["speed_change_seconds"] == 0.0
+    headway = simulate(with_overrides(scenario, {"safety.speed_change_latency": 1.0}), vehicle, 9)
+    assert headway.summary["truth"]["min_range"] >= half
+    assert headway.summary["envelope"]["speed_change_seconds"] > 0.5 * scenario.simulation.duration
+
+    steady, steady_vehicle = load_scenario(SCENARIOS_DIR / "constant_velocity.toml")
+    steady = with_overrides(steady, ALWAYS_EXCITING)
+    plain = simulate(steady, steady_vehicle, 2)
+    guarded = simulate(with_overrides(steady, {"safety.speed_change_latency": 1.0}), steady_vehicle, 2)
+    assert guarded.summary["envelope"]["speed_change_seconds"] == 0.0
+    np.testing.assert_array_equal(guarded.series["pursuer_position"], plain.series["pursuer_position"])
+
+
+def test_the_headway_for_a_target_changing_speed_needs_the_imms_speed_change_model() -> None:
+    """Without the speed-change model nothing would ever trip it: refused with a clear error, not ignored."""
+    from companion.assembly import safety_envelope
+    from interfaces.scenario import ConfigError
+
+    scenario, vehicle = load_scenario(SCENARIOS_DIR / "stop_and_go.toml")
+    for changes in ({"estimator.kind": "uplkf"}, {"estimator.imm_manoeuvre_model": False}):
+        with pytest.raises(ConfigError, match="speed_change_latency"):
+            safety_envelope(with_overrides(scenario, {"safety.speed_change_latency": 1.0, **changes}), vehicle)
+    assert safety_envelope(with_overrides(scenario, {"safety.speed_change_latency": 1.0}), vehicle).speed_change_latency == 1.0

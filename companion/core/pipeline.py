@@ -310,6 +310,7 @@ class FollowingPipeline:
         self.law_changes: list[tuple[float, str]] = []
         self.link_held = False
         self.envelope_record = EnvelopeRecord()
+        self._speed_change_seen = -math.inf  # s: when the estimator's speed-change models last held the envelope's trigger
 
     @property
     def limits(self) -> VehicleLimits:
@@ -721,14 +722,23 @@ class FollowingPipeline:
         """The command (m/s^2, (3,)) within the safety envelope, and the horizontal heading for R_d (None before the
         first setpoint with a vertical line of sight: lambda then): companion.core.safety, its closing-speed rule from
         this estimate's sigma_r and sigma_v along the line of sight, the target's velocity counted only when
-        `trusted`. Counts the ticks it acted in envelope_record."""
+        `trusted`; with the envelope's speed_change_latency, planned with it while the target has lately changed
+        speed. Counts the ticks it acted in envelope_record."""
         envelope, record = self.envelope, self.envelope_record
+        terms = envelope.kernel_terms
+        if envelope.speed_change_latency > 0.0:
+            probability = getattr(self.estimator, "speed_change_probability", None)
+            if probability is not None and probability >= envelope.speed_change_trigger:
+                self._speed_change_seen = time
+            if time - self._speed_change_seen <= envelope.speed_change_memory:
+                terms = envelope.speed_change_terms
+                record.speed_change_seconds += self.control_period
         heading_los = los
         if self._last_bearing is not None and time - self._last_bearing_time < self.dropout.coast_after:
             los = self._last_bearing  # the measured line of sight while fresh: a measurement, not the estimate
         limited = np.empty(3)
         if _limit_closing_into_kernel(command, los, np.asarray(pursuer.velocity, dtype=float), estimate.covariance,
-                                      estimate.velocity, float(range_estimate), trusted, envelope.kernel_terms, limited):
+                                      estimate.velocity, float(range_estimate), trusted, terms, limited):
             command = limited
             record.closing_ticks += 1
             record.closing_seconds += self.control_period

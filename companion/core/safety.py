@@ -30,6 +30,13 @@ command after the law (and before the vehicle's own limits), with two rules:
    out (u_T taken as at most 0). The line of sight is the latest measured bearing while it is fresh (a
    measurement, not the estimate), else the estimate's.
 
+   **A target that has changed speed.** A latency held always keeps the pursuer a time headway behind every
+   target at speed, steady ones too. speed_change_latency is a t_e used only while the target has lately
+   changed speed: from the moment the estimator's speed-change models (the IMM's, companion.core.imm) hold at
+   least speed_change_trigger of its model probability until speed_change_memory s after they last did (the
+   pipeline keeps that time; t_e is then the larger of the two latencies). A target that hovers, dashes and
+   brakes is followed with the headway; one that has flown steadily for speed_change_memory s at r_d.
+
 2. **Heading rate.** The setpoint's heading is the line of sight's horizontal direction, turned
    towards at most max_yaw_rate (rad/s): a geometric attitude controller tracking a yaw step couples
    the yaw error into roll and pitch, and a pursuer close to a target whose bearing swings fast tilted
@@ -73,6 +80,9 @@ class SafetyEnvelope:
     pessimistic range counted on while the estimate is not trusted, in (0, 1]. tilt_margin: rad, kept
     between the setpoints' tilt and the airframe's limit (`commanded_limits`). estimate_latency: t_e, s, how long
     the estimate may lag a target that starts braking (module docstring, rule 1; 0 counts on it at once).
+    speed_change_latency: s, the t_e while the target has lately changed speed (0: never), that is for
+    speed_change_memory s after the estimator's speed-change models last held at least speed_change_trigger (a
+    probability in (0, 1]) of its model probability (module docstring, rule 1).
     """
 
     min_range: float
@@ -88,6 +98,9 @@ class SafetyEnvelope:
     untrusted_range_share: float = 1.0
     tilt_margin: float = math.radians(3.0)
     estimate_latency: float = 0.0
+    speed_change_latency: float = 0.0
+    speed_change_memory: float = 30.0
+    speed_change_trigger: float = 0.5
 
     def __post_init__(self) -> None:
         values = (self.min_range, self.target_max_acceleration, self.braking_acceleration, self.velocity_gain,
@@ -99,11 +112,13 @@ class SafetyEnvelope:
         for name in ("range_sigmas", "speed_sigmas"):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0.0):
                 raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)!r}")
-        for name in ("reaction_time", "estimate_latency"):
+        for name in ("reaction_time", "estimate_latency", "speed_change_latency", "speed_change_memory"):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0.0):
                 raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)!r}")
         if not (math.isfinite(self.tilt_margin) and 0.0 <= self.tilt_margin < math.radians(20.0)):
             raise ValueError(f"tilt_margin must be in [0, 20) deg, got {math.degrees(self.tilt_margin)!r} deg")
+        if not 0.0 < self.speed_change_trigger <= 1.0:
+            raise ValueError(f"speed_change_trigger must be in (0, 1], got {self.speed_change_trigger!r}")
         if not 0.0 < self.untrusted_range_share <= 1.0:
             raise ValueError(f"untrusted_range_share must be in (0, 1], got {self.untrusted_range_share!r}")
 
@@ -124,6 +139,12 @@ class SafetyEnvelope:
                 float(self.max_braking_acceleration), float(self.range_sigmas), float(self.speed_sigmas),
                 float(self.reaction_time), float(self.velocity_gain), float(self.retreat_gain),
                 float(self.untrusted_range_share), float(self.estimate_latency))
+
+    @once_property
+    def speed_change_terms(self) -> tuple[float, ...]:
+        """kernel_terms with t_e the larger of estimate_latency and speed_change_latency: the terms while the target
+        has lately changed speed (module docstring, rule 1)."""
+        return self.kernel_terms[:-1] + (float(max(self.estimate_latency, self.speed_change_latency)),)
 
     def closing_speed_limit(self, range_estimate: float, range_std: float, target_speed_away: float,
                             target_speed_std: float, trust_target_velocity: bool) -> float:
@@ -304,13 +325,16 @@ _heading_setpoint_into_kernel = jit(_heading_setpoint_into)
 @dataclass
 class EnvelopeRecord:
     """How often the envelope acted: control ticks whose closing speed it limited, and whose heading it
-    rate-limited, each with the simulated seconds of those ticks (ticks x control period)."""
+    rate-limited, each with the simulated seconds of those ticks (ticks x control period); and the seconds it
+    planned with speed_change_latency (the target had lately changed speed)."""
 
     closing_ticks: int = 0
     heading_ticks: int = 0
     closing_seconds: float = 0.0
     heading_seconds: float = 0.0
+    speed_change_seconds: float = 0.0
 
     def as_dict(self) -> dict:
         return {"closing_ticks": self.closing_ticks, "closing_seconds": self.closing_seconds,
-                "heading_ticks": self.heading_ticks, "heading_seconds": self.heading_seconds}
+                "heading_ticks": self.heading_ticks, "heading_seconds": self.heading_seconds,
+                "speed_change_seconds": self.speed_change_seconds}

@@ -1,6 +1,6 @@
 """The manoeuvring study's two runs side by side (docs/reproduction.md, section 5.7).
 
-    python docs/reproduction/compare_maneuvering.py NOW/results.csv BEFORE/results.csv
+    python docs/reproduction/compare_maneuvering.py [--following] NOW/results.csv BEFORE/results.csv
 
 NOW: `bof-montecarlo --study maneuvering` (the defaults); BEFORE: the same scenarios, seeds and bearing rates flown
 another way (cases named "<rate>-<anything>": the earlier defaults, or `[safety] enabled = false`). Prints one markdown line per scenario and bearing rate:
@@ -8,7 +8,9 @@ flights diverged by truth (range-estimation RMS over the summary window > 2 m), 
 flights closer than r_d / 2 and the closest approach over r_d, the flights above the tilt limit and the largest
 tilt, and the monitor's misses (diverged, not flagged at the end) and false alarms (flagged, not diverged). The
 closing line adds, when both files have the column, the diverged flights in which the monitor never said suspect
-while the estimate was off by more than the limit (silent while wrong).
+while the estimate was off by more than the limit (silent while wrong). --following adds a last column: the median
+over the flights of the range-tracking error RMS | |p_T - p| - r_d | over the summary window (how far from r_d the
+pursuer followed).
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ def figures(rows: pd.DataFrame) -> pd.DataFrame:
         runs=("seed", "size"), diverged=("diverged_rms", "sum"), rms_median=("rms_error", "median"),
         rms_worst=("rms_error", "max"), breached=("breached_half_rd", "sum"), closest=("min_range", "min"),
         tilted=("tilt_exceeded", "sum"), tilt_max=("max_tilt_deg", "max"), missed=("missed", "sum"),
-        false_alarms=("false_alarm", "sum"))
+        false_alarms=("false_alarm", "sum"), following=("range_error_rms", "median"))
 
 
 def cell(now: float, before: float, digits: int) -> str:
@@ -37,14 +39,17 @@ def cell(now: float, before: float, digits: int) -> str:
 
 
 def main(argv: list[str]) -> int:
+    following = "--following" in argv
+    argv = [arg for arg in argv if arg != "--following"]
     if len(argv) != 2:
         print(__doc__.strip().splitlines()[2].strip(), file=sys.stderr)
         return 2
     frames = [pd.read_csv(path) for path in argv]
     now, before = figures(frames[0]), figures(frames[1])
     desired = 8.0  # every scenario of the study follows at r_d = 8 m
-    print("| scenario | rate | diverged | RMS median | RMS worst | closer than r_d/2 | closest / r_d | tilt over limit | max tilt (deg) | missed / false alarms |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("| scenario | rate | diverged | RMS median | RMS worst | closer than r_d/2 | closest / r_d | tilt over limit | max tilt (deg) | missed / false alarms |"
+          + (" range error median (m) |" if following else ""))
+    print("|---|---|---|---|---|---|---|---|---|---|" + ("---|" if following else ""))
     counts = ["runs", "diverged", "breached", "tilted", "missed", "false_alarms"]
     now[counts], before[counts] = now[counts].astype(int), before[counts].astype(int)
     for n in now.itertuples():  # itertuples keeps each column's type (iterrows makes the counts floats)
@@ -53,7 +58,8 @@ def main(argv: list[str]) -> int:
         print(f"| {scenario} | {rate} | {n.diverged}/{n.runs} ({b.diverged}) | {cell(n.rms_median, b.rms_median, 2)} | "
               f"{cell(n.rms_worst, b.rms_worst, 2)} | {n.breached} ({b.breached}) | "
               f"{cell(n.closest / desired, b.closest / desired, 2)} | {n.tilted} ({b.tilted}) | "
-              f"{cell(n.tilt_max, b.tilt_max, 1)} | {n.missed} / {n.false_alarms} ({b.missed} / {b.false_alarms}) |")
+              f"{cell(n.tilt_max, b.tilt_max, 1)} | {n.missed} / {n.false_alarms} ({b.missed} / {b.false_alarms}) |"
+              + (f" {cell(n.following, b.following, 1)} |" if following else ""))
     total_now, total_before = now[counts].sum(), before[counts].sum()
     print(f"\nall: diverged {total_now.diverged} ({total_before.diverged}) of {total_now.runs}; closer than r_d/2 "
           f"{total_now.breached} ({total_before.breached}); tilt over the limit {total_now.tilted} ({total_before.tilted}); "

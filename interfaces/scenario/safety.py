@@ -55,6 +55,9 @@ class SafetyConfig(_Strict):
     target's largest deceleration is [estimator] target_max_acceleration. estimate_latency: s the estimate may
     lag a target that starts braking: taken off the target's credited stopping distance (u_T t_e) and added to
     reaction_time; 0 (default) counts on the estimate showing the braking at once (docs/safety.md).
+    speed_change_latency: s, the estimate_latency planned with only while the target has lately changed speed
+    (0, the default: never): for speed_change_memory s after the IMM's speed-change models last held at least
+    speed_change_trigger of its model probability; needs [estimator] kind 'imm' with imm_manoeuvre_model.
     """
 
     enabled: bool = True
@@ -67,6 +70,9 @@ class SafetyConfig(_Strict):
     untrusted_range_share: Annotated[float, Field(gt=0.0, le=1.0)] = 1.0
     tilt_margin_deg: Annotated[float, Field(ge=0.0, lt=20.0)] = 3.0
     estimate_latency: Annotated[float, Field(ge=0.0, le=5.0)] = 0.0
+    speed_change_latency: Annotated[float, Field(ge=0.0, le=5.0)] = 0.0
+    speed_change_memory: Annotated[float, Field(ge=0.0, le=3600.0)] = 30.0
+    speed_change_trigger: Annotated[float, Field(gt=0.0, le=1.0)] = 0.5
 
 
 HealthReasonName = HealthReason  # the monitor's reasons, as the link payloads name them
