@@ -25,6 +25,24 @@ def _write(tmp_path: Path, text: str) -> Path:
     return path
 
 
+def test_the_plant_reads_a_scenario_with_every_companion_section_and_leaves_them_to_the_companion(tmp_path):
+    """The plant's view skips exactly the sections the full scenario has beyond its own (a [safety] or [health]
+    section of a user's file must not stop sitl-plant), and the companion's view still checks them."""
+    from interfaces.scenario import COMPANION_SECTIONS, PlantScenario, load_plant_scenario
+
+    assert set(COMPANION_SECTIONS) == set(Scenario.model_fields) - set(PlantScenario.model_fields)
+    extra = ('\n[safety]\nspeed_change_latency = 1.0\n\n[health]\nclear_after = 5.0\n'
+             '\n[companion]\n\n[dropout]\n')
+    path = _write(tmp_path, VALID + extra)
+    plant, _ = load_plant_scenario(path)
+    full, _ = load_scenario(path)
+    assert plant.name == full.name and full.safety.speed_change_latency == 1.0
+    path.write_text(VALID + "\n[safety]\nspeed_change_latency = -1.0\n")
+    load_plant_scenario(path)
+    with pytest.raises(ConfigError, match="speed_change_latency"):
+        load_scenario(path)
+
+
 @pytest.mark.parametrize("path", sorted(SCENARIOS_DIR.glob("*.toml")), ids=lambda p: p.stem)
 def test_every_shipped_scenario_loads(path):
     scenario, vehicle = load_scenario(path)

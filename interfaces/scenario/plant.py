@@ -15,7 +15,7 @@ from interfaces.scenario.swarm import SwarmConfig, _check_swarm
 
 #: The companion's own sections: the plant and the target simulator never read them, so a
 #: scenario whose [estimator] or [guidance] is broken or missing still flies the plant.
-COMPANION_SECTIONS = ("estimator", "guidance", "companion", "dropout", "health")
+COMPANION_SECTIONS = ("estimator", "guidance", "companion", "dropout", "health", "safety")
 
 
 class PlantSensorConfig(_Strict):
