@@ -67,6 +67,7 @@ from interfaces import link_schema as link  # noqa: E402
 from interfaces.geodesy import geodetic_to_ned, ned_to_geodetic  # noqa: E402
 from interfaces.zenoh_transport import LinkError, open_session, publisher, zenoh_config  # noqa: E402
 from interfaces.cli import CommandParser, scenario_file  # noqa: E402
+from studies.processes import poll_until  # noqa: E402
 
 FUTURE_SEQ = 2**62
 FUTURE_STAMP_OFFSET = 1e6  # s
@@ -661,12 +662,7 @@ class Observer:
         return [payload for _, _, payload in self.genuine(start)]
 
     def wait(self, condition: Callable[[], bool], timeout: float) -> bool:
-        end = time.monotonic() + timeout
-        while time.monotonic() < end:
-            if condition():
-                return True
-            time.sleep(0.05)
-        return condition()
+        return poll_until(condition, timeout, 0.05)
 
     def latest_state(self) -> link.CompanionState | None:
         with self._lock:

@@ -158,6 +158,17 @@ def _ephemeral_floor() -> int:
         return 32768  # Linux's default
 
 
+def poll_until(condition, timeout: float, interval: float = 0.01) -> bool:
+    """Call condition() every interval s until it is true or timeout s (monotonic clock) have passed; its last
+    value. For waits on what another thread or process does, where nothing signals it."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return True
+        time.sleep(interval)
+    return bool(condition())
+
+
 def free_port(kind: int = socket.SOCK_DGRAM, host: str = "127.0.0.1") -> int:
     """A loopback port that is free now, drawn at random below the kernel's ephemeral range.
 

@@ -20,16 +20,7 @@ from sitl_plant.vehicle.autopilot import (
 )
 from sitl_plant.vehicle.parameters import ParameterError
 from sitl_plant.vehicle.params import QuadrotorParams, table1_params
-from sitl_plant.vehicle.px4_modes import (
-    HOLD,
-    LAND,
-    OFFBOARD,
-    POSITION,
-    TAKEOFF,
-    CommandResult,
-    LandedState,
-    Severity,
-)
+from sitl_plant.vehicle.px4_modes import HOLD, LAND, OFFBOARD, POSITION, TAKEOFF, CommandResult, LandedState, Severity
 
 PARAMS = table1_params()
 G = PARAMS.gravity

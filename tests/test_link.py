@@ -6,7 +6,6 @@ import json
 import math
 import socket
 import threading
-import time
 
 import numpy as np
 import pytest
@@ -18,7 +17,7 @@ from interfaces.link_schema import CLOCK_KEY, REASONS, ClockTick, Command, Paylo
 from interfaces.zenoh_transport import LinkError, open_session, publisher, zenoh_config
 from interfaces.geodesy import ned_to_geodetic
 from sitl_plant.vehicle.mavlink_vehicle import Home
-from studies.processes import free_port
+from studies.processes import free_port, poll_until
 
 HOME = (47.397742, 8.545594, 488.0)
 FUZZ = settings(max_examples=300, derandomize=True, deadline=None, database=None,
@@ -505,15 +504,6 @@ def test_open_session_error_is_a_link_error():
         open_session(zenoh_config("client", connect=[f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"]))
 
 
-def _wait(condition, timeout: float) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if condition():
-            return True
-        time.sleep(0.01)
-    return condition()
-
-
 def test_fixes_cross_a_real_loopback_session_in_order():
     endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
     listener = open_session(zenoh_config(listen=[endpoint]))
@@ -530,11 +520,11 @@ def test_fixes_cross_a_real_loopback_session_in_order():
 
         subscriber = listener.declare_subscriber(link.TARGET_FIX_ALL, on_fix)
         fixes = publisher(talker, link.target_fix_key("target-9"))
-        assert _wait(lambda: fixes.matching_status.matching, 10.0), "the subscriber never became visible"
+        assert poll_until(lambda: fixes.matching_status.matching, 10.0), "the subscriber never became visible"
         sent = [TargetFix("target-9", seq, seq * 0.2, "ned", (seq, -seq, -20.0), (5.0, -5.0, 0.0)) for seq in range(100)]
         for fix in sent:
             fixes.put(encode_target_fix(fix))
-        assert _wait(lambda: len(received) >= len(sent), 10.0), f"received {len(received)} of {len(sent)}"
+        assert poll_until(lambda: len(received) >= len(sent), 10.0), f"received {len(received)} of {len(sent)}"
         with lock:
             assert received == sent
         subscriber.undeclare()

@@ -35,16 +35,7 @@ from dataclasses import replace  # noqa: E402
 
 from sitl_plant.vehicle.params import QuadrotorParams, table1_params  # noqa: E402
 from sitl_plant.vehicle.px4_modes import (  # noqa: E402
-    HOLD,
-    LAND,
-    OFFBOARD,
-    POSITION,
-    TAKEOFF,
-    CommandResult,
-    MainMode,
-    Severity,
-    decode_custom_mode,
-)
+    HOLD, LAND, OFFBOARD, POSITION, TAKEOFF, CommandResult, MainMode, Severity, decode_custom_mode)
 
 HOME = Home(47.397742, 8.545594, 488.0)
 CLIENT_SYSTEM, CLIENT_COMPONENT = 245, 190

@@ -74,9 +74,9 @@ class FakeVehicle:
         self._command("arm")
         self.armed = True
 
-    async def takeoff(self, altitude: float, timeout: float = 60.0) -> VehicleSample:
+    async def takeoff(self, altitude: float, timeout: float = 60.0, settle: float = 0.0) -> VehicleSample:
         self._command("takeoff")
-        for _ in range(50):  # a 1 s climb
+        for _ in range(50 + round(settle * 50)):  # a 1 s climb, then the settling
             sample = await self.next_sample()
         return sample
 

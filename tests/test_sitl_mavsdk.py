@@ -85,8 +85,7 @@ def test_mavsdk_flies_the_plant_and_a_ground_station_watches(plant):
                 first = await vehicle.next_sample()
                 await vehicle.wait_for(lambda s: s.state.time > 1.2, 10, "arming readiness")
                 await vehicle.arm()
-                hovering = await vehicle.takeoff(4.0, timeout=30)
-                await vehicle.wait_for(lambda s: s.state.time > hovering.state.time + 1.0, 10, "settling")
+                hovering = await vehicle.takeoff(4.0, timeout=30, settle=1.0)
 
                 # Offboard at hover: the pipeline's own attitude mapping, zero acceleration.
                 level = attitude_setpoint(0.0, np.zeros(3), np.array([1.0, 0.0, 0.0]), limits)
@@ -162,9 +161,7 @@ def test_offboard_loss_failsafe_holds_and_reports(plant):
             limits = await vehicle.vehicle_limits(table1_params().mass, table1_params().gravity)
             await vehicle.wait_for(lambda s: s.state.time > 1.2, 10, "arming readiness")
             await vehicle.arm()
-            hovering = await vehicle.takeoff(3.0, timeout=30)
-            # Let Hold stop the climb: offboard at zero acceleration would keep any velocity.
-            await vehicle.wait_for(lambda s: s.state.time > hovering.state.time + 1.5, 10, "settling")
+            await vehicle.takeoff(3.0, timeout=30, settle=1.5)
             level = attitude_setpoint(0.0, np.zeros(3), np.array([1.0, 0.0, 0.0]), limits)
             await vehicle.start_offboard(level)
             await vehicle.wait_for(lambda s: vehicle.flight_mode is not None and vehicle.flight_mode.name == "OFFBOARD", 10, "offboard")

@@ -7,7 +7,6 @@ import json
 import math
 import socket
 import threading
-import time
 import tomllib
 from collections import Counter
 
@@ -161,20 +160,11 @@ def test_the_encoder_refuses_what_the_decoder_would():
     assert decode_pursuer_share(encode_pursuer_share(good)) == good
 
 
-def _wait(condition, timeout: float) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if condition():
-            return True
-        time.sleep(0.01)
-    return condition()
-
-
 def test_shares_cross_a_real_loopback_session_and_a_broken_one_is_only_counted():
     """Pursuers 2 and 3 publish on their keys; pursuer 1 hears both on the wildcard, refuses a broken payload
     with its reason and passes each share through its NeighbourLink on receipt."""
     from interfaces.zenoh_transport import open_session, publisher, zenoh_config
-    from studies.processes import free_port
+    from studies.processes import free_port, poll_until
 
     endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
     listener = open_session(zenoh_config(listen=[endpoint]))
@@ -195,7 +185,7 @@ def test_shares_cross_a_real_loopback_session_and_a_broken_one_is_only_counted()
 
         subscriber = listener.declare_subscriber(link.PURSUER_SHARE_ALL, on_share)
         outlets = {ident: publisher(talker, pursuer_share_key(ident)) for ident in (2, 3)}
-        assert _wait(lambda: all(o.matching_status.matching for o in outlets.values()), 10.0), "no subscriber seen"
+        assert poll_until(lambda: all(o.matching_status.matching for o in outlets.values()), 10.0), "no subscriber seen"
         sent, where = [], {2: (10.0, 0.0, -10.0), 3: (30.0, 0.0, -10.0)}   # 14.1 m and 31.6 m from pursuer 1
         for seq in range(20):
             for ident, outlet in outlets.items():
@@ -204,7 +194,7 @@ def test_shares_cross_a_real_loopback_session_and_a_broken_one_is_only_counted()
                 outlet.put(encode_pursuer_share(share))
                 sent.append(share)
         outlets[2].put(_bytes(_with(("estimate", "covariance", 1), 0.5)))
-        assert _wait(lambda: len(received) >= len(sent) and refused, 10.0), f"{len(received)} of {len(sent)}"
+        assert poll_until(lambda: len(received) >= len(sent) and refused, 10.0), f"{len(received)} of {len(sent)}"
         subscriber.undeclare()
         with lock:
             by_sender = sorted(received, key=lambda item: (item[1].sender, item[1].seq))

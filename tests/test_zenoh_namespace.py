@@ -13,13 +13,7 @@ import time
 import pytest
 
 from interfaces.zenoh_transport import LinkError, check_namespace, open_session, zenoh_config
-from studies.processes import free_port
-
-
-def _wait(condition, timeout=5.0):
-    deadline = time.monotonic() + timeout
-    while not condition() and time.monotonic() < deadline:
-        time.sleep(0.02)
+from studies.processes import free_port, poll_until
 
 
 def test_a_session_hears_its_own_namespace_and_never_another():
@@ -41,7 +35,7 @@ def test_a_session_hears_its_own_namespace_and_never_another():
         other.put("bof/companion/companion-1/command", "from run-b")
         bare.put("bof/companion/companion-1/command", "without a namespace")
         same.put("bof/companion/companion-1/command", "from run-a")  # sent last: zenoh delivers in order per link
-        _wait(lambda: "from run-a" in got)
+        poll_until(lambda: "from run-a" in got, 5.0, 0.02)
         time.sleep(0.3)
         assert got == ["from run-a"]
         subscriber.undeclare()

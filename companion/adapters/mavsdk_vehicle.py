@@ -328,12 +328,18 @@ class MavsdkVehicle:
     async def disarm(self) -> None:
         await self._act("disarm", self.action.disarm())
 
-    async def takeoff(self, altitude: float, timeout: float = 60.0, tolerance: float = 0.3) -> VehicleSample:
-        """Set MIS_TAKEOFF_ALT, take off, and wait until within tolerance of altitude above home (m)."""
+    async def takeoff(self, altitude: float, timeout: float = 60.0, settle: float = 0.0,
+                      tolerance: float = 0.3) -> VehicleSample:
+        """Set MIS_TAKEOFF_ALT, take off, wait until within tolerance of altitude above home (m), then `settle` s of
+        vehicle time more (Hold stops the climb; offboard at zero acceleration would keep any velocity left). Each
+        wait may take up to timeout s; returns the sample after the settling."""
         await self._act("set takeoff altitude", self.action.set_takeoff_altitude(float(altitude)))
         await self._act("takeoff", self.action.takeoff())
-        return await self.wait_for(lambda s: s.state.position[2] <= -(altitude - tolerance), timeout,
-                                   f"takeoff to {altitude:g} m")
+        reached = await self.wait_for(lambda s: s.state.position[2] <= -(altitude - tolerance), timeout,
+                                      f"takeoff to {altitude:g} m")
+        if settle <= 0.0:
+            return reached
+        return await self.wait_for(lambda s: s.state.time > reached.state.time + settle, timeout, "settling")
 
     async def hold(self) -> None:
         await self._act("hold", self.action.hold())
