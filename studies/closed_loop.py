@@ -458,12 +458,6 @@ class GenuineRecord:
                 "foreign_rejected": self.foreign_rejected, "foreign_accepted_far": self.foreign_accepted_far}
 
 
-def _log_tick(log: FlightLog, time: float, truth: RigidBodyState, target: TargetMotion, output,
-              estimator: object = None) -> None:
-    """One row of the flight log from the true state `truth` (`_log_row`)."""
-    _log_row(log, time, truth.position, truth.velocity, truth.rotation.ravel().tolist(), target, output, estimator)
-
-
 _NAN2, _NAN3, _NAN4, _NAN6, _NAN7 = ((math.nan,) * n for n in (2, 3, 4, 6, 7))
 
 

@@ -338,10 +338,6 @@ def parse_window(text: str) -> tuple[float, float]:
     return window
 
 
-def group_key(row: dict) -> tuple[str, str, str, str]:
-    return (row["scenario"], row["estimator"], row["guidance"], row["case"])
-
-
 #: group-table figure -> (results.csv column, statistic over the group's runs; NaN and inf skipped)
 GROUP_FIGURES = {
     "runs": ("seed", "size"), "diverged": ("diverged", "sum"), "diverged_rms": ("diverged_rms", "sum"), "lost": ("lost", "sum"),

@@ -126,10 +126,6 @@ def build_cases(parts: tuple[str, ...] = PARTS, duration: float | None = None) -
     return cases
 
 
-def _finite_or_none(value) -> float | None:
-    return None if value is None or not math.isfinite(float(value)) else float(value)
-
-
 def _settled_under(time: np.ndarray, error: np.ndarray, bound: float, after: float) -> float:
     """s after `after` from which |error| < bound to the end; inf if it never does (studies.swarm's rule)."""
     above = np.flatnonzero((time >= after) & ~(np.abs(error) < bound))

@@ -252,9 +252,6 @@ class MavlinkVehicle(MavlinkParameters, MavlinkCommands, MavlinkStreams):
         for link in self.links:
             link.close()
 
-    def fileno_map(self) -> dict[int, Link]:
-        return {link.sock.fileno(): link for link in self.links}
-
     # --------------------------------------------------------------- receive
     def poll(self, link: Link | None = None, max_datagrams: int = 1000) -> int:
         """Read and handle every datagram waiting (on one link or all); returns how many."""
