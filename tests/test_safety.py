@@ -327,3 +327,19 @@ def test_the_headway_for_a_target_changing_speed_needs_the_imms_speed_change_mod
         with pytest.raises(ConfigError, match="speed_change_latency"):
             safety_envelope(with_overrides(scenario, {"safety.speed_change_latency": 1.0, **changes}), vehicle)
     assert safety_envelope(with_overrides(scenario, {"safety.speed_change_latency": 1.0}), vehicle).speed_change_latency == 1.0
+
+
+def test_the_headway_lasts_speed_change_memory_after_the_last_speed_change() -> None:
+    """turn90_5ms's target flies straight at 5 m/s, turns 90 deg from 20 s to 30 s, then flies straight to 60 s. The
+    IMM's speed-change model takes part of the turn, so the headway starts within the turn, never before it (at
+    most 40 s of the 60 s), lasts speed_change_memory after its last trigger (at least 30 s with 30 s of memory: the
+    turn ends by 30 s), and grows with the memory."""
+    scenario, vehicle = load_scenario(SCENARIOS_DIR / "turn90_5ms.toml")
+
+    def seconds(memory: float) -> float:
+        changes = {"safety.speed_change_latency": 1.0, "safety.speed_change_memory": memory}
+        return simulate(with_overrides(scenario, changes), vehicle, 1).summary["envelope"]["speed_change_seconds"]
+
+    alone, short, long = seconds(0.0), seconds(5.0), seconds(30.0)
+    assert 0.0 < alone < short < long <= 40.0
+    assert short >= 5.0 and long >= 30.0
