@@ -422,7 +422,12 @@ class FollowingPipeline:
             innovation_covariance=correction.innovation_covariance, innovation_dof=correction.innovation_dof,
             reinitialized=correction.reinitialized,
             fim_min_eigenvalue=None if fim is None else float(fim["min_eigenvalue"]),
-            speed_change_probability=getattr(self.estimator, "speed_change_probability", None))
+            speed_change_probability=self._speed_change_probability())
+
+    def _speed_change_probability(self) -> float | None:
+        """The estimator's model probability on its speed-change models (the IMM's), None for an estimator without
+        them: what the monitor's speed_change reason and the envelope's speed-change headway both read."""
+        return getattr(self.estimator, "speed_change_probability", None)
 
     def _act_on_health(self, bearing: BearingMeasurement, correction: CorrectionReport) -> bool:
         """The policy's actions for the verdict just made; True when it restarted the estimator."""
@@ -727,7 +732,7 @@ class FollowingPipeline:
         envelope, record = self.envelope, self.envelope_record
         terms = envelope.kernel_terms
         if envelope.speed_change_latency > 0.0:
-            probability = getattr(self.estimator, "speed_change_probability", None)
+            probability = self._speed_change_probability()
             if probability is not None and probability >= envelope.speed_change_trigger:
                 self._speed_change_seen = time
             if time - self._speed_change_seen <= envelope.speed_change_memory:

@@ -142,9 +142,10 @@ class SafetyEnvelope:
 
     @once_property
     def speed_change_terms(self) -> tuple[float, ...]:
-        """kernel_terms with t_e the larger of estimate_latency and speed_change_latency: the terms while the target
-        has lately changed speed (module docstring, rule 1)."""
-        return self.kernel_terms[:-1] + (float(max(self.estimate_latency, self.speed_change_latency)),)
+        """The kernel_terms of this envelope with t_e the larger of estimate_latency and speed_change_latency: the
+        terms while the target has lately changed speed (module docstring, rule 1)."""
+        latency = max(self.estimate_latency, self.speed_change_latency)
+        return dataclasses.replace(self, estimate_latency=latency).kernel_terms
 
     def closing_speed_limit(self, range_estimate: float, range_std: float, target_speed_away: float,
                             target_speed_std: float, trust_target_velocity: bool) -> float:
