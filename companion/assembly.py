@@ -263,7 +263,9 @@ def safety_envelope(scenario: Scenario, vehicle: VehicleConfig) -> SafetyEnvelop
                               estimate_latency=settings.estimate_latency,
                               speed_change_latency=settings.speed_change_latency,
                               speed_change_memory=settings.speed_change_memory,
-                              speed_change_trigger=settings.speed_change_trigger)
+                              speed_change_trigger=settings.speed_change_trigger,
+                              speed_change_speed=settings.speed_change_speed,
+                              speed_change_window=settings.speed_change_window)
     except ValueError as error:
         raise ConfigError(f"safety: {error}") from None
 

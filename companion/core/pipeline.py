@@ -39,8 +39,8 @@ from companion.core.messages import (
     fast_frozen,
 )
 from companion.core.observability import WindowedObservability
-from companion.core.safety import (_NO_HEADING, EnvelopeRecord, SafetyEnvelope, _heading_into_kernel,
-                                   _heading_setpoint_into_kernel, _limit_closing_into_kernel)
+from companion.core.safety import (_NO_HEADING, EnvelopeRecord, SafetyEnvelope, SpeedChangeLatch,
+                                   _heading_into_kernel, _heading_setpoint_into_kernel, _limit_closing_into_kernel)
 from interfaces.derived_defaults import dropout_min_range, dropout_safe_range, health_min_range
 
 _TIME_EPS = 1e-9
@@ -310,7 +310,7 @@ class FollowingPipeline:
         self.law_changes: list[tuple[float, str]] = []
         self.link_held = False
         self.envelope_record = EnvelopeRecord()
-        self._speed_change_seen = -math.inf  # s: when the estimator's speed-change models last held the envelope's trigger
+        self._speed_change = None if envelope is None else SpeedChangeLatch(envelope)
 
     @property
     def limits(self) -> VehicleLimits:
@@ -731,13 +731,10 @@ class FollowingPipeline:
         speed. Counts the ticks it acted in envelope_record."""
         envelope, record = self.envelope, self.envelope_record
         terms = envelope.kernel_terms
-        if envelope.speed_change_latency > 0.0:
-            probability = self._speed_change_probability()
-            if probability is not None and probability >= envelope.speed_change_trigger:
-                self._speed_change_seen = time
-            if time - self._speed_change_seen <= envelope.speed_change_memory:
-                terms = envelope.speed_change_terms
-                record.speed_change_seconds += self.control_period
+        if envelope.speed_change_latency > 0.0 and self._speed_change.holds(
+                time, self._speed_change_probability(), estimate.velocity, self.control_period):
+            terms = envelope.speed_change_terms
+            record.speed_change_seconds += self.control_period
         heading_los = los
         if self._last_bearing is not None and time - self._last_bearing_time < self.dropout.coast_after:
             los = self._last_bearing  # the measured line of sight while fresh: a measurement, not the estimate

@@ -33,9 +33,12 @@ command after the law (and before the vehicle's own limits), with two rules:
    **A target that has changed speed.** A latency held always keeps the pursuer a time headway behind every
    target at speed, steady ones too. speed_change_latency is a t_e used only while the target has lately
    changed speed: from the moment the estimator's speed-change models (the IMM's, companion.core.imm) hold at
-   least speed_change_trigger of its model probability until speed_change_memory s after they last did (the
-   pipeline keeps that time; t_e is then the larger of the two latencies). A target that hovers, dashes and
-   brakes is followed with the headway; one that has flown steadily for speed_change_memory s at r_d.
+   least speed_change_trigger of its model probability, while the estimated speed |v^_T| is also at least
+   speed_change_speed away from its average over the last speed_change_window s, until speed_change_memory s
+   after they last did (SpeedChangeLatch; t_e is then the larger of the two latencies). The speed test keeps
+   turns out: at the end of a coordinated turn the speed-change model briefly explains the bearings best, but
+   the speed has not changed. A target that hovers, dashes and brakes is followed with the headway; one that
+   flies or turns at a steady speed at r_d.
 
 2. **Heading rate.** The setpoint's heading is the line of sight's horizontal direction, turned
    towards at most max_yaw_rate (rad/s): a geometric attitude controller tracking a yaw step couples
@@ -82,7 +85,9 @@ class SafetyEnvelope:
     the estimate may lag a target that starts braking (module docstring, rule 1; 0 counts on it at once).
     speed_change_latency: s, the t_e while the target has lately changed speed (0: never), that is for
     speed_change_memory s after the estimator's speed-change models last held at least speed_change_trigger (a
-    probability in (0, 1]) of its model probability (module docstring, rule 1).
+    probability in (0, 1]) of its model probability while the estimated speed was at least speed_change_speed
+    (m/s; 0: the probability alone) from its exponential average with time constant speed_change_window (s)
+    (module docstring, rule 1; SpeedChangeLatch).
     """
 
     min_range: float
@@ -101,6 +106,8 @@ class SafetyEnvelope:
     speed_change_latency: float = 0.0
     speed_change_memory: float = 30.0
     speed_change_trigger: float = 0.5
+    speed_change_speed: float = 1.0
+    speed_change_window: float = 1.0
 
     def __post_init__(self) -> None:
         values = (self.min_range, self.target_max_acceleration, self.braking_acceleration, self.velocity_gain,
@@ -112,11 +119,14 @@ class SafetyEnvelope:
         for name in ("range_sigmas", "speed_sigmas"):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0.0):
                 raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)!r}")
-        for name in ("reaction_time", "estimate_latency", "speed_change_latency", "speed_change_memory"):
+        for name in ("reaction_time", "estimate_latency", "speed_change_latency", "speed_change_memory",
+                     "speed_change_speed"):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0.0):
                 raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)!r}")
         if not (math.isfinite(self.tilt_margin) and 0.0 <= self.tilt_margin < math.radians(20.0)):
             raise ValueError(f"tilt_margin must be in [0, 20) deg, got {math.degrees(self.tilt_margin)!r} deg")
+        if not (math.isfinite(self.speed_change_window) and self.speed_change_window > 0.0):
+            raise ValueError(f"speed_change_window must be finite and > 0, got {self.speed_change_window!r}")
         if not 0.0 < self.speed_change_trigger <= 1.0:
             raise ValueError(f"speed_change_trigger must be in (0, 1], got {self.speed_change_trigger!r}")
         if not 0.0 < self.untrusted_range_share <= 1.0:
@@ -321,6 +331,33 @@ _limit_closing_into_kernel = jit(_limit_closing_into)
 _heading_into_kernel = jit(_heading_into)
 _heading_axis_kernel = jit(heading_axis)
 _heading_setpoint_into_kernel = jit(_heading_setpoint_into)
+
+
+class SpeedChangeLatch:
+    """Whether the envelope plans with its speed_change_latency (module docstring, rule 1): since the last tick at
+    which the estimator's speed-change probability held speed_change_trigger while the estimated speed stood at
+    least speed_change_speed from its running average, for speed_change_memory s. The average is exponential
+    with time constant speed_change_window (one step of period / window, at most 1, per tick; it starts at the
+    first speed it sees)."""
+
+    def __init__(self, envelope: SafetyEnvelope) -> None:
+        self.envelope = envelope
+        self.last_seen = -math.inf  # s: the last tick that counted as a speed change
+        self.average_speed = math.nan  # m/s
+
+    def holds(self, time: float, probability: float | None, velocity: np.ndarray, period: float) -> bool:
+        """One control tick at `time` (s): the estimator's speed-change probability (None: it has no such
+        models), the estimated target velocity (m/s, (3,)) and the control period (s). True while the headway
+        is in force."""
+        envelope = self.envelope
+        speed = math.sqrt(float(velocity[0]) ** 2 + float(velocity[1]) ** 2 + float(velocity[2]) ** 2)
+        average = speed if math.isnan(self.average_speed) else self.average_speed
+        changed = abs(speed - average) >= envelope.speed_change_speed
+        if math.isfinite(speed):
+            self.average_speed = average + min(1.0, period / envelope.speed_change_window) * (speed - average)
+        if changed and probability is not None and probability >= envelope.speed_change_trigger:
+            self.last_seen = time
+        return time - self.last_seen <= envelope.speed_change_memory
 
 
 @dataclass

@@ -57,7 +57,9 @@ class SafetyConfig(_Strict):
     reaction_time; 0 (default) counts on the estimate showing the braking at once (docs/safety.md).
     speed_change_latency: s, the estimate_latency planned with only while the target has lately changed speed
     (0, the default: never): for speed_change_memory s after the IMM's speed-change models last held at least
-    speed_change_trigger of its model probability; needs [estimator] kind 'imm' with imm_manoeuvre_model.
+    speed_change_trigger of its model probability while the estimated target speed stood at least
+    speed_change_speed m/s from its average over speed_change_window s (0: the probability alone); needs
+    [estimator] kind 'imm' with imm_manoeuvre_model.
     """
 
     enabled: bool = True
@@ -73,6 +75,8 @@ class SafetyConfig(_Strict):
     speed_change_latency: Annotated[float, Field(ge=0.0, le=5.0)] = 0.0
     speed_change_memory: Annotated[float, Field(ge=0.0, le=3600.0)] = 30.0
     speed_change_trigger: Annotated[float, Field(gt=0.0, le=1.0)] = 0.5
+    speed_change_speed: Annotated[float, Field(ge=0.0, le=50.0)] = 1.0
+    speed_change_window: Annotated[float, Field(gt=0.0, le=60.0)] = 1.0
 
 
 HealthReasonName = HealthReason  # the monitor's reasons, as the link payloads name them
