@@ -417,3 +417,20 @@ def test_the_latch_holds_for_its_memory_after_the_last_change_and_needs_the_prob
     assert not held[-1][1]
     assert not any(holding for _, holding in run(0.4))
     assert not any(holding for _, holding in run(None))
+
+
+def test_the_scenario_schema_and_the_envelope_give_each_shared_key_the_same_default() -> None:
+    """[safety] (interfaces.scenario.safety.SafetyConfig) and the core's SafetyEnvelope declare their defaults
+    separately (the interfaces may not import the core): every key they share, degrees converted, defaults alike,
+    so a pipeline built in code flies as one built from a scenario file."""
+    from interfaces.scenario.safety import SafetyConfig
+
+    core = {field.name: field.default for field in dataclasses.fields(SafetyEnvelope)
+            if field.default is not dataclasses.MISSING}
+    shared = 0
+    for name, field in SafetyConfig.model_fields.items():
+        key, scale = (name[:-4], math.radians(1.0)) if name.endswith("_deg") else (name, 1.0)
+        if key in core:
+            shared += 1
+            assert field.default * scale == pytest.approx(core[key], rel=1e-12), name
+    assert shared >= 13
