@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from interfaces.shutdown import arm_exit_deadline
+from interfaces.shutdown import arm_exit_deadline, keep_alive, stand_down
 from interfaces.cli import (SPEED_FACTOR_RANGE, CommandParser, add_zenoh_security_arguments, output_folder,
                             speed_factor_argument)
 from interfaces.scenario import (DEFAULT_SCENARIO, ConfigError, PlantScenario, VehicleConfig, load_plant_scenario,
@@ -228,7 +228,7 @@ class RealTimeRunner:
     """Paces an Autopilot + MavlinkVehicle against the wall clock at a speed factor."""
 
     def __init__(self, vehicle: MavlinkVehicle, speed_factor: float, log: RunLog, duration: float | None = None,
-                 progress: bool = False, on_tick=None, clock_anchor: float | None = None) -> None:
+                 progress: bool = False, on_tick=None, clock_anchor: float | None = None, on_turn=None) -> None:
         if not (math.isfinite(speed_factor) and speed_factor > 0):
             raise ValueError(f"speed factor must be positive, got {speed_factor!r}")
         self.vehicle = vehicle
@@ -238,6 +238,7 @@ class RealTimeRunner:
         self.duration = duration
         self.progress = progress
         self.on_tick = on_tick  # called with the simulated time after every tick
+        self.on_turn = on_turn  # called with no arguments at every turn of the loop (the process's keep_alive)
         # time.monotonic() at which simulated time is 0 (shared by every plant given the same anchor), or None:
         # simulated time starts now and a plant that falls MAX_LAG behind re-anchors (a slip)
         self.clock_anchor = clock_anchor
@@ -290,6 +291,8 @@ class RealTimeRunner:
         catching_up = False
         mv.after_tick()  # first heartbeat at time zero
         while not self.stop_requested:
+            if self.on_turn is not None:
+                self.on_turn()
             if self.duration is not None and ap.time >= self.duration - 1e-9:
                 break
             mv.poll()
@@ -473,7 +476,8 @@ def main(argv: list[str] | None = None) -> int:
             return 2
     speed = scenario.sitl.speed_factor if args.speed_factor is None else args.speed_factor
     runner = RealTimeRunner(vehicle, speed, log, args.duration, progress=not args.quiet,
-                            on_tick=clock.tick if clock is not None else None, clock_anchor=args.clock_anchor)
+                            on_tick=clock.tick if clock is not None else None, clock_anchor=args.clock_anchor,
+                            on_turn=keep_alive)
 
     def request_stop(signum, frame):  # noqa: ARG001
         runner.stop_requested = True
@@ -497,6 +501,7 @@ def main(argv: list[str] | None = None) -> int:
             clock.close()
         vehicle.close()
         log.close()
+        stand_down()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     print(f"sitl-plant stopped at t={stats['sim_time']:.1f}s (x{stats['speed_factor_achieved']} achieved), "

@@ -1,11 +1,14 @@
 """interfaces.shutdown: a process whose orderly stop hangs is ended by the deadline armed at the stop request,
-with 128 + the signal number; one that stops in time is not touched."""
+with 128 + the signal number; one that stops in time is not touched; a main loop stuck before any stop is ended
+by its dead man's switch."""
 
 from __future__ import annotations
 
 import signal
 import subprocess
 import sys
+
+import pytest
 
 HANGS = """
 import signal, threading, time
@@ -44,13 +47,40 @@ while not stopped:
 sys.exit(0)
 """
 
+#: A main loop that turns a few times, then gets stuck holding the interpreter lock before any stop is asked (a
+#: C loop that never looks at signals, unlike the regular expression engine): the SIGTERM that follows has a
+#: handler, which can never run.
+STUCK = """
+import signal, sys
+from interfaces.shutdown import keep_alive
+signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(0))
+for turn in range(3):
+    if {keep}:
+        keep_alive(1.0)
+print("ready", flush=True)
+sum(range(10 ** 13))
+"""
 
-def _run(source: str) -> int:
+#: A loop that goes on turning after the stop was asked: its turns do not push the stop's deadline away.
+TURNS_ON = """
+import signal, threading
+from interfaces.shutdown import arm_exit_deadline, keep_alive
+def stop(signum, frame):
+    arm_exit_deadline("turns", signum, seconds=0.5)
+signal.signal(signal.SIGTERM, stop)
+print("ready", flush=True)
+while True:
+    keep_alive(30.0)
+    threading.Event().wait(0.05)
+"""
+
+
+def _run(source: str, timeout: float = 10.0) -> int:
     process = subprocess.Popen([sys.executable, "-c", source], stdout=subprocess.PIPE, text=True)
     try:
         assert process.stdout.readline().strip() == "ready"
         process.terminate()
-        return process.wait(timeout=10.0)
+        return process.wait(timeout=timeout)
     finally:
         if process.poll() is None:
             process.kill()
@@ -69,6 +99,24 @@ def test_a_stop_that_holds_the_interpreter_lock_is_ended_by_the_kernel_alarm():
 
 def test_an_orderly_stop_keeps_its_own_exit_code():
     assert _run(STOPS) == 0
+
+
+def test_a_loop_stuck_before_the_stop_is_ended_by_its_dead_mans_switch():
+    # without keep_alive nothing ends it (still there 3 s after SIGTERM); with it the kernel's alarm, 1 s after
+    # the last turn
+    with pytest.raises(subprocess.TimeoutExpired):
+        _run(STUCK.format(keep=False), timeout=3.0)
+    assert _run(STUCK.format(keep=True)) == -signal.SIGALRM
+
+
+def test_a_loop_that_stands_down_is_not_ended_later():
+    source = ("import time\nfrom interfaces.shutdown import keep_alive, stand_down\n"
+              "keep_alive(0.5)\nstand_down()\ntime.sleep(1.5)\n")
+    assert subprocess.run([sys.executable, "-c", source], timeout=10.0).returncode == 0
+
+
+def test_turns_after_the_stop_do_not_push_its_deadline_away():
+    assert _run(TURNS_ON) == 128 + 15
 
 
 def test_free_ports_come_from_below_the_ephemeral_range_once_each_and_bindable():

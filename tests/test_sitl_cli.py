@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import signal
 
 import pytest
 
@@ -74,6 +75,8 @@ def test_main_runs_for_a_duration_and_leaves_complete_logs(tmp_path, capsys):
                       "--gcs-port", str(free_port()), "--log-dir", str(tmp_path), "--quiet"])
     assert code == 0
     assert "sitl-plant ready" in capsys.readouterr().out
+    # the loop's dead man's switch is cleared on the way out: nothing is left to end this process later
+    assert signal.getitimer(signal.ITIMER_REAL) == (0.0, 0.0)
     stats = json.loads((tmp_path / "stats.json").read_text())
     assert stats["sim_time"] == pytest.approx(2.0, abs=0.01)
     assert stats["mavlink"]["rejected"] == {}

@@ -49,7 +49,7 @@ from pathlib import Path
 
 import numpy as np
 
-from interfaces.shutdown import arm_exit_deadline
+from interfaces.shutdown import arm_exit_deadline, keep_alive, stand_down
 from interfaces.cli import CommandParser, add_zenoh_security_arguments, output_folder
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, FaultsConfig, TargetConfig, load_plant_scenario
 from interfaces.link_schema import (CLOCK_KEY, PayloadError, TargetFix, decode_clock, decode_command, encode_target_fix,
@@ -429,6 +429,7 @@ def main(argv: list[str] | None = None) -> int:
         started = time.monotonic()
         said_waiting = False
         while not stop.is_set() and not target.finished:
+            keep_alive()
             try:
                 payload = clock_payloads.get(timeout=0.1)
             except queue.Empty:
@@ -448,6 +449,7 @@ def main(argv: list[str] | None = None) -> int:
         session.close()
         log.close()
         fault_log.close()
+        stand_down()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     clock_time = "no clock" if target.clock_time is None else f"t={target.clock_time:.3f}s"
