@@ -93,12 +93,10 @@ def with_death_signal(command: list[str]) -> list[str]:
 
 
 def wait_for(condition, timeout: float, what: str, interval: float = 0.1) -> None:
-    """Poll `condition()` every `interval` s until it is true; RuntimeError naming `what` after `timeout` s."""
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise RuntimeError(f"timed out after {timeout:g} s waiting for {what}")
-        time.sleep(interval)
+    """Poll `condition()` every `interval` s until it is true (`poll_until`); RuntimeError naming `what` after
+    `timeout` s."""
+    if not poll_until(condition, timeout, interval):
+        raise RuntimeError(f"timed out after {timeout:g} s waiting for {what}")
 
 
 def set_death_signal(parent: int) -> str | None:
