@@ -47,13 +47,15 @@ while not stopped:
 sys.exit(0)
 """
 
-#: A main loop that turns a few times, then gets stuck holding the interpreter lock before any stop is asked (a
-#: C loop that never looks at signals, unlike the regular expression engine): the SIGTERM that follows has a
-#: handler, which can never run.
+#: A main loop that turns a few times, then gets stuck holding the interpreter lock (a C loop that never looks
+#: at signals, unlike the regular expression engine). Its SIGTERM handler only sets the flag the loop would poll,
+#: as the SITL processes' handlers do, so whether it ran before the loop got stuck or never runs, the stop
+#: cannot end the process.
 STUCK = """
-import signal, sys
+import signal
 from interfaces.shutdown import keep_alive
-signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(0))
+requested = []
+signal.signal(signal.SIGTERM, lambda signum, frame: requested.append(signum))
 for turn in range(3):
     if {keep}:
         keep_alive(1.0)
