@@ -265,7 +265,8 @@ def safety_envelope(scenario: Scenario, vehicle: VehicleConfig) -> SafetyEnvelop
                               speed_change_memory=settings.speed_change_memory,
                               speed_change_trigger=settings.speed_change_trigger,
                               speed_change_speed=settings.speed_change_speed,
-                              speed_change_window=settings.speed_change_window)
+                              speed_change_window=settings.speed_change_window,
+                              hover_standoff=settings.hover_standoff, hover_speed=settings.hover_speed)
     except ValueError as error:
         raise ConfigError(f"safety: {error}") from None
 

@@ -434,3 +434,63 @@ def test_the_scenario_schema_and_the_envelope_give_each_shared_key_the_same_defa
             shared += 1
             assert field.default * scale == pytest.approx(core[key], rel=1e-12), name
     assert shared >= 13
+
+
+@given(speed=st.floats(0.0, 20.0), hover_speed=st.floats(0.2, 5.0), standoff=st.floats(0.5, 20.0),
+       gap=st.floats(0.0, 60.0), lag=st.floats(0.0, 1.0), latency=st.floats(0.0, 2.0),
+       heading=st.floats(-math.pi, math.pi))
+def test_a_hovering_target_is_kept_hover_standoff_farther_off(speed, hover_speed, standoff, gap, lag, latency,
+                                                               heading) -> None:
+    """A target at rest on an exact estimate: the pursuer's closing limit is the speed that stops it (reaction
+    time t_r, braking a_P) hover_standoff x (1 - |v| / hover_speed) beyond min_range, falling linearly to the
+    plain limit at hover_speed: u t_r + u^2 / (2 a_P) = the gap left, written out here. The velocity's direction
+    does not matter, and the speed-change terms are raised alike."""
+    from companion.core.safety import _closing_limit_kernel
+    rule = envelope(reaction_time=lag, hover_standoff=standoff, hover_speed=hover_speed,
+                    speed_change_latency=latency)
+    velocity = speed * np.array([math.cos(heading), math.sin(heading), 0.0])
+    share = max(0.0, 1.0 - float(np.linalg.norm(velocity)) / hover_speed)
+    for base in (rule.kernel_terms, rule.speed_change_terms):
+        terms, raised = rule.hover_terms(base, velocity)
+        assert raised == (share > 0.0)
+        left = gap - share * standoff
+        limit = _closing_limit_kernel(4.0 + gap, 0.0, 0.0, 0.0, True, terms)[0]
+        braking, t = 3.0, lag + base[-1]
+        if left > 0.0:
+            assert limit * t + limit ** 2 / (2.0 * braking) == pytest.approx(left, rel=1e-9, abs=1e-9)
+        else:
+            assert limit == pytest.approx(left, rel=1e-9, abs=1e-12)  # retreat_gain 1/s x the gap
+
+
+def test_the_hover_standoff_is_off_by_default_and_full_for_an_estimate_that_is_not_finite() -> None:
+    rule = envelope()
+    assert rule.hover_terms(rule.kernel_terms, np.zeros(3)) == (rule.kernel_terms, False)
+    kept = envelope(hover_standoff=5.0)
+    assert kept.hover_share(np.array([math.nan, 0.0, 0.0])) == 1.0
+    for bad in ({"hover_standoff": -1.0}, {"hover_speed": 0.0}, {"hover_speed": math.inf}):
+        with pytest.raises(ValueError, match="hover_"):
+            envelope(**bad)
+
+
+def test_a_hover_standoff_keeps_off_a_target_leaving_its_hover_towards_the_pursuer() -> None:
+    """stop_and_go at 50 Hz, seed 2, with the range excitation and the speed-change headway: the target hovers
+    from 13 s, and leaves at 20 s towards the pursuer, which the bearings show about 2 s late; without a standoff
+    the pursuer comes within r_d / 2 of it, with 6 m it never does. It waits farther off the hovering target, and
+    only while the target is slow (the two hovers, their brakings and departures: 5-30 s of the 60). A
+    constant-velocity target's flight is the same to the bit."""
+    scenario, vehicle = load_scenario(SCENARIOS_DIR / "stop_and_go.toml")
+    scenario = with_overrides(scenario, {"sensor.rate_hz": 50.0, "safety.speed_change_latency": 1.0,
+                                         **ALWAYS_EXCITING})
+    half = scenario.guidance.desired_range / 2.0
+    without = simulate(scenario, vehicle, 2)
+    kept = simulate(with_overrides(scenario, {"safety.hover_standoff": 6.0}), vehicle, 2)
+    assert without.summary["truth"]["min_range"] < half <= kept.summary["truth"]["min_range"]
+    assert without.summary["envelope"]["hover_seconds"] == 0.0
+    assert 5.0 <= kept.summary["envelope"]["hover_seconds"] <= 30.0
+    hovering = (without.series["time"] >= 15.0) & (without.series["time"] < 20.0)
+    assert np.median(kept.series["range"][hovering]) > np.median(without.series["range"][hovering])
+
+    steady, steady_vehicle = load_scenario(SCENARIOS_DIR / "constant_velocity.toml")
+    plain = simulate(steady, steady_vehicle, 2)
+    guarded = simulate(with_overrides(steady, {"safety.hover_standoff": 6.0}), steady_vehicle, 2)
+    np.testing.assert_array_equal(guarded.series["pursuer_position"], plain.series["pursuer_position"])

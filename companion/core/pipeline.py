@@ -728,13 +728,17 @@ class FollowingPipeline:
         first setpoint with a vertical line of sight: lambda then): companion.core.safety, its closing-speed rule from
         this estimate's sigma_r and sigma_v along the line of sight, the target's velocity counted only when
         `trusted`; with the envelope's speed_change_latency, planned with it while the target has lately changed
-        speed. Counts the ticks it acted in envelope_record."""
+        speed; with its hover_standoff, min_range raised while the target is slow. Counts the ticks it acted in envelope_record."""
         envelope, record = self.envelope, self.envelope_record
         terms = envelope.kernel_terms
         if envelope.speed_change_latency > 0.0 and self._speed_change.holds(
                 time, self._speed_change_probability(), estimate.velocity, self.control_period):
             terms = envelope.speed_change_terms
             record.speed_change_seconds += self.control_period
+        if envelope.hover_standoff > 0.0:
+            terms, raised = envelope.hover_terms(terms, estimate.velocity)
+            if raised:
+                record.hover_seconds += self.control_period
         heading_los = los
         if self._last_bearing is not None and time - self._last_bearing_time < self.dropout.coast_after:
             los = self._last_bearing  # the measured line of sight while fresh: a measurement, not the estimate

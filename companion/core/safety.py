@@ -40,6 +40,12 @@ command after the law (and before the vehicle's own limits), with two rules:
    the speed has not changed. A target that hovers, dashes and brakes is followed with the headway; one that
    flies or turns at a steady speed at r_d.
 
+   **A target that hovers.** A hovering target may leave in any direction, straight at the pursuer too, and a
+   departure along the line of sight shows in the bearings only after one to two seconds (the range is not
+   observable from one bearing). hover_standoff (m) is added to r_min while the estimated target speed |v^_T|
+   is below hover_speed: in full at rest, falling linearly to nothing at hover_speed. The pursuer then waits at
+   that much more distance for the departure it cannot yet see.
+
 2. **Heading rate.** The setpoint's heading is the line of sight's horizontal direction, turned
    towards at most max_yaw_rate (rad/s): a geometric attitude controller tracking a yaw step couples
    the yaw error into roll and pitch, and a pursuer close to a target whose bearing swings fast tilted
@@ -87,7 +93,9 @@ class SafetyEnvelope:
     speed_change_memory s after the estimator's speed-change models last held at least speed_change_trigger (a
     probability in (0, 1]) of its model probability while the estimated speed was at least speed_change_speed
     (m/s; 0: the probability alone) from its exponential average with time constant speed_change_window (s)
-    (module docstring, rule 1; SpeedChangeLatch).
+    (module docstring, rule 1; SpeedChangeLatch). hover_standoff: m added to min_range while the target hovers
+    (0: never), in full at rest and falling linearly to 0 at an estimated target speed of hover_speed (m/s)
+    (module docstring, rule 1; `hover_share`).
     """
 
     min_range: float
@@ -108,6 +116,8 @@ class SafetyEnvelope:
     speed_change_trigger: float = 0.5
     speed_change_speed: float = 1.0
     speed_change_window: float = 1.0
+    hover_standoff: float = 0.0
+    hover_speed: float = 1.0
 
     def __post_init__(self) -> None:
         values = (self.min_range, self.target_max_acceleration, self.braking_acceleration, self.velocity_gain,
@@ -120,13 +130,14 @@ class SafetyEnvelope:
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0.0):
                 raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)!r}")
         for name in ("reaction_time", "estimate_latency", "speed_change_latency", "speed_change_memory",
-                     "speed_change_speed"):
+                     "speed_change_speed", "hover_standoff"):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0.0):
                 raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)!r}")
         if not (math.isfinite(self.tilt_margin) and 0.0 <= self.tilt_margin < math.radians(20.0)):
             raise ValueError(f"tilt_margin must be in [0, 20) deg, got {math.degrees(self.tilt_margin)!r} deg")
-        if not (math.isfinite(self.speed_change_window) and self.speed_change_window > 0.0):
-            raise ValueError(f"speed_change_window must be finite and > 0, got {self.speed_change_window!r}")
+        for name in ("speed_change_window", "hover_speed"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0.0):
+                raise ValueError(f"{name} must be finite and > 0, got {getattr(self, name)!r}")
         if not 0.0 < self.speed_change_trigger <= 1.0:
             raise ValueError(f"speed_change_trigger must be in (0, 1], got {self.speed_change_trigger!r}")
         if not 0.0 < self.untrusted_range_share <= 1.0:
@@ -156,6 +167,25 @@ class SafetyEnvelope:
         terms while the target has lately changed speed (module docstring, rule 1)."""
         latency = max(self.estimate_latency, self.speed_change_latency)
         return dataclasses.replace(self, estimate_latency=latency).kernel_terms
+
+    def hover_share(self, velocity: np.ndarray) -> float:
+        """The share of hover_standoff added to min_range for a target whose estimated velocity is `velocity`
+        (m/s, (3,)) (module docstring, rule 1): 1 at rest, falling linearly to 0 at hover_speed, 0 beyond; 1 for a
+        speed that is not finite (no estimate to trust); 0 whenever hover_standoff is 0."""
+        if self.hover_standoff == 0.0:
+            return 0.0
+        speed = math.sqrt(float(velocity[0]) ** 2 + float(velocity[1]) ** 2 + float(velocity[2]) ** 2)
+        if not math.isfinite(speed):
+            return 1.0
+        return max(0.0, 1.0 - speed / self.hover_speed)
+
+    def hover_terms(self, terms: tuple[float, ...], velocity: np.ndarray) -> tuple[tuple[float, ...], bool]:
+        """`terms` (kernel_terms or speed_change_terms) with r_min, their first, raised by hover_share(velocity) x
+        hover_standoff for a target whose estimated velocity is `velocity` (m/s, (3,)); and whether it was raised."""
+        share = self.hover_share(velocity)
+        if share <= 0.0:
+            return terms, False
+        return (terms[0] + share * self.hover_standoff, *terms[1:]), True
 
     def closing_speed_limit(self, range_estimate: float, range_std: float, target_speed_away: float,
                             target_speed_std: float, trust_target_velocity: bool) -> float:
@@ -364,15 +394,17 @@ class SpeedChangeLatch:
 class EnvelopeRecord:
     """How often the envelope acted: control ticks whose closing speed it limited, and whose heading it
     rate-limited, each with the simulated seconds of those ticks (ticks x control period); and the seconds it
-    planned with speed_change_latency (the target had lately changed speed)."""
+    planned with speed_change_latency (the target had lately changed speed) and those it kept some of
+    hover_standoff (the target was slow or hovering)."""
 
     closing_ticks: int = 0
     heading_ticks: int = 0
     closing_seconds: float = 0.0
     heading_seconds: float = 0.0
     speed_change_seconds: float = 0.0
+    hover_seconds: float = 0.0
 
     def as_dict(self) -> dict:
         return {"closing_ticks": self.closing_ticks, "closing_seconds": self.closing_seconds,
                 "heading_ticks": self.heading_ticks, "heading_seconds": self.heading_seconds,
-                "speed_change_seconds": self.speed_change_seconds}
+                "speed_change_seconds": self.speed_change_seconds, "hover_seconds": self.hover_seconds}

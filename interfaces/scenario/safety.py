@@ -59,7 +59,9 @@ class SafetyConfig(_Strict):
     (0, the default: never): for speed_change_memory s after the IMM's speed-change models last held at least
     speed_change_trigger of its model probability while the estimated target speed stood at least
     speed_change_speed m/s from its average over speed_change_window s (0: the probability alone); needs
-    [estimator] kind 'imm' with imm_manoeuvre_model.
+    [estimator] kind 'imm' with imm_manoeuvre_model. hover_standoff: m added to min_range while the target is
+    slow (0, the default: never), in full at rest, falling linearly to 0 at an estimated target speed of
+    hover_speed m/s: a hovering target may leave straight at the pursuer, which the bearings show late.
     """
 
     enabled: bool = True
@@ -77,6 +79,8 @@ class SafetyConfig(_Strict):
     speed_change_trigger: Annotated[float, Field(gt=0.0, le=1.0)] = 0.5
     speed_change_speed: Annotated[float, Field(ge=0.0, le=50.0)] = 1.0
     speed_change_window: Annotated[float, Field(gt=0.0, le=60.0)] = 1.0
+    hover_standoff: Annotated[float, Field(ge=0.0, le=100.0)] = 0.0
+    hover_speed: Annotated[float, Field(gt=0.0, le=50.0)] = 1.0
 
 
 HealthReasonName = HealthReason  # the monitor's reasons, as the link payloads name them
