@@ -494,3 +494,14 @@ def test_a_hover_standoff_keeps_off_a_target_leaving_its_hover_towards_the_pursu
     plain = simulate(steady, steady_vehicle, 2)
     guarded = simulate(with_overrides(steady, {"safety.hover_standoff": 6.0}), steady_vehicle, 2)
     np.testing.assert_array_equal(guarded.series["pursuer_position"], plain.series["pursuer_position"])
+
+
+def test_the_guarded_scenario_is_stop_and_go_with_the_documented_setting_and_nothing_else() -> None:
+    """config/scenarios/stop_and_go_guarded.toml is what docs/safety.md says it is: stop_and_go with the range
+    excitation kept on at 8 m/s, the speed-change headway and a 6 m hover standoff, every other setting equal."""
+    plain, _ = load_scenario(SCENARIOS_DIR / "stop_and_go.toml")
+    guarded, _ = load_scenario(SCENARIOS_DIR / "stop_and_go_guarded.toml")
+    setting = {**ALWAYS_EXCITING, "safety.speed_change_latency": 1.0, "safety.hover_standoff": 6.0}
+    expected = with_overrides(plain, setting).model_dump(exclude={"name", "description"})
+    assert guarded.model_dump(exclude={"name", "description"}) == expected
+    assert guarded.model_dump() != plain.model_dump()
