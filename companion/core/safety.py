@@ -174,7 +174,7 @@ class SafetyEnvelope:
         speed that is not finite (no estimate to trust); 0 whenever hover_standoff is 0."""
         if self.hover_standoff == 0.0:
             return 0.0
-        speed = math.sqrt(float(velocity[0]) ** 2 + float(velocity[1]) ** 2 + float(velocity[2]) ** 2)
+        speed = _speed(velocity)
         if not math.isfinite(speed):
             return 1.0
         return max(0.0, 1.0 - speed / self.hover_speed)
@@ -256,6 +256,11 @@ def heading_axis(heading: np.ndarray, flown_acceleration: np.ndarray, gravity: f
     x, y, z = north * fz, east * fz, -east * fy - north * fx
     length = math.sqrt(x * x + y * y + z * z)
     return np.array([x / length, y / length, z / length])
+
+
+def _speed(velocity: np.ndarray) -> float:
+    """|v|, m/s, of an estimated velocity (3,): what the hover standoff and the speed-change latch read."""
+    return math.sqrt(float(velocity[0]) ** 2 + float(velocity[1]) ** 2 + float(velocity[2]) ** 2)
 
 
 _NO_HEADING = np.zeros(3)  # a previous heading that is none: _heading_into takes it as no previous setpoint
@@ -380,7 +385,7 @@ class SpeedChangeLatch:
         models), the estimated target velocity (m/s, (3,)) and the control period (s). True while the headway
         is in force."""
         envelope = self.envelope
-        speed = math.sqrt(float(velocity[0]) ** 2 + float(velocity[1]) ** 2 + float(velocity[2]) ** 2)
+        speed = _speed(velocity)
         average = speed if math.isnan(self.average_speed) else self.average_speed
         changed = abs(speed - average) >= envelope.speed_change_speed
         if math.isfinite(speed):
