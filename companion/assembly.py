@@ -16,7 +16,8 @@ import numpy as np
 
 from companion.core.attitude import VehicleLimits
 from interfaces.derived_defaults import (EXCITED_LAWS, SAFETY_BRAKING_SHARE, SAFETY_MAX_BRAKING_SHARE, dropout_min_range,
-                                         dropout_safe_range, health_min_range)
+                                         default_excitation, dropout_safe_range, health_min_range, safety_hover_standoff,
+                                         safety_speed_change_latency)
 from interfaces.scenario import (ConfigError, EstimatorConfig, GuidanceConfig, PursuerStart, Scenario, SensorConfig,
                                  VehicleConfig)
 from companion.core.bearing_sensor import BearingSensor, CameraModel, RangeDependentVariance
@@ -184,10 +185,12 @@ def build_range_controller(scenario: Scenario) -> RangeController:
 
 
 def build_excitation(scenario: Scenario) -> RangeExcitation | None:
-    """[guidance] excitation (its default for the law when left out): None for 'none' (the paper's law
-    unchanged), else the RangeExcitation with the lateral law's navigation gain as the damping it cancels."""
+    """[guidance] excitation (left out, its default for the law and the estimator: default_excitation): None for
+    'none' (the paper's law unchanged), else the RangeExcitation with the lateral law's navigation gain as the
+    damping it cancels."""
     g = scenario.guidance
-    if g.effective_excitation == "none":
+    mode = g.excitation if g.excitation is not None else default_excitation(g.law, scenario.estimator.kind)
+    if mode == "none":
         return None
     return RangeExcitation(g.excitation_speed, g.navigation_gain, g.excitation_frequency, g.excitation_low,
                            g.excitation_high)
@@ -244,10 +247,16 @@ def safety_envelope(scenario: Scenario, vehicle: VehicleConfig) -> SafetyEnvelop
     settings = scenario.safety
     if not settings.enabled:
         return None
-    if settings.speed_change_latency > 0.0 and not (scenario.estimator.kind == "imm"
-                                                    and scenario.estimator.imm_manoeuvre_model):
+    speed_change_model = scenario.estimator.kind == "imm" and scenario.estimator.imm_manoeuvre_model
+    speed_change_latency = settings.speed_change_latency
+    if speed_change_latency is None:
+        speed_change_latency = safety_speed_change_latency(speed_change_model)
+    elif speed_change_latency > 0.0 and not speed_change_model:
         raise ConfigError("safety: speed_change_latency needs the speed-change model: [estimator] kind = 'imm' with "
                           f"imm_manoeuvre_model = true (got kind {scenario.estimator.kind!r})")
+    hover_standoff = settings.hover_standoff
+    if hover_standoff is None:
+        hover_standoff = safety_hover_standoff(scenario.estimator.target_max_acceleration)
     tilt_limited = vehicle.gravity * math.tan(math.radians(vehicle.max_tilt_deg))
     braking = settings.braking_acceleration if settings.braking_acceleration is not None else SAFETY_BRAKING_SHARE * tilt_limited
     try:
@@ -261,12 +270,12 @@ def safety_envelope(scenario: Scenario, vehicle: VehicleConfig) -> SafetyEnvelop
                               untrusted_range_share=settings.untrusted_range_share,
                               tilt_margin=math.radians(settings.tilt_margin_deg),
                               estimate_latency=settings.estimate_latency,
-                              speed_change_latency=settings.speed_change_latency,
+                              speed_change_latency=speed_change_latency,
                               speed_change_memory=settings.speed_change_memory,
                               speed_change_trigger=settings.speed_change_trigger,
                               speed_change_speed=settings.speed_change_speed,
                               speed_change_window=settings.speed_change_window,
-                              hover_standoff=settings.hover_standoff, hover_speed=settings.hover_speed)
+                              hover_standoff=hover_standoff, hover_speed=settings.hover_speed)
     except ValueError as error:
         raise ConfigError(f"safety: {error}") from None
 

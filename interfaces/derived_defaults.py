@@ -20,6 +20,13 @@ SAFETY_MAX_BRAKING_SHARE = 0.9
 #: [guidance] excitation: the lateral laws the range excitation serves (its design cancels their N P v damping);
 #: for them it is on ('uncertainty') unless a scenario says 'none', for the others off.
 EXCITED_LAWS = ("hng", "ppg")
+#: [estimator] kinds that measure the range as well as the bearing (seed 003's range/azimuth/elevation EKF).
+RANGE_MEASURING_ESTIMATORS = ("ekf_rae",)
+#: [safety] speed_change_latency, s, when the estimator has the IMM's speed-change model (0 without it).
+SPEED_CHANGE_LATENCY = 1.0
+#: [safety] hover_standoff: the distance a target at [estimator] target_max_acceleration covers from rest in this
+#: time, s (the bearings show a departure along the line of sight one to two seconds late).
+HOVER_DEPARTURE_TIME = 2.0
 
 
 def health_min_range(desired_range: float) -> float:
@@ -37,6 +44,19 @@ def dropout_min_range(desired_range: float) -> float:
     return DROPOUT_MIN_RANGE_FACTOR * desired_range
 
 
-def default_excitation(law: str) -> str:
-    """[guidance] excitation's default for a lateral law: 'uncertainty' for EXCITED_LAWS, 'none' for the others."""
-    return "uncertainty" if law in EXCITED_LAWS else "none"
+def safety_speed_change_latency(speed_change_model: bool) -> float:
+    """[safety] speed_change_latency's default, s: SPEED_CHANGE_LATENCY with the IMM's speed-change model, else 0."""
+    return SPEED_CHANGE_LATENCY if speed_change_model else 0.0
+
+
+def safety_hover_standoff(target_max_acceleration: float) -> float:
+    """[safety] hover_standoff's default, m: a_T T^2 / 2 for the target's largest acceleration a_T (m/s^2) and
+    T = HOVER_DEPARTURE_TIME (6 m at the default 3 m/s^2)."""
+    return 0.5 * target_max_acceleration * HOVER_DEPARTURE_TIME ** 2
+
+
+def default_excitation(law: str, estimator_kind: str = "") -> str:
+    """[guidance] excitation's default for a lateral law and an [estimator] kind: 'uncertainty' for EXCITED_LAWS,
+    'none' for the others and with an estimator that measures the range (RANGE_MEASURING_ESTIMATORS), which has
+    no need to make it observable."""
+    return "uncertainty" if law in EXCITED_LAWS and estimator_kind not in RANGE_MEASURING_ESTIMATORS else "none"

@@ -195,8 +195,8 @@ def test_summary_json_has_null_for_every_non_finite_number(tmp_path):
 
 
 def test_bof_sim_says_did_not_converge_and_writes_null(tmp_path, scenario_path, capsys):
-    # turn90 at seed 1 ends with the errors above 1 m (tests/data/seed1_flight_figures.json: null).
-    assert bof_sim([str(scenario_path("turn90")), "--out", str(tmp_path), "--seed", "1", "--no-plots"]) == 0
+    # circle_10ms at seed 1 ends with the range error above 1 m (tests/data/seed1_flight_figures.json: null).
+    assert bof_sim([str(scenario_path("circle_10ms")), "--out", str(tmp_path), "--seed", "1", "--no-plots"]) == 0
     out = capsys.readouterr().out
     assert "did not converge" in out and "nan" not in out
     (folder,) = list(tmp_path.iterdir())

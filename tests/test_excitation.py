@@ -148,15 +148,19 @@ def test_the_pipeline_excites_on_its_first_uncertain_estimate(los: np.ndarray, s
 
 
 def test_the_excitation_is_on_by_default_for_the_laws_it_serves_and_none_turns_it_off() -> None:
-    """Left out, [guidance] excitation is 'uncertainty' for 'hng' and 'ppg' (V_X = 4 m/s, w = 0.5 rad/s,
-    rho_0 = 0.05, rho_1 = 0.15) and 'none' for the other laws; written out as "none" it builds no excitation
+    """Left out, [guidance] excitation is 'uncertainty' for 'hng' and 'ppg' (V_X = 8 m/s, w = 0.5 rad/s,
+    rho_0 = 0.02, rho_1 = 0.06) and 'none' for the other laws; written out as "none" it builds no excitation
     object, so the pipeline flies the paper's eq. (13)-(18) unchanged."""
     scenario, vehicle = load_scenario(SCENARIOS_DIR / "constant_velocity.toml")
     assert scenario.guidance.excitation is None and scenario.guidance.effective_excitation == "uncertainty"
-    assert build_excitation(scenario) == RangeExcitation(4.0, scenario.guidance.navigation_gain, 0.5, 0.05, 0.15)
+    assert build_excitation(scenario) == RangeExcitation(8.0, scenario.guidance.navigation_gain, 0.5, 0.02, 0.06)
     assert build_excitation(with_overrides(scenario, {"guidance.law": "ppg"})) is not None
     for law in ("pd", "png", "zem"):
         assert build_excitation(with_overrides(scenario, {"guidance.law": law})) is None
+    # an estimator that measures the range needs no excitation to observe it; written out, it is flown
+    ranged, _ = load_scenario(SCENARIOS_DIR / "constant_velocity_range_sensor.toml")
+    assert ranged.guidance.excitation is None and build_excitation(ranged) is None
+    assert build_excitation(with_overrides(ranged, {"guidance.excitation": "uncertainty"})) is not None
     off = with_overrides(scenario, {"guidance.excitation": "none"})
     assert build_excitation(off) is None
     assert build_pipeline(off, vehicle, 0.5).excitation is None
@@ -192,6 +196,8 @@ def test_config_refuses_inconsistent_excitation(fields: dict, message: str) -> N
 #: The earlier estimate settings: the IMM's constant-velocity and +-0.2 rad/s models alone (no 0.4 rad/s pair, no
 #: speed-change model) and the monitor's NIS factor of 2.
 THREE_MODELS = {"estimator.imm_turn_rates": [0.2], "estimator.imm_manoeuvre_model": False, "health.nis_scale": 2.0}
+#: The excitation at 4 m/s from rho = 0.05 to 0.15 (the default is 8 m/s from 0.02 to 0.06).
+HALF_SPEED_EXCITATION = {"guidance.excitation_speed": 4.0, "guidance.excitation_low": 0.05, "guidance.excitation_high": 0.15}
 #: The health monitor's own excitation while suspect off, so the two flights differ by the guidance key alone.
 NO_HEALTH_EXCITATION = {"health.excite": False}
 
@@ -209,12 +215,14 @@ def test_circle_5ms_flight_with_excitation_keeps_the_pursuer_moving_across_the_l
     never says suspect on this target, so there would be no suspect phase to compare; with the three
     models and the default NIS factor 1.5 the excited flight's slowest moment (1.68 m/s) falls below the
     paper's HNG's (1.84 m/s) at this seed, while its median speed across the line of sight is still higher. The health monitor's own excitation while
-    suspect (which flies the same term whatever this key says) is off in both."""
+    suspect (which flies the same term whatever this key says) is off in both. The excitation flies at 4 m/s from
+    rho = 0.05: at the default 8 m/s its circling cancels the pursuer's own velocity for a moment (slowest
+    0.39 m/s at this seed), so the slowest speed no longer compares, while the speed across the line of sight does."""
     scenario, vehicle = load_scenario(SCENARIOS_DIR / "circle_5ms.toml")
     figures = {}
     for mode in ("none", "uncertainty"):
         result = simulate(with_overrides(scenario, {"guidance.excitation": mode, "safety.enabled": False, **THREE_MODELS,
-                                                  **NO_HEALTH_EXCITATION}),
+                                                  **NO_HEALTH_EXCITATION, **HALF_SPEED_EXCITATION}),
                           vehicle, 1)
         assert result.termination is Termination.COMPLETED
         s = result.series

@@ -10,9 +10,11 @@ from studies.closed_loop import simulate
 
 def _fly(scenario_path, law: str):
     scenario, vehicle = load_scenario(scenario_path("constant_velocity"))
-    # the paper's laws as printed: without the range excitation that the defaults add to both
+    # the paper's laws as printed: without the range excitation that the defaults add to both, from the guidance
+    # or from the health monitor while it judges the estimate suspect
     scenario = scenario.model_copy(update={"guidance": scenario.guidance.model_copy(update={"law": law,
-                                                                                            "excitation": "none"})})
+                                                                                            "excitation": "none"}),
+                                           "health": scenario.health.model_copy(update={"excite": False})})
     return simulate(scenario, vehicle, seed=1)
 
 

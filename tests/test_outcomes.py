@@ -211,14 +211,19 @@ def _window_rms(series: dict, window: float) -> float:
     return float(np.sqrt(np.mean((series["range_estimate"][inside] - series["range"][inside]) ** 2)))
 
 
+EARLIER_EXCITATION = "excitation_speed = 4.0\nexcitation_low = 0.05\nexcitation_high = 0.15"
+
+
 def _without_envelope(tmp_path, name: str):
-    """A copy of a shipped scenario with [safety] enabled = false (the guidance laws' commands as they are, which
-    on stop_and_go both fly closer than r_d / 2 and tilt past the airframe's limit), the vehicle named absolutely."""
+    """A copy of a shipped scenario with [safety] enabled = false (the guidance law's commands as they are) and the
+    range excitation of the earlier defaults (4 m/s, ramped in from sigma_r / r^ = 0.05), which on stop_and_go lose
+    the range, fly closer than r_d / 2 and tilt past the airframe's limit; the vehicle named absolutely."""
     vehicle_file = (SCENARIOS_DIR.parent / "vehicles" / "paper_table1.toml").resolve()
     text = (SCENARIOS_DIR / f"{name}.toml").read_text().replace('vehicle = "../vehicles/paper_table1.toml"',
                                                                 f'vehicle = "{vehicle_file}"')
+    assert text.count('law = "hng"') == 1
     path = tmp_path / f"{name}.toml"
-    path.write_text(text + "\n[safety]\nenabled = false\n")
+    path.write_text(text.replace('law = "hng"', 'law = "hng"\n' + EARLIER_EXCITATION) + "\n[safety]\nenabled = false\n")
     return path
 
 
@@ -358,13 +363,15 @@ def test_the_closing_block_says_when_the_monitor_was_silent_while_wrong(loaded):
 
 def test_montecarlo_rows_and_table_count_divergence_and_breaches(tmp_path):
     code = montecarlo.main([str(SCENARIOS_DIR / "stop_and_go.toml"), "--runs", "1", "--executor", "serial",
-                            "--case", "unguarded:safety.enabled=false", "--no-plots", "--quiet", "--out", str(tmp_path)])
+                            "--case", "unguarded:safety.enabled=false,guidance.excitation_speed=4,"
+                            "guidance.excitation_low=0.05,guidance.excitation_high=0.15", "--no-plots", "--quiet",
+                            "--out", str(tmp_path)])
     assert code == 0
     (folder,) = list(tmp_path.iterdir())
     with (folder / "results.csv").open() as handle:
         (row,) = list(csv.DictReader(handle))
-    # seed 1 of stop_and_go without the envelope, flown by bof-sim above: diverged by RMS, closer than r_d / 2,
-    # above the tilt limit
+    # seed 1 of stop_and_go without the envelope, with the earlier excitation, flown by bof-sim above: diverged by RMS, closer
+    # than r_d / 2, above the tilt limit
     assert (row["diverged_rms"], row["breached_half_rd"], row["tilt_exceeded"]) == ("True", "True", "True")
     (group,) = json.loads((folder / "summary.json").read_text())["groups"]
     assert (group["diverged_rms"], group["breached_half_rd"], group["tilt_exceeded"], group["envelope_breaches"]) == (

@@ -70,6 +70,7 @@ import numpy as np
 from companion.core._jit import jit, remainder
 from companion.core.attitude import VehicleLimits, _limited_acceleration_kernel, _setpoint_after_into_kernel
 from companion.core.messages import once_property
+from interfaces.derived_defaults import SPEED_CHANGE_LATENCY, safety_hover_standoff
 
 
 @dataclass(frozen=True)
@@ -93,9 +94,11 @@ class SafetyEnvelope:
     speed_change_memory s after the estimator's speed-change models last held at least speed_change_trigger (a
     probability in (0, 1]) of its model probability while the estimated speed was at least speed_change_speed
     (m/s; 0: the probability alone) from its exponential average with time constant speed_change_window (s)
-    (module docstring, rule 1; SpeedChangeLatch). hover_standoff: m added to min_range while the target hovers
-    (0: never), in full at rest and falling linearly to 0 at an estimated target speed of hover_speed (m/s)
-    (module docstring, rule 1; `hover_share`).
+    (module docstring, rule 1; SpeedChangeLatch; it needs an estimator with speed-change models and never
+    trips without them). hover_standoff: m added to min_range while the target hovers (0: never; None, the
+    default: interfaces.derived_defaults.safety_hover_standoff of target_max_acceleration), in full at rest and
+    falling linearly to 0 at an estimated target speed of hover_speed (m/s) (module docstring, rule 1;
+    `hover_share`).
     """
 
     min_range: float
@@ -111,15 +114,17 @@ class SafetyEnvelope:
     untrusted_range_share: float = 1.0
     tilt_margin: float = math.radians(3.0)
     estimate_latency: float = 0.0
-    speed_change_latency: float = 0.0
+    speed_change_latency: float = SPEED_CHANGE_LATENCY
     speed_change_memory: float = 30.0
     speed_change_trigger: float = 0.5
     speed_change_speed: float = 1.0
     speed_change_window: float = 1.0
-    hover_standoff: float = 0.0
+    hover_standoff: float | None = None
     hover_speed: float = 1.0
 
     def __post_init__(self) -> None:
+        if self.hover_standoff is None:
+            object.__setattr__(self, "hover_standoff", safety_hover_standoff(self.target_max_acceleration))
         values = (self.min_range, self.target_max_acceleration, self.braking_acceleration, self.velocity_gain,
                   self.retreat_gain, self.max_yaw_rate)
         if not all(math.isfinite(v) and v > 0.0 for v in values):

@@ -51,12 +51,13 @@ class GuidanceConfig(_Strict):
     # sight at excitation_speed (m/s, angular rate excitation_frequency rad/s) while the relative
     # range std sigma_r / r^ is above excitation_low (full above excitation_high) or the health
     # monitor says suspect. Only for 'hng' and 'ppg' (its design cancels their N P v damping).
-    # Left out: 'uncertainty' for 'hng' and 'ppg', 'none' for the other laws (`effective_excitation`).
+    # Left out: 'uncertainty' for 'hng' and 'ppg', 'none' for the other laws (`effective_excitation`) and with an
+    # estimator that measures the range (interfaces.derived_defaults.default_excitation, companion.assembly).
     excitation: Literal["none", "uncertainty"] | None = None
-    excitation_speed: Speed = 4.0
+    excitation_speed: Speed = 8.0
     excitation_frequency: Gain = 0.5
-    excitation_low: Annotated[float, Field(ge=0.0, le=MAX_RELATIVE_STD)] = 0.05
-    excitation_high: Annotated[float, Field(gt=0.0, le=MAX_RELATIVE_STD)] = 0.15
+    excitation_low: Annotated[float, Field(ge=0.0, le=MAX_RELATIVE_STD)] = 0.02
+    excitation_high: Annotated[float, Field(gt=0.0, le=MAX_RELATIVE_STD)] = 0.06
 
     @model_validator(mode="after")
     def _excitation_consistent(self) -> "GuidanceConfig":

@@ -56,12 +56,14 @@ class SafetyConfig(_Strict):
     lag a target that starts braking: taken off the target's credited stopping distance (u_T t_e) and added to
     reaction_time; 0 (default) counts on the estimate showing the braking at once (docs/safety.md).
     speed_change_latency: s, the estimate_latency planned with only while the target has lately changed speed
-    (0, the default: never): for speed_change_memory s after the IMM's speed-change models last held at least
+    (0: never): for speed_change_memory s after the IMM's speed-change models last held at least
     speed_change_trigger of its model probability while the estimated target speed stood at least
     speed_change_speed m/s from its average over speed_change_window s (0: the probability alone); needs
-    [estimator] kind 'imm' with imm_manoeuvre_model. hover_standoff: m added to min_range while the target is
-    slow (0, the default: never), in full at rest, falling linearly to 0 at an estimated target speed of
-    hover_speed m/s: a hovering target may leave straight at the pursuer, which the bearings show late.
+    [estimator] kind 'imm' with imm_manoeuvre_model, and is 1 s by default with it, 0 without it
+    (interfaces.derived_defaults). hover_standoff: m added to min_range while the target is slow (0: never), in
+    full at rest, falling linearly to 0 at an estimated target speed of hover_speed m/s: a hovering target may
+    leave straight at the pursuer, which the bearings show late; by default the distance a target at [estimator]
+    target_max_acceleration covers from rest in 2 s (6 m at 3 m/s^2).
     """
 
     enabled: bool = True
@@ -74,12 +76,12 @@ class SafetyConfig(_Strict):
     untrusted_range_share: Annotated[float, Field(gt=0.0, le=1.0)] = 1.0
     tilt_margin_deg: Annotated[float, Field(ge=0.0, lt=20.0)] = 3.0
     estimate_latency: Annotated[float, Field(ge=0.0, le=5.0)] = 0.0
-    speed_change_latency: Annotated[float, Field(ge=0.0, le=5.0)] = 0.0
+    speed_change_latency: Annotated[float, Field(ge=0.0, le=5.0)] | None = None
     speed_change_memory: Annotated[float, Field(ge=0.0, le=3600.0)] = 30.0
     speed_change_trigger: Annotated[float, Field(gt=0.0, le=1.0)] = 0.5
     speed_change_speed: Annotated[float, Field(ge=0.0, le=50.0)] = 1.0
     speed_change_window: Annotated[float, Field(gt=0.0, le=60.0)] = 1.0
-    hover_standoff: Annotated[float, Field(ge=0.0, le=100.0)] = 0.0
+    hover_standoff: Annotated[float, Field(ge=0.0, le=100.0)] | None = None
     hover_speed: Annotated[float, Field(gt=0.0, le=50.0)] = 1.0
 
 
