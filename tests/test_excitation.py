@@ -147,6 +147,19 @@ def test_the_pipeline_excites_on_its_first_uncertain_estimate(los: np.ndarray, s
 # --------------------------------------------------------------------------- wiring and "none"
 
 
+def test_the_scenario_schema_and_the_core_give_the_excitation_the_same_defaults() -> None:
+    """[guidance] (interfaces.scenario.guidance.GuidanceConfig) and the core's RangeExcitation declare their
+    defaults separately (the interfaces may not import the core): V_X, w, rho_0, rho_1 and N alike, so an
+    excitation built in code flies as one built from a scenario file."""
+    from interfaces.scenario.guidance import GuidanceConfig
+
+    schema = {name: field.default for name, field in GuidanceConfig.model_fields.items()}
+    core = RangeExcitation()
+    assert (core.speed, core.frequency, core.low, core.high, core.damping_gain) == (
+        schema["excitation_speed"], schema["excitation_frequency"], schema["excitation_low"],
+        schema["excitation_high"], schema["navigation_gain"])
+
+
 def test_the_excitation_is_on_by_default_for_the_laws_it_serves_and_none_turns_it_off() -> None:
     """Left out, [guidance] excitation is 'uncertainty' for 'hng' and 'ppg' (V_X = 8 m/s, w = 0.5 rad/s,
     rho_0 = 0.02, rho_1 = 0.06) and 'none' for the other laws; written out as "none" it builds no excitation

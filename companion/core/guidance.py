@@ -313,11 +313,11 @@ class RangeExcitation:
     frequency: w, rad/s. low / high: rho_0 < rho_1, dimensionless.
     """
 
-    speed: float = 1.0
+    speed: float = 8.0
     damping_gain: float = 3.0
     frequency: float = 0.5
-    low: float = 0.05
-    high: float = 0.15
+    low: float = 0.02
+    high: float = 0.06
 
     def __post_init__(self) -> None:
         if not (self.speed > 0.0 and self.damping_gain >= 0.0 and self.frequency > 0.0):
