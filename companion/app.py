@@ -54,6 +54,7 @@ from companion.state_publisher import StatePublisher
 from companion.swarm_link import SwarmLink, swarm_companion_id
 from companion.target_link import TargetLink
 from companion.warmup import warm_up as warm_up_kernels
+from interfaces.run_folders import new_run_folder
 from interfaces import link_schema as link
 from interfaces import zenoh_transport
 from interfaces.shutdown import BACKSTOP_MARGIN_S, arm_kill_backstop
@@ -470,7 +471,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     log = configure_console()
     say(f"companion: {zenoh_transport.link_security(zenoh_tls, insecure=args.insecure)}")
-    log_dir = args.log_dir or Path("runs") / f"companion-{time.strftime('%Y%m%d-%H%M%S')}"
+    log_dir = args.log_dir or new_run_folder("runs", "companion")
     try:
         check_pursuer_id(scenario, args.pursuer_id)
     except ConfigError as error:

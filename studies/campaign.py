@@ -58,6 +58,7 @@ from pathlib import Path
 
 import numpy as np
 
+from interfaces.run_folders import new_run_folder
 from interfaces import link_schema
 from interfaces.overrides import apply_overrides, format_assignment
 from interfaces.records import CsvLog
@@ -558,8 +559,7 @@ def main(argv: list[str] | None = None) -> int:
     except (ConfigError, ValueError) as error:
         print(f"bof-campaign: {error}", file=sys.stderr)
         return 2
-    folder = args.out / f"campaign-{scenario.name}-{time.strftime('%Y%m%d-%H%M%S')}"
-    folder.mkdir(parents=True, exist_ok=True)
+    folder = new_run_folder(args.out, f"campaign-{scenario.name}")
     print(f"bof-campaign: {len(tasks)} in-process flights -> {folder}", flush=True)
     slots: list[dict | None] = [None] * len(tasks)
     try:

@@ -44,13 +44,13 @@ import itertools
 import json
 import math
 import sys
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from interfaces.run_folders import new_run_folder
 from interfaces.records import CsvLog
 from interfaces.overrides import apply_overrides, parse_assignment
 from interfaces.scenario import SCENARIOS_DIR, ConfigError, Scenario, VehicleConfig, load_scenario
@@ -543,8 +543,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     label = study.label if study else "grid"
     title = study.title if study else f"Monte Carlo grid: {', '.join(s.name for s, _ in scenarios)}"
-    folder = args.out / f"montecarlo-{label}-{time.strftime('%Y%m%d-%H%M%S')}"
-    folder.mkdir(parents=True, exist_ok=True)
+    folder = new_run_folder(args.out, f"montecarlo-{label}")
     print(f"bof-montecarlo: {len(tasks)} flights -> {folder}", flush=True)
     throughput = reporting.Throughput()
     try:

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import time
 from pathlib import Path
 
 import matplotlib
@@ -19,6 +18,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402  (backend must be chosen first)
 import numpy as np  # noqa: E402
 
+from interfaces.run_folders import new_run_folder
 from interfaces.scenario import DEFAULT_SCENARIO  # noqa: E402
 from interfaces.cli import CommandParser, output_folder
 from studies.metrics import write_summary  # noqa: E402
@@ -193,8 +193,7 @@ def main(argv: list[str] | None = None) -> int:
             load_scenario(args.flight)
         except ConfigError as error:
             parser.error(f"--flight: {error}")
-    out = args.out / f"observability-{time.strftime('%Y%m%d-%H%M%S')}"
-    out.mkdir(parents=True, exist_ok=True)
+    out = new_run_folder(args.out, "observability")
 
     rng = np.random.default_rng(args.seed)
     back_plane = [Plane(gain=1.0, **BACK_PLANE)]

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from interfaces.run_folders import new_run_folder
 from interfaces.cli import CommandParser, output_folder, scenario_file, seed_argument
 from interfaces.scenario import DEFAULT_SCENARIO, ConfigError, Scenario, load_scenario
 from studies.closed_loop import SimulationResult, simulate
@@ -146,7 +147,7 @@ def _fly_swarm(scenario: Scenario, vehicle, args) -> int:
         print(f"bof-sim: {error}", file=sys.stderr)
         return 2
     elapsed = time.perf_counter() - started
-    folder = Path(args.out) / f"{scenario.name}-seed{result.summary['seed']}-{time.strftime('%Y%m%d-%H%M%S')}"
+    folder = new_run_folder(args.out, f"{scenario.name}-seed{result.summary['seed']}")
     write_swarm_folder(result, folder, plots=not args.no_plots)
     print(format_swarm_summary(result.summary, outcome=False))
     print(f"  simulated {result.summary['duration']:.0f} s of {len(result.series)} pursuers in {elapsed:.2f} s")
@@ -201,7 +202,7 @@ def _fly(scenario: Scenario, vehicle, args) -> int:
     notes = in_process_notes(scenario)
     if notes:
         result.summary["notes"] = notes
-    folder = Path(args.out) / f"{scenario.name}-seed{result.summary['seed']}-{time.strftime('%Y%m%d-%H%M%S')}"
+    folder = new_run_folder(args.out, f"{scenario.name}-seed{result.summary['seed']}")
     write_run_folder(result, folder, plots=not args.no_plots)
     print(format_summary(result.summary, outcome=False))
     print(f"  simulated {result.summary['duration']:.0f} s in {elapsed:.2f} s ({result.summary['duration'] / elapsed:.0f}x real time)")

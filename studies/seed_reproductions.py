@@ -44,6 +44,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import studies.swarm as swarm_module
+from interfaces.run_folders import new_run_folder
 from interfaces.overrides import apply_overrides
 from interfaces.scenario import MAX_DURATION_S, ConfigError, Scenario, VehicleConfig, load_scenario
 from interfaces.cli import CommandParser, output_folder
@@ -352,8 +353,7 @@ def run(paper: str, seeds: Sequence[int], out: Path, duration: float | None = No
     unknown = set(variants or ()) - {v.key for v in REPRODUCTIONS[paper]}
     if unknown:
         raise ConfigError(f"seed {paper} has no variant {sorted(unknown)}; it has {[v.key for v in REPRODUCTIONS[paper]]}")
-    folder = out / f"seed{paper}-{wall.strftime('%Y%m%d-%H%M%S')}"
-    folder.mkdir(parents=True, exist_ok=False)
+    folder = new_run_folder(out, f"seed{paper}")
     flights: dict[str, list[dict]] = {}
     for variant in chosen:
         flights[variant.key] = []

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from interfaces.run_folders import new_run_folder
 from interfaces.pki import make_pki
 from interfaces import zenoh_transport
 from interfaces.scenario import Scenario
@@ -210,9 +211,7 @@ def live_args(port: int | None) -> list[str]:
 
 def make_run_folder(out: Path, scenario: Scenario, seed: int) -> Path:
     """The run folder sitl-<scenario>-seed<seed>-<time>/ inside `out`, made."""
-    folder = out / f"sitl-{scenario.name}-seed{seed}-{time.strftime('%Y%m%d-%H%M%S')}"
-    folder.mkdir(parents=True, exist_ok=True)
-    return folder
+    return new_run_folder(out, f"sitl-{scenario.name}-seed{seed}")
 
 
 def make_signing_key(folder: Path) -> Path:

@@ -41,6 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
+from interfaces.run_folders import new_run_folder
 from interfaces.overrides import apply_overrides
 from interfaces.records import JsonLinesLog
 from interfaces.scenario import ConfigError, Scenario, SwarmBlackout, VehicleConfig, load_scenario
@@ -429,8 +430,7 @@ def main(argv: list[str] | None = None) -> int:
     except (ConfigError, ValueError, OSError) as error:
         print(f"bof-swarm-study: {error}", file=sys.stderr)
         return 2
-    folder = args.out / f"swarm-study-{time.strftime('%Y%m%d-%H%M%S')}"
-    folder.mkdir(parents=True, exist_ok=True)
+    folder = new_run_folder(args.out, "swarm-study")
     print(f"bof-swarm-study: {len(cases)} cases x {args.seeds} seeds -> {folder}", flush=True)
     partial = folder / "flights.partial.jsonl"
     try:
