@@ -16,7 +16,7 @@ import numpy as np
 
 from companion.core.attitude import VehicleLimits
 from interfaces.derived_defaults import (EXCITED_LAWS, SAFETY_BRAKING_SHARE, SAFETY_MAX_BRAKING_SHARE, dropout_min_range,
-                                         default_excitation, dropout_safe_range, health_min_range, safety_hover_standoff,
+                                         default_excitation, dropout_safe_range, health_min_range,
                                          safety_speed_change_latency)
 from interfaces.scenario import (ConfigError, EstimatorConfig, GuidanceConfig, PursuerStart, Scenario, SensorConfig,
                                  VehicleConfig)
@@ -254,9 +254,6 @@ def safety_envelope(scenario: Scenario, vehicle: VehicleConfig) -> SafetyEnvelop
     elif speed_change_latency > 0.0 and not speed_change_model:
         raise ConfigError("safety: speed_change_latency needs the speed-change model: [estimator] kind = 'imm' with "
                           f"imm_manoeuvre_model = true (got kind {scenario.estimator.kind!r})")
-    hover_standoff = settings.hover_standoff
-    if hover_standoff is None:
-        hover_standoff = safety_hover_standoff(scenario.estimator.target_max_acceleration)
     tilt_limited = vehicle.gravity * math.tan(math.radians(vehicle.max_tilt_deg))
     braking = settings.braking_acceleration if settings.braking_acceleration is not None else SAFETY_BRAKING_SHARE * tilt_limited
     try:
@@ -275,7 +272,7 @@ def safety_envelope(scenario: Scenario, vehicle: VehicleConfig) -> SafetyEnvelop
                               speed_change_trigger=settings.speed_change_trigger,
                               speed_change_speed=settings.speed_change_speed,
                               speed_change_window=settings.speed_change_window,
-                              hover_standoff=hover_standoff, hover_speed=settings.hover_speed)
+                              hover_standoff=settings.hover_standoff, hover_speed=settings.hover_speed)
     except ValueError as error:
         raise ConfigError(f"safety: {error}") from None
 
