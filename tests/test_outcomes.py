@@ -212,18 +212,22 @@ def _window_rms(series: dict, window: float) -> float:
 
 
 EARLIER_EXCITATION = "excitation_speed = 4.0\nexcitation_low = 0.05\nexcitation_high = 0.15"
+EARLIER_TURN_RATES = "imm_turn_rates = [0.2, 0.4]"
 
 
 def _without_envelope(tmp_path, name: str):
-    """A copy of a shipped scenario with [safety] enabled = false (the guidance law's commands as they are) and the
-    range excitation of the earlier defaults (4 m/s, ramped in from sigma_r / r^ = 0.05), which on stop_and_go lose
-    the range, fly closer than r_d / 2 and tilt past the airframe's limit; the vehicle named absolutely."""
+    """A copy of a shipped scenario with [safety] enabled = false (the guidance law's commands as they are), and the
+    range excitation (4 m/s, ramped in from sigma_r / r^ = 0.05) and the IMM's two turn pairs of the earlier
+    defaults, which on stop_and_go lose the range, fly closer than r_d / 2 and tilt past the airframe's limit; the
+    vehicle named absolutely."""
     vehicle_file = (SCENARIOS_DIR.parent / "vehicles" / "paper_table1.toml").resolve()
     text = (SCENARIOS_DIR / f"{name}.toml").read_text().replace('vehicle = "../vehicles/paper_table1.toml"',
                                                                 f'vehicle = "{vehicle_file}"')
-    assert text.count('law = "hng"') == 1
+    assert text.count('law = "hng"') == 1 and text.count("\n[estimator]") == 1
+    text = text.replace('law = "hng"', 'law = "hng"\n' + EARLIER_EXCITATION)
+    text = text.replace("\n[estimator]", "\n[estimator]\n" + EARLIER_TURN_RATES + "\n#", 1)
     path = tmp_path / f"{name}.toml"
-    path.write_text(text.replace('law = "hng"', 'law = "hng"\n' + EARLIER_EXCITATION) + "\n[safety]\nenabled = false\n")
+    path.write_text(text + "\n[safety]\nenabled = false\n")
     return path
 
 
@@ -364,13 +368,14 @@ def test_the_closing_block_says_when_the_monitor_was_silent_while_wrong(loaded):
 def test_montecarlo_rows_and_table_count_divergence_and_breaches(tmp_path):
     code = montecarlo.main([str(SCENARIOS_DIR / "stop_and_go.toml"), "--runs", "1", "--executor", "serial",
                             "--case", "unguarded:safety.enabled=false,guidance.excitation_speed=4,"
-                            "guidance.excitation_low=0.05,guidance.excitation_high=0.15", "--no-plots", "--quiet",
+                            "guidance.excitation_low=0.05,guidance.excitation_high=0.15,"
+                            "estimator.imm_turn_rates=[0.2,0.4]", "--no-plots", "--quiet",
                             "--out", str(tmp_path)])
     assert code == 0
     (folder,) = list(tmp_path.iterdir())
     with (folder / "results.csv").open() as handle:
         (row,) = list(csv.DictReader(handle))
-    # seed 1 of stop_and_go without the envelope, with the earlier excitation, flown by bof-sim above: diverged by RMS, closer
+    # seed 1 of stop_and_go without the envelope, with the earlier excitation and turn pairs, flown by bof-sim above: diverged by RMS, closer
     # than r_d / 2, above the tilt limit
     assert (row["diverged_rms"], row["breached_half_rd"], row["tilt_exceeded"]) == ("True", "True", "True")
     (group,) = json.loads((folder / "summary.json").read_text())["groups"]

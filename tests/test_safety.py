@@ -295,8 +295,10 @@ def test_the_setpoint_on_the_envelopes_heading_yaws_exactly_to_it_and_thrusts_al
     assert 0.0 <= normalized <= 1.0
 
 
-#: The range excitation the speed-change headway was measured with (docs/reproduction.md, section 5.11).
-ALWAYS_EXCITING = {"guidance.excitation_low": 0.01, "guidance.excitation_high": 0.03, "guidance.excitation_speed": 8.0}
+#: The range excitation and the IMM's turn pairs the speed-change headway and the hover standoff were measured with
+#: (docs/reproduction.md, section 5.11).
+ALWAYS_EXCITING = {"guidance.excitation_low": 0.01, "guidance.excitation_high": 0.03, "guidance.excitation_speed": 8.0,
+                   "estimator.imm_turn_rates": [0.2, 0.4]}
 NO_HEADWAY_NOR_STANDOFF = {"safety.speed_change_latency": 0.0, "safety.hover_standoff": 0.0}
 
 

@@ -48,7 +48,7 @@ class EstimatorConfig(_Strict):
     adaptive_relax_time_constant: Duration = 10.0
     """s, of its return to 1 while the mean is below 1."""
     adaptive_nis_threshold: float = Field(3.0, gt=1.0, le=MAX_GAIN)
-    imm_turn_rates: Annotated[tuple[float, ...], FROM_ARRAY] = (0.2, 0.4)
+    imm_turn_rates: Annotated[tuple[float, ...], FROM_ARRAY] = (0.2, 0.4, 0.6)
     """kind 'imm' only: omega, rad/s, of the coordinated-turn models (docs/explanation/estimation.md, "IMM estimator"); each rate
     gives a right (+omega) and a left (-omega) model beside the constant-velocity one. Each in
     (0, IMM_MAX_TURN_RATE]; an empty list leaves the constant-velocity model alone (the u-PLKF)."""
