@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -211,21 +212,30 @@ def _window_rms(series: dict, window: float) -> float:
     return float(np.sqrt(np.mean((series["range_estimate"][inside] - series["range"][inside]) ** 2)))
 
 
-EARLIER_EXCITATION = "excitation_speed = 4.0\nexcitation_low = 0.05\nexcitation_high = 0.15"
-EARLIER_TURN_RATES = "imm_turn_rates = [0.2, 0.4]"
+#: The earlier defaults these unguarded flights were measured with, as dotted overrides: the range excitation at
+#: 4 m/s ramped in from sigma_r / r^ = 0.05, and the IMM's two turn pairs.
+EARLIER = {"guidance.excitation_speed": 4.0, "guidance.excitation_low": 0.05, "guidance.excitation_high": 0.15,
+           "estimator.imm_turn_rates": [0.2, 0.4]}
+
+
+def _toml(value) -> str:
+    """A TOML literal of a float or a list of floats (as EARLIER holds them)."""
+    return "[" + ",".join(repr(v) for v in value) + "]" if isinstance(value, list) else repr(value)
 
 
 def _without_envelope(tmp_path, name: str):
-    """A copy of a shipped scenario with [safety] enabled = false (the guidance law's commands as they are), and the
-    range excitation (4 m/s, ramped in from sigma_r / r^ = 0.05) and the IMM's two turn pairs of the earlier
-    defaults, which on stop_and_go lose the range, fly closer than r_d / 2 and tilt past the airframe's limit; the
-    vehicle named absolutely."""
+    """A copy of a shipped scenario with [safety] enabled = false (the guidance law's commands as they are) and the
+    EARLIER settings, which on stop_and_go lose the range, fly closer than r_d / 2 and tilt past the airframe's
+    limit; the vehicle named absolutely."""
     vehicle_file = (SCENARIOS_DIR.parent / "vehicles" / "paper_table1.toml").resolve()
     text = (SCENARIOS_DIR / f"{name}.toml").read_text().replace('vehicle = "../vehicles/paper_table1.toml"',
                                                                 f'vehicle = "{vehicle_file}"')
-    assert text.count('law = "hng"') == 1 and text.count("\n[estimator]") == 1
-    text = text.replace('law = "hng"', 'law = "hng"\n' + EARLIER_EXCITATION)
-    text = text.replace("\n[estimator]", "\n[estimator]\n" + EARLIER_TURN_RATES + "\n#", 1)
+    for dotted, value in EARLIER.items():
+        section, key = dotted.split(".")
+        # the key on the line after its table's header (the header's own comment left as it is)
+        text, count = re.subn(rf"^\[{section}\][^\n]*\n", lambda header: f"{header.group(0)}{key} = {_toml(value)}\n",
+                              text, count=1, flags=re.MULTILINE)
+        assert count == 1, section
     path = tmp_path / f"{name}.toml"
     path.write_text(text + "\n[safety]\nenabled = false\n")
     return path
@@ -367,9 +377,8 @@ def test_the_closing_block_says_when_the_monitor_was_silent_while_wrong(loaded):
 
 def test_montecarlo_rows_and_table_count_divergence_and_breaches(tmp_path):
     code = montecarlo.main([str(SCENARIOS_DIR / "stop_and_go.toml"), "--runs", "1", "--executor", "serial",
-                            "--case", "unguarded:safety.enabled=false,guidance.excitation_speed=4,"
-                            "guidance.excitation_low=0.05,guidance.excitation_high=0.15,"
-                            "estimator.imm_turn_rates=[0.2,0.4]", "--no-plots", "--quiet",
+                            "--case", "unguarded:safety.enabled=false," + ",".join(
+                                f"{key}={_toml(value)}" for key, value in EARLIER.items()), "--no-plots", "--quiet",
                             "--out", str(tmp_path)])
     assert code == 0
     (folder,) = list(tmp_path.iterdir())
