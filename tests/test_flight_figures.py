@@ -27,8 +27,10 @@ FIGURES = ("range_error_rms", "range_error_max_abs", "range_estimation_error_rms
 #: Relative tolerance per scenario: the default is rounding (another machine's vector maths and BLAS move a
 #: flight's figures by about 1e-12 here). The camera flight also decides, bearing by bearing, whether the target
 #: is inside the image; another CPU's rounding can flip one such decision near the edge, which moves the figures
-#: by percent (its range RMS came back 1.6 % off on the CI machine, bit-equal on the recording machine).
-TOLERANCE = {"constant_velocity_camera": 0.1}
+#: by percent (its range RMS came back 1.6 % off on the CI machine, bit-equal on the recording machine). The tight
+#: orbit at 0.5 rad/s amplifies rounding more than the other flights: on an AMD EPYC machine its figures came back
+#: within 1.4e-7 of the recording machine's, its heading error RMS within 2.5e-6.
+TOLERANCE = {"constant_velocity_camera": 0.1, "orbit_tight_05": 1e-5}
 
 
 def test_every_shipped_scenario_has_a_reference():
