@@ -1,14 +1,5 @@
-"""The cheaper arithmetic of the u-PLKF and IMM updates changes no result.
-
-Two kinds of evidence:
-- every closed form or shortcut against numpy's general routine on random inputs (hypothesis);
-- whole bearing sequences (a turning target seen at 50 Hz from a weaving pursuer with noisy
-  own position, and filters fed bearings far noisier than their Sigma, which take the general
-  branch of the scale-safe pseudo-inverse; the Joseph-form decision has its own tests) against the states the filters produced before the
-  change, with the correction reports the health monitor reads, recorded in
-  tests/data/estimator_cost_reference.npz by `estimator_cost_sequences.reference_runs` on the
-  pre-change code (see that module to regenerate).
-"""
+"""The closed forms and shortcuts of the u-PLKF and IMM updates against numpy's general routines, on random
+inputs (hypothesis). Whole flights are the seed-1 figures' (tests/test_flight_figures.py)."""
 
 from __future__ import annotations
 
@@ -16,16 +7,12 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from estimator_cost_sequences import REFERENCE, estimators, reference_runs
 from hypothesis.extra.numpy import arrays
 from paper_reference import floats, symmetric_with_eigenvalues, unit_vectors
 
 from companion.core.estimators import (SHORTCUT_EIGENVALUE_BAND, _is_positive_semidefinite, _projector,
                                        _projector_pseudo_inverse, _solve_identity)
 from companion.core.imm import markov_matrix
-
-
-# --- the closed forms and shortcuts against numpy's general routines ---------------------------
 
 
 @settings(max_examples=300, deadline=None)
@@ -115,28 +102,3 @@ def test_markov_matrix_is_full_with_the_diagonal_filled(count, stay):
     expected = np.full((count, count), leave)
     np.fill_diagonal(expected, stay)
     np.testing.assert_array_equal(markov_matrix(count, stay), expected)
-
-
-# --- whole bearing sequences against the pre-change code's record --------------------------------
-
-
-@pytest.fixture(scope="module")
-def runs() -> dict[str, np.ndarray]:
-    return reference_runs()
-
-
-@pytest.mark.parametrize("label,tolerance", [("normal", 1e-5), ("boosted", 1e-5), ("noisy", 1e-5)])
-@pytest.mark.parametrize("name", list(estimators()))
-def test_update_results_are_unchanged(runs, label, tolerance, name):
-    """The u-PLKF forms and the IMMs reproduce the pre-change estimates: on the machine that recorded
-    them to the last bit; the tolerance (relative to each array's largest entry) leaves room for another
-    BLAS's rounding, which a sequence of a few thousand corrections amplifies: on an AMD EPYC's OpenBLAS
-    kernels the recorded arrays came back within 1.2e-7 (normal), 1.1e-10 (boosted) and 8.3e-8 (noisy) of
-    their largest entries, on the CI machine's within 1.6e-6 (noisy). A change of arithmetic that is not
-    rounding moves them by far more."""
-    recorded = np.load(REFERENCE)
-    for kind in ("states", "covariances", "innovations", "innovation_covariances"):
-        key = f"{label}/{name}/{kind}"
-        expected = recorded[key]
-        np.testing.assert_allclose(runs[key], expected, rtol=0.0, atol=tolerance * float(np.nanmax(np.abs(expected))),
-                                   err_msg=key)

@@ -323,23 +323,6 @@ def flight_path_angles(velocity_ned: np.ndarray) -> tuple[float, float, float]:
     return float(np.linalg.norm(v)), math.atan2(-float(v[2]), horizontal), math.atan2(float(v[1]), float(v[0]))
 
 
-def autopilot_acceleration(speed: float, gamma: float, chi: float, speed_rate: float, gamma_rate: float,
-                           chi_rate: float) -> np.ndarray:
-    """NED acceleration (m/s^2, (3,)) of the point mass of seed 003 eq. (4) given its rates.
-
-    With V = v_g e_v, e_v = [cos g cos chi, cos g sin chi, sin g] (z up):
-    V' = v_g' e_v + v_g g' e_g + v_g cos g chi' e_chi, e_g = d e_v / d g =
-    [-sin g cos chi, -sin g sin chi, cos g], e_chi = [-sin chi, cos chi, 0]; the z
-    component is negated for NED. speed m/s, angles rad, rates m/s^2 and rad/s.
-    """
-    cg, sg, cc, sc = math.cos(gamma), math.sin(gamma), math.cos(chi), math.sin(chi)
-    e_v = np.array([cg * cc, cg * sc, sg])
-    e_g = np.array([-sg * cc, -sg * sc, cg])
-    e_chi = np.array([-sc, cc, 0.0])
-    up = speed_rate * e_v + speed * gamma_rate * e_g + speed * cg * chi_rate * e_chi
-    return np.array([up[0], up[1], -up[2]])
-
-
 @dataclass(frozen=True)
 class Seed003BacksteppingGuidance:
     """Backstepping-like speed / flight-path / course law of seed 003 (Ahmed and Subbarao,
@@ -373,7 +356,8 @@ class Seed003BacksteppingGuidance:
 
     Acceleration command (what the pipeline's attitude mapping, eq. (21)-(22), needs): the
     autopilot's rates v_g' = c_1 (v_g^c - v_g), g' = c_2 (g^c - g), chi' = c_3 (chi^c - chi)
-    put into `autopilot_acceleration`. c_1, c_2, c_3 cancel and the result is regular at
+    put into the point mass's acceleration (eq. (4): V' = v_g' e_v + v_g g' e_g + v_g cos g chi' e_chi,
+    z negated for NED). c_1, c_2, c_3 cancel and the result is regular at
     v_g = 0: a_up = -A_1 [cos chi, sin chi, 0] - A_2 [0, 0, 1]
     + v_g cos g (chi^d' - lambda chi~) [-sin chi, cos chi, 0].
 

@@ -359,8 +359,6 @@ class BearingSensor:
         x_k the unit Gauss-Markov process (seed 003 case 2 applied to eq. (4)).
         """
         if self._bearing_process is None and self.range_dependent is None:
-            if self.model == "additive":  # measure_bearing's first case, without its dispatch: eq. (4)
-                return additive_bearing(true_bearing, self.noise_std, rng)
             return measure_bearing(self.model, true_bearing, self.noise_std, rng, rotation, self.camera)
         std = self.bearing_noise_std(true_range)
         if self._bearing_process is not None:

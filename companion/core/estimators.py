@@ -230,12 +230,6 @@ def _projector_into(unit_vector: np.ndarray, out: np.ndarray) -> None:
 
 
 @jit
-def _unit_vector(vector: np.ndarray) -> np.ndarray:
-    """vector / |vector|, shape (3,): geometry.unit's arithmetic for a vector already known finite and non-zero."""
-    return vector / math.sqrt(float(np.dot(vector, vector)))
-
-
-@jit
 def _solve_identity(matrix: np.ndarray) -> tuple[np.ndarray, float, bool]:
     """(M^-1, det M, ok) for a 3x3 M, by the adjugate: M^-1 = adj(M) / det M, det M by cofactors along the first
     row. Accurate for the well-conditioned matrices it is used on (`_projector_pseudo_inverse`'s shortcut, whose
@@ -469,7 +463,7 @@ def _predict_with(transition: np.ndarray, discrete_process_noise: np.ndarray, sc
 
 @jit_inline
 def _measured_projection_into(direction: np.ndarray, out: np.ndarray, unit: np.ndarray) -> None:
-    """P_lambda~ = I - u u^T, u = direction / |direction| (`_projector(_unit_vector(direction))`'s arithmetic: the
+    """P_lambda~ = I - u u^T, u = direction / |direction| (`_projector(direction / |direction|)`'s arithmetic: the
     same BLAS dot, division and products), written into out (3, 3); unit (3,): u."""
     np.divide(direction, math.sqrt(float(np.dot(direction, direction))), unit)
     _projector_into(unit, out)

@@ -209,32 +209,13 @@ def _project_tangent(bearings: np.ndarray, vectors: np.ndarray) -> np.ndarray:
     return vectors - bearings * np.sum(bearings * vectors, axis=1, keepdims=True)
 
 
-def pseudo_forces(
-    bearings: np.ndarray,
-    planes: Sequence[Plane],
-    k_g: float,
-    k_m: float,
-    sigma: float = 1.0,
-    r_d: float = 1.0,
-) -> np.ndarray:
-    """Particle velocities d lambda_i/dt = f_i1 + f_i2 + f_i3, eq. (12a)-(12c); shape (n, 3).
-
-    f_i1 = -k_g P G lambda_i (G of eq. (9) with r_i = r_d), f_i2 = k_m P (lambda_{i-1} - lambda_i)
-    with lambda_0 = lambda_n (cyclic), f_i3 = sum_j k_bj P n_j / d_ij. Every particle must be
-    strictly on the allowed side of every plane (d_ij > 0), else ValueError.
-    """
-    bearings = _check_bearings(bearings)
-    sigma = _check_sigma(sigma)
-    for plane in planes:
-        if np.any(plane.signed_distance(bearings) <= 0.0):
-            raise ValueError("a particle is on or beyond a repulsive plane (signed distance <= 0)")
-    return _forces(bearings, planes, k_g, k_m, 1.0 / (sigma**2 * float(r_d) ** 2))
-
-
 def _forces(
     bearings: np.ndarray, planes: Sequence[Plane], k_g: float, k_m: float, weight: float
 ) -> np.ndarray:
-    """Unchecked eq. (12) for the integration loop; weight = 1/(sigma^2 r_d^2)."""
+    """Particle velocities d lambda_i/dt = f_i1 + f_i2 + f_i3, eq. (12a)-(12c); shape (n, 3), every particle on the
+    allowed side of every plane (d_ij > 0; the integration loop keeps them there). f_i1 = -k_g P G lambda_i (G of
+    eq. (9) with r_i = r_d), f_i2 = k_m P (lambda_{i-1} - lambda_i) with lambda_0 = lambda_n (cyclic),
+    f_i3 = sum_j k_bj P n_j / d_ij; weight = 1/(sigma^2 r_d^2)."""
     g = weight * (bearings.T @ bearings)
     force = -k_g * (bearings @ g)
     force += k_m * (np.roll(bearings, 1, axis=0) - bearings)
@@ -313,7 +294,7 @@ def optimize_placement(
 ) -> PlacementResult:
     """Behaviour-based solution of problem (11) by the particle dynamics of eq. (12).
 
-    d lambda_i/dt = f_i1 + f_i2 + f_i3 (eq. (12a)-(12c), see `pseudo_forces`), integrated by
+    d lambda_i/dt = f_i1 + f_i2 + f_i3 (eq. (12a)-(12c), see `_forces`), integrated by
     explicit Euler with step dt (s) and renormalised to the unit sphere after every step;
     steps that would approach a plane too fast are shortened (see `_step`), so particles never
     cross a plane. Give exactly one of `steps` or `duration` (s).
