@@ -31,7 +31,7 @@ numbers = st.one_of(st.sampled_from(_EDGE_FLOATS), floats, st.integers(-2**64, 2
                  st.lists(st.integers(-2**62, 2**62), min_size=3, max_size=3).map(np.array),
                  st.lists(floats, min_size=3, max_size=3).map(lambda v: np.array(v, dtype=np.float32)),
                  st.lists(floats, min_size=3, max_size=3), st.tuples(numbers, numbers, numbers)))
-def test_target_fix_vectors_are_floats_as_before(values):
+def test_target_fix_vectors_are_pythons_floats(values):
     """_floats(values) is tuple(float(v) for v in values), to the bit, and refuses what float() refuses."""
     def bits(vector):
         return [struct.pack("<d", v) for v in vector]

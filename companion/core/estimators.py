@@ -738,7 +738,7 @@ class AdaptiveProcessNoise:
     The clip keeps the filter never less cautious than the configured Q nor beyond max_scale.
     Everything is a function of the corrections' times and NIS only: deterministic.
 
-    Caveat (measured, docs/reproduction.md 5.3): a larger Q makes the innovations consistent
+    Caveat (measured, docs/reproduction/manoeuvring-experiments.md, 5.3): a larger Q makes the innovations consistent
     with S again, so the same statistic can no longer reveal a wrong range; the NIS test of the
     health monitor then stays quiet on flights whose estimate is still wrong.
     """

@@ -23,7 +23,7 @@ Indicators, evaluated at every estimator correction k (a bearing used):
   sum m_k), F the chi^2 distribution function (`nis_ratio` = sum / that bound > 1). 1.5 by
   default: with the IMM's speed-change model the innovations of a good estimate stay closer to
   consistent, and a factor of 2 missed range errors of 3-5 m behind a stop-and-go target
-  (measured, docs/reproduction.md section 5.8).
+  (measured, docs/reproduction/manoeuvring-experiments.md, section 5.8).
 - ``range_uncertain``: the range standard deviation along the estimated line of sight,
   sigma_r = sqrt(lambda^T P_pp lambda), lambda = (p^_T - p)/|p^_T - p|, above
   `max_relative_range_std` times the estimated range r^ = |p^_T - p|; or, once the estimate
@@ -57,7 +57,7 @@ Indicators, evaluated at every estimator correction k (a bearing used):
   (the IMM's, companion.core.imm) hold at least `speed_change_probability` of its model probability. The
   target is changing speed, and until the pursuer's own motion separates the two, a target acceleration
   along the line of sight looks to the bearings like a range error: measured, the range estimate of the
-  speed-change phases is where the monitor is otherwise silent while 2 m or more off (docs/reproduction.md,
+  speed-change phases is where the monitor is otherwise silent while 2 m or more off (docs/reproduction/manoeuvring-experiments.md,
   section 5.10). It counts after `speed_change_time` s and, alone, clears `speed_change_clear` s after it
   was last raised (the other reasons' clear_after would keep a braked and hovering target suspect for long).
 
@@ -551,7 +551,7 @@ class HealthActionConfig:
     model that no longer fits (innovations too large, a prediction behind the sensor, an implausible
     range). Not range_uncertain or range_unobservable: there the bearings carry too little range
     information, a larger Q only spreads the estimate further, and the excitation is the remedy.
-    Defaults chosen on tuning seeds (docs/reproduction.md sections 5.5 and 5.6).
+    Defaults chosen on tuning seeds (docs/reproduction/manoeuvring-experiments.md, sections 5.5 and 5.6).
     """
 
     act: bool = False

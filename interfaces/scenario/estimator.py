@@ -21,7 +21,7 @@ class EstimatorConfig(_Strict):
     """Target estimator. kind 'imm' (the default) is the interacting-multiple-model
     estimator over u-PLKF model filters (constant velocity and left/right coordinated turns, options
     imm_*; docs/explanation/estimation.md, "IMM estimator"): as accurate as the u-PLKF on constant-velocity targets and the
-    one that follows sustained turns (docs/reproduction.md 5.6). kind 'uplkf' is the paper's
+    one that follows sustained turns (docs/reproduction/manoeuvring-experiments.md, 5.6). kind 'uplkf' is the paper's
     u-PLKF (section IV) alone; gain_projection 'measured' is its exact form, 'predicted' the
     default (docs/explanation/estimation.md), 'noise_free' the simulation-only "optimal u-PLKF" of section VIII-B. The
     baselines: 'ekf' (azimuth/elevation, Cartesian state, the paper's classic EKF), 'msc_ekf'
