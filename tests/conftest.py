@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
+import hashlib
 import os
 import sys
 import socket
+import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -18,7 +20,7 @@ from hypothesis import settings
 from interfaces.link_schema import CLOCK_KEY, ClockTick, TargetFix, decode_target_fix, encode_clock, target_fix_key
 from interfaces.scenario import SCENARIOS_DIR
 from interfaces.zenoh_transport import open_session, publisher, zenoh_config
-from sitl_plant.vehicle import kernels
+from studies.executors import compile_kernels
 from studies.processes import free_port
 
 # CI (CI=true, as .ci/run is started) runs every property test on hypothesis's fixed derandomised
@@ -30,10 +32,19 @@ settings.register_profile("ci", derandomize=True, print_blob=True, deadline=None
 settings.register_profile("local", deadline=None)
 settings.load_profile("ci" if os.environ.get("CI", "").lower() in ("1", "true", "yes") else "local")
 
-# With numba the plant's kernels are compiled (or loaded from its cache) on first use: 0.3 s from
-# the cache, about 1.5 s without. Done here once, so that no test's timing (hypothesis deadlines
-# included) depends on whether it happens to be the first to fly a plant. No-op without numba.
-kernels.warm_up()
+# With numba the plant's and the companion's kernels are compiled on first use, or loaded from numba's cache on
+# disk (about 2 s). On an empty cache (a fresh clone) compiling them takes one to several minutes of one core
+# (3.3 minutes on an AMD EPYC machine). Done here, before any test, by one process at a time: the first xdist
+# worker fills the cache while the other waits and then loads it, so no real-time test shares the machine with
+# a compiler or starts a companion on a partly filled cache. No-op without numba.
+_KERNEL_LOCK = Path(tempfile.gettempdir()) / (
+    "bof-kernels-" + hashlib.sha256(str(Path(__file__).resolve().parent.parent).encode()).hexdigest()[:16] + ".lock")
+with _KERNEL_LOCK.open("a") as _handle:
+    fcntl.flock(_handle, fcntl.LOCK_EX)
+    try:
+        compile_kernels()
+    finally:
+        fcntl.flock(_handle, fcntl.LOCK_UN)
 
 
 #: Test files that fly processes or sockets against the wall clock (SITL flights, signals, links, a
