@@ -15,6 +15,12 @@ from companion.core._jit import ENABLED
 _warmed_up = False
 
 
+def pending() -> bool:
+    """Whether `warm_up` still has work in this process: numba is in use and the kernels are not compiled or loaded
+    yet (the caller may say so before a wait that takes minutes on an empty cache)."""
+    return ENABLED and not _warmed_up
+
+
 def warm_up() -> None:
     """Compile every estimator and setpoint kernel now (or load it from numba's cache on disk), once per process,
     so that no estimator update or control tick waits for the compiler: the companion's first bearing in flight, a study's first flight.

@@ -50,18 +50,31 @@ class SerialExecutor:
         pass
 
 
-def compile_kernels() -> float:
+def compile_kernels(say: Callable[[str], None] | None = None) -> float:
     """Compile the plant's and the estimators' numba kernels in this process (or load them from numba's cache), so
     that the worker or child processes started next load the cache instead of each compiling them: on a fresh
-    install that is about 30 s of one core per process. Returns the seconds it took; nothing to do without numba
-    (plain Python) or when already done in this process."""
+    install that is one to several minutes of one core. Returns the seconds it took; nothing to do without numba
+    (plain Python) or when already done in this process. say: called with a line before the wait (only when there
+    is one: numba in use, not done yet in this process) and with another after it when it took over
+    SLOW_COMPILE s (a compilation, not a load from the cache)."""
     from companion import warmup as estimator_kernels
     from sitl_plant.vehicle import kernels as plant_kernels
 
+    announce = say is not None and estimator_kernels.pending()
+    if announce:
+        say("loading the compiled kernels (numba); the first run after an install compiles them, which takes "
+            "minutes (`companion --precompile` does it ahead of a flight)")
     started = time.perf_counter()
     estimator_kernels.warm_up()
     plant_kernels.warm_up()
-    return time.perf_counter() - started
+    took = time.perf_counter() - started
+    if announce and took > SLOW_COMPILE:
+        say(f"kernels compiled in {took:.0f} s; later runs load them from numba's cache")
+    return took
+
+
+#: s: a kernel warm-up longer than this was a compilation (a load from numba's cache takes about 2 s).
+SLOW_COMPILE = 10.0
 
 
 #: Local worker processes per core at most: flights are CPU-bound, so more only wait, and each one holds its own

@@ -219,7 +219,8 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None = 
     check_run(scenario, speed, seed, timeout, options)
     from studies.executors import compile_kernels
 
-    compile_kernels()  # here, once: the children then load numba's cache instead of compiling while the clock runs
+    # here, once: the children then load numba's cache instead of compiling while the clock runs
+    compile_kernels(None if quiet else (lambda line: print(f"bof-sitl: {line}", flush=True)))
     if scenario.swarm is not None:  # one plant and one companion per pursuer (studies.swarm_sitl)
         from studies.swarm_sitl import budget_for, check_swarm_run, run_swarm
 

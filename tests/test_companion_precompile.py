@@ -33,3 +33,23 @@ def test_precompile_without_numba_says_so_and_opens_nothing(tmp_path):
     assert done.stdout.strip() == ("companion: numba is not installed (or BOF_NO_JIT is set): the kernels run as plain "
                                    "Python, nothing to compile")
     assert list(tmp_path.iterdir()) == []  # no run folder, no log
+
+
+def test_bof_sitl_says_so_before_it_waits_for_the_kernels_and_once_per_process(monkeypatch):
+    """studies.executors.compile_kernels, as bof-sitl calls it: one line before the kernels are compiled or loaded
+    (with numba, while this process has not done it yet), none once it has; without numba, none."""
+    from companion import warmup
+    from studies.executors import compile_kernels
+
+    lines: list[str] = []
+    monkeypatch.setattr(warmup, "_warmed_up", False)
+    compile_kernels(lines.append)
+    if not _jit.ENABLED:
+        assert lines == []
+        return
+    assert lines[0].startswith("loading the compiled kernels (numba)") and len(lines) <= 2
+    if len(lines) == 2:
+        assert lines[1].startswith("kernels compiled in ")
+    said = list(lines)
+    compile_kernels(lines.append)
+    assert lines == said
