@@ -114,9 +114,9 @@ class ProcessExecutor:
     `_start_worker`), and `close` with flights still unfinished (an interrupt) stops them at once instead of
     waiting for the flights they had taken."""
 
-    def __init__(self, workers: int | None = None) -> None:
+    def __init__(self, workers: int | None = None, say: Callable[[str], None] | None = None) -> None:
         self.workers = local_workers(workers)
-        compile_kernels()
+        compile_kernels(say)
         self.name = f"local processes ({self.workers})"
         self._pool: concurrent.futures.ProcessPoolExecutor | None = None
         self._futures: dict = {}
@@ -164,7 +164,8 @@ class DaskExecutor:
     a LocalCluster of `workers` single-threaded worker processes bound to loopback (for
     trying a campaign, and for the tests). Needs the optional dependency dask[distributed]."""
 
-    def __init__(self, address: str | None = None, workers: int | None = None) -> None:
+    def __init__(self, address: str | None = None, workers: int | None = None,
+                 say: Callable[[str], None] | None = None) -> None:
         try:
             from distributed import Client, LocalCluster
         except ImportError:
@@ -172,7 +173,7 @@ class DaskExecutor:
         self._cluster = None
         if address is None:
             count = local_workers(workers)
-            compile_kernels()  # the local workers share this machine's numba cache
+            compile_kernels(say)  # the local workers share this machine's numba cache
             self._cluster = LocalCluster(n_workers=count, threads_per_worker=1, processes=True, host="127.0.0.1",
                                          scheduler_port=0, dashboard_address=None)
             self._client = Client(self._cluster)
@@ -220,13 +221,14 @@ def check_executor(spec: str, workers: int | None) -> None:
         local_workers(workers)
 
 
-def make_executor(spec: str = "local", workers: int | None = None) -> Executor:
-    """'local' (processes, default), 'serial', 'dask-local', or a Dask scheduler address (tcp://...)."""
+def make_executor(spec: str = "local", workers: int | None = None, say: Callable[[str], None] | None = None) -> Executor:
+    """'local' (processes, default), 'serial', 'dask-local', or a Dask scheduler address (tcp://...). say: handed to
+    `compile_kernels` by the executors that compile in this process before starting their workers."""
     check_executor(spec, workers)
     if spec == "local":
-        return ProcessExecutor(workers)
+        return ProcessExecutor(workers, say)
     if spec == "serial":
         return SerialExecutor()
     if spec == "dask-local":
-        return DaskExecutor(None, workers)
-    return DaskExecutor(spec, workers)
+        return DaskExecutor(None, workers, say)
+    return DaskExecutor(spec, workers, say)
