@@ -563,8 +563,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"bof-campaign: {len(tasks)} in-process flights -> {folder}", flush=True)
     slots: list[dict | None] = [None] * len(tasks)
     try:
-        executor = make_executor(args.executor, args.workers,
-                                 say=lambda line: print(f"bof-campaign: {line}", file=sys.stderr, flush=True))
+        executor = make_executor(args.executor, args.workers, say=reporting.say_as("bof-campaign"))
     except (RuntimeError, ValueError, OSError) as error:
         print(f"bof-campaign: {error}", file=sys.stderr)
         return 2

@@ -50,6 +50,10 @@ class SerialExecutor:
         pass
 
 
+#: s: a kernel warm-up longer than this was a compilation (a load from numba's cache takes about 2 s).
+SLOW_COMPILE = 10.0
+
+
 def compile_kernels(say: Callable[[str], None] | None = None) -> float:
     """Compile the plant's and the estimators' numba kernels in this process (or load them from numba's cache), so
     that the worker or child processes started next load the cache instead of each compiling them: on a fresh
@@ -71,10 +75,6 @@ def compile_kernels(say: Callable[[str], None] | None = None) -> float:
     if announce and took > SLOW_COMPILE:
         say(f"kernels compiled in {took:.0f} s; later runs load them from numba's cache")
     return took
-
-
-#: s: a kernel warm-up longer than this was a compilation (a load from numba's cache takes about 2 s).
-SLOW_COMPILE = 10.0
 
 
 #: Local worker processes per core at most: flights are CPU-bound, so more only wait, and each one holds its own

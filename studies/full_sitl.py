@@ -218,9 +218,10 @@ def run(config: Path, out: Path, speed_factor: float | None, seed: int | None = 
     seed = scenario.simulation.seed if seed is None else seed
     check_run(scenario, speed, seed, timeout, options)
     from studies.executors import compile_kernels
+    from studies.reporting import say_as
 
     # here, once: the children then load numba's cache instead of compiling while the clock runs
-    compile_kernels(None if quiet else (lambda line: print(f"bof-sitl: {line}", flush=True)))
+    compile_kernels(None if quiet else say_as("bof-sitl", sys.stdout))
     if scenario.swarm is not None:  # one plant and one companion per pursuer (studies.swarm_sitl)
         from studies.swarm_sitl import budget_for, check_swarm_run, run_swarm
 

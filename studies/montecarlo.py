@@ -416,8 +416,7 @@ def run_tasks(tasks: list[FlightTask], executor_spec: str, workers: int | None, 
     """Fly every task; rows in task order. Each row is appended to results.partial.csv as soon as it
     arrives (an interrupted campaign keeps what it flew); the ordered results.csv replaces it at the end.
     throughput: counts each flight's simulated seconds as it arrives, and stops when the last one has."""
-    executor = make_executor(executor_spec, workers,
-                             say=lambda line: print(f"bof-montecarlo: {line}", file=sys.stderr, flush=True))
+    executor = make_executor(executor_spec, workers, say=reporting.say_as("bof-montecarlo"))
     if throughput is not None:
         throughput.executor = executor.name
     rows: list[dict | None] = [None] * len(tasks)

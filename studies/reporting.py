@@ -179,6 +179,14 @@ def progress_bar(total: int | None, unit: str, enabled: bool = True, description
                 bar_format="{desc}: {n_fmt}/{total_fmt}{unit} ({percentage:3.0f} %), {elapsed} elapsed, {remaining} left")
 
 
+def say_as(command: str, stream=None):
+    """A function that prints one line as `command: line`, flushed, on `stream` (default: stderr, beside a study's
+    progress), e.g. for studies.executors.compile_kernels."""
+    def say(line: str) -> None:
+        print(f"{command}: {line}", file=sys.stderr if stream is None else stream, flush=True)
+    return say
+
+
 def interrupted(command: str, reason: object, path: Path | None, total: int) -> str:
     """The line a study command prints when a stop signal ends it early: how many of `total` flights the log at
     `path` holds (its records as they are on disk: CSV rows after the header, or JSON lines), and where."""

@@ -361,8 +361,7 @@ def run_study(cases: list[Case], seeds: int, executor_spec: str = "local", worke
     flight's result as it arrives (None: none)."""
     flown, same_as = flown_cases(cases)
     tasks = [(case, seed) for case in flown for seed in range(1, seeds + 1)]
-    executor = make_executor(executor_spec, workers,
-                             say=lambda line: print(f"bof-swarm-study: {line}", file=sys.stderr, flush=True))
+    executor = make_executor(executor_spec, workers, say=reporting.say_as("bof-swarm-study"))
     results: list[dict | None] = [None] * len(tasks)
     # Each flight's result on disk as it arrives (a JSON line: task index, case, seed, rows, flight), so that an
     # interrupted study keeps what it flew; removed once the study's own files are written (main).

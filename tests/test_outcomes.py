@@ -18,6 +18,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from interfaces.overrides import format_assignment
 from interfaces.scenario import DIVERGENCE_RMS_M, SCENARIOS_DIR, ConfigError, load_scenario
 from studies import montecarlo
 from studies.closed_loop import Termination
@@ -218,11 +219,6 @@ EARLIER = {"guidance.excitation_speed": 4.0, "guidance.excitation_low": 0.05, "g
            "estimator.imm_turn_rates": [0.2, 0.4]}
 
 
-def _toml(value) -> str:
-    """A TOML literal of a float or a list of floats (as EARLIER holds them)."""
-    return "[" + ",".join(repr(v) for v in value) + "]" if isinstance(value, list) else repr(value)
-
-
 def _without_envelope(tmp_path, name: str):
     """A copy of a shipped scenario with [safety] enabled = false (the guidance law's commands as they are) and the
     EARLIER settings, which on stop_and_go lose the range, fly closer than r_d / 2 and tilt past the airframe's
@@ -233,7 +229,7 @@ def _without_envelope(tmp_path, name: str):
     for dotted, value in EARLIER.items():
         section, key = dotted.split(".")
         # the key on the line after its table's header (the header's own comment left as it is)
-        text, count = re.subn(rf"^\[{section}\][^\n]*\n", lambda header: f"{header.group(0)}{key} = {_toml(value)}\n",
+        text, count = re.subn(rf"^\[{section}\][^\n]*\n", lambda header: f"{header.group(0)}{format_assignment(key, value)}\n",
                               text, count=1, flags=re.MULTILINE)
         assert count == 1, section
     path = tmp_path / f"{name}.toml"
@@ -378,7 +374,7 @@ def test_the_closing_block_says_when_the_monitor_was_silent_while_wrong(loaded):
 def test_montecarlo_rows_and_table_count_divergence_and_breaches(tmp_path):
     code = montecarlo.main([str(SCENARIOS_DIR / "stop_and_go.toml"), "--runs", "1", "--executor", "serial",
                             "--case", "unguarded:safety.enabled=false," + ",".join(
-                                f"{key}={_toml(value)}" for key, value in EARLIER.items()), "--no-plots", "--quiet",
+                                format_assignment(key, value) for key, value in EARLIER.items()), "--no-plots", "--quiet",
                             "--out", str(tmp_path)])
     assert code == 0
     (folder,) = list(tmp_path.iterdir())
