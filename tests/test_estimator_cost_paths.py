@@ -1,7 +1,9 @@
-"""The closed forms and shortcuts of the u-PLKF and IMM updates against numpy's general routines, on random
+"""The closed forms and shortcuts of the u-PLKF and IMM updates against numpy's general routines or exact arithmetic, on
 inputs (hypothesis). Whole flights are the seed-1 figures' (tests/test_flight_figures.py)."""
 
 from __future__ import annotations
+
+from fractions import Fraction
 
 import numpy as np
 import pytest
@@ -18,11 +20,12 @@ from companion.core.imm import markov_matrix
 @settings(max_examples=300, deadline=None)
 @given(arrays(np.float64, (3, 3), elements=floats(-10.0, 10.0)), st.integers(-6, 6))
 def test_solve_identity_is_numpys_inverse_and_determinant(matrix, exponent):
-    """_solve_identity's M^-1 is np.linalg.inv(M) and its determinant np.linalg.det(M), to rounding (scaled by
-    M's condition number and Hadamard's bound on |det M|); M is reported singular only when numpy's det is 0 to rounding."""
+    """_solve_identity's M^-1 is np.linalg.inv(M) (to rounding scaled by M's condition number) and its determinant
+    the exact determinant of M's float entries (rational arithmetic, to rounding scaled by Hadamard's bound on
+    |det M|: numpy's LU determinant loses the small rows of a badly scaled M, even its sign); M is reported singular
+    only when its exact determinant is 0 to rounding."""
     matrix = matrix * 10.0**exponent
-    with np.errstate(divide="ignore"):  # numpy's det takes logarithms: a subnormal one warns
-        reference_determinant = np.linalg.det(matrix)
+    reference_determinant = float(_exact_determinant(matrix))
     hadamard = float(np.prod(np.abs(matrix).sum(axis=1)))  # |det M| <= the product of its rows' 1-norms
     inverse, determinant, regular = _solve_identity(matrix)
     if not regular:
@@ -33,6 +36,13 @@ def test_solve_identity_is_numpys_inverse_and_determinant(matrix, exponent):
     if condition < 1e8:
         reference = np.linalg.inv(matrix)
         np.testing.assert_allclose(inverse, reference, rtol=0.0, atol=1e-14 * condition * float(np.abs(reference).max()))
+
+
+def _exact_determinant(matrix: np.ndarray) -> Fraction:
+    """det M by cofactors in exact rational arithmetic on M's float64 entries (Fraction holds each exactly)."""
+    m = [[Fraction(float(value)) for value in row] for row in matrix]
+    return (m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]))
 
 
 def test_solve_identity_reports_an_exactly_singular_matrix():
