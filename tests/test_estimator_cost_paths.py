@@ -1,5 +1,5 @@
-"""The closed forms and shortcuts of the u-PLKF and IMM updates against numpy's general routines or exact arithmetic, on
-inputs (hypothesis). Whole flights are the seed-1 figures' (tests/test_flight_figures.py)."""
+"""The closed forms and shortcuts of the u-PLKF and IMM updates against numpy's general routines or exact
+arithmetic, on random inputs (hypothesis). Whole flights are the seed-1 figures' (tests/test_flight_figures.py)."""
 
 from __future__ import annotations
 
