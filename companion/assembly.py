@@ -272,7 +272,8 @@ def safety_envelope(scenario: Scenario, vehicle: VehicleConfig) -> SafetyEnvelop
                               speed_change_trigger=settings.speed_change_trigger,
                               speed_change_speed=settings.speed_change_speed,
                               speed_change_window=settings.speed_change_window,
-                              hover_standoff=settings.hover_standoff, hover_speed=settings.hover_speed)
+                              hover_standoff=settings.hover_standoff, hover_speed=settings.hover_speed,
+                              loop_delay_memory=settings.loop_delay_memory)
     except ValueError as error:
         raise ConfigError(f"safety: {error}") from None
 

@@ -69,6 +69,7 @@ class Follower:
         self.health_state = HealthState.OK
         self.health_action: HealthAction | None = None
         self._awaiting_setpoint: list["PendingFix"] = []
+        self._previous_setpoint_time: float | None = None  # s, vehicle time of the state the last setpoint came from
         #: companion.swarm_link.SwarmLink of a [swarm] scenario (None: one pursuer): its neighbours and their
         #: bearings go to the pipeline with the own ones, and it learns the own bearings it shares next
         self.swarm = None
@@ -128,6 +129,7 @@ class Follower:
     async def resume(self, sample: VehicleSample) -> None:
         """Re-engage after the autopilot had taken over: a fresh setpoint from the newest state, then offboard."""
         self.record_state(sample)
+        self._previous_setpoint_time = None  # the loop did not run late while the autopilot flew
         output = self.pipeline.step(sample.state.time, sample.state, None)
         await self.vehicle.start_offboard(output.setpoint)
 
@@ -205,6 +207,12 @@ class Follower:
         newest = self.vehicle.latest.state.time
         if newest - output.time > self.pipeline.control_period:
             self.deadline_misses += 1
+        # How late the loop ran: the vehicle flew the previous setpoint from the state it was computed from until
+        # this one went out (at the newest state), one control period when on time; the safety envelope plans
+        # with the excess (companion.core.safety, rule 1).
+        if self._previous_setpoint_time is not None:
+            self.pipeline.note_loop_delay(newest, newest - self._previous_setpoint_time - self.pipeline.control_period)
+        self._previous_setpoint_time = output.time
 
     def _log_row(self, sample: VehicleSample, output: PipelineOutput, bearings: list[BearingMeasurement], phase: str) -> dict:
         """Write the series row of this sample (companion.adapters.recorder.SERIES_COLUMNS) and return it."""

@@ -271,10 +271,12 @@ def envelope_lines(flight: dict) -> list[str]:
     if not record["closing_ticks"] and not record["heading_ticks"]:
         return ["  safety envelope: never acted"]
     headway, hover = record.get("speed_change_seconds", 0.0), record.get("hover_seconds", 0.0)
+    late = record.get("loop_delay_max", 0.0)
     return [f"  safety envelope acted: closing speed limited {record['closing_seconds']:.1f} s, "
             f"heading rate limited {record['heading_seconds']:.1f} s"
             + (f"; planned for a target changing speed {headway:.1f} s" if headway else "")
-            + (f"; kept off a slow target {hover:.1f} s" if hover else "")]
+            + (f"; kept off a slow target {hover:.1f} s" if hover else "")
+            + (f"; planned for a control loop up to {late:.2f} s late" if late else "")]
 
 
 def suspect_warning(flight: dict, reasons: list[str] | tuple[str, ...] = ()) -> str | None:

@@ -537,3 +537,52 @@ def test_the_default_headway_needs_no_setting_and_follows_the_estimator() -> Non
     assert _built_envelope(scenario).speed_change_latency == 1.0
     for changes in ({"estimator.kind": "uplkf"}, {"estimator.imm_manoeuvre_model": False}):
         assert _built_envelope(with_overrides(scenario, changes)).speed_change_latency == 0.0
+
+
+def _follow_with_noted_delays(memory: float, delays: dict[float, float], duration: float = 40.0):
+    """A pursuer following a constant-velocity target on bearings at 5 Hz (the pipeline with the envelope,
+    loop_delay_memory `memory` s), while a harness notes loop delays {vehicle time s: delay s}; returns the
+    envelope's record."""
+    from companion.assembly import vehicle_limits
+    from companion.core.estimators import GainProjection, InitialGuess, UPLKF
+    from companion.core.guidance import HelicalNavigationGuidance, RangeController
+    from companion.core.messages import BearingMeasurement, PursuerState
+    from companion.core.pipeline import FollowingPipeline
+    from interfaces.scenario import table1_vehicle
+
+    rng = np.random.default_rng(5)
+    estimator = UPLKF(0.02, 0.04 * np.eye(3), 1e-4 * np.eye(3), GainProjection.PREDICTED, pursuer_position_std=0.0)
+    pipeline = FollowingPipeline(estimator, HelicalNavigationGuidance(3.0, 3.5, 3.5), RangeController(8.0),
+                                 vehicle_limits(table1_vehicle(), 1.0 / 1.5), InitialGuess(50.0, 30.0, np.zeros(3), 5.0),
+                                 0.05, envelope=envelope(reaction_time=0.3, loop_delay_memory=memory))
+    p, v = np.zeros(3), np.array([2.0, 0.0, 0.0])
+    target, target_velocity = np.array([50.0, -25.0, -20.0]), np.array([3.0, 4.0, 0.0])
+    dt, command = 0.02, np.zeros(3)
+    for k in range(int(duration / dt) + 1):
+        t = k * dt
+        for at, delay in delays.items():
+            if abs(t - at) < dt / 2:
+                pipeline.note_loop_delay(t, delay)
+        bearing = None
+        if k % 10 == 0:
+            los = (target - p) / np.linalg.norm(target - p)
+            bearing = BearingMeasurement(t, los + rng.normal(0.0, 0.01, 3), p.copy())
+        output = pipeline.step(t, PursuerState(t, p.copy(), v.copy()), bearing)
+        if output.setpoint is not None:
+            command = output.setpoint.acceleration
+        v = v + command * dt
+        p = p + v * dt
+        target = target + target_velocity * dt
+    return pipeline.envelope_record
+
+
+def test_a_late_control_loop_lengthens_the_reaction_time_for_the_memory() -> None:
+    """Delays noted at 10 s (0.4 s) and 15 s (0.2 s) with a 10 s memory: the envelope plans with the largest, 0.4 s,
+    from 10 s until 25 s, when the last one is forgotten (15 s of control ticks); not kept: delays not above 0 or
+    not finite, and any with the memory 0."""
+    record = _follow_with_noted_delays(10.0, {10.0: 0.4, 15.0: 0.2, 30.0: 0.0, 32.0: -1.0, 34.0: math.nan})
+    assert record.loop_delay_max == pytest.approx(0.4)
+    assert record.loop_delay_seconds == pytest.approx(15.0, abs=0.1)
+    never = _follow_with_noted_delays(0.0, {10.0: 0.4, 15.0: 0.2})
+    assert never.loop_delay_max == 0.0 and never.loop_delay_seconds == 0.0
+    assert _follow_with_noted_delays(10.0, {}).as_dict()["loop_delay_seconds"] == 0.0

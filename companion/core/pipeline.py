@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import enum
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -279,6 +280,8 @@ class FollowingPipeline:
         self._rejected_in_row = 0
         self._blend_until = -np.inf
         self._last_command: np.ndarray | None = None
+        # (vehicle time s, delay s) of the control loop's late setpoints the harness measured (note_loop_delay)
+        self._loop_delays: deque[tuple[float, float]] = deque()
         self.mode_changes: list[tuple[float, TrackMode]] = []
         self.reinitializations = 0
         self.observability = WindowedObservability(observability_window, self.dropout.bearing_noise_std)
@@ -722,6 +725,27 @@ class FollowingPipeline:
         self._guidance = fast_frozen(GuidanceTerms, lateral=lateral, longitudinal=longitudinal, los=los,
                                      range_estimate=range_estimate)
 
+    def note_loop_delay(self, time: float, delay: float) -> None:
+        """The networked harness measured its control loop `delay` s late at vehicle time `time` (s): the vehicle
+        time from the state one setpoint was computed from to the newest state when the next went out, beyond the
+        control period. The safety envelope adds the largest delay of the last loop_delay_memory s to its
+        reaction time (companion.core.safety, rule 1); a delay that is not finite or not above 0 is not kept, nor
+        any without an envelope or with its loop_delay_memory 0."""
+        envelope = self.envelope
+        if envelope is None or envelope.loop_delay_memory <= 0.0:
+            return
+        if math.isfinite(time) and math.isfinite(delay) and delay > 0.0:
+            self._loop_delays.append((time, delay))
+            self._loop_delay(time)  # forget the ones past the memory now: at most memory / control period kept
+
+    def _loop_delay(self, time: float) -> float:
+        """The largest loop delay noted within the envelope's loop_delay_memory before `time` (s), 0 for none."""
+        delays = self._loop_delays
+        memory = self.envelope.loop_delay_memory
+        while delays and delays[0][0] < time - memory:
+            delays.popleft()
+        return max((delay for _, delay in delays), default=0.0) if delays else 0.0
+
     def _within_envelope(self, time: float, command: np.ndarray, los: np.ndarray, range_estimate: float,
                          estimate: TargetEstimate, pursuer: PursuerState, trusted: bool) -> tuple[np.ndarray, np.ndarray | None]:
         """The command (m/s^2, (3,)) within the safety envelope, and the horizontal heading for R_d (None before the
@@ -739,6 +763,11 @@ class FollowingPipeline:
             terms, raised = envelope.hover_terms(terms, estimate.velocity)
             if raised:
                 record.hover_seconds += self.control_period
+        delay = self._loop_delay(time)
+        if delay > 0.0:
+            terms = envelope.delayed_terms(terms, delay)
+            record.loop_delay_seconds += self.control_period
+            record.loop_delay_max = max(record.loop_delay_max, delay)
         heading_los = los
         if self._last_bearing is not None and time - self._last_bearing_time < self.dropout.coast_after:
             los = self._last_bearing  # the measured line of sight while fresh: a measurement, not the estimate

@@ -46,6 +46,14 @@ command after the law (and before the vehicle's own limits), with two rules:
    is below hover_speed: in full at rest, falling linearly to nothing at hover_speed. The pursuer then waits at
    that much more distance for the departure it cannot yet see.
 
+   **A control loop that runs late.** t_r is the airframe's answer to a command sent on time. A companion that
+   falls behind (a busy computer; a SITL run faster than real time, where every wall-clock millisecond of delay is
+   several of the vehicle's) leaves the vehicle flying an old setpoint for longer: the harness measures that
+   delay, the vehicle time from the state one setpoint was computed from to the newest state when the next went
+   out, beyond the control period (FollowingPipeline.note_loop_delay), and the envelope adds the largest of the
+   last loop_delay_memory s to t_r. A loop that keeps time adds nothing; the in-process simulator has no such
+   delay.
+
 2. **Heading rate.** The setpoint's heading is the line of sight's horizontal direction, turned
    towards at most max_yaw_rate (rad/s): a geometric attitude controller tracking a yaw step couples
    the yaw error into roll and pitch, and a pursuer close to a target whose bearing swings fast tilted
@@ -98,7 +106,8 @@ class SafetyEnvelope:
     trips without them). hover_standoff: m added to min_range while the target hovers (0: never; None, the
     default: interfaces.derived_defaults.safety_hover_standoff of target_max_acceleration), in full at rest and
     falling linearly to 0 at an estimated target speed of hover_speed (m/s) (module docstring, rule 1;
-    `hover_share`).
+    `hover_share`). loop_delay_memory: s a measured delay of the control loop is added to t_r for (0: never;
+    module docstring, rule 1).
     """
 
     min_range: float
@@ -121,6 +130,7 @@ class SafetyEnvelope:
     speed_change_window: float = 1.0
     hover_standoff: float | None = None
     hover_speed: float = 1.0
+    loop_delay_memory: float = 10.0
 
     def __post_init__(self) -> None:
         if self.hover_standoff is None:
@@ -135,7 +145,7 @@ class SafetyEnvelope:
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0.0):
                 raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)!r}")
         for name in ("reaction_time", "estimate_latency", "speed_change_latency", "speed_change_memory",
-                     "speed_change_speed", "hover_standoff"):
+                     "speed_change_speed", "hover_standoff", "loop_delay_memory"):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0.0):
                 raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)!r}")
         if not (math.isfinite(self.tilt_margin) and 0.0 <= self.tilt_margin < math.radians(20.0)):
@@ -172,6 +182,12 @@ class SafetyEnvelope:
         terms while the target has lately changed speed (module docstring, rule 1)."""
         latency = max(self.estimate_latency, self.speed_change_latency)
         return dataclasses.replace(self, estimate_latency=latency).kernel_terms
+
+    @staticmethod
+    def delayed_terms(terms: tuple[float, ...], delay: float) -> tuple[float, ...]:
+        """`terms` (kernel_terms, or those of the headway or the hover standoff) with the reaction time t_r, their
+        seventh, `delay` s longer (module docstring, rule 1: a control loop that runs late)."""
+        return (*terms[:6], terms[6] + delay, *terms[7:])
 
     def hover_share(self, velocity: np.ndarray) -> float:
         """The share of hover_standoff added to min_range for a target whose estimated velocity is `velocity`
@@ -403,9 +419,10 @@ class SpeedChangeLatch:
 @dataclass
 class EnvelopeRecord:
     """How often the envelope acted: control ticks whose closing speed it limited, and whose heading it
-    rate-limited, each with the simulated seconds of those ticks (ticks x control period); and the seconds it
-    planned with speed_change_latency (the target had lately changed speed) and those it kept some of
-    hover_standoff (the target was slow or hovering)."""
+    rate-limited, each with the simulated seconds of those ticks (ticks x control period); the seconds it
+    planned with speed_change_latency (the target had lately changed speed), those it kept some of
+    hover_standoff (the target was slow or hovering) and those it added a measured loop delay to the reaction
+    time, with the largest delay added (s)."""
 
     closing_ticks: int = 0
     heading_ticks: int = 0
@@ -413,8 +430,11 @@ class EnvelopeRecord:
     heading_seconds: float = 0.0
     speed_change_seconds: float = 0.0
     hover_seconds: float = 0.0
+    loop_delay_seconds: float = 0.0
+    loop_delay_max: float = 0.0
 
     def as_dict(self) -> dict:
         return {"closing_ticks": self.closing_ticks, "closing_seconds": self.closing_seconds,
                 "heading_ticks": self.heading_ticks, "heading_seconds": self.heading_seconds,
-                "speed_change_seconds": self.speed_change_seconds, "hover_seconds": self.hover_seconds}
+                "speed_change_seconds": self.speed_change_seconds, "hover_seconds": self.hover_seconds,
+                "loop_delay_seconds": self.loop_delay_seconds, "loop_delay_max": self.loop_delay_max}

@@ -63,7 +63,9 @@ class SafetyConfig(_Strict):
     (interfaces.derived_defaults). hover_standoff: m added to min_range while the target is slow (0: never), in
     full at rest, falling linearly to 0 at an estimated target speed of hover_speed m/s: a hovering target may
     leave straight at the pursuer, which the bearings show late; by default the distance a target at [estimator]
-    target_max_acceleration covers from rest in 2 s (6 m at 3 m/s^2).
+    target_max_acceleration covers from rest in 2 s (6 m at 3 m/s^2). loop_delay_memory: s for which a delay of
+    the networked companion's control loop it measured (the vehicle flew a setpoint longer than the control
+    period) is added to reaction_time (0: never).
     """
 
     enabled: bool = True
@@ -83,6 +85,7 @@ class SafetyConfig(_Strict):
     speed_change_window: Annotated[float, Field(gt=0.0, le=60.0)] = 1.0
     hover_standoff: Annotated[float, Field(ge=0.0, le=100.0)] | None = None
     hover_speed: Annotated[float, Field(gt=0.0, le=50.0)] = 1.0
+    loop_delay_memory: Annotated[float, Field(ge=0.0, le=3600.0)] = 10.0
 
 
 HealthReasonName = HealthReason  # the monitor's reasons, as the link payloads name them
