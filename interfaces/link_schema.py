@@ -1,146 +1,16 @@
 """The Zenoh link shared by every process: key expressions and the declared JSON payloads.
 
-In the paper's flight experiment the target's position reached the pursuer over a
-Zigbee radio; here it travels over Zenoh. Three processes meet on one loopback
-network: the SITL plant (owns simulated time and publishes it), the target simulator
-(`sitl-target`) and the companion, plus any ground-station subscriber.
+The plant (simulated time), the target simulator and the companion, plus any ground-station subscriber, meet on
+one loopback Zenoh network. The keys, the payloads (strict pydantic models: no coercion, no NaN or infinity,
+unknown fields refused; every one carries the envelope schema, sender, seq and stamp, the stamp in simulated
+seconds), their versions and the refusal reasons are described for users in docs/reference/zenoh.md; a
+change of fields is a new schema version, and a change here is a change there.
 
-Key expressions
----------------
-=============================  ===================  ============================
-key                            payload              published by
-=============================  ===================  ============================
-``bof/sim/clock``              ``bof.clock/1``      the plant, every tick
-``bof/target/<sender>/fix``    ``bof.target_fix/2`` the target (``sitl-target``)
-``bof/companion/<id>/state``   ``bof.companion_state/1``  the companion
-``bof/companion/<id>/command`` ``bof.command/2``    a ground station (abort)
-``bof/target/<sender>/command`` ``bof.command/2``   a ground station (start)
-``bof/swarm/<pursuer>/share``  ``bof.pursuer_share/1``  pursuer <pursuer>'s companion
-=============================  ===================  ============================
-
-Schema versions (decoders take every version listed; encoders write the newest):
-
-=====================  =======  ===============================================================
-payload                version  fields
-=====================  =======  ===============================================================
-``bof.target_fix``     1        envelope, frame, position, velocity
-``bof.target_fix``     2        v1 + ``epoch`` (required)
-``bof.command``        1        envelope, command, detail
-``bof.command``        2        v1 + ``epoch`` (required)
-``bof.pursuer_share``  1        envelope (integer sender), epoch, position, velocity, bearing,
-                                estimate
-=====================  =======  ===============================================================
-
-``epoch`` (int, 0 <= epoch < 2**63) is the publisher's boot id: drawn at random when the
-publishing process starts, so a restarted publisher has a new epoch and its ``seq`` starts
-at 0 again. A receiver orders ``seq`` and ``stamp`` per (sender, epoch) (companion.core.
-fix_validator). A decoded v1 payload has ``epoch`` None; an encoder given an envelope whose
-epoch is None writes v1 (only for senders that have no boot id), else v2.
-
-Payloads are UTF-8 JSON objects (Zenoh encoding ``application/json``), each declared
-as a pydantic model below (strict: no type coercion, no NaN/inf, unknown fields
-refused). Every one carries the `Envelope`: ``schema`` (name/version), ``sender`` (its
-author, 1-64 characters from ``A-Z a-z 0-9 _ . -``, also usable as a key segment),
-``seq`` (int >= 0, +1 per message of that sender and key, from 0 in each epoch) and ``stamp`` (float >= 0,
-**simulated seconds** of the sender's clock, i.e. of the plant's ``bof/sim/clock``).
-Any change of fields is a new schema version.
-
-* ``bof.target_fix/2`` (`TargetFixPayloadV2`; v1: `TargetFixPayload`): ``epoch``, ``frame`` is ``"geodetic"`` (``position`` =
-  [lat_deg, lon_deg, alt_m_amsl], WGS-84) or ``"ned"`` (``position`` = [n, e, d] m in
-  the shared local NED frame, origin at home, z down); optional ``velocity`` = [vn, ve,
-  vd] m/s, NED in both frames (as GNSS receivers report it).
-* ``bof.clock/1`` (`ClockPayload`): the envelope only; ``stamp`` is the plant's simulated time.
-* ``bof.command/2`` (`CommandPayloadV2`; v1: `CommandPayload`): ``epoch``, ``command`` (one of ``COMMANDS``: ``"abort"``,
-  ``"resume"`` for a companion, ``"start"`` for a target waiting for its action
-  command) and an optional ``detail`` (free text, <= 200 characters, for the logs).
-* ``bof.companion_state/1`` (`CompanionState`): the envelope plus ``phase`` (the
-  companion's phase: waiting, arming, taking_off, ready, following, vehicle_link_lost,
-  aborting, landing, done, failed), ``pursuer`` {``position``, ``velocity``} (NED m,
-  m/s), ``link`` {``received``, ``accepted``, ``rejected`` (count by reason),
-  ``bearings_used``, ``bearings_dropped`` (count by reason), ``last_seq``,
-  ``last_stamp`` (s), ``last_fix_age_wall`` (wall s), ``contested`` (the track is held: two
-  sources in the target's epoch), ``contests`` (holds so far)}, ``setpoints_sent``, and once
-  there is one: ``track`` {``mode``, ``bearing_age`` (s)}, ``observability``
-  {``log_det``, ``min_eigenvalue``, ``spread``, ``count``}, ``health`` (the filter-health
-  monitor, companion.core.health) {``state`` (``"ok"`` or ``"suspect"``), ``reasons``
-  (list, each one of ``nis``, ``range_uncertain``, ``behind_sensor``,
-  ``range_implausible``, ``range_unobservable``), ``nis_ratio`` (windowed NIS over its
-  bound, > 1 is inconsistent; null while the window is short), ``relative_range_std``
-  (sigma_r / r^), optionally ``action`` (what the companion does about it:
-  ``"off"`` reports only, ``"nominal"``, ``"recovering"`` while suspect and acting) and
-  ``process_noise_boost`` (factor on the estimator's Q, 1 when none)} and ``estimate`` {``time``
-  (s), ``position``, ``velocity`` (NED m, m/s), ``position_std``, ``velocity_std``
-  (m, m/s: sqrt of the mean diagonal of the covariance block), ``range`` (m)}, and with the
-  interacting-multiple-model estimator ``model_probabilities`` {model name: probability in
-  [0, 1]} (names like ``"cv"``, ``"ct+0.2"``: constant velocity, coordinated turn at +0.2
-  rad/s; companion.core.imm; optional, absent with any other estimator, so payloads without
-  it decode as before). A
-  number may be ``null`` ("no value", e.g. log_det of a singular information
-  matrix): `encode_state` turns NaN and +-inf into null.
-
-* ``bof.pursuer_share/1`` (`PursuerSharePayload`, decoded as `PursuerShare`): what one pursuer of several
-  tells the others (docs/guide/swarm.md). ``sender`` is the pursuer id, an
-  integer in [1, `MAX_PURSUER_ID`] (not a name: it is also the key segment), then ``epoch``, ``seq``,
-  ``stamp`` (s, the sender's vehicle clock) as for a fix; ``position`` and ``velocity`` (NED m, m/s: the
-  sender's own state at ``stamp``); ``bearing``: null (no bearing yet) or {``stamp`` (s, when it was
-  taken, <= the envelope's stamp), ``direction`` (NED, the measured line of sight as the sensor gave it:
-  not necessarily unit, its norm in [`MIN_BEARING_NORM`, `MAX_BEARING_NORM`]), ``position`` (NED m, the
-  sender's own position at the bearing's stamp: the projection centre a receiver must use)}; optional
-  ``estimate`` {``stamp`` (s, <= the envelope's), ``position``, ``velocity`` (NED m, m/s: the sender's
-  target estimate), ``covariance`` (6 x 6 over [position, velocity], m^2, m^2/s, (m/s)^2: a flat list of 36
-  numbers row by row, or 6 lists of 6; symmetric to a relative 1e-9 and positive semidefinite, each entry
-  within +-`MAX_COVARIANCE`; refused as ``bad_covariance`` otherwise)}. The encoder writes the flat form.
-
-Decoding bytes never raises anything but `PayloadError`, whose ``reason`` is one of
-`REASONS`; the first problem found wins (size, UTF-8, JSON, object, schema, unknown
-then missing fields, then field by field in the order listed above):
-
-==================  ==============================================================
-``too_large``       more than `MAX_PAYLOAD_BYTES` bytes
-``not_utf8``        not valid UTF-8
-``not_json``        not JSON (or nested deeper than Python's parser allows)
-``not_object``      JSON, but not an object
-``missing_field``   a required field is absent (``schema`` included)
-``wrong_schema``    ``schema`` is not this decoder's name/version
-``unknown_field``   a field this schema version does not define
-``wrong_type``      a field has the wrong JSON type or length (booleans are not numbers),
-                    or a health ``state``/``reasons`` string not in its list
-``not_finite``      NaN or +-Infinity where a number is required
-``bad_sender``      ``sender`` empty, too long, or not ``[A-Za-z0-9_.-]``; a pursuer share's
-                    ``sender`` outside [1, `MAX_PURSUER_ID`]
-``bad_frame``       ``frame`` is a string other than ``"geodetic"`` / ``"ned"``
-``unknown_command`` ``command`` is a string not in `COMMANDS`
-``bad_covariance``  a shared estimate's covariance is not symmetric or not positive semidefinite
-``out_of_range``    a number outside its domain: seq or epoch < 0 or >= 2**63, stamp < 0 or
-                    > 1e9 s, latitude outside [-90, 90], longitude outside [-180,
-                    180], altitude outside [-1e3, 1e5] m, |NED coordinate| > 1e6 m,
-                    |velocity component| > 1e3 m/s, detail longer than 200 chars,
-                    a count < 0, an integer too large for a float; in a pursuer share, a bearing
-                    norm outside [1e-2, 1e2], a bearing or estimate stamped after the share,
-                    |covariance entry| > 1e12
-==================  ==============================================================
-
-The ``encode_*`` functions check their input with the same models, so nothing a
-decoder would refuse is ever sent (they raise `PayloadError` too).
-
-Geodesy lives in `interfaces.geodesy`, the Zenoh session (topology, loopback-only
-configuration) in `interfaces.zenoh_transport`.
-
-Usage::
-
-    session = open_session(zenoh_config(connect=["tcp/127.0.0.1:7447"]))
-    fixes = publisher(session, target_fix_key("target-1"))
-    epoch = new_epoch()                         # once per process: its boot id
-    fixes.put(encode_target_fix(TargetFix("target-1", seq, stamp, "ned", (10.0, 5.0, -20.0), epoch=epoch)))
-
-    def on_clock(sample):                       # runs on a Zenoh thread
-        try:
-            tick = decode_clock(sample.payload)
-        except PayloadError as error:
-            rejected[error.reason] += 1
-    clock = session.declare_subscriber(CLOCK_KEY, on_clock)
-    ...
-    session.close()
+Decoding bytes never raises anything but `PayloadError`, whose ``reason`` is one of `REASONS` (the first problem
+found wins: size, UTF-8, JSON, object, schema, unknown then missing fields, then field by field). The
+``encode_*`` functions check their input with the same models, so nothing a decoder would refuse is ever sent.
+Geodesy lives in `interfaces.geodesy`, the Zenoh session (topology, loopback-only configuration) in
+`interfaces.zenoh_transport`.
 """
 
 from __future__ import annotations

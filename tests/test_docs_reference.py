@@ -56,3 +56,25 @@ def test_the_equation_page_lists_the_method(generator):
                 "| eq. (14) | `companion.core.guidance.HelicalNavigationGuidance.acceleration` |",
                 "| eq. (21)-(22) | `companion.core.attitude.attitude_setpoint` |"):
         assert row in page, row
+
+
+def test_the_zenoh_page_names_every_key_schema_and_refusal_of_the_link_schema_and_no_other():
+    """docs/reference/zenoh.md is written by hand: it must name every schema version and refusal reason
+    interfaces.link_schema declares (and no reason it does not), and every key expression its key functions build."""
+    import re
+
+    from interfaces import link_schema
+
+    page = (Path(__file__).resolve().parent.parent / "docs" / "reference" / "zenoh.md").read_text()
+    schemas = {value for name, value in vars(link_schema).items() if name.endswith(("_SCHEMA", "_SCHEMA_V1"))}
+    for schema in schemas:
+        name, version = schema.split("/")
+        assert f"`{schema}`" in page or re.search(rf"`{re.escape(name)}` \| {version} \|", page), schema
+    refusals = set(re.findall(r"^\| `([a-z0-9_]+)` \| ", page.split("## Refusals")[1], flags=re.M))
+    assert refusals == set(link_schema.REASONS)
+    keys = {link_schema.CLOCK_KEY, link_schema.target_fix_key("S"), link_schema.companion_state_key("I"),
+            link_schema.companion_command_key("I"), link_schema.target_command_key("S"),
+            link_schema.pursuer_share_key(7)}
+    shown = {key.replace("<sender>", "S").replace("<id>", "I").replace("<pursuer>", "7")
+             for key in re.findall(r"^\| `(bof/[^`]+)` \|", page, flags=re.M)}
+    assert shown == keys
