@@ -78,3 +78,21 @@ def test_the_zenoh_page_names_every_key_schema_and_refusal_of_the_link_schema_an
     shown = {key.replace("<sender>", "S").replace("<id>", "I").replace("<pursuer>", "7")
              for key in re.findall(r"^\| `(bof/[^`]+)` \|", page, flags=re.M)}
     assert shown == keys
+
+
+def test_the_link_faults_page_describes_every_fault_key_and_corruption_kind():
+    """docs/reference/link-faults.md is written by hand: every key of [faults] and [faults.burst] appears on it,
+    every corruption kind with the refusal reason sitl_plant's CORRUPTION_REASONS gives it, and every random
+    stream."""
+    import re
+
+    from interfaces.scenario.faults import BurstLossConfig, FaultsConfig
+    from sitl_plant.world.link_faults import CORRUPTION_REASONS, STREAMS
+
+    page = (Path(__file__).resolve().parent.parent / "docs" / "reference" / "link-faults.md").read_text()
+    keys = (set(FaultsConfig.model_fields) | set(BurstLossConfig.model_fields)) - {"burst", "mavlink"}
+    assert {key for key in keys if f"`{key}`" not in page} == set()
+    rows = dict(re.findall(r"^ *\| `([a-z_0-9]+)` \| `([a-z_0-9]+)` \|", page, flags=re.M))
+    assert rows == CORRUPTION_REASONS
+    streams = page.split("one stream per fault kind (")[1].split(")")[0]
+    assert [name.strip() for name in streams.split(",")] == list(STREAMS)

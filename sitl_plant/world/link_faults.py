@@ -1,123 +1,22 @@
 """Fault injection on the target -> companion link, on the simulated clock.
 
-The paper's flight campaign lost 2 of about 30 flights to the Zigbee link dropping;
-`LinkFaults` reproduces such links between the target publisher and the companion.
-It works on payload bytes, keeps no clock of its own (every call says what simulated
-time it is) and does no I/O, so the same model serves the in-process simulator and
-`sitl-target`:
+The paper's flight campaign lost 2 of about 30 flights to the Zigbee link dropping; `LinkFaults` reproduces such
+links between the target publisher and the companion. It works on payload bytes, keeps no clock of its own
+(every call says what simulated time it is) and does no I/O, so the same model serves the in-process simulator
+and `sitl-target`:
 
     faults = LinkFaults(scenario.faults, fault_rng(scenario.faults, scenario.simulation.seed))
     faults.offer(now, encode_target_fix(fix), scenario_time)   # each fix as it is produced
     for payload in faults.due(now):                             # each clock tick
         publish(payload)
 
-Times: ``now`` is simulated time, s (the plant's clock); ``scenario_time`` is s since the
-target started its scenario (negative or -inf before: no window applies). Blackout
-windows are in scenario time, so "a blackout at 30 s" is 30 s into the scenario in
-every harness. Delivery times are simulated time; `due` releases a message on the first
-call whose ``now`` reaches its delivery time, so the harness's tick period is the
-resolution of every delay.
-
-What happens to one offered message, in this order
----------------------------------------------------
-1. **blackout** (``blackouts = [{start, duration}]``): offered with start <= scenario
-   time < start + duration: dropped, with everything derived from it (no duplicate, no
-   stale copy). One ``blackout_start`` event when a window is entered and one
-   ``blackout_end`` when it is left (noticed by the next `offer` or `due`), whose detail
-   counts the messages dropped; counters["blackout_drop"] counts them too. Messages
-   already in flight when a window opens are still delivered.
-2. **independent loss** (``loss_probability`` p): dropped with probability p.
-3. **bursty loss** (``[faults.burst]``, Gilbert-Elliott): a good/bad Markov chain,
-   starting good and stepped once per offered message (not before the first): good ->
-   bad with p_good_to_bad, bad -> good with p_bad_to_good; the message is then lost
-   with loss_in_good or loss_in_bad (default 0 and 1). Given as mean_burst_s /
-   mean_gap_s instead, each step uses p = dt / mean (capped at 1) with dt the simulated
-   time since the previous offered message: at a steady period T that is exactly
-   p_bad_to_good = T / mean_burst_s and p_good_to_bad = T / mean_gap_s, so the mean
-   burst lasts mean_burst_s at any rate ("mean burst 2 s" at 5 Hz: 10 messages).
-4. **corruption** (``corrupt_probability``): the bytes are replaced by a broken
-   version, the kind drawn uniformly from ``corrupt_kinds``; `CORRUPTION_REASONS` maps
-   each kind to the `interfaces.link_schema.PayloadError` reason the decoder gives it:
-
-   =================== ============== ============================================
-   ``invalid_utf8``    not_utf8       a 0xFF byte inserted in the middle
-   ``truncated_json``  not_json       cut to a random proper prefix
-   ``missing_field``   missing_field  one required field (random) removed
-   ``non_finite``      not_finite     a position component NaN, Infinity or
-                                      -Infinity (JSON text as Python's json writes)
-   ``string_number``   wrong_type     a position component as the string "NaN"
-   ``absurd_position`` out_of_range   latitude 1000 deg (geodetic) or a NED
-                                      coordinate 1e9 m
-   =================== ============== ============================================
-
-   The JSON kinds need a fix-like JSON object; on other bytes they fall back to
-   ``invalid_utf8`` (said in the event's detail).
-5. **delay**: latency_s + U(0, jitter_s) (uniform, so never negative and never more
-   than latency_s + jitter_s). A jitter above the message period reorders messages by
-   itself. One ``delay`` event per delayed message.
-   **stall** (``stalls = [{start, duration}]``, scenario time): a message offered inside a
-   window is held to the window's end (after its delay), so the whole window arrives back to back
-   with its own stamps, as from a publisher that was frozen and caught up. One ``stall`` event
-   per window, at its first held message. No draws: stalls change no other fault's draws.
-6. **reordering** (``reorder_probability``): the message is held back a further
-   ``reorder_delay_s`` (default 0.3 s, above one 5 Hz period) so the next one
-   overtakes it.
-7. **duplication** (``duplicate_probability``): a second copy of the (possibly
-   corrupted) bytes, ``duplicate_delay_s`` after the first.
-8. **stale** (``stale_probability``): *in addition to* the current message, a copy of
-   an older original payload (one drawn uniformly from those offered stale_min_age_s
-   to stale_max_age_s ago; none if there is none yet) is delivered right after it; it
-   carries its old stamp and seq.
-
-**Impostor** (``impostor_rate_hz`` > 0): a second publisher on the same key, as
-``impostor_sender``, at ticks k / impostor_rate_hz of simulated time from the first
-offered fix on: a copy of the latest offered fix that decodes, re-encoded with the
-impostor's sender, its own seq (from 0), the tick as stamp and the position moved by
-``impostor_offset`` (NED m; for a geodetic fix, NED about the fix itself). It is
-another transmitter: blackouts, loss, delay and corruption do not touch it; it is
-delivered at its tick. One ``impostor`` event per message.
-
-**Attacks** (each off by default; times in scenario seconds, like blackouts; each attack
-message is another transmitter's: no loss, delay or corruption touches it, it is delivered at
-once; one event per message, kind ``attack_<name>``). They need a fix that decodes to copy
-(the latest genuine one offered):
-
-* ``future_seq_at``: at the first fix offered at or after it, one extra copy with seq + 2**62
-  (capped at 2**63 - 1), same epoch, stamped 10 ms later (so that only its seq is wrong), right
-  after the genuine fix.
-* ``future_stamp_at``: one extra copy stamped 1e6 s ahead, seq + 1.
-* ``replay_at``: the last ``replay_count`` genuine fixes offered (as they were offered, old
-  seq and stamp) sent again, back to back.
-* ``restart_at``: the genuine publisher restarts: its fixes offered in
-  [restart_at, restart_at + restart_gap_s) are not sent (counters["restart_drop"]), the
-  later ones carry a new epoch (drawn from the "attack" stream) and seq from 0 (the first one
-  sent after the gap). This rewrites the genuine stream before every other fault, as a real
-  restart would (event ``target_restart``).
-* ``spoof_burst_at``: ``spoof_burst_count`` fixes as the target's sender, at the latest
-  genuine position + ``spoof_offset`` (NED m), stamped now + 20 ms x k.
-* ``spoof_rate_hz`` > 0: a steady spoofer as the target's sender from scenario time
-  ``spoof_from`` on (for ``spoof_duration`` s, or to the end), at ticks k / spoof_rate_hz of simulated time: the latest genuine
-  position + ``spoof_offset`` (+ ``spoof_drift`` m/s x the time since ``spoof_from``: a patient liar
-  drifting slowly off the genuine track), the tick as stamp (a plausible-looking track beside the real one).
-
-The spoofer's seq is the latest genuine seq + ``spoof_seq_lead`` (then +1 per message at
-least); its epoch is its own (``spoof_epoch = "own"``, drawn once) or the genuine one it
-overheard (``"target"``).
-
-Events and counters: every injected fault is a `FaultEvent` (simulated time of the
-`offer`/`due` call that injected or noticed it, kind, a human-readable detail, and its
-figures as fields: ``seq`` of the message affected (None when the payload is no JSON
-object with an integer seq), ``state``, ``corruption`` (the kind applied), ``delay_s``,
-``held_back_s``, ``after_s``, ``stale_seq`` and ``age_s``, ``window_start``/``window_end``
-and ``dropped``, ``discarded``, the impostor's ``sender`` and ``stamp``) in ``events``;
-``counters`` counts events by kind, plus ``blackout_drop``.
-
-Randomness: only the Generator given. It is split once into one child generator per
-fault kind (`STREAMS`, fixed order), and every enabled kind draws the same number of
-values for every offered message, whatever happened to it. So the i-th message meets
-the same draws of each kind whatever else is enabled: enabling duplication does not
-change which messages the independent loss drops (useful for campaigns that add one
-fault at a time). Same config, same seed, same calls: same bytes, same events.
+``now`` is simulated time, s (the plant's clock); ``scenario_time`` is s since the target started its scenario
+(negative or -inf before: no window applies). `due` releases a message on the first call whose ``now`` reaches
+its delivery time. What each fault does to one offered message, in the order `offer` applies them (blackout,
+loss, bursty loss, corruption, delay and stall, reordering, duplication, stale), the impostor and the attacks
+(other transmitters), the events and counters, and the randomness (one child generator per kind, `STREAMS`,
+each drawing the same number of values per message whatever else is enabled) are described for users in
+docs/reference/link-faults.md; a change here is a change there.
 """
 
 from __future__ import annotations
