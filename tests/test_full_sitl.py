@@ -343,6 +343,11 @@ def test_a_stalled_target_process_costs_no_bearing(tmp_path, scenario_path):
     # (at 5x a wall-clock delay counts five times); 5.5-8.3 m in five such runs with it, which measured delays of
     # 0.5-2.2 s of vehicle time.
     assert summary["flight"]["min_range"] > 0.5 * summary["flight"]["desired_range"], summary["flight"]
+    # The companion measured its own loop as it flew (the vehicle time each setpoint was flown beyond the control
+    # period) and the envelope planned with it: above 0 in every SITL flight, since the control ticks (20 Hz) fall
+    # on odometry samples (50 Hz) and most come 0.06 s apart.
+    envelope = summary["companion"]["envelope"]
+    assert envelope["loop_delay_max"] > 0.0 and envelope["loop_delay_seconds"] > 0.0, envelope
 
 
 def test_a_stop_and_go_target_is_flown_end_to_end_and_judged_by_the_truth(tmp_path, scenario_path):
