@@ -736,15 +736,18 @@ class FollowingPipeline:
             return
         if math.isfinite(time) and math.isfinite(delay) and delay > 0.0:
             self._loop_delays.append((time, delay))
-            self._loop_delay(time)  # forget the ones past the memory now: at most memory / control period kept
+            self._forget_loop_delays(time)  # so that at most memory / control period are kept
+
+    def _forget_loop_delays(self, time: float) -> None:
+        """Drop the loop delays noted more than the envelope's loop_delay_memory before `time` (s)."""
+        delays, oldest = self._loop_delays, time - self.envelope.loop_delay_memory
+        while delays and delays[0][0] < oldest:
+            delays.popleft()
 
     def _loop_delay(self, time: float) -> float:
         """The largest loop delay noted within the envelope's loop_delay_memory before `time` (s), 0 for none."""
-        delays = self._loop_delays
-        memory = self.envelope.loop_delay_memory
-        while delays and delays[0][0] < time - memory:
-            delays.popleft()
-        return max((delay for _, delay in delays), default=0.0) if delays else 0.0
+        self._forget_loop_delays(time)
+        return max((delay for _, delay in self._loop_delays), default=0.0)
 
     def _within_envelope(self, time: float, command: np.ndarray, los: np.ndarray, range_estimate: float,
                          estimate: TargetEstimate, pursuer: PursuerState, trusted: bool) -> tuple[np.ndarray, np.ndarray | None]:
